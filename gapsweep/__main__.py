@@ -1,0 +1,3 @@
+from gapsweep.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,242 @@
+"""Self-affine random-phase rough surfaces (MODEL.md M2).
+
+A surface is ``h(r) = sum_q h~(q) exp(i q.r)`` on a periodic ``n x n`` grid of side ``length`` (M1), with
+``q = 2 pi (kx, ky) / length`` and the isotropic power spectrum
+
+    C(q) = C0 (q / q_l)^(-2H-2)   for q_l <= |q| <= q_s,   zero elsewhere,
+
+``q_l = 2 pi / lambda_l``, ``q_s = 2 pi / lambda_s``. Amplitudes follow M2: ``h~(q) = sqrt(C(q)/A) exp(2 pi i X_q)``
+(``amplitudes="fixed"``, the paper's choice) or a complex Gaussian of the same mean square (``"gaussian"``,
+Rayleigh amplitudes). Array axis 0 is x, axis 1 is y; heights carry the units of ``length``.
+
+Resolution independence (M2): the random numbers of a mode are a counter-based hash of ``(seed, kx, ky)``, not a
+draw from a sequential stream, and the mode set ``q_l <= |q| <= q_s`` does not depend on ``n``. Hence one seed
+gives the same ``h~(q)`` on every grid that carries ``q_s``, and the surface at ``2n`` is the surface at ``n``
+sampled twice as finely (up to rounding). Normalisation by ``rms_slope`` or ``rms_height`` is applied to that
+fixed mode set, so it holds exactly (to rounding) for every discrete grid as well.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import numpy as np
+
+__all__ = [
+    "continuum_rms_height",
+    "fourier_coefficients",
+    "mode_set",
+    "rms_height",
+    "rms_slope",
+    "self_affine",
+    "spectrum",
+    "wavevectors",
+]
+
+_U64 = np.uint64
+_MASK = (1 << 64) - 1
+# Relative slack when testing |k| against the cut-offs, so that a mode exactly on q_l or q_s is kept
+# whatever the floating-point rounding of L/lambda.
+_EDGE = 1e-9
+
+
+def _finite_positive(name: str, value: float) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a real number, got {value!r}") from None
+    if not math.isfinite(v) or v <= 0.0:
+        raise ValueError(f"{name} must be finite and > 0, got {value!r}")
+    return v
+
+
+def _splitmix64(x: np.ndarray) -> np.ndarray:
+    """SplitMix64 finaliser (Steele, Lea & Flood 2014): a bijective 64-bit mixer, vectorised (wraps mod 2^64)."""
+    x = (x + _U64(0x9E3779B97F4A7C15)) & _U64(_MASK)
+    x = ((x ^ (x >> _U64(30))) * _U64(0xBF58476D1CE4E5B9)) & _U64(_MASK)
+    x = ((x ^ (x >> _U64(27))) * _U64(0x94D049BB133111EB)) & _U64(_MASK)
+    return x ^ (x >> _U64(31))
+
+
+def _uniform(seed: int, stream: int, kx: np.ndarray, ky: np.ndarray) -> np.ndarray:
+    """Uniform numbers in [0, 1) keyed by (seed, stream, kx, ky): independent of grid size and ordering."""
+    off = _U64(1 << 31)
+    with np.errstate(over="ignore"):
+        x = _splitmix64(np.full(kx.shape, (seed * 4 + stream) & _MASK, dtype=_U64))
+        x = _splitmix64(x ^ (kx.astype(np.int64) + np.int64(1 << 31)).astype(_U64))
+        x = _splitmix64(x ^ ((ky.astype(np.int64) + np.int64(1 << 31)).astype(_U64) * off))
+    return (x >> _U64(11)).astype(np.float64) * (1.0 / 9007199254740992.0)
+
+
+def wavevectors(n: int, length: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Full-grid wavevectors ``(qx, qy, |q|)`` in numpy FFT order, shape ``(n, n)``, units rad/length (M1, M2)."""
+    n = _check_n(n)
+    length = _finite_positive("length", length)
+    k = np.fft.fftfreq(n, d=1.0 / n)
+    qx, qy = np.meshgrid(2 * np.pi * k / length, 2 * np.pi * k / length, indexing="ij")
+    return qx, qy, np.hypot(qx, qy)
+
+
+def _check_n(n: int) -> int:
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)):
+        raise TypeError(f"n must be an integer, got {n!r}")
+    if n < 2:
+        raise ValueError(f"n must be >= 2, got {n}")
+    return int(n)
+
+
+def mode_set(
+    hurst: float, *, lambda_l: float, lambda_s: float, length: float = 1.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Integer wave numbers ``(kx, ky)`` of the canonical half plane (``ky > 0`` or ``ky == 0, kx > 0``) with
+    ``q_l <= |q| <= q_s`` and the spectral shape ``(q/q_l)^(-2H-2)`` at each (M2). Independent of the grid."""
+    kl, ks = length / lambda_l, length / lambda_s
+    kmax = int(math.floor(ks * (1 + _EDGE)))
+    k = np.arange(-kmax, kmax + 1)
+    kx, ky = np.meshgrid(k, np.arange(0, kmax + 1), indexing="ij")
+    kx, ky = kx.ravel(), ky.ravel()
+    k2 = (kx * kx + ky * ky).astype(np.float64)
+    keep = (k2 >= (kl * kl) * (1 - _EDGE)) & (k2 <= (ks * ks) * (1 + _EDGE)) & ((ky > 0) | (kx > 0))
+    kx, ky, k2 = kx[keep], ky[keep], k2[keep]
+    shape = (np.sqrt(k2) / kl) ** (-2.0 * hurst - 2.0)
+    return kx, ky, shape
+
+
+def self_affine(
+    n: int,
+    hurst: float,
+    *,
+    lambda_l: float,
+    lambda_s: float,
+    length: float = 1.0,
+    rms_slope: float | None = None,
+    rms_height: float | None = None,
+    c0: float | None = None,
+    amplitudes: Literal["fixed", "gaussian"] = "fixed",
+    seed: int = 0,
+) -> np.ndarray:
+    """Random-phase self-affine surface ``h`` of shape ``(n, n)`` (M2), zero mean, real, units of ``length``.
+
+    Exactly one of ``rms_slope`` (``g_rms``, dimensionless), ``rms_height`` (``h_rms``, length) or ``c0``
+    (``C0``, length^4, with ``h~(q) = sqrt(C(q)/A) exp(i phase)``) fixes the spectrum; none given means
+    ``rms_slope=1`` (the paper's default). The grid must carry ``q_s``: ``n > 2 length / lambda_s``.
+    """
+    n = _check_n(n)
+    if isinstance(hurst, bool):
+        raise TypeError("hurst must be a real number")
+    hurst = float(hurst)
+    if not (math.isfinite(hurst) and 0.0 < hurst < 1.0):
+        raise ValueError(f"hurst must lie in (0, 1), got {hurst!r}")
+    length = _finite_positive("length", length)
+    lambda_l = _finite_positive("lambda_l", lambda_l)
+    lambda_s = _finite_positive("lambda_s", lambda_s)
+    if lambda_s >= lambda_l:
+        raise ValueError(f"lambda_s must be < lambda_l, got lambda_s={lambda_s!r} >= lambda_l={lambda_l!r}")
+    if lambda_l > length * (1 + _EDGE):
+        raise ValueError(f"lambda_l must be <= length={length!r} (periodic box), got {lambda_l!r}")
+    given = {k: v for k, v in (("rms_slope", rms_slope), ("rms_height", rms_height), ("c0", c0)) if v is not None}
+    if len(given) > 1:
+        raise ValueError(f"give exactly one of rms_slope, rms_height, c0; got {sorted(given)}")
+    if not given:
+        given = {"rms_slope": 1.0}
+    (norm_name, norm_value), = given.items()
+    norm_value = _finite_positive(norm_name, norm_value)
+    if amplitudes not in ("fixed", "gaussian"):
+        raise ValueError(f"amplitudes must be 'fixed' or 'gaussian', got {amplitudes!r}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) < 2**63:
+        raise ValueError(f"seed must be an integer in [0, 2**63), got {seed!r}")
+    seed = int(seed)
+    kmax = int(math.floor(length / lambda_s * (1 + _EDGE)))
+    if n <= 2 * kmax:
+        raise ValueError(
+            f"n={n} is too small to carry lambda_s={lambda_s!r}: the Nyquist condition needs "
+            f"n > 2 length/lambda_s = {2 * length / lambda_s:g}, i.e. n >= {2 * kmax + 1}"
+        )
+
+    kx, ky, shape = mode_set(hurst, lambda_l=lambda_l, lambda_s=lambda_s, length=length)
+    if kx.size == 0:
+        raise ValueError("no wavevector lies in [q_l, q_s]: widen lambda_l/lambda_s")
+    area = length * length
+    phase = np.exp(2j * np.pi * _uniform(seed, 0, kx, ky))
+    amp = np.sqrt(shape / area)  # sqrt(C/A) for C0 = 1
+    if amplitudes == "gaussian":
+        # Complex Gaussian with <|z|^2> = 1: Rayleigh modulus sqrt(-ln U), U in (0, 1].
+        amp = amp * np.sqrt(-np.log1p(-_uniform(seed, 1, kx, ky)))
+    coeff = amp * phase
+    q2 = (2 * np.pi / length) ** 2 * (kx * kx + ky * ky)
+    # Both q and -q carry |h~|^2: the factor 2 counts the conjugate half plane.
+    if norm_name == "c0":
+        coeff *= math.sqrt(norm_value)
+    elif norm_name == "rms_height":
+        coeff *= norm_value / math.sqrt(2.0 * np.sum(np.abs(coeff) ** 2))
+    else:
+        coeff *= norm_value / math.sqrt(2.0 * np.sum(q2 * np.abs(coeff) ** 2))
+
+    # Half-spectrum layout of irfft2 (axis 1 holds ky >= 0). The ky = 0 column needs both kx and -kx.
+    half = np.zeros((n, n // 2 + 1), dtype=np.complex128)
+    half[kx % n, ky] = coeff
+    on_axis = ky == 0
+    half[(-kx[on_axis]) % n, 0] = np.conj(coeff[on_axis])
+    return np.fft.irfft2(half, s=(n, n)) * (n * n)
+
+
+def fourier_coefficients(heights: np.ndarray) -> np.ndarray:
+    """``h~(q) = FFT[h] / n^2`` so that ``h(r) = sum_q h~(q) exp(i q.r)`` (M2); full (n, n) array, FFT order."""
+    h = _check_heights(heights)
+    return np.fft.fft2(h) / h.size
+
+
+def _check_heights(heights: np.ndarray) -> np.ndarray:
+    h = np.asarray(heights, dtype=np.float64)
+    if h.ndim != 2 or h.shape[0] != h.shape[1]:
+        raise ValueError(f"heights must be a square 2-D array, got shape {h.shape}")
+    if not np.all(np.isfinite(h)):
+        raise ValueError("heights contain NaN or inf")
+    return h
+
+
+def rms_height(heights: np.ndarray) -> float:
+    """``h_rms = sqrt(<(h - <h>)^2>)`` over the grid (M2), units of length."""
+    h = _check_heights(heights)
+    return float(np.sqrt(np.mean((h - h.mean()) ** 2)))
+
+
+def rms_slope(heights: np.ndarray, length: float = 1.0) -> float:
+    """Spectral rms gradient ``g_rms = sqrt(sum_q q^2 |h~(q)|^2)`` (M2): exact for a band-limited periodic
+    surface (finite differences would underestimate it near Nyquist). Dimensionless."""
+    h = _check_heights(heights)
+    _, _, q = wavevectors(h.shape[0], length)
+    return float(np.sqrt(np.sum(q * q * np.abs(fourier_coefficients(h)) ** 2)))
+
+
+def spectrum(heights: np.ndarray, length: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Isotropic discrete spectrum ``C(q) = A <|h~(q)|^2>`` averaged over shells of integer ``|k|`` (M2).
+
+    Returns ``(q, C)`` for the non-empty shells with ``|k| >= 1`` (units rad/length and length^4).
+    """
+    h = _check_heights(heights)
+    n = h.shape[0]
+    length = _finite_positive("length", length)
+    power = np.abs(fourier_coefficients(h)) ** 2 * length * length
+    k = np.fft.fftfreq(n, d=1.0 / n)
+    kabs = np.hypot(*np.meshgrid(k, k, indexing="ij"))
+    shell = np.rint(kabs).astype(np.int64).ravel()
+    counts = np.bincount(shell)
+    sums = np.bincount(shell, weights=power.ravel())
+    kq = np.bincount(shell, weights=kabs.ravel())
+    ok = (counts > 0) & (np.arange(counts.size) >= 1)
+    return 2 * np.pi * kq[ok] / counts[ok] / length, sums[ok] / counts[ok]
+
+
+def continuum_rms_height(
+    hurst: float, *, lambda_l: float, lambda_s: float, rms_slope: float = 1.0
+) -> float:
+    """Continuum ``h_rms`` of the M2 spectrum normalised to ``g_rms = rms_slope``:
+    ``h_rms^2 / g_rms^2 = int q^(-2H-1) dq / int q^(1-2H) dq`` over ``[q_l, q_s]``. Units of length."""
+    ql, qs = 2 * np.pi / _finite_positive("lambda_l", lambda_l), 2 * np.pi / _finite_positive("lambda_s", lambda_s)
+    if not 0.0 < hurst < 1.0:
+        raise ValueError(f"hurst must lie in (0, 1), got {hurst!r}")
+    m0 = (ql ** (-2 * hurst) - qs ** (-2 * hurst)) / (2 * hurst)
+    m2 = (qs ** (2 - 2 * hurst) - ql ** (2 - 2 * hurst)) / (2 - 2 * hurst)
+    return float(rms_slope * math.sqrt(m0 / m2))
