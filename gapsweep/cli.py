@@ -1,22 +1,145 @@
-"""Command-line interface (thin): ``gapsweep demo``. The sweep commands join here (run, plan, status, merge)."""
+"""Command-line interface (thin): ``gapsweep plan | run | status | merge | report | demo``.
+
+Exit codes: 0 success, 1 a task-independent error (a run that cannot start, a store that cannot be merged),
+2 an invalid job spec or argument (nothing is written).
+"""
 
 from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="gapsweep", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("plan", help="validate a job spec, print its task count and cost estimate")
+    s.add_argument("job", help="job spec (TOML), see docs/jobs.md")
+    s.add_argument("--shard", help="i/n: plan only shard i of n")
+    s.add_argument("--ranks", type=int, default=1, help="ranks for the wall-time estimate (default 1)")
+
+    s = sub.add_parser("run", help="run a job into a store (serial, or under mpiexec as an MPI task farm)")
+    s.add_argument("job", help="job spec (TOML)")
+    s.add_argument("--store", required=True, help="HDF5 store path ({i} and {n} are replaced by the shard)")
+    s.add_argument("--resume", action="store_true", help="finish the pending tasks of an existing store")
+    s.add_argument("--overwrite", action="store_true", help="replace an existing store")
+    s.add_argument("--shard", help="i/n: run shard i of n (0-based), or 'slurm' (SLURM_ARRAY_TASK_ID/COUNT)")
+    s.add_argument("--writer", choices=("auto", "mpio", "rank0"), default="auto",
+                   help="auto: mpio when h5py has MPI, else rank 0 writes (env GAPSWEEP_WRITER overrides auto)")
+    s.add_argument("--progress", choices=("auto", "bar", "log", "none"), default="auto",
+                   help="auto: a bar on a terminal, log lines otherwise")
+    s.add_argument("--coordinator-works", choices=("auto", "yes", "no"), default="auto",
+                   help="whether MPI rank 0 also runs tasks (auto: when 4 ranks or fewer)")
+    s.add_argument("--mpi", choices=("auto", "on", "off"), default="auto",
+                   help="auto: use MPI when started by an MPI launcher")
+
+    s = sub.add_parser("status", help="summarise a running or finished store")
+    s.add_argument("store")
+
+    s = sub.add_parser("merge", help="merge shard stores of one job into one store")
+    s.add_argument("shards", nargs="+")
+    s.add_argument("--out", required=True)
+    s.add_argument("--overwrite", action="store_true")
+
+    s = sub.add_parser("report", help="figures and tables from one or more stores (analysis package)")
+    s.add_argument("store", nargs="+")
+    s.add_argument("--out", default="out/report")
+
+    s = sub.add_parser("demo", help="run jobs/demo.toml into out/demo.h5, print a summary and the fig-2 table")
+    s.add_argument("--out", default="out", help="output directory (default: out)")
+    s.add_argument("--job", default=None, help="job spec (default: the repository's jobs/demo.toml)")
+    s.add_argument("--theory-only", action="store_true", help="only the field-theory figure-2 table")
+    return p
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="gapsweep", description=__doc__)
-    sub = parser.add_subparsers(dest="command", required=True)
-    demo = sub.add_parser("demo", help="run the built-in default job (field theory of the paper's figure 2)")
-    demo.add_argument("--out", default="out", help="output directory (default: out)")
-    args = parser.parse_args(argv)
-    if args.command == "demo":
-        from gapsweep.demo import fig2_theory
+    args = _parser().parse_args(argv)
+    from gapsweep.spec import SpecError
 
-        print(fig2_theory(args.out))
-        print(f"figure: {args.out}/fig2_theory.png")
+    try:
+        return _dispatch(args)
+    except SpecError as e:
+        print(f"gapsweep: invalid job spec: {e}", file=sys.stderr)
+        return 2
+    except ValueError as e:
+        print(f"gapsweep: {e}", file=sys.stderr)
+        return 2
+    except (RuntimeError, FileNotFoundError, OSError) as e:
+        print(f"gapsweep: {e}", file=sys.stderr)
+        return 1
+
+
+def _dispatch(args: argparse.Namespace) -> int:
+    if args.command == "plan":
+        from gapsweep import runner
+
+        print(runner.plan(args.job, runner.parse_shard(args.shard), args.ranks))
+        return 0
+    if args.command == "run":
+        from gapsweep import runner
+
+        s = runner.run(args.job, args.store, resume=args.resume, overwrite=args.overwrite,
+                       shard=runner.parse_shard(args.shard), writer=args.writer, progress=args.progress,
+                       coordinator_works=args.coordinator_works, mpi=args.mpi)
+        if s["rank"] == 0 and args.progress != "none":
+            print(f"{s['store']}: {s['mode']}, {s['todo']} of {s['tasks']} tasks run: {s['done']} done, "
+                  f"{s['failed']} failed, {s['not_converged']} not converged")
+        return 0
+    if args.command == "status":
+        from gapsweep import store
+
+        print(store.status(args.store))
+        return 0
+    if args.command == "merge":
+        from gapsweep import store
+
+        counts = store.merge(args.shards, args.out, overwrite=args.overwrite)
+        print(f"merged {len(args.shards)} shard(s) into {args.out}: "
+              + ", ".join(f"{v} {k}" for k, v in counts.items()))
+        return 0
+    if args.command == "report":
+        try:
+            from analysis.report import main as report_main
+        except ImportError:
+            print("gapsweep report: the analysis package is not available", file=sys.stderr)
+            return 1
+        print(f"report: {report_main(args.store, args.out)}")
+        return 0
+    if args.command == "demo":
+        return _demo(args)
+    raise AssertionError(args.command)  # pragma: no cover
+
+
+def _demo(args: argparse.Namespace) -> int:
+    from gapsweep.demo import fig2_theory
+
+    out = Path(args.out)
+    if not args.theory_only:
+        job = Path(args.job) if args.job else Path(__file__).resolve().parent.parent / "jobs" / "demo.toml"
+        if job.is_file():
+            from gapsweep import runner, store
+
+            path = out / "demo.h5"
+            try:
+                runner.run(job, path, resume=True)
+            except runner.RunError:  # a demo store of an older demo spec: start again
+                runner.run(job, path, overwrite=True)
+            print(store.status(path))
+            df = store.read(path)
+            done = df[df.status == "done"]
+            if len(done):
+                print("\nmean gap / h_rms by method (done tasks, averaged over seeds):")
+                tab = (done.assign(g=done.mean_gap / done.h_rms)
+                       .groupby(["method", "hurst", "rho", "sigma0"]).g.mean().unstack("method"))
+                print(tab.to_string(float_format=lambda x: f"{x:.4f}"))
+            print(f"\nstore: {path}   (gapsweep status {path}; gapsweep.store.read('{path}'))\n")
+        else:
+            print(f"(no job spec at {job}: field-theory table only)")
+    print(fig2_theory(out))
+    print(f"figure: {out}/fig2_theory.png")
     return 0
 
 

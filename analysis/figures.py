@@ -1,0 +1,298 @@
+"""The paper's figures (MODEL.md M6) from aggregated frames, PNG and PDF, matplotlib Agg.
+
+* :func:`fig_mean_gap_pressure` -- figures 2 (H = 0.3) and 3 (H = 0.8): ``g0/h_rms`` against
+  ``sigma0/(E* g_rms)``, one panel per ``rho``: GFMD (open circles, standard error bars), the field theory
+  (solid: the paper's form; thin dash-dot: the continuum form) and both limits of M4 dashed (red: high
+  pressure ``rho ln(gamma0/(rho sigma0))``; blue: low pressure, plus ``h_rms^2/(2 rho)``).
+* :func:`fig_mean_gap_hurst` -- figures 4 and 5: ``g0/h_rms`` against ``H`` at fixed ``sigma0/(E* g_rms)``.
+* :func:`fig_gap_distribution` -- figure 6: ``h_rms P(g)`` against ``g/h_rms``: GFMD (open symbols with error
+  bars), SDE (and Fokker-Planck) with the calibrated ``C2`` (solid) and the default ``C2`` (dotted), and the
+  low-pressure (rigid, Gaussian) reference of M5 (dashed).
+* :func:`fig_agreement` -- the agreement tiers of the theory against ``h_rms/rho`` and pressure.
+
+Every function takes the frames of :mod:`analysis.aggregate` / :mod:`analysis.compare` and returns a Figure;
+:func:`save` writes it. The theory lines are evaluated on a dense grid with ``gapsweep.theory`` when the group's
+parameters are known, else the stored theory points are joined.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+
+from analysis.aggregate import HistogramStats
+
+__all__ = ["STYLE", "fig_agreement", "fig_gap_distribution", "fig_mean_gap_hurst", "fig_mean_gap_pressure", "save"]
+
+STYLE = {
+    "font.size": 9, "axes.labelsize": 9, "axes.titlesize": 9, "legend.fontsize": 7.5, "xtick.labelsize": 8,
+    "ytick.labelsize": 8, "lines.linewidth": 1.4, "lines.markersize": 5, "axes.grid": True, "grid.alpha": 0.25,
+    "figure.dpi": 100, "savefig.dpi": 200, "savefig.bbox": "tight", "pdf.fonttype": 42,
+}
+GFMD = {"marker": "o", "mfc": "none", "mec": "k", "ecolor": "k", "color": "k", "ls": "none", "capsize": 2,
+        "elinewidth": 0.8, "label": "GFMD"}
+HIGH = {"color": "tab:red", "ls": "--", "lw": 1.1, "label": "high-pressure limit"}
+LOW = {"color": "tab:blue", "ls": "--", "lw": 1.1, "label": "low-pressure limit"}
+THEORY = {"color": "tab:green", "ls": "-", "label": "field theory (paper)"}
+CONTINUUM = {"color": "0.45", "ls": "-.", "lw": 0.9, "label": "field theory (continuum)"}
+
+
+def _close(a: Any, b: float, rtol: float = 1e-6) -> np.ndarray:
+    return np.isclose(np.asarray(a, float), b, rtol=rtol, atol=0.0)
+
+
+def _finest(g: pd.DataFrame) -> pd.DataFrame:
+    if g.empty or "n" not in g:
+        return g
+    return g[g["n"] == g.groupby(["hurst", "rho", "sigma0"])["n"].transform("max")]
+
+
+def _first(g: pd.DataFrame, col: str) -> float:
+    v = g[col].dropna() if col in g else pd.Series(dtype=float)
+    return float(v.iloc[0]) if len(v) else math.nan
+
+
+def _theory_curve(sigma0: np.ndarray, *, hurst: float, h_rms: float, rho: float, gamma0: float, lambda_l: float,
+                  lambda_s: float, e_star: float, form: str) -> np.ndarray | None:
+    """Field-theory mean gap on a dense grid (M4) or None when gapsweep.theory or a parameter is missing."""
+    if not all(np.isfinite([hurst, h_rms, rho, gamma0, lambda_l, lambda_s, e_star])):
+        return None
+    try:
+        from gapsweep import theory
+    except ImportError:
+        return None
+    return np.asarray(theory.mean_gap(sigma0, hurst=hurst, h_rms=h_rms, rho=rho, gamma0=gamma0, lambda_l=lambda_l,
+                                      lambda_s=lambda_s, e_star=e_star, form=form), dtype=float)
+
+
+def _panels(n: int, width: float = 3.2, height: float = 2.8):
+    fig, axes = plt.subplots(1, max(n, 1), figsize=(width * max(n, 1), height), squeeze=False)
+    return fig, axes[0]
+
+
+def fig_mean_gap_pressure(agg: pd.DataFrame, *, hurst: float, rhos: Sequence[float] | None = None,
+                          title: str | None = None) -> plt.Figure:
+    """Figures 2 / 3 (MODEL.md M6): ``g0/h_rms`` vs ``sigma0/(E* g_rms)`` per ``rho`` (descending, as the paper).
+
+    ``agg`` is :func:`analysis.aggregate.aggregate_mean_gap`. Panels without data say so instead of failing.
+    """
+    with plt.rc_context(STYLE):
+        a = agg[_close(agg["hurst"], hurst)] if len(agg) else agg
+        rs = sorted(set(a["rho"]) if rhos is None else rhos, reverse=True)
+        fig, axes = _panels(len(rs))
+        for ax, rho, letter in zip(axes, rs, "abcdefghij"):
+            g = a[_close(a["rho"], rho)]
+            gf = _finest(g[(g["source"] == "gfmd") & (g["count"] > 0)]).sort_values("sigma0")
+            th = g[(g["source"] == "theory:paper") & (g["count"] > 0)].sort_values("sigma0")
+            ref = th if len(th) else gf
+            ax.set_title(f"({letter}) H = {hurst:g}, $\\rho/L$ = {rho:g}")
+            ax.set_xscale("log")
+            ax.set_xlabel(r"$\sigma_0/(E^*\bar g)$")
+            ax.set_ylabel(r"$g_0/\bar h$")
+            if ref.empty:
+                ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center", va="center")
+                continue
+            h = _first(ref, "h_rms")
+            gr, es = _first(ref, "g_rms"), _first(ref, "e_star")
+            s_all = np.concatenate([gf["sigma0"].to_numpy(float), th["sigma0"].to_numpy(float)])
+            s = np.geomspace(s_all.min() / 1.5, s_all.max() * 1.5, 200)
+            x = s / (es * gr)
+            gamma0 = _first(ref, "gamma0")
+            flat = rho * (math.log(gamma0) - math.log(rho) - np.log(s))  # M4 high-pressure limit
+            ax.plot(x, flat / h, **HIGH)
+            ax.plot(x, (flat + h**2 / (2 * rho)) / h, **LOW)
+            params = {"hurst": hurst, "h_rms": h, "rho": rho, "gamma0": gamma0, "lambda_l": _first(ref, "lambda_l"),
+                      "lambda_s": _first(ref, "lambda_s"), "e_star": es}
+            y = _theory_curve(s, form="paper", **params)
+            if y is not None:
+                ax.plot(x, y / h, **THEORY)
+                yc = _theory_curve(s, form="continuum", **params)
+                if yc is not None:
+                    ax.plot(x, yc / h, **CONTINUUM)
+            elif len(th):
+                ax.plot(th["sigma0_reduced"], th["mean_reduced"], **THEORY)
+            if len(gf):
+                ax.errorbar(gf["sigma0_reduced"], gf["mean_reduced"], yerr=gf["sem_reduced"].fillna(0.0), **GFMD)
+            lo = min(np.nanmin(flat / h), np.nanmin(gf["mean_reduced"]) if len(gf) else np.inf)
+            hi = max(np.nanmax((flat + h**2 / (2 * rho)) / h), np.nanmax(gf["mean_reduced"]) if len(gf) else -np.inf)
+            ax.set_ylim(lo - 0.05 * (hi - lo), hi + 0.05 * (hi - lo))
+        if axes[0].get_legend_handles_labels()[0]:
+            axes[0].legend(loc="best", frameon=False)
+        if title:
+            fig.suptitle(title)
+        fig.tight_layout()
+    return fig
+
+
+def fig_mean_gap_hurst(agg: pd.DataFrame, *, sigma0_reduced: float, rho: float, title: str | None = None,
+                       rtol: float = 0.02) -> plt.Figure:
+    """Figures 4 / 5 (M6): ``g0/h_rms`` vs ``H`` at ``sigma0/(E* g_rms) = sigma0_reduced`` (within ``rtol``)."""
+    with plt.rc_context(STYLE):
+        fig, axes = _panels(1, width=3.6, height=2.9)
+        ax = axes[0]
+        a = agg[_close(agg["rho"], rho) & _close(agg["sigma0_reduced"], sigma0_reduced, rtol)] if len(agg) else agg
+        gf = _finest(a[(a["source"] == "gfmd") & (a["count"] > 0)]).sort_values("hurst")
+        th = a[(a["source"] == "theory:paper") & (a["count"] > 0)].sort_values("hurst")
+        ax.set_title(title or f"$\\rho/L$ = {rho:g}, $\\sigma_0/(E^*\\bar g)$ = {sigma0_reduced:g}")
+        ax.set_xlabel("Hurst exponent $H$")
+        ax.set_ylabel(r"$g_0/\bar h$")
+        if gf.empty and th.empty:
+            ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center", va="center")
+            return fig
+        if len(th):
+            line = _dense_hurst_line(th, rho)
+            if line is not None:
+                ax.plot(line[0], line[1], **THEORY)
+            else:
+                ax.plot(th["hurst"], th["mean_reduced"], **THEORY)
+        if len(gf):
+            ax.errorbar(gf["hurst"], gf["mean_reduced"], yerr=gf["sem_reduced"].fillna(0.0), **GFMD)
+        ax.legend(loc="best", frameon=False)
+        fig.tight_layout()
+    return fig
+
+
+def _dense_hurst_line(th: pd.DataFrame, rho: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """Theory ``g0/h_rms`` on a dense H grid, only when ``h_rms(H)`` is the continuum value for ``g_rms`` (the
+    default normalisation of M2), checked against every stored theory point (else None: join the points)."""
+    try:
+        from gapsweep.surface import continuum_rms_height
+    except ImportError:
+        return None
+    r = th.iloc[0]
+    ll, ls, gr, es = (float(r[k]) for k in ("lambda_l", "lambda_s", "g_rms", "e_star"))
+    if not all(np.isfinite([ll, ls, gr, es])):
+        return None
+    for _, t in th.iterrows():
+        if not math.isclose(continuum_rms_height(float(t["hurst"]), lambda_l=ll, lambda_s=ls, rms_slope=gr),
+                            float(t["h_rms"]), rel_tol=1e-6):
+            return None
+    hs = np.linspace(th["hurst"].min(), th["hurst"].max(), 60)
+    ys = []
+    for hh in hs:
+        h = continuum_rms_height(float(hh), lambda_l=ll, lambda_s=ls, rms_slope=gr)
+        y = _theory_curve(np.asarray([float(r["sigma0"])]), hurst=float(hh), h_rms=h, rho=rho,
+                          gamma0=float(r["gamma0"]), lambda_l=ll, lambda_s=ls, e_star=es, form="paper")
+        if y is None:
+            return None
+        ys.append(float(y[0]) / h)
+    return hs, np.asarray(ys)
+
+
+def fig_gap_distribution(hagg: Mapping[tuple, HistogramStats], *, hurst: float, rho: float, max_curves: int = 5,
+                         title: str | None = None) -> plt.Figure:
+    """Figure 6 (M6): ``h_rms P(g)`` vs ``g/h_rms`` for each pressure (one colour each, at most ``max_curves``
+    evenly picked): GFMD (open circles with the per-bin standard error), the Fokker-Planck density at the
+    calibrated ``C2`` (solid; key method "fp_calibrated", from :func:`analysis.compare.calibrate_c2`), the SDE and
+    Fokker-Planck runs of the store at their job's ``C2`` (dotted / dash-dot: the default, uncalibrated ``C2``)
+    and the rigid low-pressure reference (dashed) ``N(g0_rigid, h_rms^2)``,
+    ``g0_rigid = rho ln(gamma0/(rho sigma0)) + h_rms^2/(2 rho)`` (M5).
+
+    ``hagg``: :func:`analysis.aggregate.aggregate_histograms`, optionally merged with the calibrated models.
+    """
+    with plt.rc_context(STYLE):
+        fig, axes = _panels(1, width=4.6, height=3.3)
+        ax = axes[0]
+        sel = {k: v for k, v in hagg.items() if math.isclose(k[1], hurst, rel_tol=1e-6)
+               and math.isclose(k[2], rho, rel_tol=1e-6)}
+        gf: dict[float, tuple[float, HistogramStats]] = {}
+        for k, v in sel.items():
+            if k[0] == "gfmd" and (k[3] not in gf or k[4] > gf[k[3]][0]):
+                gf[k[3]] = (k[4], v)
+        ax.set_title(title or f"H = {hurst:g}, $\\rho/L$ = {rho:g}")
+        ax.set_xlabel(r"$g/\bar h$")
+        ax.set_ylabel(r"$\bar h\,P(g)$")
+        sigmas = sorted({k[3] for k in sel})
+        if not sigmas:
+            ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center", va="center")
+            return fig
+        if len(sigmas) > max_curves:
+            sigmas = [sigmas[i] for i in np.unique(np.linspace(0, len(sigmas) - 1, max_curves).round().astype(int))]
+        colors = plt.get_cmap("viridis")(np.linspace(0.0, 0.85, len(sigmas)))
+        styles = {"fp_calibrated": ("-", "FP, calibrated C2"), "sde": (":", "SDE, job C2"),
+                  "fokker_planck": ("-.", "FP, job C2")}
+        seen: set[str] = set()
+        for s, col in zip(sigmas, colors):
+            ref = gf.get(s, (0, None))[1]
+            hs = [v.get("h_rms", np.nan) for k, v in sel.items() if k[3] == s]
+            h = ref["h_rms"] if ref is not None and np.isfinite(ref.get("h_rms", np.nan)) else \
+                next((x for x in hs if np.isfinite(x)), None)
+            if h is None:
+                continue
+            if ref is not None:
+                ax.errorbar(ref.centres / h, ref["density"] * h, yerr=np.nan_to_num(ref["sem"]) * h, marker="o",
+                            mfc="none", mec=col, ecolor=col, ls="none", ms=3.5, capsize=1.5, elinewidth=0.7,
+                            label=f"GFMD, $\\sigma_0/E^*$ = {s:.3g}")
+                gamma0 = ref.get("gamma0", np.nan)
+                if np.isfinite(gamma0):
+                    g0r = rho * (math.log(gamma0) - math.log(rho) - math.log(s)) + h**2 / (2 * rho)
+                    gg = np.linspace(ref["edges"][0], ref["edges"][-1], 300)
+                    ax.plot(gg / h, np.exp(-0.5 * ((gg - g0r) / h) ** 2) / math.sqrt(2 * math.pi), color=col, ls="--",
+                            lw=0.9)
+            for (m, _hh, _rr, ss, _n, _c2, *_), v in sorted(sel.items(), key=lambda kv: (kv[0][0], kv[0][5])):
+                if m not in styles or ss != s:
+                    continue
+                ls, name = styles[m]
+                lbl = None if m in seen else name
+                seen.add(m)
+                e = v["edges"]
+                ax.plot(np.repeat(e, 2)[1:-1] / h, np.repeat(v["density"], 2) * h, color=col, ls=ls, lw=1.0,
+                        label=lbl)
+        ax.plot([], [], color="0.4", ls="--", lw=0.9, label="low-pressure reference")
+        ax.legend(loc="best", frameon=False, fontsize=6.5)
+        fig.tight_layout()
+    return fig
+
+
+_TIER_COLORS = {"<=1%": "tab:green", "<=5%": "yellowgreen", "<=10%": "orange", ">10%": "tab:red",
+                "ill-conditioned": "0.7", "no GFMD data": "white"}
+
+
+def fig_agreement(points: pd.DataFrame, *, title: str | None = None) -> plt.Figure:
+    """Agreement tiers (from :func:`analysis.compare.agreement_regions`) in the plane ``h_rms/rho`` vs
+    ``sigma0/(E* g_rms)``, marker shape per H."""
+    with plt.rc_context(STYLE):
+        fig, axes = _panels(1, width=4.4, height=3.2)
+        ax = axes[0]
+        ax.set_xscale("log")
+        ax.set_xlabel(r"$\sigma_0/(E^*\bar g)$")
+        ax.set_ylabel(r"$\bar h/\rho$")
+        ax.set_title(title or "field theory (paper) vs GFMD")
+        if points.empty:
+            ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center", va="center")
+            return fig
+        markers = dict(zip(sorted(points["hurst"].unique()), "osD^v<>phX*"))
+        for tier, col in _TIER_COLORS.items():
+            p = points[points["tier"] == tier]
+            for h, q in p.groupby("hurst"):
+                ax.scatter(q["sigma0_reduced"], q["h_rms_over_rho"], c=col, marker=markers[h], edgecolors="k",
+                           linewidths=0.4, s=22)
+            if len(p):
+                ax.scatter([], [], c=col, edgecolors="k", linewidths=0.4, label=tier)
+        for h, mk in markers.items():
+            ax.scatter([], [], marker=mk, facecolors="none", edgecolors="k", label=f"H = {h:g}")
+        ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
+        fig.tight_layout()
+    return fig
+
+
+def save(fig: plt.Figure, out_dir: str | Path, name: str) -> list[Path]:
+    """Write ``name.png`` and ``name.pdf`` into ``out_dir`` (created) and close the figure."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [out / f"{name}.png", out / f"{name}.pdf"]
+    try:
+        for p in paths:
+            fig.savefig(p)
+    finally:
+        plt.close(fig)
+    return paths

@@ -1,0 +1,51 @@
+"""Build ``docs/results/`` from the stores of the full jobs (issue 6): figures (PNG + PDF), aggregated CSV tables,
+the report (Markdown + HTML) and ``verdicts.md`` with the verdict on each claim of MODEL.md M6.
+
+Usage (after running the full jobs, e.g. on the GPU machine)::
+
+    gapsweep run jobs/fig2.toml   --store out/fig2.h5
+    gapsweep run jobs/fig3.toml   --store out/fig3.h5
+    gapsweep run jobs/fig4_5.toml --store out/fig4_5.h5
+    gapsweep run jobs/fig6.toml   --store out/fig6.h5
+    python -m analysis.make_results out/fig2.h5 out/fig3.h5 out/fig4_5.h5 out/fig6.h5 --out docs/results
+
+Only aggregated data is written (no raw fields): the CSV tables are a few hundred kB at most.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from analysis import report
+
+DEFAULT_STORES = ("out/fig2.h5", "out/fig3.h5", "out/fig4_5.h5", "out/fig6.h5")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command line: stores (default: the four full-job stores under out/) and ``--out`` (default docs/results)."""
+    p = argparse.ArgumentParser(prog="python -m analysis.make_results", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("stores", nargs="*", default=list(DEFAULT_STORES), help="store files (HDF5) of the full jobs")
+    p.add_argument("--out", default="docs/results", help="output directory (default: docs/results)")
+    p.add_argument("--allow-missing", action="store_true",
+                   help="build from the stores that exist (claims without data say 'not enough data')")
+    args = p.parse_args(argv)
+    stores = [Path(s) for s in args.stores]
+    missing = [str(s) for s in stores if not s.is_file()]
+    if missing and not args.allow_missing:
+        print(f"make_results: missing store(s): {', '.join(missing)} (use --allow-missing to go on)", file=sys.stderr)
+        return 1
+    stores = [s for s in stores if s.is_file()]
+    if not stores:
+        print("make_results: no store to read", file=sys.stderr)
+        return 1
+    path = report.main(stores, args.out)
+    print(f"report: {path}")
+    print((Path(args.out) / "verdicts.md").read_text())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

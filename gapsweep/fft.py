@@ -1,0 +1,209 @@
+"""Real 2-D FFT backends for the GFMD solver (MODEL.md M3): pyFFTW, numpy and cupy (cuFFT).
+
+Every backend exposes the same two *unnormalised* transforms of a real ``n x n`` field, in the half-spectrum
+layout of ``numpy.fft.rfft2`` (shape ``(n, n // 2 + 1)``):
+
+    rfft2(a)[k]  = sum_r a(r) exp(-i q_k.r)          (forward, no 1/n^2)
+    irfft2(A)(r) = sum_k A[k] exp(+i q_k.r)           (inverse, no 1/n^2; conjugate half implied)
+
+so that with ``u~ = rfft2(u) / n^2`` (the coefficients of M2) ``u = irfft2(u~)``. The solver folds the ``1/n^2``
+into scalars it already multiplies with. Both calls may return an internal buffer that the next call of the
+same transform overwrites: consume (or copy) the result first.
+
+pyFFTW plans are made once per ``(n, threads, effort)`` and kept for the process; FFTW wisdom is cached on disk
+(``$GAPSWEEP_CACHE`` or ``~/.cache/gapsweep``), one file per thread count because wisdom is per thread count.
+The thread count defaults to ``$GAPSWEEP_FFT_THREADS`` or 1 (sweeps run one rank per core).
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import tempfile
+import threading
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["FFTBackend", "available_backends", "cache_dir", "get_backend"]
+
+_PLANS: dict[tuple, FFTBackend] = {}
+_LOCK = threading.Lock()
+_WISDOM_LOADED: set[int] = set()
+
+
+def cache_dir() -> Path:
+    """Directory for FFTW wisdom: ``$GAPSWEEP_CACHE`` or ``~/.cache/gapsweep``."""
+    env = os.environ.get("GAPSWEEP_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "gapsweep"
+
+
+def default_threads() -> int:
+    """FFT thread count: ``$GAPSWEEP_FFT_THREADS`` or 1."""
+    try:
+        return max(1, int(os.environ.get("GAPSWEEP_FFT_THREADS", "1")))
+    except ValueError:
+        return 1
+
+
+class FFTBackend:
+    """Unnormalised rfft2/irfft2 pair on one square grid (see module docstring)."""
+
+    name: str = "numpy"
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.xp: Any = np
+
+    def rfft2(self, a):
+        return np.fft.rfft2(a)
+
+    def irfft2(self, a):
+        # norm="forward" puts 1/n^2 on the forward transform: the inverse is the plain sum.
+        return np.fft.irfft2(a, s=(self.n, self.n), norm="forward")
+
+    def asarray(self, a):
+        return self.xp.asarray(a, dtype=self.xp.float64)
+
+    def to_host(self, a) -> np.ndarray:
+        return np.asarray(a)
+
+    def synchronize(self) -> None:
+        pass
+
+
+class _CupyBackend(FFTBackend):
+    name = "cupy"
+
+    def __init__(self, n: int) -> None:
+        import cupy
+
+        self.n = n
+        self.xp = cupy
+
+    def rfft2(self, a):
+        return self.xp.fft.rfft2(a)
+
+    def irfft2(self, a):
+        return self.xp.fft.irfft2(a, s=(self.n, self.n), norm="forward")
+
+    def to_host(self, a) -> np.ndarray:
+        return self.xp.asnumpy(a)
+
+    def synchronize(self) -> None:
+        self.xp.cuda.get_current_stream().synchronize()
+
+
+def _wisdom_path(threads: int) -> Path:
+    return cache_dir() / f"fftw_wisdom_t{threads}.pkl"
+
+
+def _load_wisdom(threads: int) -> None:
+    import pyfftw
+
+    if threads in _WISDOM_LOADED:
+        return
+    _WISDOM_LOADED.add(threads)
+    path = _wisdom_path(threads)
+    try:
+        with open(path, "rb") as f:
+            pyfftw.import_wisdom(pickle.load(f))
+    except (OSError, pickle.PickleError, EOFError, TypeError, ValueError):
+        pass  # no or unreadable cache: plan from scratch, rewrite it afterwards
+
+
+def _save_wisdom(threads: int) -> None:
+    import pyfftw
+
+    path = _wisdom_path(threads)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        # Atomic replace: several ranks may plan at once; a reader never sees half a file.
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".wisdom")
+        with os.fdopen(fd, "wb") as f:
+            pickle.dump(pyfftw.export_wisdom(), f)
+        os.replace(tmp, path)
+    except OSError:
+        pass  # a read-only home only costs planning time
+
+
+class _PyFFTWBackend(FFTBackend):
+    name = "pyfftw"
+
+    def __init__(self, n: int, threads: int, effort: str) -> None:
+        import pyfftw
+
+        self.n = n
+        self.xp = np
+        self.threads = threads
+        _load_wisdom(threads)
+        shape_r, shape_c = (n, n), (n, n // 2 + 1)
+        self._rin = pyfftw.empty_aligned(shape_r, dtype="float64")
+        self._cout = pyfftw.empty_aligned(shape_c, dtype="complex128")
+        self._cin = pyfftw.empty_aligned(shape_c, dtype="complex128")
+        self._rout = pyfftw.empty_aligned(shape_r, dtype="float64")
+        flags = (effort,)
+        self._fwd = pyfftw.FFTW(self._rin, self._cout, axes=(0, 1), direction="FFTW_FORWARD",
+                                flags=flags, threads=threads)
+        # c2r destroys its input: the solver always copies into _cin first, so that is harmless.
+        self._inv = pyfftw.FFTW(self._cin, self._rout, axes=(0, 1), direction="FFTW_BACKWARD",
+                                flags=(*flags, "FFTW_DESTROY_INPUT"), threads=threads)
+        _save_wisdom(threads)
+
+    def rfft2(self, a):
+        self._rin[...] = a
+        self._fwd.execute()
+        return self._cout
+
+    def irfft2(self, a):
+        self._cin[...] = a
+        self._inv.execute()
+        return self._rout
+
+
+def available_backends() -> list[str]:
+    """Names of the backends importable here (``cupy`` only with a visible GPU)."""
+    names = ["numpy"]
+    try:
+        import pyfftw  # noqa: F401
+
+        names.insert(0, "pyfftw")
+    except ImportError:
+        pass
+    try:
+        import cupy
+
+        if cupy.cuda.runtime.getDeviceCount() > 0:
+            names.append("cupy")
+    except Exception:  # ImportError, or a CUDA runtime error without a driver
+        pass
+    return names
+
+
+def get_backend(name: str, n: int, *, threads: int | None = None, effort: str | None = None) -> FFTBackend:
+    """Return the (cached) backend ``name`` in {"numpy", "pyfftw", "cupy"} for an ``n x n`` grid.
+
+    ``threads``: FFTW threads (default ``$GAPSWEEP_FFT_THREADS`` or 1). ``effort``: FFTW planner flag
+    (default ``$GAPSWEEP_FFTW_EFFORT`` or ``FFTW_MEASURE``).
+    """
+    if name not in ("numpy", "pyfftw", "cupy"):
+        raise ValueError(f"backend must be one of 'auto', 'numpy', 'pyfftw', 'cupy'; got {name!r}")
+    threads = default_threads() if threads is None else int(threads)
+    if threads < 1:
+        raise ValueError(f"threads must be >= 1, got {threads}")
+    effort = effort or os.environ.get("GAPSWEEP_FFTW_EFFORT", "FFTW_MEASURE")
+    if effort not in ("FFTW_ESTIMATE", "FFTW_MEASURE", "FFTW_PATIENT", "FFTW_EXHAUSTIVE"):
+        raise ValueError(f"effort must be an FFTW planner flag such as 'FFTW_MEASURE', got {effort!r}")
+    key = (name, n, threads if name == "pyfftw" else 0, effort if name == "pyfftw" else "")
+    with _LOCK:
+        backend = _PLANS.get(key)
+        if backend is None:
+            if name == "pyfftw":
+                backend = _PyFFTWBackend(n, threads, effort)
+            elif name == "cupy":
+                backend = _CupyBackend(n)
+            else:
+                backend = FFTBackend(n)
+            _PLANS[key] = backend
+    return backend

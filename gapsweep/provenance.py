@@ -1,0 +1,77 @@
+"""Provenance recorded in every store: package and library versions, git commit, times (docs/store.md)."""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import subprocess
+from functools import lru_cache
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+__all__ = ["git_commit", "now", "store_attrs", "versions"]
+
+_PACKAGES = ("gapsweep", "numpy", "scipy", "h5py", "mpi4py", "pyfftw", "warp-lang", "numba", "pandas")
+
+
+def now() -> str:
+    """UTC time, ISO 8601 with seconds."""
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+@lru_cache(maxsize=1)
+def versions() -> dict[str, str]:
+    """Installed versions (from package metadata: nothing heavy such as warp is imported) and HDF5's."""
+    out: dict[str, str] = {}
+    for p in _PACKAGES:
+        try:
+            out[p] = metadata.version(p)
+        except metadata.PackageNotFoundError:
+            out[p] = "not installed"
+    try:
+        import h5py
+
+        out["hdf5"] = h5py.version.hdf5_version
+        out["h5py_mpi"] = str(bool(h5py.get_config().mpi))
+    except Exception:  # pragma: no cover
+        out["hdf5"] = "unknown"
+    return out
+
+
+@lru_cache(maxsize=1)
+def git_commit() -> str:
+    """Commit of the source tree gapsweep was imported from (``-dirty`` if modified), or ``unknown``."""
+    root = Path(__file__).resolve().parent.parent
+    try:
+        sha = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True,
+                             timeout=10).stdout.strip()
+        if not sha:
+            return "unknown"
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=10).stdout.strip()
+        return sha + ("-dirty" if dirty else "")
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def store_attrs(spec: Any, *, shard: str = "", extra: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Static file attributes of a new store (the same on every rank)."""
+    from gapsweep import __version__
+    from gapsweep.store import FORMAT, FORMAT_VERSION
+
+    a: dict[str, Any] = {
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
+        "job_name": spec.name,
+        "spec_text": spec.text,
+        "spec_sha256": spec.sha256,
+        "shard": shard,
+        "gapsweep_version": __version__,
+        "git_commit": git_commit(),
+        "versions": json.dumps(versions(), sort_keys=True),
+        "created": now(),
+        "runs": "[]",
+    }
+    a.update(extra or {})
+    return a

@@ -1,0 +1,353 @@
+"""Job specifications: TOML files under ``jobs/`` describing a sweep (schema in ``docs/jobs.md``).
+
+A spec names the grid axes (``hurst``, ``rho``, ``sigma0``, ``seeds``), the fixed surface and material
+parameters (MODEL.md M1, M2, M6) and the methods to run at each grid point with their options. Everything is
+validated before anything runs: an unknown key, a wrong type or an out-of-range value raises
+:class:`SpecError` naming the dotted key and the allowed values.
+
+The sweep layer is free of physics: the spec only checks ranges (and the Nyquist condition of M2, so that a
+grid that cannot carry ``lambda_s`` fails here rather than in the middle of a sweep).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+__all__ = ["METHODS", "JobSpec", "SpecError", "load", "loads"]
+
+METHODS = ("theory", "gfmd", "sde", "fokker_planck")
+THEORY_FORMS = ("paper", "continuum", "discrete")
+
+
+class SpecError(ValueError):
+    """A job spec is invalid; the message names the key and the allowed values."""
+
+
+@dataclass(frozen=True)
+class JobSpec:
+    """A validated job spec. ``methods`` maps method name -> resolved options (grid overrides included)."""
+
+    name: str
+    description: str
+    text: str
+    grid: dict[str, list]
+    surface: dict[str, Any]
+    material: dict[str, Any]
+    histogram: dict[str, Any]
+    methods: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    @property
+    def sha256(self) -> str:
+        """Hash of the spec text (stored in the store's attributes; resume and merge compare it)."""
+        return hashlib.sha256(self.text.encode()).hexdigest()
+
+
+# ---------------------------------------------------------------------------------------------------------
+# small typed readers: each names its dotted key in the error
+
+
+def _is_num(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _num(key: str, v: Any, *, gt: float | None = None, ge: float | None = None, lt: float | None = None,
+         le: float | None = None) -> float:
+    rng = _range_text(gt, ge, lt, le)
+    if not _is_num(v):
+        raise SpecError(f"{key}: expected a number {rng}, got {v!r} ({type(v).__name__})")
+    x = float(v)
+    if not math.isfinite(x) or (gt is not None and not x > gt) or (ge is not None and not x >= ge) or (
+        lt is not None and not x < lt
+    ) or (le is not None and not x <= le):
+        raise SpecError(f"{key}: expected a number {rng}, got {v!r}")
+    return x
+
+
+def _range_text(gt, ge, lt, le) -> str:
+    lo = f"> {gt:g}" if gt is not None else (f">= {ge:g}" if ge is not None else "")
+    hi = f"< {lt:g}" if lt is not None else (f"<= {le:g}" if le is not None else "")
+    return " and ".join(s for s in (lo, hi) if s) or "(finite)"
+
+
+def _int(key: str, v: Any, *, ge: int | None = None, le: int | None = None) -> int:
+    rng = " and ".join(s for s in ((f">= {ge}" if ge is not None else ""), (f"<= {le}" if le is not None else ""))
+                       if s)
+    if not isinstance(v, int) or isinstance(v, bool):
+        raise SpecError(f"{key}: expected an integer {rng}, got {v!r} ({type(v).__name__})")
+    if (ge is not None and v < ge) or (le is not None and v > le):
+        raise SpecError(f"{key}: expected an integer {rng}, got {v!r}")
+    return v
+
+
+def _str(key: str, v: Any, allowed: tuple[str, ...] | None = None) -> str:
+    if not isinstance(v, str):
+        raise SpecError(f"{key}: expected a string{_allowed(allowed)}, got {v!r} ({type(v).__name__})")
+    if allowed is not None and v not in allowed:
+        raise SpecError(f"{key}: got {v!r}, allowed values: {', '.join(map(repr, allowed))}")
+    return v
+
+
+def _allowed(allowed):
+    return f" (one of {', '.join(map(repr, allowed))})" if allowed else ""
+
+
+def _bool(key: str, v: Any) -> bool:
+    if not isinstance(v, bool):
+        raise SpecError(f"{key}: expected true or false, got {v!r} ({type(v).__name__})")
+    return v
+
+
+def _table(key: str, v: Any) -> dict:
+    if not isinstance(v, dict):
+        raise SpecError(f"{key}: expected a table, got {v!r} ({type(v).__name__})")
+    return v
+
+
+def _known(key: str, table: dict, allowed: tuple[str, ...]) -> None:
+    for k in table:
+        if k not in allowed:
+            where = f"{key}.{k}" if key else k
+            raise SpecError(f"{where}: unknown key; allowed keys in [{key or 'top level'}]: {', '.join(allowed)}")
+
+
+def _sig(v: float) -> float:
+    """Round generated grid values to 12 significant digits: stable, readable task parameters."""
+    return float(f"{v:.12g}")
+
+
+def _axis(key: str, v: Any, check) -> list[float]:
+    """A grid axis: a number, a list of numbers, or ``{min, max, num, scale = "log" | "linear"}``."""
+    if _is_num(v):
+        vals = [v]
+    elif isinstance(v, list):
+        if not v:
+            raise SpecError(f"{key}: expected a non-empty list of numbers")
+        vals = list(v)
+    elif isinstance(v, dict):
+        _known(key, v, ("min", "max", "num", "scale"))
+        for k in ("min", "max", "num"):
+            if k not in v:
+                raise SpecError(f"{key}.{k}: missing; a range needs min, max, num (and scale = 'log' or 'linear')")
+        scale = _str(f"{key}.scale", v.get("scale", "log"), ("log", "linear"))
+        lo = check(f"{key}.min", v["min"])
+        hi = check(f"{key}.max", v["max"])
+        num = _int(f"{key}.num", v["num"], ge=1, le=100000)
+        if hi < lo:
+            raise SpecError(f"{key}: max ({hi!r}) must be >= min ({lo!r})")
+        if num == 1:
+            vals = [lo]
+        elif scale == "log":
+            if lo <= 0:
+                raise SpecError(f"{key}.min: a log range needs min > 0, got {lo!r}")
+            a, b = math.log10(lo), math.log10(hi)
+            vals = [_sig(10 ** (a + (b - a) * i / (num - 1))) for i in range(num)]
+        else:
+            vals = [_sig(lo + (hi - lo) * i / (num - 1)) for i in range(num)]
+    else:
+        raise SpecError(f"{key}: expected a number, a list of numbers or a table {{min, max, num, scale}}, "
+                        f"got {v!r} ({type(v).__name__})")
+    out = [check(f"{key}[{i}]", x) for i, x in enumerate(vals)]
+    if len(set(out)) != len(out):
+        raise SpecError(f"{key}: values must be distinct, got {out}")
+    return out
+
+
+def _seeds(key: str, v: Any) -> list[int]:
+    if isinstance(v, int) and not isinstance(v, bool):
+        v = [v]
+    if isinstance(v, dict):
+        _known(key, v, ("start", "count"))
+        start = _int(f"{key}.start", v.get("start", 0), ge=0)
+        if "count" not in v:
+            raise SpecError(f"{key}.count: missing; seeds = {{start, count}} or a list of integers")
+        count = _int(f"{key}.count", v["count"], ge=1, le=100000)
+        v = list(range(start, start + count))
+    if not isinstance(v, list) or not v:
+        raise SpecError(f"{key}: expected a non-empty list of integers >= 0 or {{start, count}}, got {v!r}")
+    out = [_int(f"{key}[{i}]", s, ge=0, le=2**62) for i, s in enumerate(v)]
+    if len(set(out)) != len(out):
+        raise SpecError(f"{key}: seeds must be distinct, got {out}")
+    return out
+
+
+def _hurst(k, v):
+    return _num(k, v, gt=0.0, lt=1.0)
+
+
+def _pos(k, v):
+    return _num(k, v, gt=0.0)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# schema
+
+_GRID_AXES = ("hurst", "rho", "sigma0", "seeds")
+_TOP = ("job", "grid", "surface", "material", "histogram", "methods")
+_METHOD_KEYS = {
+    "theory": ("forms", "n", "h_rms", "extra", *_GRID_AXES),
+    "gfmd": ("n", "tol", "max_iter", "method", "backend", "warm_start", "order", "extra", *_GRID_AXES),
+    "sde": ("samples", "dzeta", "zeta_end", "c1", "c2", "dtype", "device", "h_rms", "extra", *_GRID_AXES),
+    "fokker_planck": ("c1", "c2", "h_rms", "extra", *_GRID_AXES),
+}
+
+
+def _grid(key: str, t: dict, *, required: bool) -> dict[str, list]:
+    out: dict[str, list] = {}
+    for ax, check in (("hurst", _hurst), ("rho", _pos), ("sigma0", _pos)):
+        if ax in t:
+            out[ax] = _axis(f"{key}.{ax}", t[ax], check)
+        elif required:
+            raise SpecError(f"{key}.{ax}: missing; every job needs the grid axes hurst, rho, sigma0")
+    if "seeds" in t:
+        out["seeds"] = _seeds(f"{key}.seeds", t["seeds"])
+    elif required:
+        out["seeds"] = [0]
+    return out
+
+
+def _n_list(key: str, v: Any, nyquist: int) -> list[int]:
+    vals = v if isinstance(v, list) else [v]
+    if not vals:
+        raise SpecError(f"{key}: expected an integer or a non-empty list of integers")
+    out = [_int(f"{key}[{i}]" if isinstance(v, list) else key, x, ge=8, le=65536) for i, x in enumerate(vals)]
+    for x in out:
+        if x < nyquist:
+            raise SpecError(f"{key}: n={x} cannot carry surface.lambda_s (Nyquist, MODEL.md M2): "
+                            f"allowed n >= {nyquist}")
+    if len(set(out)) != len(out):
+        raise SpecError(f"{key}: values must be distinct, got {out}")
+    return out
+
+
+def _method(name: str, t: dict, nyquist: int, norm: str) -> dict[str, Any]:
+    key = f"methods.{name}"
+    _known(key, t, _METHOD_KEYS[name])
+    o: dict[str, Any] = {}
+    if name != "gfmd":
+        # Which h_rms feeds the theory/SDE/FP: the continuum value of the spectrum or the rms height of the
+        # discrete surface (seed-dependent only with gaussian amplitudes). MODEL.md M2, M4.
+        o["h_rms"] = _str(f"{key}.h_rms", t.get("h_rms", "continuum"), ("continuum", "surface"))
+        if o["h_rms"] == "continuum" and norm == "c0":
+            raise SpecError(f"{key}.h_rms: 'continuum' needs surface.rms_slope or surface.rms_height; "
+                            "with surface.c0 use h_rms = 'surface'")
+    o.update(_grid(key, t, required=False))
+    extra = _table(f"{key}.extra", t.get("extra", {}))
+    for k, v in extra.items():
+        if not isinstance(v, (int, float, str, bool)):
+            raise SpecError(f"{key}.extra.{k}: expected a number, string or boolean, got {v!r}")
+    o["extra"] = dict(sorted(extra.items()))
+    if name == "theory":
+        forms = t.get("forms", ["paper", "continuum"])
+        if not isinstance(forms, list) or not forms:
+            raise SpecError(f"{key}.forms: expected a non-empty list from {', '.join(THEORY_FORMS)}")
+        o["forms"] = [_str(f"{key}.forms[{i}]", f, THEORY_FORMS) for i, f in enumerate(forms)]
+        if "discrete" in o["forms"]:
+            if "n" not in t:
+                raise SpecError(f"{key}.n: required when forms contains 'discrete' (grid of the surface)")
+            o["n"] = _n_list(f"{key}.n", t["n"], nyquist)
+        elif "n" in t:
+            raise SpecError(f"{key}.n: only allowed when forms contains 'discrete'")
+    elif name == "gfmd":
+        if "n" not in t:
+            raise SpecError(f"{key}.n: missing; the GFMD grid size (integer or list, >= {nyquist})")
+        o["n"] = _n_list(f"{key}.n", t["n"], nyquist)
+        o["tol"] = _num(f"{key}.tol", t.get("tol", 1e-6), gt=0.0, lt=1.0)
+        o["max_iter"] = _int(f"{key}.max_iter", t.get("max_iter", 100000), ge=1)
+        o["method"] = _str(f"{key}.method", t.get("method", "auto"))
+        o["backend"] = _str(f"{key}.backend", t.get("backend", "auto"))
+        o["warm_start"] = _bool(f"{key}.warm_start", t.get("warm_start", True))
+        o["order"] = _str(f"{key}.order", t.get("order", "decreasing"), ("decreasing", "increasing"))
+    elif name == "sde":
+        o["samples"] = _int(f"{key}.samples", t.get("samples", 100000), ge=1, le=10**10)
+        o["dzeta"] = _num(f"{key}.dzeta", t.get("dzeta", 0.01), gt=0.0, le=10.0)
+        if "zeta_end" in t:
+            o["zeta_end"] = _num(f"{key}.zeta_end", t["zeta_end"], ge=1.0)
+        o["dtype"] = _str(f"{key}.dtype", t.get("dtype", "float32"), ("float32", "float64"))
+        o["device"] = _str(f"{key}.device", t.get("device", "cpu"), ("cpu", "cuda"))
+    if name in ("sde", "fokker_planck"):
+        if "c1" in t:
+            o["c1"] = _num(f"{key}.c1", t["c1"], gt=0.0)
+        o["c2"] = _num(f"{key}.c2", t.get("c2", 0.0), ge=0.0, le=10.0)
+    return o
+
+
+def loads(text: str) -> JobSpec:
+    """Parse and validate a job spec from TOML text; raise :class:`SpecError` on any problem."""
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise SpecError(f"not valid TOML: {e}") from None
+    _known("", raw, _TOP)
+    for k in ("job", "grid", "methods"):
+        if k not in raw:
+            raise SpecError(f"{k}: missing table [{k}]; a job needs [job], [grid] and [methods.<name>]")
+    job = _table("job", raw["job"])
+    _known("job", job, ("name", "description"))
+    if "name" not in job:
+        raise SpecError("job.name: missing; a short name for the job (letters, digits, - and _)")
+    name = _str("job.name", job["name"])
+    if not name or not all(c.isalnum() or c in "-_." for c in name):
+        raise SpecError(f"job.name: allowed characters are letters, digits, '-', '_', '.', got {name!r}")
+    description = _str("job.description", job.get("description", ""))
+
+    g = _table("grid", raw["grid"])
+    _known("grid", g, _GRID_AXES)
+    grid = _grid("grid", g, required=True)
+
+    s = _table("surface", raw.get("surface", {}))
+    _known("surface", s, ("lambda_l", "lambda_s", "length", "rms_slope", "rms_height", "c0", "amplitudes"))
+    length = _num("surface.length", s.get("length", 1.0), gt=0.0)
+    lambda_l = _num("surface.lambda_l", s.get("lambda_l", 0.25), gt=0.0, le=length)
+    lambda_s = _num("surface.lambda_s", s.get("lambda_s", 2.5e-3), gt=0.0, lt=lambda_l)
+    norms = [k for k in ("rms_slope", "rms_height", "c0") if k in s]
+    if len(norms) > 1:
+        raise SpecError(f"surface: give exactly one of rms_slope, rms_height, c0; got {', '.join(norms)}")
+    norm = norms[0] if norms else "rms_slope"
+    surface = {
+        "lambda_l": lambda_l, "lambda_s": lambda_s, "length": length,
+        norm: _num(f"surface.{norm}", s.get(norm, 1.0), gt=0.0),
+        "amplitudes": _str("surface.amplitudes", s.get("amplitudes", "fixed"), ("fixed", "gaussian")),
+    }
+    # M2 Nyquist condition as the surface module applies it: n > 2 floor(L / lambda_s).
+    nyquist = 2 * int(math.floor(length / lambda_s * (1 + 1e-9))) + 1
+
+    m = _table("material", raw.get("material", {}))
+    _known("material", m, ("e_star", "gamma0"))
+    material = {"e_star": _num("material.e_star", m.get("e_star", 1.0), gt=0.0),
+                "gamma0": _num("material.gamma0", m.get("gamma0", 1e-3), gt=0.0)}
+
+    h = _table("histogram", raw.get("histogram", {}))
+    _known("histogram", h, ("bins", "range"))
+    bins = _int("histogram.bins", h.get("bins", 64), ge=1, le=100000)
+    rng = h.get("range", "auto")
+    if rng != "auto":
+        if not (isinstance(rng, list) and len(rng) == 2 and all(_is_num(x) for x in rng) and rng[0] < rng[1]):
+            raise SpecError(f"histogram.range: expected 'auto' or [lo, hi] with lo < hi (absolute gap), got {rng!r}")
+        rng = [float(rng[0]), float(rng[1])]
+    histogram = {"bins": bins, "range": rng}
+
+    meth = _table("methods", raw["methods"])
+    _known("methods", meth, METHODS)
+    if not meth:
+        raise SpecError(f"methods: empty; add at least one of [methods.{'], [methods.'.join(METHODS)}]")
+    methods = {k: _method(k, _table(f"methods.{k}", v), nyquist, norm) for k, v in meth.items()}
+    return JobSpec(name=name, description=description, text=text, grid=grid, surface=surface,
+                   material=material, histogram=histogram, methods=methods)
+
+
+def load(path: str | Path) -> JobSpec:
+    """Read and validate a job spec file (see :func:`loads`)."""
+    p = Path(path)
+    if not p.is_file():
+        raise SpecError(f"job spec {str(p)!r}: no such file")
+    return loads(p.read_text())

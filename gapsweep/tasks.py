@@ -1,0 +1,450 @@
+"""Tasks: expansion of a job spec into tasks with stable content ids, work units, and the dispatch to solvers.
+
+This is the only module that knows the solvers' signatures (``gapsweep.theory``, ``gfmd``, ``sde``,
+``fokker_planck``); it calls their public functions and turns what they return into one store row
+(:class:`TaskResult`). It holds no physics of its own.
+
+* A :class:`Task` is one (method, hurst, rho, sigma0, seed, n) point with the spec's fixed parameters; its id is
+  the first 16 hex digits of the SHA-256 of its canonical JSON (parameters that change the result, never the
+  position in the grid), so resume and merge are keyed by content.
+* A :class:`Unit` is what a worker runs in one go: a single task, or a GFMD pressure chain (same surface,
+  sigma0 in decreasing or increasing order) where each solve warm-starts from the previous solution. A chain is
+  always run from its start on one rank, so its results do not depend on the rank count or on resume.
+* Adding a method: a ``_expand_<method>`` generator, a ``_run_<method>`` function and a cost model (a few lines).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import time
+import warnings
+from collections import OrderedDict
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from gapsweep.spec import METHODS, JobSpec
+
+__all__ = [
+    "FLOAT_RESULTS",
+    "INT_RESULTS",
+    "STATUS",
+    "Context",
+    "Task",
+    "TaskResult",
+    "Unit",
+    "estimate_cost",
+    "expand",
+    "make_units",
+    "run_unit",
+    "shard_units",
+]
+
+# Status codes of the store (docs/store.md).
+STATUS = {"pending": 0, "done": 1, "failed": 2, "not_converged": 3}
+# Result columns (float64, NaN where not computed) and integer result columns (-1 where not computed).
+FLOAT_RESULTS = (
+    "mean_gap", "mean_gap_paper", "mean_gap_continuum", "mean_gap_discrete", "h_rms", "g_rms",
+    "residual", "load_error", "wall_time", "gap_std", "gap_min", "gap_max",
+)
+INT_RESULTS = ("iterations", "count", "rank")
+
+
+@dataclass(frozen=True)
+class Task:
+    """One grid point of one method. ``options`` holds every other input that changes the result."""
+
+    method: str
+    hurst: float
+    rho: float
+    sigma0: float
+    seed: int
+    n: int
+    options: tuple[tuple[str, Any], ...]
+    task_id: str = ""
+    chain: str = ""
+
+    def opt(self, key: str, default: Any = None) -> Any:
+        for k, v in self.options:
+            if k == key:
+                return v
+        return default
+
+    @property
+    def params(self) -> dict[str, Any]:
+        return dict(self.options)
+
+
+@dataclass
+class TaskResult:
+    """One store row: status (key of :data:`STATUS`), message, scalar results, optional histogram."""
+
+    status: str
+    message: str = ""
+    values: dict[str, float] = field(default_factory=dict)
+    hist: tuple[np.ndarray, np.ndarray, int] | None = None  # (edges, density, count)
+
+
+@dataclass(frozen=True)
+class Unit:
+    """Indices of tasks run in order by one worker (a GFMD chain or a single task) and its cost estimate [s]."""
+
+    tasks: tuple[int, ...]
+    cost: float
+    gpu: bool = False
+
+
+def _task_id(payload: dict[str, Any]) -> str:
+    text = json.dumps(payload, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _make(method: str, hurst: float, rho: float, sigma0: float, seed: int, n: int, opts: dict[str, Any],
+          chain: bool) -> Task:
+    options = tuple(sorted(opts.items()))
+    payload = {"method": method, "hurst": hurst, "rho": rho, "sigma0": sigma0, "seed": seed, "n": n,
+               "options": {k: v for k, v in options}}
+    tid = _task_id(payload)
+    ckey = ""
+    if chain:
+        cpay = {k: v for k, v in payload.items() if k != "sigma0"}
+        ckey = _task_id(cpay)
+    return Task(method, hurst, rho, sigma0, seed, n, options, tid, ckey)
+
+
+def _axes(spec: JobSpec, m: str) -> dict[str, list]:
+    o = spec.methods[m]
+    return {ax: o.get(ax, spec.grid[ax]) for ax in ("hurst", "rho", "sigma0", "seeds")}
+
+
+def _common(spec: JobSpec, m: str, with_hist: bool) -> dict[str, Any]:
+    """Options shared by all tasks of a method: surface, material, method options (grid overrides removed)."""
+    o = {k: v for k, v in spec.methods[m].items() if k not in ("hurst", "rho", "sigma0", "seeds", "n", "extra")}
+    o.update({f"surface.{k}": v for k, v in spec.surface.items()})
+    o.update(spec.material)
+    for k, v in spec.methods[m].get("extra", {}).items():
+        o[f"extra.{k}"] = v
+    if with_hist:
+        o["bins"] = spec.histogram["bins"]
+        o["range"] = spec.histogram["range"]
+    if "forms" in o:
+        o["forms"] = list(o["forms"])
+    return o
+
+
+def _expand_theory(spec: JobSpec) -> Iterator[Task]:
+    ax, o = _axes(spec, "theory"), _common(spec, "theory", with_hist=False)
+    discrete = "discrete" in o["forms"]
+    # Without the discrete form the theory needs no surface (unless h_rms comes from the surface): one task per
+    # (hurst, rho, sigma0), seed 0.
+    seeded = discrete or (o["h_rms"] == "surface" and spec.surface["amplitudes"] == "gaussian")
+    seeds = ax["seeds"] if seeded else [0]
+    ns = spec.methods["theory"].get("n", [0])
+    for h in ax["hurst"]:
+        for r in ax["rho"]:
+            for s in seeds:
+                for n in ns:
+                    for p in ax["sigma0"]:
+                        yield _make("theory", h, r, p, s, n, o, chain=False)
+
+
+def _expand_gfmd(spec: JobSpec) -> Iterator[Task]:
+    ax, o = _axes(spec, "gfmd"), _common(spec, "gfmd", with_hist=True)
+    rev = o["order"] == "decreasing"
+    for h in ax["hurst"]:
+        for r in ax["rho"]:
+            for s in ax["seeds"]:
+                for n in spec.methods["gfmd"]["n"]:
+                    for p in sorted(ax["sigma0"], reverse=rev):
+                        yield _make("gfmd", h, r, p, s, n, o, chain=o["warm_start"])
+
+
+def _expand_sde(spec: JobSpec) -> Iterator[Task]:
+    ax, o = _axes(spec, "sde"), _common(spec, "sde", with_hist=True)
+    for h in ax["hurst"]:
+        for r in ax["rho"]:
+            for s in ax["seeds"]:
+                for p in ax["sigma0"]:
+                    yield _make("sde", h, r, p, s, 0, o, chain=False)
+
+
+def _expand_fokker_planck(spec: JobSpec) -> Iterator[Task]:
+    ax, o = _axes(spec, "fokker_planck"), _common(spec, "fokker_planck", with_hist=True)
+    seeds = ax["seeds"] if (o["h_rms"] == "surface" and spec.surface["amplitudes"] == "gaussian") else [0]
+    for h in ax["hurst"]:
+        for r in ax["rho"]:
+            for s in seeds:
+                for p in ax["sigma0"]:
+                    yield _make("fokker_planck", h, r, p, s, 0, o, chain=False)
+
+
+_EXPAND = {"theory": _expand_theory, "gfmd": _expand_gfmd, "sde": _expand_sde,
+           "fokker_planck": _expand_fokker_planck}
+
+
+def expand(spec: JobSpec) -> list[Task]:
+    """All tasks of a job in canonical order (method, hurst, rho, seed, n, sigma0). Ids are unique."""
+    out: list[Task] = []
+    for m in METHODS:
+        if m in spec.methods:
+            out.extend(_EXPAND[m](spec))
+    ids = [t.task_id for t in out]
+    if len(set(ids)) != len(ids):  # pragma: no cover - only on a hash collision
+        raise RuntimeError("duplicate task ids")
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------------
+# cost model (seconds on one core; rough, for ordering and `gapsweep plan`)
+
+
+def estimate_cost(t: Task) -> float:
+    """Rough wall time of a task on one CPU core [s]; only ratios matter for scheduling."""
+    if t.method == "theory":
+        return 2e-4 + (3e-8 * t.n * t.n * math.log2(max(t.n, 2)) if t.n else 0.0)
+    if t.method == "gfmd":
+        # ~ iterations x (FFT pair + a few array passes); preconditioned CG needs 5..30 (measured at N = 1024,
+        # about 15 ms per iteration on one core with pyFFTW).
+        return 0.02 + 20 * 1.5e-9 * t.n * t.n * math.log2(t.n)
+    if t.method == "sde":
+        zeta_s = t.opt("surface.lambda_l") / t.opt("surface.lambda_s")
+        steps = (t.opt("zeta_end", zeta_s) - 1.0) / t.opt("dzeta")
+        per = 3e-10 if t.opt("device") == "cuda" else 3e-8
+        return 0.5 + t.opt("samples") * steps * per
+    return 1.0  # fokker_planck
+
+
+def make_units(tasks: list[Task]) -> list[Unit]:
+    """Group chained tasks (same ``chain`` key) in their expansion order; others are single-task units.
+    Units are sorted largest cost first (ties by first task id), the order a coordinator hands them out."""
+    chains: OrderedDict[str, list[int]] = OrderedDict()
+    units: list[Unit] = []
+    for i, t in enumerate(tasks):
+        if t.chain:
+            chains.setdefault(t.chain, []).append(i)
+        else:
+            units.append(Unit((i,), estimate_cost(t), t.opt("device") == "cuda"))
+    for idx in chains.values():
+        units.append(Unit(tuple(idx), sum(estimate_cost(tasks[i]) for i in idx), False))
+    units.sort(key=lambda u: (-u.cost, tasks[u.tasks[0]].task_id))
+    return units
+
+
+def shard_units(units: list[Unit], index: int, count: int) -> list[Unit]:
+    """Units of shard ``index`` of ``count``: greedy longest-processing-time split of the cost-sorted units
+    (deterministic, balanced by estimated cost)."""
+    if not (isinstance(count, int) and count >= 1 and isinstance(index, int) and 0 <= index < count):
+        raise ValueError(f"shard must be i/n with 0 <= i < n, got {index}/{count}")
+    load = [0.0] * count
+    mine = []
+    for u in units:
+        k = min(range(count), key=lambda j: (load[j], j))
+        load[k] += u.cost
+        if k == index:
+            mine.append(u)
+    return mine
+
+
+# ---------------------------------------------------------------------------------------------------------
+# execution
+
+
+class Context:
+    """Per-rank state: surface cache (one surface per (hurst, seed, n) and surface parameters), the GPU this
+    rank may use, and test hooks (``GAPSWEEP_TEST_DELAY`` seconds per task, ``GAPSWEEP_TEST_FAIL`` a comma list
+    of sigma0 values whose tasks raise)."""
+
+    def __init__(self, rank: int = 0, gpu: int | None = None, max_surfaces: int = 4) -> None:
+        self.rank = rank
+        self.gpu = gpu
+        self._surfaces: OrderedDict[tuple, np.ndarray] = OrderedDict()
+        self._max = max_surfaces
+        self._delay = float(os.environ.get("GAPSWEEP_TEST_DELAY", "0") or 0)
+        fail = os.environ.get("GAPSWEEP_TEST_FAIL", "")
+        self._fail = {float(x) for x in fail.split(",") if x.strip()}
+
+    def surface(self, t: Task, n: int) -> np.ndarray:
+        """The surface of ``t`` on an ``n x n`` grid, generated once per rank (M2)."""
+        from gapsweep import surface
+
+        sp = {k[8:]: v for k, v in t.options if k.startswith("surface.")}
+        key = (t.hurst, t.seed, n, tuple(sorted(sp.items())))
+        h = self._surfaces.get(key)
+        if h is None:
+            h = surface.self_affine(n, t.hurst, seed=t.seed, **sp)
+            h.setflags(write=False)
+            self._surfaces[key] = h
+            while len(self._surfaces) > self._max:
+                self._surfaces.popitem(last=False)
+        else:
+            self._surfaces.move_to_end(key)
+        return h
+
+
+def _moments(t: Task, ctx: Context) -> tuple[float, float]:
+    """(h_rms, g_rms) fed to theory/SDE/FP: continuum values of the spectrum, or those of the discrete surface
+    on the smallest grid that carries lambda_s (M2: the mode set does not depend on the grid)."""
+    from gapsweep import surface
+
+    sp = {k[8:]: v for k, v in t.options if k.startswith("surface.")}
+    if t.opt("h_rms") == "continuum":
+        if "rms_height" in sp:
+            return sp["rms_height"], math.nan
+        g = sp["rms_slope"]
+        return surface.continuum_rms_height(t.hurst, lambda_l=sp["lambda_l"], lambda_s=sp["lambda_s"],
+                                            rms_slope=g), g
+    n = 2 * int(math.floor(sp["length"] / sp["lambda_s"] * (1 + 1e-9))) + 2
+    h = ctx.surface(t, n)
+    return surface.rms_height(h), surface.rms_slope(h, sp["length"])
+
+
+def _extra(t: Task) -> dict[str, Any]:
+    return {k[6:]: v for k, v in t.options if k.startswith("extra.")}
+
+
+def _hist(t: Task, samples: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    finite = samples[np.isfinite(samples)]
+    rng = t.opt("range")
+    r = None if rng == "auto" else tuple(rng)
+    if r is None and finite.size and finite.min() == finite.max():
+        r = (finite.min() - 0.5, finite.max() + 0.5)
+    dens, edges = np.histogram(finite, bins=t.opt("bins"), range=r)
+    total = dens.sum()
+    width = np.diff(edges)
+    density = dens / (total * width) if total else np.zeros_like(width)
+    return edges, density, int(total)
+
+
+def _run_theory(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
+    from gapsweep import theory
+
+    h_rms, g_rms = _moments(t, ctx)
+    sp = {k[8:]: v for k, v in t.options if k.startswith("surface.")}
+    kw = dict(hurst=t.hurst, h_rms=h_rms, rho=t.rho, gamma0=t.opt("gamma0"), lambda_l=sp["lambda_l"],
+              lambda_s=sp["lambda_s"], e_star=t.opt("e_star"), **_extra(t))
+    v: dict[str, float] = {"h_rms": h_rms, "g_rms": g_rms}
+    for form in t.opt("forms"):
+        if form == "discrete":
+            h = ctx.surface(t, t.n)
+            v["mean_gap_discrete"] = float(theory.mean_gap_discrete(
+                t.sigma0, h, rho=t.rho, gamma0=t.opt("gamma0"), lambda_l=sp["lambda_l"], length=sp["length"],
+                e_star=t.opt("e_star")))
+        else:
+            v[f"mean_gap_{form}"] = float(theory.mean_gap(t.sigma0, form=form, **kw))
+    v["mean_gap"] = v[f"mean_gap_{t.opt('forms')[0]}"]
+    return TaskResult("done", "", v), None
+
+
+def _run_gfmd(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
+    from gapsweep import gfmd, surface
+
+    h = ctx.surface(t, t.n)
+    sp = {k[8:]: v for k, v in t.options if k.startswith("surface.")}
+    res = gfmd.solve(h, sigma0=t.sigma0, gamma0=t.opt("gamma0"), rho=t.rho, e_star=t.opt("e_star"),
+                     length=sp["length"], tol=t.opt("tol"), method=t.opt("method"), backend=t.opt("backend"),
+                     max_iter=t.opt("max_iter"), initial=prev if t.opt("warm_start") else None, **_extra(t))
+    gap = np.asarray(res.gap, dtype=float)
+    v = {"mean_gap": float(res.mean_gap), "h_rms": surface.rms_height(h), "g_rms": surface.rms_slope(h, sp["length"]),
+         "residual": float(res.residual), "load_error": float(getattr(res, "load_error", math.nan)),
+         "iterations": int(res.iterations), "gap_std": float(np.std(gap)), "gap_min": float(np.min(gap)),
+         "gap_max": float(np.max(gap))}
+    ok = bool(res.converged) and math.isfinite(v["mean_gap"])
+    status = "done" if ok else "not_converged"
+    msg = "" if ok else f"gfmd: {getattr(res, 'status', 'not converged')} (residual {v['residual']:.3g})"
+    state = res if ok else None  # warm start from the converged solution only
+    return TaskResult(status, msg, v, _hist(t, gap)), state
+
+
+def _run_sde(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
+    from gapsweep import sde
+
+    h_rms, g_rms = _moments(t, ctx)
+    sp = {k[8:]: v for k, v in t.options if k.startswith("surface.")}
+    device = t.opt("device")
+    if device == "cuda":
+        device = f"cuda:{ctx.gpu or 0}"
+    kw = dict(hurst=t.hurst, h_rms=h_rms, rho=t.rho, gamma0=t.opt("gamma0"), lambda_l=sp["lambda_l"],
+              lambda_s=sp["lambda_s"], e_star=t.opt("e_star"), c2=t.opt("c2"), dzeta=t.opt("dzeta"),
+              n=t.opt("samples"), seed=t.seed, device=device, dtype=t.opt("dtype"), **_extra(t))
+    if t.opt("c1") is not None:
+        kw["c1"] = t.opt("c1")
+    if t.opt("zeta_end") is not None:
+        kw["zeta_end"] = t.opt("zeta_end")
+    g = np.asarray(sde.gap_samples(t.sigma0, **kw), dtype=np.float64)
+    fin = np.isfinite(g)
+    nbad = int(g.size - fin.sum())
+    gf = g[fin]
+    v = {"h_rms": h_rms, "g_rms": g_rms, "mean_gap": float(gf.mean()) if gf.size else math.nan,
+         "gap_std": float(gf.std()) if gf.size else math.nan,
+         "gap_min": float(gf.min()) if gf.size else math.nan, "gap_max": float(gf.max()) if gf.size else math.nan}
+    status, msg = ("done", "") if nbad == 0 else ("not_converged", f"sde: {nbad} of {g.size} samples not finite")
+    return TaskResult(status, msg, v, _hist(t, g)), None
+
+
+def _run_fokker_planck(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
+    from gapsweep import fokker_planck
+
+    h_rms, g_rms = _moments(t, ctx)
+    sp = {k[8:]: v for k, v in t.options if k.startswith("surface.")}
+    kw = dict(hurst=t.hurst, h_rms=h_rms, rho=t.rho, gamma0=t.opt("gamma0"), lambda_l=sp["lambda_l"],
+              lambda_s=sp["lambda_s"], e_star=t.opt("e_star"), c2=t.opt("c2"), **_extra(t))
+    if t.opt("c1") is not None:
+        kw["c1"] = t.opt("c1")
+    res = fokker_planck.solve(t.sigma0, **kw)
+    g_edges = res.g0[-1] + res.y_edges  # cell edges in g at the final magnification
+    v: dict[str, float] = {"h_rms": h_rms, "g_rms": g_rms, "mean_gap": res.mean(),
+                           "gap_std": float(np.sqrt(max(0.0, res.variance()))), "gap_min": float(g_edges[0]),
+                           "gap_max": float(g_edges[-1]), "residual": float(res.mass_error),
+                           "iterations": int(res.n_steps)}
+    rng = t.opt("range")
+    lo, hi = (g_edges[0], g_edges[-1]) if rng == "auto" else rng
+    edges = np.linspace(lo, hi, t.opt("bins") + 1)
+    dens = res.bin_density(edges)
+    ok = res.status == "ok" and all(math.isfinite(v[k]) for k in ("mean_gap", "gap_std"))
+    msg = "" if ok else f"fokker_planck: {res.status} (edge mass {res.edge_mass:.3g})"
+    return TaskResult("done" if ok else "not_converged", msg, v, (edges, dens, 0)), None
+
+
+_RUN = {"theory": _run_theory, "gfmd": _run_gfmd, "sde": _run_sde, "fokker_planck": _run_fokker_planck}
+
+
+def run_task(t: Task, ctx: Context, prev: Any = None) -> tuple[TaskResult, Any]:
+    """Run one task; never raises: an exception becomes status ``failed`` with the message.
+    Returns the result and the warm-start state for the next task of a chain (or None)."""
+    t0 = time.perf_counter()
+    try:
+        if ctx._delay:
+            time.sleep(ctx._delay)
+        if t.sigma0 in ctx._fail:
+            raise RuntimeError(f"injected failure (GAPSWEEP_TEST_FAIL) at sigma0={t.sigma0!r}")
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            res, state = _RUN[t.method](t, ctx, prev)
+        if caught and not res.message:  # solver warnings (e.g. under-resolved rho) go into the row's message
+            w = caught[0]
+            res.message = f"warning: {w.category.__name__}: {w.message}"
+    except Exception as e:  # the sweep goes on; the row records what happened
+        res, state = TaskResult("failed", f"{type(e).__name__}: {e}"), None
+    res.values["wall_time"] = time.perf_counter() - t0
+    res.values["rank"] = ctx.rank
+    return res, state
+
+
+def run_unit(tasks: list[Task], unit: Unit, ctx: Context, todo: set[int] | None = None,
+             ) -> Iterator[tuple[int, TaskResult]]:
+    """Run a unit's tasks in order, yielding ``(task index, result)`` for those in ``todo`` (all if None).
+    A chain runs from its start up to its last wanted task, so warm starts are the same as in a full run."""
+    want = [i for i in unit.tasks if todo is None or i in todo]
+    if not want:
+        return
+    last = unit.tasks.index(want[-1])
+    state = None
+    for i in unit.tasks[: last + 1]:
+        res, state = run_task(tasks[i], ctx, state)
+        if todo is None or i in todo:
+            yield i, res
