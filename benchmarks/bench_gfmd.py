@@ -86,7 +86,7 @@ def cmd_cost(a) -> None:
             rng = np.random.default_rng(0)
             X = xp.asarray(fb.rfft2(xp.asarray(rng.standard_normal((n, n)))) * 1e-6 / n**2)
             pb = gfmd._Problem(hx, X.copy(), sigma0=1e-2, rho=2e-3, e_star=1.0, length=1.0, fft=fb,
-                               ops=gfmd._NumbaOps(xp, n) if xp is np else gfmd._Ops(xp, n))
+                               ops=gfmd._make_ops(xp, n))
             sync = fb.synchronize
 
             def pair(fb=fb, X=X, hx=hx, sync=sync):
@@ -183,7 +183,7 @@ def cmd_speed(a) -> None:
         axes[0].plot([], [], mk, color="k", label=m)
     axes[0].legend(fontsize=7)
     h0, r0, s0 = a.cases[0]
-    fig.suptitle(f"GFMD speed vs error, H={h0}, rho={r0}, sigma0={s0} (markers: tol 1e-3..1e-11)")
+    fig.suptitle(f"GFMD speed vs error, H={h0}, rho={r0}, sigma0={s0} (one marker per tol in {a.tols})")
     fig.savefig(a.out / "speed.png", dpi=120)
 
 

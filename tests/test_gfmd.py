@@ -180,6 +180,14 @@ def test_too_few_iterations_not_converged() -> None:
     assert r.residual > 1e-10 and np.all(np.isfinite(r.gap))
 
 
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")  # numpy reports the overflow too
+def test_non_finite_is_reported_not_converged() -> None:
+    """Heights so large that (h - u)/rho overflows: status says so, converged is False, no exception."""
+    h = np.random.default_rng(0).standard_normal((32, 32)) * 1e307
+    r = solve(h, sigma0=1e-2, gamma0=GAMMA0, rho=0.05, backend="numpy")
+    assert r.status == "non_finite" and not r.converged
+
+
 def test_warm_start_same_answer_fewer_iterations() -> None:
     h = surface(128)
     kw = dict(gamma0=GAMMA0, rho=0.01, tol=1e-9, backend="numpy")
