@@ -291,6 +291,10 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
         elif rank == 0:
             works = coordinator_works == "yes" or (coordinator_works == "auto" and size <= 4)
             gpus = comm.gather(ctx.gpu, root=0)
+            if (not works and coordinator_works != "no" and gpus[0] is not None
+                    and any(units[k].gpu for k in work) and all(g is None for g in gpus[1:])):
+                # One GPU per node and it is rank 0's: rank 0 must work, or GPU units would find no taker.
+                works = True
             _coordinate(comm, tasks, units, work, todo, ctx, st, prog, works, wmode, gpus)
         else:
             comm.gather(ctx.gpu, root=0)
@@ -333,7 +337,8 @@ def _coordinate(comm: Any, tasks: list[Task], units: list[Unit], work: list[int]
 
     q = deque(work)  # unit indices, largest first
     lock = threading.Lock()
-    any_gpu = any(g is not None for g in gpus)
+    # GPU units wait for a GPU rank only if some rank that works has one; otherwise any rank takes them.
+    any_gpu = any(g is not None for r, g in enumerate(gpus) if r > 0 or works)
 
     def take(from_tail: bool, gpu_ok: bool) -> int | None:
         with lock:
