@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
+from gapsweep import _checks as chk
 from gapsweep import fokker_planck
-from gapsweep.sde import _count, _nonnegative, _positive
 
 __all__ = ["CalibrationResult", "distance", "fit"]
 
@@ -102,18 +102,18 @@ def fit(edges: np.ndarray, density: np.ndarray, *, sigma0: float, hurst: float, 
         raise ValueError(f"metric must be one of {DISTANCES}, got {metric!r}")
     if uncertainty not in ("curvature", "bootstrap"):
         raise ValueError(f"uncertainty must be 'curvature' or 'bootstrap', got {uncertainty!r}")
-    lo2, hi2 = (_positive(c2_bounds[0], "c2_bounds[0]"), _positive(c2_bounds[1], "c2_bounds[1]"))
+    lo2, hi2 = (chk.positive(c2_bounds[0], "c2_bounds[0]"), chk.positive(c2_bounds[1], "c2_bounds[1]"))
     if not hi2 > lo2:
         raise ValueError(f"c2_bounds must be increasing, got {c2_bounds!r}")
     if count is not None:
-        count = _count(count, "count")
-    n_boot = _count(n_boot, "n_boot", minimum=2)
-    c1_start = hurst * h_rms**2 if c1 is None else _nonnegative(c1, "c1")
+        count = chk.count(count, "count")
+    n_boot = chk.count(n_boot, "n_boot", minimum=2)
+    c1_start = hurst * h_rms**2 if c1 is None else chk.nonnegative(c1, "c1")
     if fit_c1:
         if not c1_start > 0:
             raise ValueError("fit_c1 needs a start value c1 > 0 (or h_rms > 0)")
         lo1, hi1 = c1_bounds if c1_bounds is not None else (c1_start / 10.0, c1_start * 10.0)
-        lo1, hi1 = _positive(lo1, "c1_bounds[0]"), _positive(hi1, "c1_bounds[1]")
+        lo1, hi1 = chk.positive(lo1, "c1_bounds[0]"), chk.positive(hi1, "c1_bounds[1]")
     fp_kw = dict(sigma0=sigma0, hurst=hurst, h_rms=h_rms, rho=rho, gamma0=gamma0, lambda_l=lambda_l,
                  lambda_s=lambda_s, e_star=e_star, zetas=None if zeta_end is None else [zeta_end])
     fp_kw.update(fp_options or {})

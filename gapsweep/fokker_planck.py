@@ -35,8 +35,9 @@ import numpy as np
 from scipy.linalg import solve_banded
 from scipy.special import ndtr
 
+from gapsweep import _checks as chk
 from gapsweep import theory
-from gapsweep.sde import _check_common, _count, _interval_integrals, _positive
+from gapsweep.sde import _check_common, _interval_integrals
 
 __all__ = ["FPResult", "solve"]
 
@@ -168,14 +169,14 @@ def solve(sigma0: float, *, hurst: float, h_rms: float, rho: float, gamma0: floa
         raise ValueError(f"zetas must be >= 1 (magnification), got {zs.tolist()}")
     zs = np.unique(zs)
     p = _check_common(sigma0, hurst, h_rms, rho, gamma0, lambda_l, lambda_s, e_star, float(zs[-1]), c1, c2)
-    n_steps = _count(n_steps, "n_steps")
-    cells_per_sd = _positive(cells_per_sd, "cells_per_sd")
-    cells_per_rho = _positive(cells_per_rho, "cells_per_rho")
-    width_sd = _positive(width_sd, "width_sd")
-    grading = _positive(grading, "grading")
+    n_steps = chk.count(n_steps, "n_steps")
+    cells_per_sd = chk.positive(cells_per_sd, "cells_per_sd")
+    cells_per_rho = chk.positive(cells_per_rho, "cells_per_rho")
+    width_sd = chk.positive(width_sd, "width_sd")
+    grading = chk.positive(grading, "grading")
     if not grading > 1.0:
         raise ValueError(f"grading must be > 1, got {grading!r}")
-    max_cells = _count(max_cells, "max_cells", minimum=8)
+    max_cells = chk.count(max_cells, "max_cells", minimum=8)
     rho_, zeta_end = p["rho"], float(zs[-1])
     coef = dict(hurst=p["hurst"], h_rms=p["h_rms"], rho=rho_, lambda_l=p["lambda_l"], e_star=p["e_star"])
     flat = float(theory.flat_gap(p["sigma0"], rho=rho_, gamma0=p["gamma0"]))

@@ -29,6 +29,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from gapsweep import _checks as chk
+
 __all__ = ["GridChoice", "choose_grid", "predicted_gap_error", "predicted_hist_l1"]
 
 C0, C1 = -1.02, 1.48  # law 1 (envelope of the refinement study)
@@ -52,18 +54,6 @@ class GridChoice:
     note: str
 
 
-def _check(name: str, v: float) -> float:
-    if isinstance(v, bool):
-        raise TypeError(f"{name} must be a real number")
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        raise TypeError(f"{name} must be a real number, got {v!r}") from None
-    if not (math.isfinite(x) and x > 0):
-        raise ValueError(f"{name} must be finite and > 0, got {v!r}")
-    return x
-
-
 def _slope_amplitude(lambda_s: float, rho: float, rms_slope: float) -> float:
     return rms_slope * lambda_s / (2 * math.pi * rho)
 
@@ -71,14 +61,14 @@ def _slope_amplitude(lambda_s: float, rho: float, rms_slope: float) -> float:
 def predicted_gap_error(n: int, *, lambda_s: float, rho: float, rms_slope: float = 1.0,
                         length: float = 1.0) -> float:
     """Law 1: upper envelope of the mean-gap discretisation error ``|g0(n) - g0(inf)|`` (units of length)."""
-    k = _check("lambda_s", lambda_s) * n / _check("length", length)
-    a = _slope_amplitude(lambda_s, _check("rho", rho), _check("rms_slope", rms_slope))
+    k = chk.positive(lambda_s, "lambda_s") * n / chk.positive(length, "length")
+    a = _slope_amplitude(lambda_s, chk.positive(rho, "rho"), chk.positive(rms_slope, "rms_slope"))
     return rho * 10.0 ** (k * (C0 + C1 * math.log10(a)))
 
 
 def predicted_hist_l1(n: int, *, lambda_s: float, length: float = 1.0) -> float:
     """Law 2: upper envelope of the gap-histogram L1 discretisation error (120 bins over 1.5 x gap range)."""
-    k = _check("lambda_s", lambda_s) * n / _check("length", length)
+    k = chk.positive(lambda_s, "lambda_s") * n / chk.positive(length, "length")
     return HIST_C * k ** (-HIST_P)
 
 
@@ -121,13 +111,13 @@ def choose_grid(
     only by log(safety)), ``hist_safety`` that of the power law 2. Laws and constants: module docstring.
     Raises ValueError when ``n_max`` does not suffice.
     """
-    gap_error = _check("gap_error", gap_error)
-    lambda_s, rho = _check("lambda_s", lambda_s), _check("rho", rho)
-    rms_slope, length = _check("rms_slope", rms_slope), _check("length", length)
-    safety = _check("safety", safety)
-    hist_safety = _check("hist_safety", hist_safety)
+    gap_error = chk.positive(gap_error, "gap_error")
+    lambda_s, rho = chk.positive(lambda_s, "lambda_s"), chk.positive(rho, "rho")
+    rms_slope, length = chk.positive(rms_slope, "rms_slope"), chk.positive(length, "length")
+    safety = chk.positive(safety, "safety")
+    hist_safety = chk.positive(hist_safety, "hist_safety")
     if hist_l1 is not None:
-        hist_l1 = _check("hist_l1", hist_l1)
+        hist_l1 = chk.positive(hist_l1, "hist_l1")
         if hist_l1 >= 2:
             raise ValueError(f"hist_l1 must be < 2 (L1 distance of two densities), got {hist_l1}")
     a = _slope_amplitude(lambda_s, rho, rms_slope)
@@ -136,7 +126,7 @@ def choose_grid(
     if extrapolated:
         notes.append(f"a = g_rms lambda_s/(2 pi rho) = {a:.3g} outside the studied {A_RANGE}")
     if sigma0 is not None:
-        s = _check("sigma0", sigma0) / (_check("e_star", e_star) * rms_slope)
+        s = chk.positive(sigma0, "sigma0") / (chk.positive(e_star, "e_star") * rms_slope)
         if not (SIGMA_RANGE[0] <= s <= SIGMA_RANGE[1]):
             extrapolated = True
             notes.append(f"sigma0/(E* g_rms) = {s:.3g} outside the studied {SIGMA_RANGE}")

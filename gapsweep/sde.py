@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from gapsweep import _checks as chk
 from gapsweep import theory
 
 __all__ = [
@@ -46,37 +47,6 @@ _MAX_STEPS = 50_000_000
 
 
 # ----------------------------------------------------------------------------------------------- validation
-def _positive(x: float, name: str) -> float:
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        raise TypeError(f"{name} must be a real number, got {x!r}") from None
-    if not (math.isfinite(v) and v > 0.0):
-        raise ValueError(f"{name} must be finite and > 0, got {x!r}")
-    return v
-
-
-def _nonnegative(x: float, name: str) -> float:
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        raise TypeError(f"{name} must be a real number, got {x!r}") from None
-    if not (math.isfinite(v) and v >= 0.0):
-        raise ValueError(f"{name} must be finite and >= 0, got {x!r}")
-    return v
-
-
-def _count(n: int, name: str, minimum: int = 1) -> int:
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)):
-        if isinstance(n, float) and n.is_integer():
-            n = int(n)
-        else:
-            raise TypeError(f"{name} must be an integer, got {n!r}")
-    if n < minimum:
-        raise ValueError(f"{name} must be >= {minimum}, got {n}")
-    return int(n)
-
-
 def _dtype(dtype: str | type | np.dtype) -> str:
     try:
         name = np.dtype(dtype).name
@@ -121,16 +91,16 @@ def zeta_grid(zeta_end: float, dzeta: float = 0.01, steps: str = "uniform", n_st
     ``steps="log"``: geometric, ``zeta_{k+1}/zeta_k = 1 + dzeta`` (rounded so that the last node is ``zeta_end``).
     ``n_steps`` overrides the count (``K``) of either sequence.
     """
-    zeta_end = _positive(zeta_end, "zeta_end")
+    zeta_end = chk.positive(zeta_end, "zeta_end")
     if zeta_end < 1.0:
         raise ValueError(f"zeta_end must be >= 1 (magnification), got {zeta_end!r}")
-    dzeta = _positive(dzeta, "dzeta")
+    dzeta = chk.positive(dzeta, "dzeta")
     if steps not in STEP_KINDS:
         raise ValueError(f"steps must be one of {STEP_KINDS}, got {steps!r}")
     if zeta_end == 1.0:
         return np.ones(1)
     if n_steps is not None:
-        k = _count(n_steps, "n_steps")
+        k = chk.count(n_steps, "n_steps")
     elif steps == "uniform":
         k = math.ceil((zeta_end - 1.0) / dzeta - 1e-9)
     else:
@@ -189,23 +159,21 @@ class StepPlan:
 
 
 def _check_common(sigma0, hurst, h_rms, rho, gamma0, lambda_l, lambda_s, e_star, zeta_end, c1, c2):
-    sigma0 = _positive(sigma0, "sigma0")
-    hurst = _positive(hurst, "hurst")
-    if not hurst < 1.0:
-        raise ValueError(f"hurst must be in (0, 1), got {hurst!r}")
-    h_rms = _nonnegative(h_rms, "h_rms")
-    rho = _positive(rho, "rho")
-    gamma0 = _positive(gamma0, "gamma0")
-    lambda_l = _positive(lambda_l, "lambda_l")
-    lambda_s = _positive(lambda_s, "lambda_s")
+    sigma0 = chk.positive(sigma0, "sigma0")
+    hurst = chk.hurst(hurst)
+    h_rms = chk.nonnegative(h_rms, "h_rms")
+    rho = chk.positive(rho, "rho")
+    gamma0 = chk.positive(gamma0, "gamma0")
+    lambda_l = chk.positive(lambda_l, "lambda_l")
+    lambda_s = chk.positive(lambda_s, "lambda_s")
     if lambda_s > lambda_l:
         raise ValueError(f"lambda_s must be <= lambda_l, got lambda_s={lambda_s!r}, lambda_l={lambda_l!r}")
-    e_star = _positive(e_star, "e_star")
-    zeta_end = lambda_l / lambda_s if zeta_end is None else _positive(zeta_end, "zeta_end")
+    e_star = chk.positive(e_star, "e_star")
+    zeta_end = lambda_l / lambda_s if zeta_end is None else chk.positive(zeta_end, "zeta_end")
     if zeta_end < 1.0:
         raise ValueError(f"zeta_end must be >= 1 (magnification), got {zeta_end!r}")
-    c1 = None if c1 is None else _nonnegative(c1, "c1")
-    c2 = _nonnegative(c2, "c2")
+    c1 = None if c1 is None else chk.nonnegative(c1, "c1")
+    c2 = chk.nonnegative(c2, "c2")
     return dict(sigma0=sigma0, hurst=hurst, h_rms=h_rms, rho=rho, gamma0=gamma0, lambda_l=lambda_l,
                 lambda_s=lambda_s, e_star=e_star, zeta_end=zeta_end, c1=c1, c2=c2)
 
@@ -268,8 +236,50 @@ def _batches(n: int, batch: int, first: int = 0):
         start += m
 
 
+@dataclass(frozen=True)
+class _Job:
+    """Validated arguments shared by :func:`gap_samples` and :func:`gap_histogram_counts`."""
+
+    plan: StepPlan
+    n: int
+    first: int
+    k0: int
+    k1: int
+    devices: list[str]
+    dtype: str
+    scheme: str
+    batch: int
+
+    def launches(self):
+        """``(device, global index, start, size)`` of each batch; batches go round-robin over the devices."""
+        for i, (gidx, start, m) in enumerate(_batches(self.n, self.batch, self.first)):
+            yield self.devices[i % len(self.devices)], gidx, start, m
+
+    def kernels(self):
+        """``(warp, real type, kernels of the scheme)`` for the job's arithmetic."""
+        wp = _warp()
+        from gapsweep._sde_kernels import kernels
+
+        allk = kernels(self.dtype)
+        return wp, allk["real"], allk[self.scheme]
+
+
+def _job(sigma0: float, *, n: int, seed: int, device: str | Sequence[str], dtype: str, first: int,
+         batch: int | None, scheme: str, plan_kw: dict) -> _Job:
+    """Validate the common arguments of the public samplers (same order and messages in both) and plan the steps."""
+    n = chk.count(n, "n")
+    scheme = _scheme(scheme)
+    first = chk.count(first, "first", minimum=0)
+    dtype = _dtype(dtype)
+    k0, k1 = _seed_key(seed)
+    devices = _devices(device)
+    plan = plan_steps(sigma0, **plan_kw)
+    batch = chk.count(batch, "batch") if batch is not None else _default_batch(devices[0])
+    return _Job(plan, n, first, k0, k1, devices, dtype, scheme, batch)
+
+
 def _seed_key(seed: int) -> tuple[int, int]:
-    seed = _count(seed, "seed", minimum=0)
+    seed = chk.count(seed, "seed", minimum=0)
     if seed >= 1 << 64:
         raise ValueError(f"seed must be < 2**64, got {seed}")
     return seed & 0xFFFFFFFF, seed >> 32
@@ -325,39 +335,27 @@ def gap_samples(sigma0: float, *, hurst: float, h_rms: float, rho: float, gamma0
     exact repulsion) or ``"euler"`` (the paper's Euler-Maruyama, a baseline that blows up on stiff cases).
     Raises ``FloatingPointError`` if a realisation became non-finite (only the Euler baseline does that).
     """
-    n = _count(n, "n")
-    scheme = _scheme(scheme)
-    first = _count(first, "first", minimum=0)
-    dtype = _dtype(dtype)
-    k0, k1 = _seed_key(seed)
-    devices = _devices(device)
-    plan = plan_steps(sigma0, hurst=hurst, h_rms=h_rms, rho=rho, gamma0=gamma0, lambda_l=lambda_l,
-                      lambda_s=lambda_s, e_star=e_star, zeta_end=zeta_end, c1=c1, c2=c2, dzeta=dzeta,
-                      steps=steps, n_steps=n_steps)
-    y = _run_samples(plan, n, k0, k1, devices, dtype, batch, first, scheme)
-    out = y.astype(np.float64) + plan.g0_end
+    job = _job(sigma0, n=n, seed=seed, device=device, dtype=dtype, first=first, batch=batch, scheme=scheme,
+               plan_kw=dict(hurst=hurst, h_rms=h_rms, rho=rho, gamma0=gamma0, lambda_l=lambda_l, lambda_s=lambda_s,
+                            e_star=e_star, zeta_end=zeta_end, c1=c1, c2=c2, dzeta=dzeta, steps=steps,
+                            n_steps=n_steps))
+    out = _run_samples(job).astype(np.float64) + job.plan.g0_end
     bad = int(np.count_nonzero(~np.isfinite(out)))
     if bad:
-        raise FloatingPointError(f"{bad} of {n} realisations became non-finite")
+        raise FloatingPointError(f"{bad} of {job.n} realisations became non-finite")
     return out
 
 
-def _run_samples(plan: StepPlan, n: int, k0: int, k1: int, devices: list[str], dtype: str, batch: int | None,
-                 first: int, scheme: str) -> np.ndarray:
-    wp = _warp()
-    from gapsweep._sde_kernels import kernels
-
-    allk = kernels(dtype)
-    real, ks = allk["real"], allk[scheme]
-    out = np.empty(n, dtype=dtype)
-    per_dev = {d: (_coefficient_arrays(wp, plan, real, dtype, d, scheme)) for d in devices}
+def _run_samples(job: _Job) -> np.ndarray:
+    wp, real, ks = job.kernels()
+    plan = job.plan
+    out = np.empty(job.n, dtype=job.dtype)
+    per_dev = {d: _coefficient_arrays(wp, plan, real, job.dtype, d, job.scheme) for d in job.devices}
     pending = []
-    bsize = _count(batch, "batch") if batch is not None else _default_batch(devices[0])
-    for i, (gidx, start, m) in enumerate(_batches(n, bsize, first)):
-        d = devices[i % len(devices)]
+    for d, gidx, start, m in job.launches():
         buf = wp.empty(m, dtype=real, device=d)
         wp.launch(ks["samples"], dim=m, device=d,
-                  inputs=[gidx, k0, k1, *_common_inputs(plan, real, per_dev[d]), buf])
+                  inputs=[gidx, job.k0, job.k1, *_common_inputs(plan, real, per_dev[d]), buf])
         pending.append((start, m, buf))
     for start, m, buf in pending:
         out[start:start + m] = buf.numpy()
@@ -421,26 +419,20 @@ def gap_histogram_counts(sigma0: float, *, hurst: float, h_rms: float, rho: floa
     over a default range (``g0 -/+ 6 sd``, widened for the repulsion) or increasing edges [length]. Other
     arguments as in :func:`gap_samples`.
     """
-    n = _count(n, "n")
-    scheme = _scheme(scheme)
-    first = _count(first, "first", minimum=0)
-    dtype = _dtype(dtype)
-    k0, k1 = _seed_key(seed)
-    devices = _devices(device)
-    plan = plan_steps(sigma0, hurst=hurst, h_rms=h_rms, rho=rho, gamma0=gamma0, lambda_l=lambda_l,
-                      lambda_s=lambda_s, e_star=e_star, zeta_end=zeta_end, c1=c1, c2=c2, dzeta=dzeta,
-                      steps=steps, n_steps=n_steps)
+    job = _job(sigma0, n=n, seed=seed, device=device, dtype=dtype, first=first, batch=batch, scheme=scheme,
+               plan_kw=dict(hurst=hurst, h_rms=h_rms, rho=rho, gamma0=gamma0, lambda_l=lambda_l, lambda_s=lambda_s,
+                            e_star=e_star, zeta_end=zeta_end, c1=c1, c2=c2, dzeta=dzeta, steps=steps,
+                            n_steps=n_steps))
+    plan, dtype = job.plan, job.dtype
     if np.ndim(bins) == 0:
-        edges = _default_edges(plan, _count(bins, "bins"))
+        edges = _default_edges(plan, chk.count(bins, "bins"))
     else:
         edges = np.asarray(bins, dtype=np.float64)
         if edges.ndim != 1 or edges.size < 2 or not np.all(np.isfinite(edges)) or np.any(np.diff(edges) <= 0):
             raise ValueError("bins must be a positive count or a 1-D array of >= 2 finite increasing edges")
-    wp = _warp()
-    from gapsweep._sde_kernels import N_EXTRA, kernels
+    from gapsweep._sde_kernels import N_EXTRA
 
-    allk = kernels(dtype)
-    real, ks = allk["real"], allk[scheme]
+    wp, real, ks = job.kernels()
     nb = edges.size - 1
     # bin in the y = g - g0 frame: the shift is exact in float64 on the host
     y_edges = (edges - plan.g0_end).astype(dtype)
@@ -448,24 +440,22 @@ def gap_histogram_counts(sigma0: float, *, hurst: float, h_rms: float, rho: floa
     is_uniform = int(np.allclose(widths, widths[0], rtol=1e-9, atol=0.0))
     t0 = time.perf_counter()
     state = {}
-    for d in devices:
-        state[d] = (_coefficient_arrays(wp, plan, real, dtype, d, scheme),
+    for d in job.devices:
+        state[d] = (_coefficient_arrays(wp, plan, real, dtype, d, job.scheme),
                     wp.array(y_edges, dtype=real, device=d),
                     wp.zeros(nb + N_EXTRA, dtype=wp.int64, device=d))
-    bsize = _count(batch, "batch") if batch is not None else _default_batch(devices[0])
-    for i, (gidx, _start, m) in enumerate(_batches(n, bsize, first)):
-        d = devices[i % len(devices)]
+    for d, gidx, _start, m in job.launches():
         arrays, e_arr, counts = state[d]
         wp.launch(ks["histogram"], dim=m, device=d,
-                  inputs=[gidx, k0, k1, *_common_inputs(plan, real, arrays), e_arr,
+                  inputs=[gidx, job.k0, job.k1, *_common_inputs(plan, real, arrays), e_arr,
                           real(float(y_edges[0])), real(nb / float(y_edges[-1] - y_edges[0])), is_uniform,
                           counts])
     total = np.zeros(nb + N_EXTRA, dtype=np.int64)
-    for d in devices:
+    for d in job.devices:
         total += state[d][2].numpy()
     wall = time.perf_counter() - t0
     return HistogramResult(edges=edges, counts=total[:nb], below=int(total[nb]), above=int(total[nb + 1]),
-                           nonfinite=int(total[nb + 2]), n=n, wall_time=wall, plan=plan)
+                           nonfinite=int(total[nb + 2]), n=job.n, wall_time=wall, plan=plan)
 
 
 def gap_histogram(sigma0: float, *, hurst: float, h_rms: float, rho: float, gamma0: float, lambda_l: float,

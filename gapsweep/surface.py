@@ -23,6 +23,8 @@ from typing import Literal
 
 import numpy as np
 
+from gapsweep import _checks as chk
+
 __all__ = [
     "continuum_rms_height",
     "fourier_coefficients",
@@ -39,16 +41,6 @@ _MASK = (1 << 64) - 1
 # Relative slack when testing |k| against the cut-offs, so that a mode exactly on q_l or q_s is kept
 # whatever the floating-point rounding of L/lambda.
 _EDGE = 1e-9
-
-
-def _finite_positive(name: str, value: float) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise TypeError(f"{name} must be a real number, got {value!r}") from None
-    if not math.isfinite(v) or v <= 0.0:
-        raise ValueError(f"{name} must be finite and > 0, got {value!r}")
-    return v
 
 
 def _splitmix64(x: np.ndarray) -> np.ndarray:
@@ -71,19 +63,11 @@ def _uniform(seed: int, stream: int, kx: np.ndarray, ky: np.ndarray) -> np.ndarr
 
 def wavevectors(n: int, length: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Full-grid wavevectors ``(qx, qy, |q|)`` in numpy FFT order, shape ``(n, n)``, units rad/length (M1, M2)."""
-    n = _check_n(n)
-    length = _finite_positive("length", length)
+    n = chk.count(n, "n", minimum=2)
+    length = chk.positive(length, "length")
     k = np.fft.fftfreq(n, d=1.0 / n)
     qx, qy = np.meshgrid(2 * np.pi * k / length, 2 * np.pi * k / length, indexing="ij")
     return qx, qy, np.hypot(qx, qy)
-
-
-def _check_n(n: int) -> int:
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)):
-        raise TypeError(f"n must be an integer, got {n!r}")
-    if n < 2:
-        raise ValueError(f"n must be >= 2, got {n}")
-    return int(n)
 
 
 def mode_set(
@@ -122,15 +106,11 @@ def self_affine(
     (``C0``, length^4, with ``h~(q) = sqrt(C(q)/A) exp(i phase)``) fixes the spectrum; none given means
     ``rms_slope=1`` (the paper's default). The grid must carry ``q_s``: ``n > 2 length / lambda_s``.
     """
-    n = _check_n(n)
-    if isinstance(hurst, bool):
-        raise TypeError("hurst must be a real number")
-    hurst = float(hurst)
-    if not (math.isfinite(hurst) and 0.0 < hurst < 1.0):
-        raise ValueError(f"hurst must lie in (0, 1), got {hurst!r}")
-    length = _finite_positive("length", length)
-    lambda_l = _finite_positive("lambda_l", lambda_l)
-    lambda_s = _finite_positive("lambda_s", lambda_s)
+    n = chk.count(n, "n", minimum=2)
+    hurst = chk.hurst(hurst)
+    length = chk.positive(length, "length")
+    lambda_l = chk.positive(lambda_l, "lambda_l")
+    lambda_s = chk.positive(lambda_s, "lambda_s")
     if lambda_s >= lambda_l:
         raise ValueError(f"lambda_s must be < lambda_l, got lambda_s={lambda_s!r} >= lambda_l={lambda_l!r}")
     if lambda_l > length * (1 + _EDGE):
@@ -141,7 +121,7 @@ def self_affine(
     if not given:
         given = {"rms_slope": 1.0}
     (norm_name, norm_value), = given.items()
-    norm_value = _finite_positive(norm_name, norm_value)
+    norm_value = chk.positive(norm_value, norm_name)
     if amplitudes not in ("fixed", "gaussian"):
         raise ValueError(f"amplitudes must be 'fixed' or 'gaussian', got {amplitudes!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) < 2**63:
@@ -183,29 +163,20 @@ def self_affine(
 
 def fourier_coefficients(heights: np.ndarray) -> np.ndarray:
     """``h~(q) = FFT[h] / n^2`` so that ``h(r) = sum_q h~(q) exp(i q.r)`` (M2); full (n, n) array, FFT order."""
-    h = _check_heights(heights)
+    h = chk.square_heights(heights)
     return np.fft.fft2(h) / h.size
-
-
-def _check_heights(heights: np.ndarray) -> np.ndarray:
-    h = np.asarray(heights, dtype=np.float64)
-    if h.ndim != 2 or h.shape[0] != h.shape[1]:
-        raise ValueError(f"heights must be a square 2-D array, got shape {h.shape}")
-    if not np.all(np.isfinite(h)):
-        raise ValueError("heights contain NaN or inf")
-    return h
 
 
 def rms_height(heights: np.ndarray) -> float:
     """``h_rms = sqrt(<(h - <h>)^2>)`` over the grid (M2), units of length."""
-    h = _check_heights(heights)
+    h = chk.square_heights(heights)
     return float(np.sqrt(np.mean((h - h.mean()) ** 2)))
 
 
 def rms_slope(heights: np.ndarray, length: float = 1.0) -> float:
     """Spectral rms gradient ``g_rms = sqrt(sum_q q^2 |h~(q)|^2)`` (M2): exact for a band-limited periodic
     surface (finite differences would underestimate it near Nyquist). Dimensionless."""
-    h = _check_heights(heights)
+    h = chk.square_heights(heights)
     _, _, q = wavevectors(h.shape[0], length)
     return float(np.sqrt(np.sum(q * q * np.abs(fourier_coefficients(h)) ** 2)))
 
@@ -215,9 +186,9 @@ def spectrum(heights: np.ndarray, length: float = 1.0) -> tuple[np.ndarray, np.n
 
     Returns ``(q, C)`` for the non-empty shells with ``|k| >= 1`` (units rad/length and length^4).
     """
-    h = _check_heights(heights)
+    h = chk.square_heights(heights)
     n = h.shape[0]
-    length = _finite_positive("length", length)
+    length = chk.positive(length, "length")
     power = np.abs(fourier_coefficients(h)) ** 2 * length * length
     k = np.fft.fftfreq(n, d=1.0 / n)
     kabs = np.hypot(*np.meshgrid(k, k, indexing="ij"))
@@ -234,9 +205,8 @@ def continuum_rms_height(
 ) -> float:
     """Continuum ``h_rms`` of the M2 spectrum normalised to ``g_rms = rms_slope``:
     ``h_rms^2 / g_rms^2 = int q^(-2H-1) dq / int q^(1-2H) dq`` over ``[q_l, q_s]``. Units of length."""
-    ql, qs = 2 * np.pi / _finite_positive("lambda_l", lambda_l), 2 * np.pi / _finite_positive("lambda_s", lambda_s)
-    if not 0.0 < hurst < 1.0:
-        raise ValueError(f"hurst must lie in (0, 1), got {hurst!r}")
+    ql, qs = 2 * np.pi / chk.positive(lambda_l, "lambda_l"), 2 * np.pi / chk.positive(lambda_s, "lambda_s")
+    hurst = chk.hurst(hurst)
     m0 = (ql ** (-2 * hurst) - qs ** (-2 * hurst)) / (2 * hurst)
     m2 = (qs ** (2 - 2 * hurst) - ql ** (2 - 2 * hurst)) / (2 - 2 * hurst)
     return float(rms_slope * math.sqrt(m0 / m2))

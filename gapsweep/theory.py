@@ -30,6 +30,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.special import logsumexp
 
+from gapsweep import _checks as chk
+
 __all__ = [
     "diffusion",
     "drift",
@@ -56,52 +58,8 @@ _BLOCK = 16384
 # --------------------------------------------------------------------------------------------------------------
 # validation helpers
 # --------------------------------------------------------------------------------------------------------------
-def _finite_array(x: ArrayLike, name: str) -> np.ndarray:
-    try:
-        a = np.asarray(x, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise TypeError(f"{name} must be a real number or an array of real numbers") from exc
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} must be finite (no NaN or inf)")
-    return a
-
-
-def _positive_array(x: ArrayLike, name: str) -> np.ndarray:
-    a = _finite_array(x, name)
-    if np.any(a <= 0):
-        raise ValueError(f"{name} must be > 0 and finite")
-    return a
-
-
-def _positive(x: float, name: str) -> float:
-    if isinstance(x, (bool, np.bool_)) or not isinstance(x, (int, float, np.integer, np.floating)):
-        raise TypeError(f"{name} must be a real number, got {type(x).__name__}")
-    v = float(x)
-    if not math.isfinite(v) or v <= 0:
-        raise ValueError(f"{name} must be > 0 and finite, got {x!r}")
-    return v
-
-
-def _nonnegative(x: float, name: str) -> float:
-    if isinstance(x, (bool, np.bool_)) or not isinstance(x, (int, float, np.integer, np.floating)):
-        raise TypeError(f"{name} must be a real number, got {type(x).__name__}")
-    v = float(x)
-    if not math.isfinite(v) or v < 0:
-        raise ValueError(f"{name} must be >= 0 and finite, got {x!r}")
-    return v
-
-
-def _hurst(h: float) -> float:
-    if isinstance(h, (bool, np.bool_)) or not isinstance(h, (int, float, np.integer, np.floating)):
-        raise TypeError(f"hurst must be a real number, got {type(h).__name__}")
-    v = float(h)
-    if not (0.0 < v < 1.0):
-        raise ValueError(f"hurst must lie in the open interval (0, 1), got {h!r}")
-    return v
-
-
 def _zeta_array(zeta: ArrayLike, name: str = "zeta") -> np.ndarray:
-    z = _finite_array(zeta, name)
+    z = chk.finite_array(zeta, name)
     if np.any(z < 1.0):
         raise ValueError(f"{name} must be >= 1 (magnification zeta = q/q_l, MODEL.md M2) and finite")
     return z
@@ -110,16 +68,6 @@ def _zeta_array(zeta: ArrayLike, name: str = "zeta") -> np.ndarray:
 def _out(a: np.ndarray) -> float | np.ndarray:
     """Return a Python float for 0-d results, the array otherwise."""
     return float(a) if np.ndim(a) == 0 else a
-
-
-def _heights(heights: ArrayLike) -> np.ndarray:
-    h = np.asarray(heights)
-    if np.iscomplexobj(h):
-        raise TypeError("heights must be real")
-    h = _finite_array(h, "heights")
-    if h.ndim != 2 or h.shape[0] != h.shape[1] or h.shape[0] < 2:
-        raise ValueError(f"heights must be a square 2-D array with n >= 2, got shape {h.shape}")
-    return h
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -135,10 +83,10 @@ def eta(sigma0: ArrayLike, *, rho: float, lambda_l: float, e_star: float = 1.0) 
 
     Large ``eta`` is low pressure (rigid-like), small ``eta`` high pressure (surface flattened).
     """
-    s = _positive_array(sigma0, "sigma0")
-    rho = _positive(rho, "rho")
-    lambda_l = _positive(lambda_l, "lambda_l")
-    e_star = _positive(e_star, "e_star")
+    s = chk.positive_array(sigma0, "sigma0")
+    rho = chk.positive(rho, "rho")
+    lambda_l = chk.positive(lambda_l, "lambda_l")
+    e_star = chk.positive(e_star, "e_star")
     return _out(np.exp(_log_eta(s, rho, lambda_l, e_star)))
 
 
@@ -147,9 +95,9 @@ def flat_gap(sigma0: ArrayLike, *, rho: float, gamma0: float) -> float | np.ndar
 
     Computed as ``rho (ln gamma0 - ln rho - ln sigma0)`` so that no intermediate over- or underflows.
     """
-    s = _positive_array(sigma0, "sigma0")
-    rho = _positive(rho, "rho")
-    gamma0 = _positive(gamma0, "gamma0")
+    s = chk.positive_array(sigma0, "sigma0")
+    rho = chk.positive(rho, "rho")
+    gamma0 = chk.positive(gamma0, "gamma0")
     return _out(rho * (math.log(gamma0) - math.log(rho) - np.log(s)))
 
 
@@ -165,8 +113,8 @@ def low_pressure_limit(sigma0: ArrayLike, *, h_rms: float, rho: float, gamma0: f
     ``form="continuum"`` of :func:`mean_gap` tends to it exactly; ``form="paper"`` tends to it with the roughness
     term multiplied by ``1 - zeta_s^(-2H)``.
     """
-    h_rms = _nonnegative(h_rms, "h_rms")
-    rho = _positive(rho, "rho")
+    h_rms = chk.nonnegative(h_rms, "h_rms")
+    rho = chk.positive(rho, "rho")
     return _out(np.asarray(flat_gap(sigma0, rho=rho, gamma0=gamma0)) + h_rms**2 / (2.0 * rho))
 
 
@@ -225,9 +173,9 @@ def roughness_integral(eta: ArrayLike, zeta: ArrayLike, hurst: float) -> float |
     Limits: ``I -> eta^2 (zeta^(2-2H) - 1)/(2-2H)`` for ``eta -> 0`` and ``(1 - zeta^(-2H))/(2H)`` for
     ``eta -> inf``.
     """
-    e = _positive_array(eta, "eta")
+    e = chk.positive_array(eta, "eta")
     z = _zeta_array(zeta)
-    hurst = _hurst(hurst)
+    hurst = chk.hurst(hurst)
     return _out(_integral_from_log_eta(np.log(e), z, hurst))
 
 
@@ -235,8 +183,8 @@ def roughness_integral(eta: ArrayLike, zeta: ArrayLike, hurst: float) -> float |
 # mean gap: continuum forms
 # --------------------------------------------------------------------------------------------------------------
 def _check_wavelengths(lambda_l: float, lambda_s: float) -> tuple[float, float]:
-    lambda_l = _positive(lambda_l, "lambda_l")
-    lambda_s = _positive(lambda_s, "lambda_s")
+    lambda_l = chk.positive(lambda_l, "lambda_l")
+    lambda_s = chk.positive(lambda_s, "lambda_s")
     if not lambda_s < lambda_l:
         raise ValueError(f"lambda_s must be < lambda_l, got lambda_s={lambda_s!r}, lambda_l={lambda_l!r}")
     return lambda_l, lambda_s
@@ -266,13 +214,13 @@ def mean_gap(
     ``zeta=None`` integrates up to ``zeta_s``; ``sigma0`` and ``zeta`` broadcast against each other.
     ``h_rms`` is the rms height of the full spectrum (up to ``zeta_s``) in both forms.
     """
-    s = _positive_array(sigma0, "sigma0")
-    hurst = _hurst(hurst)
-    h_rms = _nonnegative(h_rms, "h_rms")
-    rho = _positive(rho, "rho")
-    gamma0 = _positive(gamma0, "gamma0")
+    s = chk.positive_array(sigma0, "sigma0")
+    hurst = chk.hurst(hurst)
+    h_rms = chk.nonnegative(h_rms, "h_rms")
+    rho = chk.positive(rho, "rho")
+    gamma0 = chk.positive(gamma0, "gamma0")
     lambda_l, lambda_s = _check_wavelengths(lambda_l, lambda_s)
-    e_star = _positive(e_star, "e_star")
+    e_star = chk.positive(e_star, "e_star")
     if form not in FORMS:
         raise ValueError(f"form must be one of {FORMS}, got {form!r}")
     zeta_s = lambda_l / lambda_s
@@ -323,13 +271,13 @@ def mean_gap_discrete(
     The mean gap is measured from the mean plane of ``heights`` (the q = 0 mode is excluded), as everywhere in
     gapsweep (``<h> = 0``, M2). Vectorised over ``sigma0``.
     """
-    s = _positive_array(sigma0, "sigma0")
-    h = _heights(heights)
-    rho = _positive(rho, "rho")
-    gamma0 = _positive(gamma0, "gamma0")
-    lambda_l = _positive(lambda_l, "lambda_l")
-    length = _positive(length, "length")
-    e_star = _positive(e_star, "e_star")
+    s = chk.positive_array(sigma0, "sigma0")
+    h = chk.square_heights(heights)
+    rho = chk.positive(rho, "rho")
+    gamma0 = chk.positive(gamma0, "gamma0")
+    lambda_l = chk.positive(lambda_l, "lambda_l")
+    length = chk.positive(length, "length")
+    e_star = chk.positive(e_star, "e_star")
     q, shell_power = _mode_table(h, length)
     zq = q / (2.0 * math.pi / lambda_l)
     le = _log_eta(s, rho, lambda_l, e_star).ravel()
@@ -353,15 +301,12 @@ def rigid_mean_gap(heights: ArrayLike, sigma0: ArrayLike, *, rho: float, gamma0:
     ``<g>``. ``ln<exp(h/rho)>`` is evaluated as a log-sum-exp: no overflow or underflow whatever
     ``h_rms/rho`` is (tested at 50 and 1000). Vectorised over ``sigma0``. ``heights`` may have any shape.
     """
-    h = np.asarray(heights)
-    if np.iscomplexobj(h):
-        raise TypeError("heights must be real")
-    h = _finite_array(h, "heights")
+    h = chk.finite_array(heights, "heights")  # TypeError for complex heights
     if h.size == 0:
         raise ValueError("heights must not be empty")
-    s = _positive_array(sigma0, "sigma0")
-    rho = _positive(rho, "rho")
-    gamma0 = _positive(gamma0, "gamma0")
+    s = chk.positive_array(sigma0, "sigma0")
+    rho = chk.positive(rho, "rho")
+    gamma0 = chk.positive(gamma0, "gamma0")
     w = (h - h.mean()) / rho
     log_mean_exp = float(logsumexp(w)) - math.log(w.size)
     return _out(rho * (math.log(gamma0) - math.log(rho) - np.log(s) + log_mean_exp))
@@ -381,6 +326,20 @@ def _response_shell(
         return r * r * zeta ** (-2.0 * hurst - 1.0)
 
 
+def _checked_shell(
+    zeta: ArrayLike, sigma0: ArrayLike, hurst: float, h_rms: float, rho: float, lambda_l: float, e_star: float
+) -> tuple[float, float, float, np.ndarray]:
+    """Validate the arguments ``drift`` and ``diffusion`` share; return ``(hurst, h_rms, rho, response shell)``."""
+    z = _zeta_array(zeta)
+    s = chk.positive_array(sigma0, "sigma0")
+    hurst = chk.hurst(hurst)
+    h_rms = chk.nonnegative(h_rms, "h_rms")
+    rho = chk.positive(rho, "rho")
+    lambda_l = chk.positive(lambda_l, "lambda_l")
+    e_star = chk.positive(e_star, "e_star")
+    return hurst, h_rms, rho, _response_shell(z, s, hurst, rho, lambda_l, e_star)
+
+
 def drift(
     zeta: ArrayLike,
     sigma0: ArrayLike,
@@ -396,14 +355,8 @@ def drift(
     The derivative of ``mean_gap(..., form="paper")`` with respect to its upper limit ``zeta``.
     Broadcasts over ``zeta`` (>= 1) and ``sigma0``.
     """
-    z = _zeta_array(zeta)
-    s = _positive_array(sigma0, "sigma0")
-    hurst = _hurst(hurst)
-    h_rms = _nonnegative(h_rms, "h_rms")
-    rho = _positive(rho, "rho")
-    lambda_l = _positive(lambda_l, "lambda_l")
-    e_star = _positive(e_star, "e_star")
-    return _out((hurst * h_rms**2 / rho) * _response_shell(z, s, hurst, rho, lambda_l, e_star))
+    hurst, h_rms, rho, shell = _checked_shell(zeta, sigma0, hurst, h_rms, rho, lambda_l, e_star)
+    return _out((hurst * h_rms**2 / rho) * shell)
 
 
 def diffusion(
@@ -422,15 +375,9 @@ def diffusion(
     ``c1=None`` uses ``C1 = H h_rms^2`` (the variance a roughness shell adds, filtered by the linear response;
     then ``D2 = rho D1``). ``c1`` must be >= 0. Broadcasts over ``zeta`` (>= 1) and ``sigma0``.
     """
-    z = _zeta_array(zeta)
-    s = _positive_array(sigma0, "sigma0")
-    hurst = _hurst(hurst)
-    h_rms = _nonnegative(h_rms, "h_rms")
-    rho = _positive(rho, "rho")
-    lambda_l = _positive(lambda_l, "lambda_l")
-    e_star = _positive(e_star, "e_star")
-    c = hurst * h_rms**2 if c1 is None else _nonnegative(c1, "c1")
-    return _out(c * _response_shell(z, s, hurst, rho, lambda_l, e_star))
+    hurst, h_rms, rho, shell = _checked_shell(zeta, sigma0, hurst, h_rms, rho, lambda_l, e_star)
+    c = hurst * h_rms**2 if c1 is None else chk.nonnegative(c1, "c1")
+    return _out(c * shell)
 
 
 def rigid_gap_density(
@@ -443,8 +390,8 @@ def rigid_gap_density(
     the exact ``rho ln[(gamma0/(rho sigma0)) <exp(h/rho)>]`` for Gaussian heights and equals the low-pressure
     limit of M4 (and of ``mean_gap(form="continuum")``). Broadcasts over ``g`` and ``sigma0``.
     """
-    gg = _finite_array(g, "g")
-    h_rms = _positive(h_rms, "h_rms")
+    gg = chk.finite_array(g, "g")
+    h_rms = chk.positive(h_rms, "h_rms")
     g0 = np.asarray(low_pressure_limit(sigma0, h_rms=h_rms, rho=rho, gamma0=gamma0))
     x = (gg - g0) / h_rms
     return _out(np.exp(-0.5 * x * x) / (h_rms * math.sqrt(2.0 * math.pi)))

@@ -229,31 +229,26 @@ def test_discrete_low_pressure_is_variance():
     assert got == pytest.approx(ref, rel=1e-9)
 
 
+def _discrete_and_continuum(sigma0, h, hurst, h_rms_c, lam_l, lam_s):
+    """Roughness parts ``g0 - flat`` of ``mean_gap_discrete`` on ``h`` and of the continuum form (M4)."""
+    flat = th.flat_gap(sigma0, rho=P["rho"], gamma0=P["gamma0"])
+    disc = th.mean_gap_discrete(sigma0, h, rho=P["rho"], gamma0=P["gamma0"], lambda_l=lam_l)
+    cont = th.mean_gap(sigma0, hurst=hurst, h_rms=h_rms_c, rho=P["rho"], gamma0=P["gamma0"], lambda_l=lam_l,
+                       lambda_s=lam_s, form="continuum")
+    return disc - flat, cont - flat
+
+
 @pytest.mark.parametrize("hurst", [0.3, 0.8])
 def test_discrete_approaches_continuum(hurst):
     # Same spectrum on one grid (n = 512, lambda_s = 4 dx), shortening lambda_l: the lattice sum over modes
     # approaches the continuum integral as k_l = L/lambda_l grows (error ~ k_l^-2).
     n, lam_s = 512, 4 / 512
     sigma0 = np.logspace(-6, 1, 8)
-    flat = th.flat_gap(sigma0, rho=P["rho"], gamma0=P["gamma0"])
     errors = []
     for k_l, tol in ((4, 0.1), (16, 0.015), (32, 0.004)):
         lam_l = 1.0 / k_l
         h, h_rms_c = synthetic_surface(n, hurst, lam_l, lam_s)
-        disc = th.mean_gap_discrete(sigma0, h, rho=P["rho"], gamma0=P["gamma0"], lambda_l=lam_l) - flat
-        cont = (
-            th.mean_gap(
-                sigma0,
-                hurst=hurst,
-                h_rms=h_rms_c,
-                rho=P["rho"],
-                gamma0=P["gamma0"],
-                lambda_l=lam_l,
-                lambda_s=lam_s,
-                form="continuum",
-            )
-            - flat
-        )
+        disc, cont = _discrete_and_continuum(sigma0, h, hurst, h_rms_c, lam_l, lam_s)
         err = float(np.max(np.abs(disc / cont - 1)))
         assert err < tol, (k_l, err)
         errors.append(err)
@@ -267,22 +262,7 @@ def test_discrete_of_package_surface_approaches_continuum():
     h = surface.self_affine(256, hurst, lambda_l=lam_l, lambda_s=lam_s, c0=c0, seed=5)
     ql = 2 * np.pi / lam_l
     h_rms_c = math.sqrt(c0 * ql**2 * (1 - (lam_l / lam_s) ** (-2 * hurst)) / (4 * np.pi * hurst))
-    sigma0 = np.logspace(-6, 1, 8)
-    flat = th.flat_gap(sigma0, rho=P["rho"], gamma0=P["gamma0"])
-    disc = th.mean_gap_discrete(sigma0, h, rho=P["rho"], gamma0=P["gamma0"], lambda_l=lam_l) - flat
-    cont = (
-        th.mean_gap(
-            sigma0,
-            hurst=hurst,
-            h_rms=h_rms_c,
-            rho=P["rho"],
-            gamma0=P["gamma0"],
-            lambda_l=lam_l,
-            lambda_s=lam_s,
-            form="continuum",
-        )
-        - flat
-    )
+    disc, cont = _discrete_and_continuum(np.logspace(-6, 1, 8), h, hurst, h_rms_c, lam_l, lam_s)
     np.testing.assert_allclose(disc, cont, rtol=0.015)
 
 
