@@ -210,13 +210,19 @@ def estimate_cost(t: Task) -> float:
     if t.method == "gfmd":
         # ~ iterations x (FFT pair + a few array passes); preconditioned CG needs 5..30 (measured at N = 1024,
         # about 15 ms per iteration on one core with pyFFTW).
-        return 0.02 + 20 * 1.5e-9 * t.n * t.n * math.log2(t.n)
+        cpu = 0.02 + 20 * 1.5e-9 * t.n * t.n * math.log2(t.n)
+        return cpu / 20 if t.opt("backend") == "cupy" else cpu  # an H200 solve is ~20x a CPU core
     if t.method == "sde":
         zeta_s = t.opt("surface.lambda_l") / t.opt("surface.lambda_s")
         steps = (t.opt("zeta_end", zeta_s) - 1.0) / t.opt("dzeta")
         per = 3e-10 if t.opt("device") == "cuda" else 3e-8
         return 0.5 + t.opt("samples") * steps * per
     return 1.0  # fokker_planck
+
+
+def needs_gpu(t: Task) -> bool:
+    """A task that must run on a rank with a GPU: SDE on ``device = "cuda"``, GFMD with ``backend = "cupy"``."""
+    return t.opt("device") == "cuda" or (t.method == "gfmd" and t.opt("backend") == "cupy")
 
 
 def make_units(tasks: list[Task]) -> list[Unit]:
@@ -228,9 +234,9 @@ def make_units(tasks: list[Task]) -> list[Unit]:
         if t.chain:
             chains.setdefault(t.chain, []).append(i)
         else:
-            units.append(Unit((i,), estimate_cost(t), t.opt("device") == "cuda"))
+            units.append(Unit((i,), estimate_cost(t), needs_gpu(t)))
     for idx in chains.values():
-        units.append(Unit(tuple(idx), sum(estimate_cost(tasks[i]) for i in idx), False))
+        units.append(Unit(tuple(idx), sum(estimate_cost(tasks[i]) for i in idx), any(needs_gpu(tasks[i]) for i in idx)))
     units.sort(key=lambda u: (-u.cost, tasks[u.tasks[0]].task_id))
     return units
 
@@ -345,6 +351,10 @@ def _run_gfmd(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
 
     h = ctx.surface(t, t.n)
     sp = {k[8:]: v for k, v in t.options if k.startswith("surface.")}
+    if t.opt("backend") == "cupy":
+        import cupy
+
+        cupy.cuda.Device(ctx.gpu or 0).use()  # this rank's GPU (one GPU per rank on a node)
     res = gfmd.solve(h, sigma0=t.sigma0, gamma0=t.opt("gamma0"), rho=t.rho, e_star=t.opt("e_star"),
                      length=sp["length"], tol=t.opt("tol"), method=t.opt("method"), backend=t.opt("backend"),
                      max_iter=t.opt("max_iter"), initial=prev if t.opt("warm_start") else None, **_extra(t))

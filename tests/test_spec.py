@@ -90,6 +90,8 @@ BAD = [
     (("hurst = [0.3]\n", ""), ["grid.hurst", "missing"]),
     (("[grid]", "[grid\n"), ["not valid TOML"]),
     (('name = "t"', 'name = "a b"'), ["job.name", "allowed characters"]),
+    (("n = 64", 'n = 64\nbackend = "cuda"'), ["methods.gfmd.backend", "'numpy', 'pyfftw', 'cupy'"]),
+    (("n = 64", 'n = 64\nmethod = "newton"'), ["methods.gfmd.method", "'cg', 'lbfgs', 'fire'"]),
 ]
 
 
@@ -124,3 +126,12 @@ def test_repository_jobs_are_valid(capsys):
         assert cli.main(["plan", str(job)]) == 0
         out = capsys.readouterr().out
         assert f"{len(tasks.expand(js))} tasks" in out
+
+
+def test_gpu_units_go_to_gpu_ranks():
+    """GFMD with backend = "cupy" (whole pressure chains) and SDE on cuda are GPU units; the rest are not."""
+    units = tasks.make_units(tasks.expand(spec.loads(BASE)))
+    assert not any(u.gpu for u in units)
+    gpu = tasks.make_units(tasks.expand(spec.loads(BASE.replace("n = 64", 'n = 64\nbackend = "cupy"'))))
+    assert [u.gpu for u in gpu if len(u.tasks) > 1] == [True, True]
+    assert not any(u.gpu for u in gpu if len(u.tasks) == 1)  # the theory tasks
