@@ -33,9 +33,13 @@ the line search moves along it in real space (the energy along a line needs no F
 accepted point is transformed back. ``iterations`` counts these force evaluations. The default start is the
 linear response ``u~ = h~ / (1 + eta zeta)`` of M4 (one preconditioned Newton step from ``u = 0``).
 
-Kernels: fused numba loops on the CPU (numpy's SIMD exp), fused cupy kernels on the GPU, plain array code
-otherwise; FFTs from gapsweep.fft. Default method "cg": fewest force evaluations and least time in
-docs/benchmarks_gfmd.md. User guide: docs/gfmd.md.
+Kernels: fused numba loops on the CPU (numpy's SIMD exp); on the GPU one CUDA pass per step that does the
+elementwise work and its reductions together and returns its scalars in one small device-to-host copy (the only
+host synchronisation), see :class:`_CupyOps`; plain array code otherwise; FFTs from gapsweep.fft. On the GPU a
+trial point is shifted by the previous point's max instead of its own when the two lie within 50 of each other
+(``e <= e^50``, nothing overflows; the common factor cancels in ``p = sigma0 e / S``), else by its own max.
+Default method "cg": fewest force evaluations and least time in docs/benchmarks_gfmd.md. User guide:
+docs/gfmd.md.
 """
 
 from __future__ import annotations
@@ -336,111 +340,401 @@ class _NumbaOps(_Ops):
         return float(gd), float(a), float(b)
 
 
+# CUDA source of the GPU kernels. Every kernel is one grid-stride pass over its arrays (a fixed grid of
+# _CUDA_BLOCKS_PER_SM blocks per SM) that also reduces its scalars: warp shuffles, one partial per block, then
+# the last block to finish sums the partials in block order (deterministic for a fixed grid) into ``out``.
+# Slot k of a reduction is a max where bit k of ``mx`` is set (NaN propagates, as numpy's max), else a sum.
+_CUDA_SRC = r"""
+#define NT 256
+#define FULL 0xffffffffu
+
+__device__ __forceinline__ double neg_inf() { return __longlong_as_double(0xfff0000000000000LL); }
+__device__ __forceinline__ double comb(double a, double b, bool mx) {
+    return mx ? ((a != a || a > b) ? a : b) : a + b;
+}
+__device__ __forceinline__ double ident(unsigned mx, int k) { return ((mx >> k) & 1u) ? neg_inf() : 0.0; }
+__device__ __forceinline__ double cdot(double2 a, double2 b) { return a.x * b.x + a.y * b.y; }
+
+template <int K>
+__device__ void block_reduce(double* v, unsigned mx, double (*sh)[NT / 32]) {
+    const int lane = threadIdx.x & 31, wid = threadIdx.x >> 5;
+#pragma unroll
+    for (int k = 0; k < K; k++) {
+        double x = v[k];
+        for (int s = 16; s > 0; s >>= 1) x = comb(x, __shfl_down_sync(FULL, x, s), (mx >> k) & 1u);
+        v[k] = x;
+    }
+    __syncthreads();  // sh may still be read by the previous call
+    if (lane == 0) {
+#pragma unroll
+        for (int k = 0; k < K; k++) sh[k][wid] = v[k];
+    }
+    __syncthreads();
+    if (wid == 0) {
+#pragma unroll
+        for (int k = 0; k < K; k++) {
+            double x = lane < NT / 32 ? sh[k][lane] : ident(mx, k);
+            for (int s = 16; s > 0; s >>= 1) x = comb(x, __shfl_down_sync(FULL, x, s), (mx >> k) & 1u);
+            v[k] = x;
+        }
+    }
+}
+
+template <int K>
+__device__ void grid_reduce(double* v, unsigned mx, double* part, unsigned int* count, double* out) {
+    __shared__ double sh[K][NT / 32];
+    __shared__ bool last;
+    block_reduce<K>(v, mx, sh);
+    if (threadIdx.x == 0) {
+#pragma unroll
+        for (int k = 0; k < K; k++) part[k * gridDim.x + blockIdx.x] = v[k];
+        __threadfence();
+        // atomicInc wraps to 0 on the last block: the counter is ready for the next kernel.
+        last = atomicInc(count, gridDim.x - 1) == gridDim.x - 1;
+    }
+    __syncthreads();
+    if (!last) return;
+#pragma unroll
+    for (int k = 0; k < K; k++) {
+        double x = ident(mx, k);
+        for (unsigned i = threadIdx.x; i < gridDim.x; i += NT)
+            x = comb(x, __ldcg(part + k * gridDim.x + i), (mx >> k) & 1u);
+        v[k] = x;
+    }
+    block_reduce<K>(v, mx, sh);
+    if (threadIdx.x == 0) {
+#pragma unroll
+        for (int k = 0; k < K; k++) out[k] = v[k];
+    }
+}
+
+#define KERNEL extern "C" __global__ void __launch_bounds__(NT, 8)  // <= 32 registers: 8 blocks per SM
+#define KERNEL_H extern "C" __global__ void __launch_bounds__(NT, 6)  // <= 40 registers: no spills
+
+#define GRID_LOOP(i, N) \
+    for (unsigned long long i = (unsigned long long)blockIdx.x * NT + threadIdx.x; i < (N); \
+         i += (unsigned long long)gridDim.x * NT)
+
+// out[0] = max(wt), wt = W + c dt (flags & 1) or W.
+KERNEL gs_max(const double* __restrict__ W, const double* __restrict__ dt, double c,
+                                  int flags, unsigned long long N, double* part, unsigned int* count,
+                                  double* out) {
+    double v[1] = {neg_inf()};
+    const bool trial = flags & 1;
+    GRID_LOOP(i, N) {
+        const double w = trial ? fma(c, dt[i], W[i]) : W[i];
+        v[0] = comb(v[0], w, true);
+    }
+    grid_reduce<1>(v, 1u, part, count, out);
+}
+
+// Softmax point: wt = W + c dt (flags & 1: also written to Wt) or W; e = exp(wt - shift);
+// out = (max wt, sum e, sum e dm, sum e dm^2) (the moments with flags & 2).
+KERNEL gs_point(const double* __restrict__ W, const double* __restrict__ dt, double c,
+                                    const double* __restrict__ dm, double* Wt, double* e, double shift,
+                                    int flags, unsigned long long N, double* part, unsigned int* count,
+                                    double* out) {
+    double v[4] = {neg_inf(), 0.0, 0.0, 0.0};
+    const bool trial = flags & 1, mom = flags & 2;
+    GRID_LOOP(i, N) {
+        const double w = trial ? fma(c, dt[i], W[i]) : W[i];
+        if (trial) Wt[i] = w;
+        const double x = exp(w - shift);
+        e[i] = x;
+        v[0] = comb(v[0], w, true);
+        v[1] += x;
+        if (mom) {
+            const double y = x * dm[i];
+            v[2] += y;
+            v[3] += y * dm[i];
+        }
+    }
+    grid_reduce<4>(v, 1u, part, count, out);
+}
+
+// out = (sum e d, sum e d^2).
+KERNEL gs_moments(const double* __restrict__ e, const double* __restrict__ d,
+                                      unsigned long long N, double* part, unsigned int* count, double* out) {
+    double v[2] = {0.0, 0.0};
+    GRID_LOOP(i, N) {
+        const double y = e[i] * d[i];
+        v[0] += y;
+        v[1] += y * d[i];
+    }
+    grid_reduce<2>(v, 0u, part, count, out);
+}
+
+// Half spectra (n x nh, C order): Parseval weight 1 for column 0 (and nh - 1 for even n), else 2. Row r and
+// column j are carried along the grid-stride loop instead of a division per element.
+#define HALF_LOOP(i, r, j, N, nh)                                                                     \
+    unsigned long long i = (unsigned long long)blockIdx.x * NT + threadIdx.x;                          \
+    const unsigned long long stride_ = (unsigned long long)gridDim.x * NT;                             \
+    const unsigned jstep_ = (unsigned)(stride_ % (nh)), rstep_ = (unsigned)(stride_ / (nh));           \
+    unsigned j = (unsigned)(i % (nh)), r = (unsigned)(i / (nh));                                       \
+    for (; i < (N); i += stride_, r += rstep_ + (j + jstep_ >= (nh)),                                  \
+                    j = (j + jstep_ >= (nh)) ? j + jstep_ - (nh) : j + jstep_)
+#define PWEIGHT(j, nh, even) (((j) == 0 || ((even) && (j) == (nh) - 1)) ? 1.0 : 2.0)
+
+// Stiffness k = ka (kb |q|) of mode (r, j) on an n grid, |q| = hypot(min(r, n - r), j) (as _half_q).
+__device__ __forceinline__ double stiff(unsigned r, unsigned j, unsigned n, double ka, double kb) {
+    return ka * (kb * hypot((double)min(r, n - r), (double)j));
+}
+
+// out[0] = <a b> (flags & 1: <a diag b>).
+KERNEL gs_dot(const double2* __restrict__ a, const double2* __restrict__ b,
+                                  const double* __restrict__ diag, int flags, unsigned nh, int even,
+                                  unsigned long long N, double* part, unsigned int* count, double* out) {
+    double v[1] = {0.0};
+    HALF_LOOP(i, r, j, N, nh) {
+        double wgt = PWEIGHT(j, nh, even);
+        if (flags & 1) wgt *= diag[i];
+        v[0] += wgt * cdot(a[i], b[i]);
+    }
+    grid_reduce<1>(v, 0u, part, count, out);
+}
+
+// X += alpha D (flags & 1); G = k X - c E, G(q=0) = 0; out = (<G G>, <G minv G>, <G minv Gold>) (the last
+// two with flags & 2, the CG dots of the next iteration). flags & 4: k and minv = 1/(k + sr) (0 at q = 0)
+// computed from (ka, kb, sr) instead of read.
+KERNEL_H gs_grad(double2* X, const double2* __restrict__ D, double alpha, const double2* __restrict__ E, double c,
+               const double* __restrict__ k, double2* G, const double* __restrict__ minv, const double2* Gold,
+               int flags, unsigned n, double ka, double kb, double sr, unsigned nh, int even,
+               unsigned long long N, double* part, unsigned int* count, double* out) {
+    double v[3] = {0.0, 0.0, 0.0};
+    HALF_LOOP(i, r, j, N, nh) {
+        double2 x = X[i];
+        if (flags & 1) {
+            const double2 d = D[i];
+            x.x = fma(alpha, d.x, x.x);
+            x.y = fma(alpha, d.y, x.y);
+            X[i] = x;
+        }
+        const double2 ee = E[i];
+        const double kk = (flags & 4) ? stiff(r, j, n, ka, kb) : k[i];
+        double2 g = make_double2(kk * x.x - c * ee.x, kk * x.y - c * ee.y);
+        if (i == 0) g = make_double2(0.0, 0.0);
+        G[i] = g;
+        const double wgt = PWEIGHT(j, nh, even);
+        const double gg = cdot(g, g);
+        v[0] += wgt * gg;
+        if (flags & 2) {
+            const double z = wgt * ((flags & 4) ? (i == 0 ? 0.0 : 1.0 / (kk + sr)) : minv[i]);
+            v[1] += z * gg;
+            v[2] += z * cdot(g, Gold[i]);
+        }
+    }
+    grid_reduce<3>(v, 0u, part, count, out);
+}
+
+// D = beta D - minv G; out = (<G D>, <kD X>, <kD D>). flags & 4: k, minv on the fly as in gs_grad.
+KERNEL_H gs_cgdir(const double2* __restrict__ G, const double* __restrict__ minv, double2* D, double beta,
+                const double* __restrict__ k, const double2* __restrict__ X, int flags, unsigned n, double ka,
+                double kb, double sr, unsigned nh, int even, unsigned long long N, double* part,
+                unsigned int* count, double* out) {
+    double v[3] = {0.0, 0.0, 0.0};
+    HALF_LOOP(i, r, j, N, nh) {
+        const double2 g = G[i], d0 = D[i];
+        const double kk = (flags & 4) ? stiff(r, j, n, ka, kb) : k[i];
+        const double mi = (flags & 4) ? (i == 0 ? 0.0 : 1.0 / (kk + sr)) : minv[i];
+        const double2 d = make_double2(beta * d0.x - mi * g.x, beta * d0.y - mi * g.y);
+        D[i] = d;
+        const double wgt = PWEIGHT(j, nh, even);
+        const double kw = wgt * kk;
+        v[0] += wgt * cdot(g, d);
+        v[1] += kw * cdot(d, X[i]);
+        v[2] += kw * cdot(d, d);
+    }
+    grid_reduce<3>(v, 0u, part, count, out);
+}
+"""
+_CUDA_BLOCKS_PER_SM = 8
+_HALF_KERNELS = ("gs_dot", "gs_grad", "gs_cgdir")
 _CUPY_KERNELS: Any = None
+# A guessed exponent shift is used when the new max lies within this distance of it (e <= e^50: no overflow).
+_SHIFT_SLACK = 50.0
 
 
 def _cupy_kernels() -> Any:
-    """Fused cupy kernels (elementwise and reductions) for :class:`_CupyOps`; compiled on first use."""
+    """The compiled module of :data:`_CUDA_SRC` (NVRTC, on first use; cupy caches it on disk)."""
     global _CUPY_KERNELS
-    if _CUPY_KERNELS is not None:
-        return _CUPY_KERNELS
-    import cupy
+    if _CUPY_KERNELS is None:
+        import cupy
 
-    class K:
-        # <A B> with the Parseval weights (and any diagonal factor) folded into w.
-        wdot = cupy.ReductionKernel(
-            "complex128 a, complex128 b, float64 w", "float64 s",
-            "w * (a.real() * b.real() + a.imag() * b.imag())", "a + b", "s = a", "0", "gapsweep_wdot")
-        axpy_max = cupy.ReductionKernel(
-            "float64 w, float64 d, float64 c", "float64 m", "w + c * d", "max(a, b)", "m = a",
-            "-1.7976931348623157e308", "gapsweep_axpy_max")
-        trial_exp = cupy.ElementwiseKernel(
-            "float64 w, float64 d, float64 c, float64 m", "float64 wt, float64 e",
-            "wt = w + c * d; e = exp(wt - m);", "gapsweep_trial_exp")
-        shift_exp = cupy.ElementwiseKernel(
-            "float64 w, float64 m", "float64 e", "e = exp(w - m);", "gapsweep_shift_exp")
-        sum_ed = cupy.ReductionKernel(
-            "float64 e, float64 d", "float64 s", "e * d", "a + b", "s = a", "0", "gapsweep_sum_ed")
-        sum_edd = cupy.ReductionKernel(
-            "float64 e, float64 d", "float64 s", "e * d * d", "a + b", "s = a", "0", "gapsweep_sum_edd")
-        grad = cupy.ElementwiseKernel(
-            "complex128 D, float64 alpha, complex128 E, float64 c, float64 k", "complex128 X, complex128 G",
-            "X = X + alpha * D; G = k * X - c * E;", "gapsweep_grad")
-        cg_dir = cupy.ElementwiseKernel(
-            "complex128 G, float64 minv, float64 beta", "complex128 D", "D = beta * D - minv * G;",
-            "gapsweep_cg_dir")
+        mod = cupy.RawModule(code=_CUDA_SRC, options=("--std=c++14",))
+        names = ("gs_max", "gs_point", "gs_moments", "gs_dot", "gs_grad", "gs_cgdir")
+        _CUPY_KERNELS = {name: mod.get_function(name) for name in names}
+    return _CUPY_KERNELS
 
-    _CUPY_KERNELS = K
-    return K
+
+class _DeviceMax:
+    """``max(w + c d)`` of a pending trial point (:meth:`_CupyOps.trial`): known once :meth:`_CupyOps.expstats`
+    ran the point's single fused pass; ``float()`` before that costs a separate max pass."""
+
+    __slots__ = ("c", "d", "ops", "out", "value", "w")
+
+    def __init__(self, ops: _CupyOps, w, d, c: float, out) -> None:
+        self.ops, self.w, self.d, self.c, self.out = ops, w, d, c, out
+        self.value: float | None = None
+
+    def __float__(self) -> float:
+        if self.value is None:
+            self.value = self.ops._max(self.w, self.d, self.c)
+        return self.value
+
+    def __repr__(self) -> str:
+        return f"_DeviceMax({self.value!r})"
 
 
 class _CupyOps(_Ops):
-    """GPU variant of :class:`_Ops`: fused cupy kernels, Parseval weights folded into stored diagonals."""
+    """GPU variant of :class:`_Ops`: one fused CUDA pass per operation (elementwise work and its reductions
+    together, :data:`_CUDA_SRC`) and one small device-to-host copy of its scalars, the only host
+    synchronisation. A trial point costs one pass: ``exp(w - m)`` is shifted by the max of the previous point
+    (``m`` moves little along a line search) and the new max comes out of the same pass; only when it lies
+    more than ``_SHIFT_SLACK`` away is the pass repeated with the exact shift. The sums returned are those of
+    the stored ``e`` (any common factor cancels in ``p = sigma0 e / S``). In CG the gradient pass also returns
+    the next iteration's ``<Z G>``, ``<Z G_old>`` (see :meth:`bind_cg`)."""
 
     def __init__(self, xp: Any, n: int) -> None:
         super().__init__(xp, n)
         self.K = _cupy_kernels()
-        w = np.full(n // 2 + 1, 2.0)
-        w[0] = 1.0
-        if self.even:
-            w[-1] = 1.0
-        self.w = xp.asarray(w)[None, :]
-        self._diag: dict[int, Any] = {}
+        self.nh = n // 2 + 1
+        sms = xp.cuda.Device().attributes["MultiProcessorCount"]
+        # Grid-stride kernels: exactly as many blocks as can be resident at once (no tail wave).
+        self.grid = {}
+        for name, fn in self.K.items():
+            regs = -(-int(getattr(fn, "num_regs", 32) or 32) // 8) * 8
+            per_sm = max(1, min(_CUDA_BLOCKS_PER_SM, 65536 // (regs * 256)))
+            size = n * (self.nh if name in _HALF_KERNELS else n)
+            self.grid[name] = (int(max(1, min(-(-size // 256), per_sm * sms))),)
+        self.part = xp.empty(4 * max(g[0] for g in self.grid.values()), dtype=xp.float64)
+        self.count = xp.zeros(1, dtype=xp.uint32)
+        self.res = xp.zeros(4, dtype=xp.float64)
+        # Scalars come back through one pinned buffer: a bare async copy and a stream sync per pass.
+        try:
+            import cupyx
 
-    def _weighted(self, diag):
-        """``w * diag`` for a stored diagonal (k or M^-1), cached by identity."""
-        key = id(diag)
-        hit = self._diag.get(key)
-        if hit is None or hit[0] is not diag:
-            hit = (diag, diag * self.w)
-            self._diag[key] = hit
-        return hit[1]
+            self._host = cupyx.empty_pinned((4,), dtype=np.float64)
+        except Exception:  # pragma: no cover - old cupy
+            self._host = None
+        self._stiff: tuple | None = None  # (k, minv, ka, kb, sr) of the bound problem
+        self._nr = np.uint64(n * n)
+        self._nhalf = np.uint64(n * self.nh)
+        self._geo = (np.uint32(self.nh), np.int32(self.even))
+        self._guess: float | None = None  # last max of a trial point: the next shift
+        self._cg_minv = None
+        self._last_G = None
+        self._cg_cache: tuple | None = None
 
-    # cupy's ReductionKernel runs a full reduction in a single block: reduce rows first (one block each),
-    # then the short vector (measured 13.9 ms -> 0.11 ms at n = 4096 on an H200).
-    def _wdot(self, a, b, w) -> float:
-        return float(self.K.wdot(a, b, w, axis=1).sum())
-
-    def dot(self, a, b) -> float:
-        return self._wdot(a, b, self.w)
-
-    def trial(self, w, d, c: float, out) -> float:
-        # The max alone; the shifted point is written together with its exponential in expstats.
-        self._pending = (w, d, float(c), out)
-        return float(self.K.axpy_max(w, d, float(c), axis=1).max())
-
-    def expstats(self, w, m: float, e, d=None) -> tuple[float, float, float]:
-        p = getattr(self, "_pending", None)
-        if p is not None and p[3] is w:
-            self.K.trial_exp(p[0], p[1], p[2], float(m), w, e)
+    # -- launch helpers
+    def _launch(self, name: str, half: bool, nout: int, *args) -> list[float]:
+        """Run kernel ``name`` and return its ``nout`` scalars (the one host synchronisation). Array arguments
+        must be C-contiguous: all are allocated here, by _Problem or by the FFT backend."""
+        if half:
+            args = (*args, *self._geo, self._nhalf, self.part, self.count, self.res)
         else:
-            self.K.shift_exp(w, float(m), e)
-        self._pending = None
-        s = float(e.sum())
-        if d is None:
-            return s, 0.0, 0.0
-        return (s, *self.moments(e, d))
+            args = (*args, self._nr, self.part, self.count, self.res)
+        self.K[name](self.grid[name], (256,), args)
+        if self._host is None:
+            return self.res.get()[:nout].tolist()
+        rt = self.xp.cuda.runtime
+        stream = self.xp.cuda.get_current_stream()
+        rt.memcpyAsync(self._host.ctypes.data, self.res.data.ptr, 8 * nout, rt.memcpyDeviceToHost, stream.ptr)
+        stream.synchronize()
+        return self._host[:nout].tolist()
 
-    def moments(self, e, d) -> tuple[float, float]:
-        return float(self.K.sum_ed(e, d, axis=1).sum()), float(self.K.sum_edd(e, d, axis=1).sum())
+    def bind_stiffness(self, k, minv, ka: float, kb: float, sr: float) -> None:
+        """``k = ka (kb |q|)`` and ``minv = 1/(k + sr)`` (0 at q = 0) of _Problem: the half-spectrum kernels
+        compute them per mode instead of reading two arrays when given exactly these ``k``, ``minv``."""
+        self._stiff = (k, minv, np.float64(ka), np.float64(kb), np.float64(sr))
+
+    def _stiff_args(self, k, minv) -> tuple:
+        """``(flag 4 or 0, n, ka, kb, sr)`` for gs_grad/gs_cgdir."""
+        st = self._stiff
+        if st is not None and k is st[0] and (minv is None or minv is st[1]):
+            return 4, (np.uint32(self.n), st[2], st[3], st[4])
+        return 0, (np.uint32(self.n), np.float64(0), np.float64(0), np.float64(0))
+
+    def bind_cg(self, minv) -> None:
+        """CG: let every gradient pass also return ``<Z G>`` and ``<Z G_old>`` (``Z = minv G``, ``G_old`` the
+        gradient of the previous pass) for the next :meth:`cg_dots`."""
+        self._cg_minv = minv
+
+    # -- half spectra
+    def dot(self, a, b) -> float:
+        return self._wdot(a, b, None)
+
+    def _wdot(self, a, b, diag) -> float:
+        a, b = self.xp.ascontiguousarray(a), self.xp.ascontiguousarray(b)
+        flags = np.int32(0 if diag is None else 1)
+        diag = self.res if diag is None else diag
+        return float(self._launch("gs_dot", True, 1, a, b, diag, flags)[0])
 
     def grad_step(self, X, D, alpha: float, E, c: float, k, G) -> float:
-        self.K.grad(D, float(alpha), E, float(c), k, X, G)
-        G[0, 0] = 0.0
-        return self._wdot(G, G, self.w)
+        flags = 1 if alpha != 0.0 else 0
+        gold, minv = G, self.res
+        if self._cg_minv is not None:
+            flags |= 2
+            minv = self._cg_minv
+            gold = self._last_G if self._last_G is not None and self._last_G is not G else G
+        fk, geo = self._stiff_args(k, minv if flags & 2 else None)
+        r = self._launch("gs_grad", True, 3, X, D, np.float64(alpha), E, np.float64(c), k, G, minv, gold,
+                         np.int32(flags | fk), *geo)
+        self._cg_cache = (G, gold if gold is not G else None, float(r[1]), float(r[2])) if flags & 2 else None
+        self._last_G = G
+        return float(r[0])
 
     def grad(self, X, E, c: float, k, G) -> None:
         self.grad_step(X, X, 0.0, E, c, k, G)
 
     def cg_dots(self, G, G_old, minv) -> tuple[float, float]:
-        mw = self._weighted(minv)
-        zg = self._wdot(G, G, mw)
-        return zg, (self._wdot(G, G_old, mw) if G_old is not None else 0.0)
+        hit = self._cg_cache
+        if hit is not None and hit[0] is G and minv is self._cg_minv and (G_old is None or G_old is hit[1]):
+            return hit[2], (hit[3] if G_old is not None else 0.0)
+        zg = self._wdot(G, G, minv)
+        return zg, (self._wdot(G, G_old, minv) if G_old is not None else 0.0)
 
     def cg_update(self, G, minv, D, beta: float, k, X) -> tuple[float, float, float]:
-        self.K.cg_dir(G, minv, float(beta), D)
-        kw = self._weighted(k)
-        return self._wdot(G, D, self.w), self._wdot(D, X, kw), self._wdot(D, D, kw)
+        fk, geo = self._stiff_args(k, minv)
+        r = self._launch("gs_cgdir", True, 3, G, minv, D, np.float64(beta), k, X, np.int32(fk), *geo)
+        return float(r[0]), float(r[1]), float(r[2])
+
+    # -- real space
+    def _max(self, w, d, c: float) -> float:
+        return float(self._launch("gs_max", False, 1, w, d, np.float64(c), np.int32(1))[0])
+
+    def trial(self, w, d, c: float, out) -> _DeviceMax:
+        # Deferred: the point, its exponential, its max and its moments are one pass in expstats.
+        return _DeviceMax(self, w, d, float(c), out)
+
+    def _point(self, W, dt, c: float, dm, Wt, e, shift: float, flags: int) -> np.ndarray:
+        return self._launch("gs_point", False, 4, W, dt, np.float64(c), dm, Wt, e, np.float64(shift),
+                            np.int32(flags))
+
+    def expstats(self, w, m, e, d=None) -> tuple[float, float, float]:
+        p = m if isinstance(m, _DeviceMax) and m.ops is self and m.out is w and m.w is not None else None
+        if p is None:  # plain e = exp(w - m) with the caller's shift
+            W, dt, c, flags, shift = w, w, 0.0, 0, float(m)
+        else:
+            W, dt, c, flags = p.w, p.d, p.c, 1
+            if p.value is None and self._guess is None:
+                p.value = self._max(W, dt, c)
+            shift = p.value if p.value is not None else self._guess
+        if d is not None:
+            flags |= 2
+        r = self._point(W, dt, c, W if d is None else d, w, e, shift, flags)
+        if p is not None:
+            mx = float(r[0])
+            if p.value is None and math.isfinite(mx) and abs(mx - shift) > _SHIFT_SLACK:
+                r = self._point(W, dt, c, W if d is None else d, w, e, mx, flags)  # exact shift
+            p.value = mx
+            p.w = p.d = None  # release the arrays
+            if math.isfinite(mx):
+                self._guess = mx
+        return float(r[1]), (float(r[2]) if d is not None else 0.0), (float(r[3]) if d is not None else 0.0)
+
+    def moments(self, e, d) -> tuple[float, float]:
+        r = self._launch("gs_moments", False, 2, e, d)
+        return float(r[0]), float(r[1])
 
 
 # ------------------------------------------------------------------------------------------------ helpers
@@ -513,6 +807,8 @@ class _Problem:
         self.mass = self.k + sigma0 / rho  # Fourier-diagonal Hessian estimate M(q)
         self.minv = 1.0 / self.mass
         self.minv[0, 0] = 0.0  # <u> = 0: the q = 0 mode is not an unknown
+        if hasattr(ops, "bind_stiffness"):  # GPU: k and M^-1 recomputed per mode beat reading them
+            ops.bind_stiffness(self.k, self.minv, 0.5 * e_star, 2 * np.pi / length, sigma0 / rho)
         self.h = h
         self.X = x0
         self.X[0, 0] = 0.0
@@ -612,6 +908,8 @@ def _check(pb: _Problem, tol: float, max_iter: int, history: list[float]) -> str
 def _run_cg(pb: _Problem, tol: float, max_iter: int, history: list[float], eta: float = 0.1) -> str:
     """Preconditioned Polak-Ribiere+ nonlinear CG with the Newton line search of _Problem.line_search."""
     ops = pb.ops
+    if hasattr(ops, "bind_cg"):  # GPU: the gradient pass also yields the next cg_dots (no extra pass)
+        ops.bind_cg(pb.minv)
     D = pb.xp.zeros_like(pb.X)
     zg_old = 0.0
     restart = True
