@@ -215,7 +215,7 @@ def estimate_cost(t: Task) -> float:
     if t.method == "sde":
         zeta_s = t.opt("surface.lambda_l") / t.opt("surface.lambda_s")
         steps = (t.opt("zeta_end", zeta_s) - 1.0) / t.opt("dzeta")
-        per = 3e-10 if t.opt("device") == "cuda" else 3e-8
+        per = 2.5e-12 if t.opt("device") == "cuda" else 1.5e-8  # s per particle-step: H200, one CPU core
         return 0.5 + t.opt("samples") * steps * per
     return 1.0  # fokker_planck
 
