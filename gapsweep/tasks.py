@@ -16,6 +16,7 @@ This is the only module that knows the solvers' signatures (``gapsweep.theory``,
 from __future__ import annotations
 
 import hashlib
+import inspect
 import json
 import math
 import os
@@ -53,6 +54,11 @@ FLOAT_RESULTS = (
     "residual", "load_error", "wall_time", "gap_std", "gap_min", "gap_max",
 )
 INT_RESULTS = ("iterations", "count", "rank")
+# SDE tasks with more realisations than this are binned on the device (gapsweep.sde.gap_histogram_counts) instead
+# of copying every sample to the host (10^8 samples = 800 MB); each store bin is split into SDE_SUB_BINS equal
+# sub-bins there, from which the moments are computed (see _sde_binned).
+SDE_HOST_SAMPLES_MAX = 2**22
+SDE_SUB_BINS = 64
 
 
 @dataclass(frozen=True)
@@ -385,6 +391,8 @@ def _run_sde(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
         kw["c1"] = t.opt("c1")
     if t.opt("zeta_end") is not None:
         kw["zeta_end"] = t.opt("zeta_end")
+    if t.opt("samples") > SDE_HOST_SAMPLES_MAX:
+        return _sde_binned(t, kw, {"h_rms": h_rms, "g_rms": g_rms}), None
     g = np.asarray(sde.gap_samples(t.sigma0, **kw), dtype=np.float64)
     fin = np.isfinite(g)
     nbad = int(g.size - fin.sum())
@@ -394,6 +402,60 @@ def _run_sde(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
          "gap_min": float(gf.min()) if gf.size else math.nan, "gap_max": float(gf.max()) if gf.size else math.nan}
     status, msg = ("done", "") if nbad == 0 else ("not_converged", f"sde: {nbad} of {g.size} samples not finite")
     return TaskResult(status, msg, v, _hist(t, g)), None
+
+
+def _sde_binned(t: Task, kw: dict[str, Any], v: dict[str, float]) -> TaskResult:
+    """SDE row from a histogram binned on the device (M5 ensemble; only the counts reach the host).
+
+    Range: the job's ``[lo, hi]``, or for ``"auto"`` the SDE's default ``g0 -/+ 6 sd`` (widened for the
+    repulsion; ``sde._default_edges``), not the data's min..max as on the exact path. Each store bin is split
+    into ``K = SDE_SUB_BINS`` equal sub-bins of width ``w``; the stored histogram is the sub-bin counts summed
+    back (density over the binned samples, count = samples inside the range). Moments are those of the sub-bin
+    centres ``c_j`` with Sheppard's correction: ``mean = sum n_j c_j / N`` (within ``w/2`` of the exact mean of
+    the binned samples), ``std^2 = sum n_j (c_j - mean)^2 / N - w^2/12``; ``gap_min``/``gap_max`` are the outer
+    edges of the outermost occupied sub-bins (bounds at sub-bin resolution). Samples outside the range are not
+    in the moments (the row's message says how many).
+    """
+    from gapsweep import sde
+
+    bins, rng = t.opt("bins"), t.opt("range")
+    if rng == "auto":
+        names = inspect.signature(sde.plan_steps).parameters
+        plan = sde.plan_steps(t.sigma0, **{k: x for k, x in kw.items() if k in names})
+        coarse = sde._default_edges(plan, bins)
+        lo, hi = float(coarse[0]), float(coarse[-1])
+    else:
+        lo, hi = float(rng[0]), float(rng[1])
+    edges = np.linspace(lo, hi, bins + 1)  # the same edges as np.histogram(range=(lo, hi)) on the exact path
+    k = SDE_SUB_BINS
+    # sub-edges contain the store edges exactly, so summing sub-bins back gives the store bins' counts
+    sub = np.append(np.linspace(edges[:-1], edges[1:], k + 1, axis=1)[:, :-1].ravel(), edges[-1])
+    r = sde.gap_histogram_counts(t.sigma0, bins=sub, **kw)
+    counts = np.asarray(r.counts, dtype=np.int64)
+    coarse_counts = counts.reshape(bins, k).sum(axis=1)
+    total = int(counts.sum())
+    width = np.diff(edges)
+    density = coarse_counts / (total * width) if total else np.zeros_like(width)
+    msgs = []
+    if total:
+        centres = 0.5 * (sub[:-1] + sub[1:])
+        mean = float(np.dot(counts, centres) / total)
+        w = float(np.mean(np.diff(sub)))
+        var = float(np.dot(counts, (centres - mean) ** 2) / total) - w * w / 12.0  # Sheppard's correction
+        occ = np.flatnonzero(counts)
+        v.update(mean_gap=mean, gap_std=math.sqrt(max(var, 0.0)), gap_min=float(sub[occ[0]]),
+                 gap_max=float(sub[occ[-1] + 1]))
+    else:
+        v.update(mean_gap=math.nan, gap_std=math.nan, gap_min=math.nan, gap_max=math.nan)
+    status = "done" if r.nonfinite == 0 and total else "not_converged"
+    if r.nonfinite:
+        msgs.append(f"sde: {r.nonfinite} of {r.n} samples not finite")
+    if r.below + r.above:
+        msgs.append(f"sde: {r.below + r.above} of {r.n} samples outside the histogram range "
+                    "(moments from binned samples)")
+    if not total:
+        msgs.append("sde: no sample inside the histogram range (no moments)")
+    return TaskResult(status, "; ".join(msgs), v, (edges, density, total))
 
 
 def _run_fokker_planck(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:

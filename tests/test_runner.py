@@ -175,3 +175,108 @@ def test_mixed_job_rows(tmp_path):
         assert np.sum(dens * np.diff(edges)) == pytest.approx(1.0, abs=1e-9), tid
     with_hist = set(df[df.method != "theory"].task_id[df.status == "done"])
     assert with_hist <= set(hist)
+
+
+_SDE_BINNED_JOB = """
+[job]
+name = "test-sde-binned"
+
+[grid]
+hurst = [0.3]
+rho = [2e-2]
+sigma0 = [1e-2]
+seeds = [3]
+
+[surface]
+lambda_l = 0.25
+lambda_s = 0.0625
+rms_slope = 1.0
+
+[material]
+gamma0 = 1e-3
+
+[histogram]
+bins = 32
+range = {range}
+
+[methods.sde]
+samples = 20000
+dzeta = 0.05
+dtype = "float64"
+"""
+
+
+def test_sde_device_histogram_path_matches_host_path(tmp_path, monkeypatch):
+    """SDE tasks above tasks.SDE_HOST_SAMPLES_MAX are binned on the device into SDE_SUB_BINS sub-bins per store
+    bin. Same seed = same samples, so against the exact host path (threshold lowered to 1000 here): stored
+    densities and counts are identical on the same edges (float64 kernel: no edge rounding ambiguity), the mean
+    is within w/2 and the Sheppard-corrected std within w/2 + w/sqrt(12) (w = sub-bin width), min/max are
+    sub-bin bounds; samples outside a given range are reported; "auto" uses the SDE's default range."""
+    from gapsweep import sde, tasks
+
+    h_rms = surface.continuum_rms_height(0.3, lambda_l=0.25, lambda_s=0.0625, rms_slope=1.0)
+    plan = sde.plan_steps(1e-2, hurst=0.3, h_rms=h_rms, rho=2e-2, gamma0=1e-3, lambda_l=0.25, lambda_s=0.0625,
+                          dzeta=0.05)
+    g0, sd = plan.g0_end, plan.variance ** 0.5
+    calls = []
+    real_counts = sde.gap_histogram_counts
+
+    def spy(*a, **k):
+        calls.append(k["n"])
+        return real_counts(*a, **k)
+
+    monkeypatch.setattr(sde, "gap_histogram_counts", spy)
+
+    def run(rng, binned):
+        monkeypatch.setattr(tasks, "SDE_HOST_SAMPLES_MAX", 1000 if binned else 2**22)
+        job = tmp_path / f"j{len(list(tmp_path.iterdir()))}.toml"
+        job.write_text(_SDE_BINNED_JOB.format(range=rng))
+        path = job.with_suffix(".h5")
+        n_calls = len(calls)
+        assert _run(job, path)["tasks"] == 1
+        assert len(calls) == n_calls + binned  # the path taken
+        row = store.read(path).iloc[0]
+        return row, store.read_histograms(path)[row.task_id]
+
+    lo, hi = g0 - 8 * sd, g0 + 8 * sd
+    exact, (e_x, d_x, c_x) = run(f"[{lo!r}, {hi!r}]", False)
+    binned, (e_b, d_b, c_b) = run(f"[{lo!r}, {hi!r}]", True)
+    assert exact.status == binned.status == "done" and binned.message == ""
+    assert c_x == c_b == 20000
+    assert np.array_equal(e_x, e_b) and np.array_equal(d_x, d_b)
+    w = (hi - lo) / (32 * tasks.SDE_SUB_BINS)
+    assert abs(binned.mean_gap - exact.mean_gap) <= w / 2
+    assert abs(binned.gap_std - exact.gap_std) <= w / 2 + w / 12**0.5
+    assert binned.gap_min <= exact.gap_min < binned.gap_min + w * (1 + 1e-9)
+    assert binned.gap_max - w * (1 + 1e-9) < exact.gap_max <= binned.gap_max
+    assert binned.h_rms == exact.h_rms == h_rms
+    # sharper, independent: the same samples binned by numpy on the sub-edges give the row's binned moments
+    g = sde.gap_samples(1e-2, hurst=0.3, h_rms=h_rms, rho=2e-2, gamma0=1e-3, lambda_l=0.25, lambda_s=0.0625,
+                        dzeta=0.05, n=20000, seed=3, dtype="float64")
+    sub = np.linspace(lo, hi, 32 * tasks.SDE_SUB_BINS + 1)
+    n_sub = np.histogram(g, sub)[0]
+    centres = 0.5 * (sub[:-1] + sub[1:])
+    mean = n_sub @ centres / n_sub.sum()
+    std = (n_sub @ (centres - mean) ** 2 / n_sub.sum() - w * w / 12) ** 0.5  # Sheppard
+    occ = np.flatnonzero(n_sub)
+    assert binned.mean_gap == pytest.approx(mean, rel=1e-12)
+    assert binned.gap_std == pytest.approx(std, rel=1e-9)  # Sheppard changes it by ~2e-6 (relative) here
+    assert binned.gap_min == pytest.approx(sub[occ[0]], rel=1e-12)
+    assert binned.gap_max == pytest.approx(sub[occ[-1] + 1], rel=1e-12)
+
+    # a range that cuts the tails: same binned counts on both paths; the binned row says what it left out
+    narrow = f"[{g0 - sd!r}, {g0 + sd!r}]"
+    ex_n, (_, d_xn, c_xn) = run(narrow, False)
+    bn_n, (_, d_bn, c_bn) = run(narrow, True)
+    assert c_xn == c_bn and 0 < c_bn < 20000 and np.array_equal(d_xn, d_bn)
+    assert bn_n.status == ex_n.status == "done" and ex_n.mean_gap == exact.mean_gap  # host: all samples
+    assert bn_n.message == (f"sde: {20000 - c_bn} of 20000 samples outside the histogram range "
+                            "(moments from binned samples)")
+
+    # "auto": the SDE's default range g0 -/+ 6 sd (no repulsion here), nothing outside at 20000 samples
+    auto, (e_a, _, c_a) = run('"auto"', True)
+    assert np.allclose(e_a[[0, -1]], [g0 - 6 * sd, g0 + 6 * sd], rtol=0, atol=1e-12)
+    assert auto.message == "" and c_a == 20000
+    w_a = 12 * sd / (32 * tasks.SDE_SUB_BINS)
+    assert abs(auto.mean_gap - exact.mean_gap) <= w_a / 2
+    assert abs(auto.gap_std - exact.gap_std) <= w_a / 2 + w_a / 12**0.5
