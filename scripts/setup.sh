@@ -5,14 +5,15 @@
 #
 # With root and apt: Debian's Open MPI + parallel HDF5, the mpi4py wheel and h5py built against
 # that HDF5 (see ../shared/SETUP.md). Without root: pip-only (MPI from the mpich wheel, serial HDF5);
-# the sweep then falls back to rank-0 writing. Idempotent: a second run only checks.
+# the sweep then falls back to rank-0 writing (GAPSWEEP_NO_APT=1 forces this path). Idempotent: a second run
+# only checks.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 VENV=${GAPSWEEP_VENV:-.venv}
 export DEBIAN_FRONTEND=noninteractive
 PY=${PYTHON:-python3}
 
-have_root_apt() { [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; }
+have_root_apt() { [ -z "${GAPSWEEP_NO_APT:-}" ] && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; }
 
 if have_root_apt && ! dpkg -s libhdf5-openmpi-dev openmpi-bin pkg-config >/dev/null 2>&1; then
   echo "[setup] apt: Open MPI + parallel HDF5"

@@ -47,7 +47,8 @@ def mpirun(n: int, args: list[str], env: dict[str, str] | None = None, timeout: 
            popen: bool = False):
     if not _have_mpi4py():
         pytest.skip("mpi4py not installed")
-    cmd = ["mpiexec", "-n", str(n), "--oversubscribe", sys.executable, "-m", "gapsweep", *args]
+    # oversubscription via OMPI_MCA_rmaps_base_oversubscribe (Open MPI); MPICH needs no flag and rejects one
+    cmd = ["mpiexec", "-n", str(n), sys.executable, "-m", "gapsweep", *args]
     e = dict(os.environ, **ENV, **(env or {}))
     if popen:
         return subprocess.Popen(cmd, env=e, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
