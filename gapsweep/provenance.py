@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import os
+import re
 import subprocess
 from functools import lru_cache
 from importlib import metadata
@@ -29,6 +31,10 @@ def versions() -> dict[str, str]:
             out[p] = metadata.version(p)
         except metadata.PackageNotFoundError:
             out[p] = "not installed"
+    if out["gapsweep"] == "not installed":  # imported from a source tree (PYTHONPATH), not pip-installed
+        from gapsweep import __version__
+
+        out["gapsweep"] = f"{__version__} (source tree)"
     try:
         import h5py
 
@@ -41,12 +47,16 @@ def versions() -> dict[str, str]:
 
 @lru_cache(maxsize=1)
 def git_commit() -> str:
-    """Commit of the source tree gapsweep was imported from (``-dirty`` if modified), or ``unknown``."""
+    """Commit of the source tree gapsweep was imported from (``-dirty`` if modified), ``$GAPSWEEP_GIT_COMMIT``
+    where that is set (a copy of the tree without ``.git``, e.g. on a compute node), or ``unknown``."""
+    if os.environ.get("GAPSWEEP_GIT_COMMIT"):
+        return os.environ["GAPSWEEP_GIT_COMMIT"]
     root = Path(__file__).resolve().parent.parent
     try:
-        sha = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True,
-                             timeout=10).stdout.strip()
-        if not sha:
+        p = subprocess.run(["git", "-C", str(root), "rev-parse", "--verify", "HEAD"], capture_output=True,
+                           text=True, timeout=10)
+        sha = p.stdout.strip()
+        if p.returncode != 0 or not re.fullmatch(r"[0-9a-f]{40}", sha):
             return "unknown"
         dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
                                capture_output=True, text=True, timeout=10).stdout.strip()

@@ -108,3 +108,20 @@ def test_diff_and_merge_refusals(tmp_path):
         pass
     with pytest.raises(store.StoreError, match="not a gapsweep store"):
         store.read(tmp_path / "plain.h5")
+
+
+def test_git_commit_outside_a_checkout_is_unknown(monkeypatch):
+    """A tree copied without .git (compute node): `git rev-parse` fails and prints 'HEAD'; record 'unknown',
+    or the commit given in GAPSWEEP_GIT_COMMIT."""
+    import subprocess
+
+    from gapsweep import provenance
+
+    monkeypatch.delenv("GAPSWEEP_GIT_COMMIT", raising=False)
+    monkeypatch.setattr(subprocess, "run", lambda *a, **k: subprocess.CompletedProcess(a, 128, "HEAD\n", "fatal"))
+    provenance.git_commit.cache_clear()  # read once per process
+    assert provenance.git_commit() == "unknown"
+    monkeypatch.setenv("GAPSWEEP_GIT_COMMIT", "0ee057e")
+    provenance.git_commit.cache_clear()
+    assert provenance.git_commit() == "0ee057e"
+    provenance.git_commit.cache_clear()
