@@ -1,0 +1,206 @@
+"""GPU kernels of the GFMD solver (MODEL.md M3): :class:`_CupyOps`, one fused CUDA pass per operation. The
+CUDA C source lives in ``kernels.cu`` next to this module (package data), compiled by NVRTC on first use."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gapsweep.gfmd._ops import _Ops
+
+# CUDA source of the GPU kernels. Every kernel is one grid-stride pass over its arrays (a fixed grid of
+# _CUDA_BLOCKS_PER_SM blocks per SM) that also reduces its scalars: warp shuffles, one partial per block, then
+# the last block to finish sums the partials in block order (deterministic for a fixed grid) into ``out``.
+# Slot k of a reduction is a max where bit k of ``mx`` is set (NaN propagates, as numpy's max), else a sum.
+_CUDA_SRC = Path(__file__).with_name("kernels.cu").read_text(encoding="utf-8")
+_CUDA_BLOCKS_PER_SM = 8
+_HALF_KERNELS = ("gs_dot", "gs_grad", "gs_cgdir")
+_CUPY_KERNELS: Any = None
+# A guessed exponent shift is used when the new max lies within this distance of it (e <= e^50: no overflow).
+_SHIFT_SLACK = 50.0
+
+
+def _cupy_kernels() -> Any:
+    """The compiled module of :data:`_CUDA_SRC` (NVRTC, on first use; cupy caches it on disk)."""
+    global _CUPY_KERNELS
+    if _CUPY_KERNELS is None:
+        import cupy
+
+        mod = cupy.RawModule(code=_CUDA_SRC, options=("--std=c++14",))
+        names = ("gs_max", "gs_point", "gs_moments", "gs_dot", "gs_grad", "gs_cgdir")
+        _CUPY_KERNELS = {name: mod.get_function(name) for name in names}
+    return _CUPY_KERNELS
+
+
+class _DeviceMax:
+    """``max(w + c d)`` of a pending trial point (:meth:`_CupyOps.trial`): known once :meth:`_CupyOps.expstats`
+    ran the point's single fused pass; ``float()`` before that costs a separate max pass."""
+
+    __slots__ = ("c", "d", "ops", "out", "value", "w")
+
+    def __init__(self, ops: _CupyOps, w, d, c: float, out) -> None:
+        self.ops, self.w, self.d, self.c, self.out = ops, w, d, c, out
+        self.value: float | None = None
+
+    def __float__(self) -> float:
+        if self.value is None:
+            self.value = self.ops._max(self.w, self.d, self.c)
+        return self.value
+
+    def __repr__(self) -> str:
+        return f"_DeviceMax({self.value!r})"
+
+
+class _CupyOps(_Ops):
+    """GPU variant of :class:`_Ops`: one fused CUDA pass per operation (elementwise work and its reductions
+    together, :data:`_CUDA_SRC`) and one small device-to-host copy of its scalars, the only host
+    synchronisation. A trial point costs one pass: ``exp(w - m)`` is shifted by the max of the previous point
+    (``m`` moves little along a line search) and the new max comes out of the same pass; only when it lies
+    more than ``_SHIFT_SLACK`` away is the pass repeated with the exact shift. The sums returned are those of
+    the stored ``e`` (any common factor cancels in ``p = sigma0 e / S``). In CG the gradient pass also returns
+    the next iteration's ``<Z G>``, ``<Z G_old>`` (see :meth:`bind_cg`)."""
+
+    def __init__(self, xp: Any, n: int) -> None:
+        super().__init__(xp, n)
+        self.K = _cupy_kernels()
+        self.nh = n // 2 + 1
+        sms = xp.cuda.Device().attributes["MultiProcessorCount"]
+        # Grid-stride kernels: exactly as many blocks as can be resident at once (no tail wave).
+        self.grid = {}
+        for name, fn in self.K.items():
+            regs = -(-int(getattr(fn, "num_regs", 32) or 32) // 8) * 8
+            per_sm = max(1, min(_CUDA_BLOCKS_PER_SM, 65536 // (regs * 256)))
+            size = n * (self.nh if name in _HALF_KERNELS else n)
+            self.grid[name] = (int(max(1, min(-(-size // 256), per_sm * sms))),)
+        self.part = xp.empty(4 * max(g[0] for g in self.grid.values()), dtype=xp.float64)
+        self.count = xp.zeros(1, dtype=xp.uint32)
+        self.res = xp.zeros(4, dtype=xp.float64)
+        # Scalars come back through one pinned buffer: a bare async copy and a stream sync per pass.
+        try:
+            import cupyx
+
+            self._host = cupyx.empty_pinned((4,), dtype=np.float64)
+        except Exception:  # pragma: no cover - old cupy
+            self._host = None
+        self._stiff: tuple | None = None  # (k, minv, ka, kb, sr) of the bound problem
+        self._nr = np.uint64(n * n)
+        self._nhalf = np.uint64(n * self.nh)
+        self._geo = (np.uint32(self.nh), np.int32(self.even))
+        self._guess: float | None = None  # last max of a trial point: the next shift
+        self._cg_minv = None
+        self._last_G = None
+        self._cg_cache: tuple | None = None
+
+    # -- launch helpers
+    def _launch(self, name: str, half: bool, nout: int, *args) -> list[float]:
+        """Run kernel ``name`` and return its ``nout`` scalars (the one host synchronisation). Array arguments
+        must be C-contiguous: all are allocated here, by _Problem or by the FFT backend."""
+        if half:
+            args = (*args, *self._geo, self._nhalf, self.part, self.count, self.res)
+        else:
+            args = (*args, self._nr, self.part, self.count, self.res)
+        self.K[name](self.grid[name], (256,), args)
+        if self._host is None:
+            return self.res.get()[:nout].tolist()
+        rt = self.xp.cuda.runtime
+        stream = self.xp.cuda.get_current_stream()
+        rt.memcpyAsync(self._host.ctypes.data, self.res.data.ptr, 8 * nout, rt.memcpyDeviceToHost, stream.ptr)
+        stream.synchronize()
+        return self._host[:nout].tolist()
+
+    def bind_stiffness(self, k, minv, ka: float, kb: float, sr: float) -> None:
+        """``k = ka (kb |q|)`` and ``minv = 1/(k + sr)`` (0 at q = 0) of _Problem: the half-spectrum kernels
+        compute them per mode instead of reading two arrays when given exactly these ``k``, ``minv``."""
+        self._stiff = (k, minv, np.float64(ka), np.float64(kb), np.float64(sr))
+
+    def _stiff_args(self, k, minv) -> tuple:
+        """``(flag 4 or 0, n, ka, kb, sr)`` for gs_grad/gs_cgdir."""
+        st = self._stiff
+        if st is not None and k is st[0] and (minv is None or minv is st[1]):
+            return 4, (np.uint32(self.n), st[2], st[3], st[4])
+        return 0, (np.uint32(self.n), np.float64(0), np.float64(0), np.float64(0))
+
+    def bind_cg(self, minv) -> None:
+        """CG: let every gradient pass also return ``<Z G>`` and ``<Z G_old>`` (``Z = minv G``, ``G_old`` the
+        gradient of the previous pass) for the next :meth:`cg_dots`."""
+        self._cg_minv = minv
+
+    # -- half spectra
+    def dot(self, a, b) -> float:
+        return self._wdot(a, b, None)
+
+    def _wdot(self, a, b, diag) -> float:
+        a, b = self.xp.ascontiguousarray(a), self.xp.ascontiguousarray(b)
+        flags = np.int32(0 if diag is None else 1)
+        diag = self.res if diag is None else diag
+        return float(self._launch("gs_dot", True, 1, a, b, diag, flags)[0])
+
+    def grad_step(self, X, D, alpha: float, E, c: float, k, G) -> float:
+        flags = 1 if alpha != 0.0 else 0
+        gold, minv = G, self.res
+        if self._cg_minv is not None:
+            flags |= 2
+            minv = self._cg_minv
+            gold = self._last_G if self._last_G is not None and self._last_G is not G else G
+        fk, geo = self._stiff_args(k, minv if flags & 2 else None)
+        r = self._launch("gs_grad", True, 3, X, D, np.float64(alpha), E, np.float64(c), k, G, minv, gold,
+                         np.int32(flags | fk), *geo)
+        self._cg_cache = (G, gold if gold is not G else None, float(r[1]), float(r[2])) if flags & 2 else None
+        self._last_G = G
+        return float(r[0])
+
+    def grad(self, X, E, c: float, k, G) -> None:
+        self.grad_step(X, X, 0.0, E, c, k, G)
+
+    def cg_dots(self, G, G_old, minv) -> tuple[float, float]:
+        hit = self._cg_cache
+        if hit is not None and hit[0] is G and minv is self._cg_minv and (G_old is None or G_old is hit[1]):
+            return hit[2], (hit[3] if G_old is not None else 0.0)
+        zg = self._wdot(G, G, minv)
+        return zg, (self._wdot(G, G_old, minv) if G_old is not None else 0.0)
+
+    def cg_update(self, G, minv, D, beta: float, k, X) -> tuple[float, float, float]:
+        fk, geo = self._stiff_args(k, minv)
+        r = self._launch("gs_cgdir", True, 3, G, minv, D, np.float64(beta), k, X, np.int32(fk), *geo)
+        return float(r[0]), float(r[1]), float(r[2])
+
+    # -- real space
+    def _max(self, w, d, c: float) -> float:
+        return float(self._launch("gs_max", False, 1, w, d, np.float64(c), np.int32(1))[0])
+
+    def trial(self, w, d, c: float, out) -> _DeviceMax:
+        # Deferred: the point, its exponential, its max and its moments are one pass in expstats.
+        return _DeviceMax(self, w, d, float(c), out)
+
+    def _point(self, W, dt, c: float, dm, Wt, e, shift: float, flags: int) -> np.ndarray:
+        return self._launch("gs_point", False, 4, W, dt, np.float64(c), dm, Wt, e, np.float64(shift),
+                            np.int32(flags))
+
+    def expstats(self, w, m, e, d=None) -> tuple[float, float, float]:
+        p = m if isinstance(m, _DeviceMax) and m.ops is self and m.out is w and m.w is not None else None
+        if p is None:  # plain e = exp(w - m) with the caller's shift
+            W, dt, c, flags, shift = w, w, 0.0, 0, float(m)
+        else:
+            W, dt, c, flags = p.w, p.d, p.c, 1
+            if p.value is None and self._guess is None:
+                p.value = self._max(W, dt, c)
+            shift = p.value if p.value is not None else self._guess
+        if d is not None:
+            flags |= 2
+        r = self._point(W, dt, c, W if d is None else d, w, e, shift, flags)
+        if p is not None:
+            mx = float(r[0])
+            if p.value is None and math.isfinite(mx) and abs(mx - shift) > _SHIFT_SLACK:
+                r = self._point(W, dt, c, W if d is None else d, w, e, mx, flags)  # exact shift
+            p.value = mx
+            p.w = p.d = None  # release the arrays
+            if math.isfinite(mx):
+                self._guess = mx
+        return float(r[1]), (float(r[2]) if d is not None else 0.0), (float(r[3]) if d is not None else 0.0)
+
+    def moments(self, e, d) -> tuple[float, float]:
+        r = self._launch("gs_moments", False, 2, e, d)
+        return float(r[0]), float(r[1])

@@ -1,0 +1,267 @@
+"""Minimisers of the reduced GFMD energy (MODEL.md M3): the shared state :class:`_Problem` with its
+FFT-free line search, and the "cg", "lbfgs" and "fire" loops."""
+
+from __future__ import annotations
+
+import functools
+import importlib
+import math
+from typing import Any
+
+import numpy as np
+
+from gapsweep.fft import FFTBackend
+from gapsweep.gfmd._ops import _Ops
+
+
+@functools.lru_cache(maxsize=8)
+def _half_q_cached(xp_name: str, n: int, length: float):
+    xp = importlib.import_module(xp_name)
+    kx = xp.fft.fftfreq(n, d=1.0 / n)
+    ky = xp.fft.rfftfreq(n, d=1.0 / n)
+    return (2 * np.pi / length) * xp.hypot(kx[:, None], ky[None, :])
+
+
+def _half_q(xp: Any, n: int, length: float):
+    """``|q|`` on the rfft2 half grid (rad/length), built on the device and cached (read-only use)."""
+    return _half_q_cached(xp.__name__, n, float(length))
+
+
+# ------------------------------------------------------------------------------------------------ solver
+class _Problem:
+    """State shared by the methods: surface, operators and the current point ``(X, W, e, G)``.
+
+    ``X = u~`` (half spectrum), ``W = (h - u)/rho`` and ``e = exp(W - m)`` (real space), ``S = sum e``, the
+    Fourier gradient ``G = (E* q/2) u~ - p~`` and ``r2 = <G G>`` (M3)."""
+
+    def __init__(self, h, x0, *, sigma0, rho, e_star, length, fft: FFTBackend, ops: _Ops) -> None:
+        xp = fft.xp
+        n = h.shape[0]
+        self.xp, self.n, self.fft, self.ops = xp, n, fft, ops
+        self.sigma0, self.rho = sigma0, rho
+        self.k = 0.5 * e_star * _half_q(xp, n, length)  # elastic stiffness E* q / 2 per mode
+        self.mass = self.k + sigma0 / rho  # Fourier-diagonal Hessian estimate M(q)
+        self.minv = 1.0 / self.mass
+        self.minv[0, 0] = 0.0  # <u> = 0: the q = 0 mode is not an unknown
+        if hasattr(ops, "bind_stiffness"):  # GPU: k and M^-1 recomputed per mode beat reading them
+            ops.bind_stiffness(self.k, self.minv, 0.5 * e_star, 2 * np.pi / length, sigma0 / rho)
+        self.h = h
+        self.X = x0
+        self.X[0, 0] = 0.0
+        self.W = (h - fft.irfft2(self.X)) * (1.0 / rho)
+        self.Wt = xp.empty_like(self.W)
+        self.e = xp.empty_like(self.W)
+        self.et = xp.empty_like(self.W)
+        self.G = xp.empty_like(self.X)
+        self.G_old = xp.empty_like(self.X)
+        self.nfev = 0
+        self.m = ops.trial(self.W, self.W, 0.0, self.Wt)
+        self.S, _, _ = ops.expstats(self.Wt, self.m, self.e)
+        self.r2 = self._gradient(None, 0.0)
+
+    def _gradient(self, D, alpha: float) -> float:
+        """``X += alpha D`` and the Fourier gradient of the accepted point (its ``e``, ``S``): one rfft2.
+        ``p~ = rfft2(p)/n^2 = sigma0 rfft2(e)/S``."""
+        self.nfev += 1
+        E = self.fft.rfft2(self.e)
+        return self.ops.grad_step(self.X, self.X if D is None else D, alpha, E, self.sigma0 / self.S, self.k,
+                                  self.G)
+
+    def residual(self) -> float:
+        """rms force imbalance over sigma0 (issue 3), by Parseval."""
+        return math.sqrt(max(self.r2, 0.0)) / self.sigma0
+
+    def line_search(self, D, phi0p: float, a: float, b: float, eta: float, alpha0: float | None = None,
+                    max_trials: int = 40):
+        """Find ``alpha > 0`` with ``|phi'(alpha)| <= eta |phi'(0)|`` for the convex ``phi(alpha) = F(X + alpha D)``.
+
+        ``phi'(alpha) = a + alpha b - <p_alpha d>`` with ``a = <kD, X>``, ``b = <kD, D>`` (Fourier sums) and the
+        softmax pressure at ``W - alpha d / rho``, ``d = irfft2(D)`` (real space): no further FFT. Newton steps
+        inside a bracket, secant or bisection when Newton leaves it. Leaves the accepted point in (Wt, et)
+        and returns ``(alpha, m, S, ok)``."""
+        ops, rho, s0 = self.ops, self.rho, self.sigma0
+        d = self.fft.irfft2(D)
+        if alpha0 is None:
+            s1, s2 = ops.moments(self.e, d)
+            curv = b + (s0 / rho) * (s2 / self.S - (s1 / self.S) ** 2)
+            alpha = -phi0p / curv if curv > 0 else 1.0
+        else:
+            alpha = alpha0
+        lo, hi, dlo, dhi = 0.0, math.inf, phi0p, math.nan
+        for _ in range(max_trials):
+            if not math.isfinite(alpha) or alpha <= 0:
+                break
+            m = ops.trial(self.W, d, -alpha / rho, self.Wt)
+            S, s1, s2 = ops.expstats(self.Wt, m, self.et, d)
+            if not (math.isfinite(m) and math.isfinite(S) and math.isfinite(s1) and math.isfinite(s2)):
+                hi = alpha
+                alpha = 0.5 * (lo + alpha)
+                continue
+            dphi = a + alpha * b - s0 * s1 / S
+            if abs(dphi) <= eta * abs(phi0p):
+                return alpha, m, S, True
+            if dphi < 0:
+                lo, dlo = alpha, dphi
+            else:
+                hi, dhi = alpha, dphi
+            if hi - lo <= 1e-13 * hi:
+                break
+            curv = b + (s0 / rho) * (s2 / S - (s1 / S) ** 2)
+            new = alpha - dphi / curv if curv > 0 else math.inf
+            if not (lo < new < hi):
+                new = lo - dlo * (hi - lo) / (dhi - dlo) if math.isfinite(hi) else 4.0 * alpha
+                if not (lo < new < hi):
+                    new = 0.5 * (lo + hi)
+            alpha = new
+        if lo <= 0.0:
+            return 0.0, 0.0, 0.0, False
+        # Round-off or out of trials: take the last point known to lie downhill of the line minimum.
+        m = ops.trial(self.W, d, -lo / rho, self.Wt)
+        S, _, _ = ops.expstats(self.Wt, m, self.et)
+        return lo, m, S, True
+
+    def accept(self, alpha: float, D, m: float, S: float) -> None:
+        """Move to ``X + alpha D`` (its real-space state is in Wt, et); keep the old gradient in G_old."""
+        self.W, self.Wt = self.Wt, self.W
+        self.e, self.et = self.et, self.e
+        self.m, self.S = m, S
+        self.G, self.G_old = self.G_old, self.G
+        self.r2 = self._gradient(D, alpha)
+
+
+def _check(pb: _Problem, tol: float, max_iter: int, history: list[float]) -> str | None:
+    r = pb.residual()
+    history.append(r)
+    if not math.isfinite(r):
+        return "non_finite"
+    if r <= tol:
+        return "converged"
+    if pb.nfev >= max_iter:
+        return "max_iter"
+    return None
+
+
+def _run_cg(pb: _Problem, tol: float, max_iter: int, history: list[float], eta: float = 0.1) -> str:
+    """Preconditioned Polak-Ribiere+ nonlinear CG with the Newton line search of _Problem.line_search."""
+    ops = pb.ops
+    if hasattr(ops, "bind_cg"):  # GPU: the gradient pass also yields the next cg_dots (no extra pass)
+        ops.bind_cg(pb.minv)
+    D = pb.xp.zeros_like(pb.X)
+    zg_old = 0.0
+    restart = True
+    while (status := _check(pb, tol, max_iter, history)) is None:
+        zg, zg_cross = ops.cg_dots(pb.G, None if restart else pb.G_old, pb.minv)
+        beta = 0.0 if restart else max(0.0, (zg - zg_cross) / zg_old)
+        phi0p, a, b = ops.cg_update(pb.G, pb.minv, D, beta, pb.k, pb.X)
+        if phi0p >= 0 and beta > 0:  # not a descent direction (round-off): restart along -M^-1 G
+            phi0p, a, b = ops.cg_update(pb.G, pb.minv, D, 0.0, pb.k, pb.X)
+        if not phi0p < 0:
+            return "stalled" if math.isfinite(phi0p) else "non_finite"
+        alpha, m, S, ok = pb.line_search(D, phi0p, a, b, eta)
+        if not ok:
+            if restart:
+                return "stalled"
+            restart = True
+            continue
+        restart = False
+        zg_old = zg
+        pb.accept(alpha, D, m, S)
+    return status
+
+
+def _clear(*lists: list) -> None:
+    for lst in lists:
+        lst.clear()
+
+
+def _run_lbfgs(pb: _Problem, tol: float, max_iter: int, history: list[float], memory: int = 5,
+               eta: float = 0.5) -> str:
+    """L-BFGS (two-loop recursion, Nocedal & Wright Alg. 7.4) with ``H0 = gamma M^-1``, same line search."""
+    ops = pb.ops
+    s_hist: list = []
+    y_hist: list = []
+    r_hist: list[float] = []
+    while (status := _check(pb, tol, max_iter, history)) is None:
+        q = pb.G.copy()
+        alphas = []
+        for s, y, rr in zip(reversed(s_hist), reversed(y_hist), reversed(r_hist)):
+            al = rr * ops.dot(s, q)
+            alphas.append(al)
+            ops.axpy(q, -al, y)
+        q *= pb.minv
+        if y_hist:
+            yhy = ops.dot(y_hist[-1], pb.minv * y_hist[-1])
+            if yhy > 0:
+                q *= 1.0 / (r_hist[-1] * yhy)  # gamma = s.y / y.H0.y
+        for s, y, rr, al in zip(s_hist, y_hist, r_hist, reversed(alphas)):
+            ops.axpy(q, al - rr * ops.dot(y, q), s)
+        D = -q
+        phi0p = ops.dot(pb.G, D)
+        if not phi0p < 0:
+            _clear(s_hist, y_hist, r_hist)
+            D = -(pb.minv * pb.G)
+            phi0p = ops.dot(pb.G, D)
+            if not phi0p < 0:
+                return "stalled" if math.isfinite(phi0p) else "non_finite"
+        kD = pb.k * D
+        alpha, m, S, ok = pb.line_search(D, phi0p, ops.dot(kD, pb.X), ops.dot(kD, D), eta,
+                                         alpha0=1.0 if s_hist else None)
+        if not ok:
+            if not s_hist:
+                return "stalled"
+            _clear(s_hist, y_hist, r_hist)
+            continue
+        pb.accept(alpha, D, m, S)
+        s = alpha * D
+        y = pb.G - pb.G_old
+        sy = ops.dot(s, y)
+        if sy > 0:
+            s_hist.append(s)
+            y_hist.append(y)
+            r_hist.append(1.0 / sy)
+            if len(s_hist) > memory:
+                for lst in (s_hist, y_hist, r_hist):
+                    lst.pop(0)
+    return status
+
+
+def _run_fire(pb: _Problem, tol: float, max_iter: int, history: list[float], dt0: float = 0.5,
+              dt_max: float = 1.0, n_min: int = 5, f_inc: float = 1.1, f_dec: float = 0.5,
+              alpha0: float = 0.1, f_alpha: float = 0.99) -> str:
+    """Mass-weighted FIRE on the Fourier modes (Bitzek et al. 2006; Zhou, Moseler & Muser 2019): masses
+    ``M(q)`` make the linearised dynamics of every mode oscillate at unit frequency, so ``dt ~ 1``.
+    Semi-implicit Euler; one force evaluation per step."""
+    ops, xp = pb.ops, pb.xp
+    V = xp.zeros_like(pb.X)
+    dt, alpha, npos = dt0, alpha0, 0
+    while (status := _check(pb, tol, max_iter, history)) is None:
+        F = -pb.G
+        P = ops.dot(F, V)
+        if P > 0:
+            npos += 1
+            if npos > n_min:
+                dt = min(dt * f_inc, dt_max)
+                alpha *= f_alpha
+        else:
+            npos = 0
+            dt *= f_dec
+            alpha = alpha0
+            V[...] = 0
+        Fm = F * pb.minv
+        ops.axpy(V, dt, Fm)
+        if P > 0:
+            vnorm = math.sqrt(max(ops.dot(V, pb.mass * V), 0.0))
+            fnorm = math.sqrt(max(ops.dot(F, Fm), 0.0))
+            if fnorm > 0:
+                V *= 1.0 - alpha
+                ops.axpy(V, alpha * vnorm / fnorm, Fm)
+        d = pb.fft.irfft2(V)
+        m = ops.trial(pb.W, d, -dt / pb.rho, pb.Wt)
+        S, _, _ = ops.expstats(pb.Wt, m, pb.et)
+        if not (math.isfinite(S) and math.isfinite(m)):
+            return "non_finite"
+        pb.accept(dt, V, m, S)
+    return status
+
+
+_RUNNERS = {"cg": _run_cg, "lbfgs": _run_lbfgs, "fire": _run_fire}

@@ -1,0 +1,202 @@
+
+#define NT 256
+#define FULL 0xffffffffu
+
+__device__ __forceinline__ double neg_inf() { return __longlong_as_double(0xfff0000000000000LL); }
+__device__ __forceinline__ double comb(double a, double b, bool mx) {
+    return mx ? ((a != a || a > b) ? a : b) : a + b;
+}
+__device__ __forceinline__ double ident(unsigned mx, int k) { return ((mx >> k) & 1u) ? neg_inf() : 0.0; }
+__device__ __forceinline__ double cdot(double2 a, double2 b) { return a.x * b.x + a.y * b.y; }
+
+template <int K>
+__device__ void block_reduce(double* v, unsigned mx, double (*sh)[NT / 32]) {
+    const int lane = threadIdx.x & 31, wid = threadIdx.x >> 5;
+#pragma unroll
+    for (int k = 0; k < K; k++) {
+        double x = v[k];
+        for (int s = 16; s > 0; s >>= 1) x = comb(x, __shfl_down_sync(FULL, x, s), (mx >> k) & 1u);
+        v[k] = x;
+    }
+    __syncthreads();  // sh may still be read by the previous call
+    if (lane == 0) {
+#pragma unroll
+        for (int k = 0; k < K; k++) sh[k][wid] = v[k];
+    }
+    __syncthreads();
+    if (wid == 0) {
+#pragma unroll
+        for (int k = 0; k < K; k++) {
+            double x = lane < NT / 32 ? sh[k][lane] : ident(mx, k);
+            for (int s = 16; s > 0; s >>= 1) x = comb(x, __shfl_down_sync(FULL, x, s), (mx >> k) & 1u);
+            v[k] = x;
+        }
+    }
+}
+
+template <int K>
+__device__ void grid_reduce(double* v, unsigned mx, double* part, unsigned int* count, double* out) {
+    __shared__ double sh[K][NT / 32];
+    __shared__ bool last;
+    block_reduce<K>(v, mx, sh);
+    if (threadIdx.x == 0) {
+#pragma unroll
+        for (int k = 0; k < K; k++) part[k * gridDim.x + blockIdx.x] = v[k];
+        __threadfence();
+        // atomicInc wraps to 0 on the last block: the counter is ready for the next kernel.
+        last = atomicInc(count, gridDim.x - 1) == gridDim.x - 1;
+    }
+    __syncthreads();
+    if (!last) return;
+#pragma unroll
+    for (int k = 0; k < K; k++) {
+        double x = ident(mx, k);
+        for (unsigned i = threadIdx.x; i < gridDim.x; i += NT)
+            x = comb(x, __ldcg(part + k * gridDim.x + i), (mx >> k) & 1u);
+        v[k] = x;
+    }
+    block_reduce<K>(v, mx, sh);
+    if (threadIdx.x == 0) {
+#pragma unroll
+        for (int k = 0; k < K; k++) out[k] = v[k];
+    }
+}
+
+#define KERNEL extern "C" __global__ void __launch_bounds__(NT, 8)  // <= 32 registers: 8 blocks per SM
+#define KERNEL_H extern "C" __global__ void __launch_bounds__(NT, 6)  // <= 40 registers: no spills
+
+#define GRID_LOOP(i, N) \
+    for (unsigned long long i = (unsigned long long)blockIdx.x * NT + threadIdx.x; i < (N); \
+         i += (unsigned long long)gridDim.x * NT)
+
+// out[0] = max(wt), wt = W + c dt (flags & 1) or W.
+KERNEL gs_max(const double* __restrict__ W, const double* __restrict__ dt, double c,
+                                  int flags, unsigned long long N, double* part, unsigned int* count,
+                                  double* out) {
+    double v[1] = {neg_inf()};
+    const bool trial = flags & 1;
+    GRID_LOOP(i, N) {
+        const double w = trial ? fma(c, dt[i], W[i]) : W[i];
+        v[0] = comb(v[0], w, true);
+    }
+    grid_reduce<1>(v, 1u, part, count, out);
+}
+
+// Softmax point: wt = W + c dt (flags & 1: also written to Wt) or W; e = exp(wt - shift);
+// out = (max wt, sum e, sum e dm, sum e dm^2) (the moments with flags & 2).
+KERNEL gs_point(const double* __restrict__ W, const double* __restrict__ dt, double c,
+                                    const double* __restrict__ dm, double* Wt, double* e, double shift,
+                                    int flags, unsigned long long N, double* part, unsigned int* count,
+                                    double* out) {
+    double v[4] = {neg_inf(), 0.0, 0.0, 0.0};
+    const bool trial = flags & 1, mom = flags & 2;
+    GRID_LOOP(i, N) {
+        const double w = trial ? fma(c, dt[i], W[i]) : W[i];
+        if (trial) Wt[i] = w;
+        const double x = exp(w - shift);
+        e[i] = x;
+        v[0] = comb(v[0], w, true);
+        v[1] += x;
+        if (mom) {
+            const double y = x * dm[i];
+            v[2] += y;
+            v[3] += y * dm[i];
+        }
+    }
+    grid_reduce<4>(v, 1u, part, count, out);
+}
+
+// out = (sum e d, sum e d^2).
+KERNEL gs_moments(const double* __restrict__ e, const double* __restrict__ d,
+                                      unsigned long long N, double* part, unsigned int* count, double* out) {
+    double v[2] = {0.0, 0.0};
+    GRID_LOOP(i, N) {
+        const double y = e[i] * d[i];
+        v[0] += y;
+        v[1] += y * d[i];
+    }
+    grid_reduce<2>(v, 0u, part, count, out);
+}
+
+// Half spectra (n x nh, C order): Parseval weight 1 for column 0 (and nh - 1 for even n), else 2. Row r and
+// column j are carried along the grid-stride loop instead of a division per element.
+#define HALF_LOOP(i, r, j, N, nh)                                                                     \
+    unsigned long long i = (unsigned long long)blockIdx.x * NT + threadIdx.x;                          \
+    const unsigned long long stride_ = (unsigned long long)gridDim.x * NT;                             \
+    const unsigned jstep_ = (unsigned)(stride_ % (nh)), rstep_ = (unsigned)(stride_ / (nh));           \
+    unsigned j = (unsigned)(i % (nh)), r = (unsigned)(i / (nh));                                       \
+    for (; i < (N); i += stride_, r += rstep_ + (j + jstep_ >= (nh)),                                  \
+                    j = (j + jstep_ >= (nh)) ? j + jstep_ - (nh) : j + jstep_)
+#define PWEIGHT(j, nh, even) (((j) == 0 || ((even) && (j) == (nh) - 1)) ? 1.0 : 2.0)
+
+// Stiffness k = ka (kb |q|) of mode (r, j) on an n grid, |q| = hypot(min(r, n - r), j) (as _half_q).
+__device__ __forceinline__ double stiff(unsigned r, unsigned j, unsigned n, double ka, double kb) {
+    return ka * (kb * hypot((double)min(r, n - r), (double)j));
+}
+
+// out[0] = <a b> (flags & 1: <a diag b>).
+KERNEL gs_dot(const double2* __restrict__ a, const double2* __restrict__ b,
+                                  const double* __restrict__ diag, int flags, unsigned nh, int even,
+                                  unsigned long long N, double* part, unsigned int* count, double* out) {
+    double v[1] = {0.0};
+    HALF_LOOP(i, r, j, N, nh) {
+        double wgt = PWEIGHT(j, nh, even);
+        if (flags & 1) wgt *= diag[i];
+        v[0] += wgt * cdot(a[i], b[i]);
+    }
+    grid_reduce<1>(v, 0u, part, count, out);
+}
+
+// X += alpha D (flags & 1); G = k X - c E, G(q=0) = 0; out = (<G G>, <G minv G>, <G minv Gold>) (the last
+// two with flags & 2, the CG dots of the next iteration). flags & 4: k and minv = 1/(k + sr) (0 at q = 0)
+// computed from (ka, kb, sr) instead of read.
+KERNEL_H gs_grad(double2* X, const double2* __restrict__ D, double alpha, const double2* __restrict__ E, double c,
+               const double* __restrict__ k, double2* G, const double* __restrict__ minv, const double2* Gold,
+               int flags, unsigned n, double ka, double kb, double sr, unsigned nh, int even,
+               unsigned long long N, double* part, unsigned int* count, double* out) {
+    double v[3] = {0.0, 0.0, 0.0};
+    HALF_LOOP(i, r, j, N, nh) {
+        double2 x = X[i];
+        if (flags & 1) {
+            const double2 d = D[i];
+            x.x = fma(alpha, d.x, x.x);
+            x.y = fma(alpha, d.y, x.y);
+            X[i] = x;
+        }
+        const double2 ee = E[i];
+        const double kk = (flags & 4) ? stiff(r, j, n, ka, kb) : k[i];
+        double2 g = make_double2(kk * x.x - c * ee.x, kk * x.y - c * ee.y);
+        if (i == 0) g = make_double2(0.0, 0.0);
+        G[i] = g;
+        const double wgt = PWEIGHT(j, nh, even);
+        const double gg = cdot(g, g);
+        v[0] += wgt * gg;
+        if (flags & 2) {
+            const double z = wgt * ((flags & 4) ? (i == 0 ? 0.0 : 1.0 / (kk + sr)) : minv[i]);
+            v[1] += z * gg;
+            v[2] += z * cdot(g, Gold[i]);
+        }
+    }
+    grid_reduce<3>(v, 0u, part, count, out);
+}
+
+// D = beta D - minv G; out = (<G D>, <kD X>, <kD D>). flags & 4: k, minv on the fly as in gs_grad.
+KERNEL_H gs_cgdir(const double2* __restrict__ G, const double* __restrict__ minv, double2* D, double beta,
+                const double* __restrict__ k, const double2* __restrict__ X, int flags, unsigned n, double ka,
+                double kb, double sr, unsigned nh, int even, unsigned long long N, double* part,
+                unsigned int* count, double* out) {
+    double v[3] = {0.0, 0.0, 0.0};
+    HALF_LOOP(i, r, j, N, nh) {
+        const double2 g = G[i], d0 = D[i];
+        const double kk = (flags & 4) ? stiff(r, j, n, ka, kb) : k[i];
+        const double mi = (flags & 4) ? (i == 0 ? 0.0 : 1.0 / (kk + sr)) : minv[i];
+        const double2 d = make_double2(beta * d0.x - mi * g.x, beta * d0.y - mi * g.y);
+        D[i] = d;
+        const double wgt = PWEIGHT(j, nh, even);
+        const double kw = wgt * kk;
+        v[0] += wgt * cdot(g, d);
+        v[1] += kw * cdot(d, X[i]);
+        v[2] += kw * cdot(d, d);
+    }
+    grid_reduce<3>(v, 0u, part, count, out);
+}
