@@ -53,25 +53,14 @@ from typing import Any
 import numpy as np
 
 # Package layout: _ops (array operations, numba CPU kernels), _cuda (cupy GPU kernels, kernels.cu), _solvers
-# (cg, lbfgs, fire), _result (GFMDResult). Private names are re-exported (``x as x``) for the tests and
-# benchmarks that use them, e.g. gfmd._Problem, gfmd._make_ops, monkeypatch of gfmd._have_numba.
+# (cg, lbfgs, fire), _result (GFMDResult). solve looks up _have_numba here, so tests monkeypatch gfmd._have_numba;
+# benchmarks use gfmd._Problem and gfmd._make_ops.
+from gapsweep import _checks as chk
 from gapsweep.fft import available_backends, get_backend
-from gapsweep.gfmd._cuda import _CUDA_BLOCKS_PER_SM as _CUDA_BLOCKS_PER_SM
-from gapsweep.gfmd._cuda import _CUDA_SRC as _CUDA_SRC
-from gapsweep.gfmd._cuda import _HALF_KERNELS as _HALF_KERNELS
-from gapsweep.gfmd._cuda import _SHIFT_SLACK as _SHIFT_SLACK
-from gapsweep.gfmd._cuda import _cupy_kernels as _cupy_kernels
 from gapsweep.gfmd._cuda import _CupyOps
-from gapsweep.gfmd._cuda import _DeviceMax as _DeviceMax
 from gapsweep.gfmd._ops import _have_numba, _is_cupy, _NumbaOps, _Ops
-from gapsweep.gfmd._ops import _numba_kernels as _numba_kernels
 from gapsweep.gfmd._result import GFMDResult
 from gapsweep.gfmd._solvers import _RUNNERS, _half_q, _Problem
-from gapsweep.gfmd._solvers import _check as _check
-from gapsweep.gfmd._solvers import _half_q_cached as _half_q_cached
-from gapsweep.gfmd._solvers import _run_cg as _run_cg
-from gapsweep.gfmd._solvers import _run_fire as _run_fire
-from gapsweep.gfmd._solvers import _run_lbfgs as _run_lbfgs
 
 __all__ = ["METHODS", "GFMDResult", "UnderResolvedWarning", "solve"]
 
@@ -85,18 +74,6 @@ class UnderResolvedWarning(UserWarning):
 
 
 # ------------------------------------------------------------------------------------------------ helpers
-def _positive(name: str, value: Any) -> float:
-    if isinstance(value, bool):
-        raise TypeError(f"{name} must be a real number, got {value!r}")
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise TypeError(f"{name} must be a real number, got {value!r}") from None
-    if not (math.isfinite(v) and v > 0.0):
-        raise ValueError(f"{name} must be finite and > 0, got {value!r}")
-    return v
-
-
 def _make_ops(xp: Any, n: int) -> _Ops:
     """Kernels for the namespace: numba on the CPU when installed, fused cupy kernels on the GPU (unless
     ``GAPSWEEP_GENERIC_KERNELS=1``), else the generic array code."""
@@ -165,12 +142,12 @@ def solve(
     n = int(shape[0])
     if n < 2:
         raise ValueError(f"heights must be at least 2 x 2, got n={n}")
-    sigma0 = _positive("sigma0", sigma0)
-    gamma0 = _positive("gamma0", gamma0)
-    rho = _positive("rho", rho)
-    e_star = _positive("e_star", e_star)
-    length = _positive("length", length)
-    tol = _positive("tol", tol)
+    sigma0 = chk.positive(sigma0, "sigma0")
+    gamma0 = chk.positive(gamma0, "gamma0")
+    rho = chk.positive(rho, "rho")
+    e_star = chk.positive(e_star, "e_star")
+    length = chk.positive(length, "length")
+    tol = chk.positive(tol, "tol")
     if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
         raise ValueError(f"max_iter must be an integer >= 1, got {max_iter!r}")
     if not isinstance(method, str) or method not in ("auto", *METHODS):
