@@ -26,7 +26,9 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["FFTBackend", "available_backends", "cache_dir", "get_backend"]
+__all__ = ["BACKENDS", "FFTBackend", "available_backends", "cache_dir", "get_backend"]
+
+BACKENDS = ("numpy", "pyfftw", "cupy")  # the names get_backend accepts
 
 _PLANS: dict[tuple, FFTBackend] = {}
 _LOCK = threading.Lock()
@@ -215,8 +217,8 @@ def get_backend(name: str, n: int, *, threads: int | None = None, effort: str | 
     ``threads``: FFTW threads (default ``$GAPSWEEP_FFT_THREADS`` or 1). ``effort``: FFTW planner flag
     (default ``$GAPSWEEP_FFTW_EFFORT`` or ``FFTW_MEASURE``).
     """
-    if name not in ("numpy", "pyfftw", "cupy"):
-        raise ValueError(f"backend must be one of 'auto', 'numpy', 'pyfftw', 'cupy'; got {name!r}")
+    if name not in BACKENDS:
+        raise ValueError(f"backend must be one of {', '.join(map(repr, ('auto', *BACKENDS)))}; got {name!r}")
     threads = default_threads() if threads is None else int(threads)
     if threads < 1:
         raise ValueError(f"threads must be >= 1, got {threads}")

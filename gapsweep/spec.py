@@ -18,6 +18,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from gapsweep.fft import BACKENDS as FFT_BACKENDS
+from gapsweep.gfmd import METHODS as GFMD_METHODS
+
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover
@@ -263,8 +266,8 @@ def _method(name: str, t: dict, nyquist: int, norm: str) -> dict[str, Any]:
         o["n"] = _n_list(f"{key}.n", t["n"], nyquist)
         o["tol"] = _num(f"{key}.tol", t.get("tol", 1e-6), gt=0.0, lt=1.0)
         o["max_iter"] = _int(f"{key}.max_iter", t.get("max_iter", 100000), ge=1)
-        o["method"] = _str(f"{key}.method", t.get("method", "auto"), ("auto", "cg", "lbfgs", "fire"))
-        o["backend"] = _str(f"{key}.backend", t.get("backend", "auto"), ("auto", "numpy", "pyfftw", "cupy"))
+        o["method"] = _str(f"{key}.method", t.get("method", "auto"), ("auto", *GFMD_METHODS))
+        o["backend"] = _str(f"{key}.backend", t.get("backend", "auto"), ("auto", *FFT_BACKENDS))
         o["warm_start"] = _bool(f"{key}.warm_start", t.get("warm_start", True))
         o["order"] = _str(f"{key}.order", t.get("order", "decreasing"), ("decreasing", "increasing"))
     elif name == "sde":

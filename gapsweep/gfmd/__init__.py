@@ -56,7 +56,7 @@ import numpy as np
 # (cg, lbfgs, fire), _result (GFMDResult). solve looks up _have_numba here, so tests monkeypatch gfmd._have_numba;
 # benchmarks use gfmd._Problem and gfmd._make_ops.
 from gapsweep import _checks as chk
-from gapsweep.fft import available_backends, get_backend
+from gapsweep.fft import BACKENDS, available_backends, get_backend
 from gapsweep.gfmd._cuda import _CupyOps
 from gapsweep.gfmd._ops import _have_numba, _is_cupy, _NumbaOps, _Ops
 from gapsweep.gfmd._result import GFMDResult
@@ -151,10 +151,10 @@ def solve(
     if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
         raise ValueError(f"max_iter must be an integer >= 1, got {max_iter!r}")
     if not isinstance(method, str) or method not in ("auto", *METHODS):
-        raise ValueError(f"method must be one of 'auto', 'cg', 'lbfgs', 'fire'; got {method!r}")
+        raise ValueError(f"method must be one of {', '.join(map(repr, ('auto', *METHODS)))}; got {method!r}")
     method = DEFAULT_METHOD if method == "auto" else method
-    if not isinstance(backend, str) or backend not in ("auto", "numpy", "pyfftw", "cupy"):
-        raise ValueError(f"backend must be one of 'auto', 'numpy', 'pyfftw', 'cupy'; got {backend!r}")
+    if not isinstance(backend, str) or backend not in ("auto", *BACKENDS):
+        raise ValueError(f"backend must be one of {', '.join(map(repr, ('auto', *BACKENDS)))}; got {backend!r}")
     if backend == "auto":
         backend = "cupy" if on_gpu else ("pyfftw" if "pyfftw" in available_backends() else "numpy")
     fft = get_backend(backend, n, threads=threads)
