@@ -75,6 +75,10 @@ class Task:
     task_id: str = ""
     chain: str = ""
 
+    def surface_params(self) -> dict[str, Any]:
+        """The ``surface.*`` options without their prefix: keyword arguments of ``surface.self_affine``."""
+        return {k[8:]: v for k, v in self.options if k.startswith("surface.")}
+
     def opt(self, key: str, default: Any = None) -> Any:
         for k, v in self.options:
             if k == key:
@@ -275,6 +279,7 @@ class Context:
         self.rank = rank
         self.gpu = gpu
         self._surfaces: OrderedDict[tuple, np.ndarray] = OrderedDict()
+        self._rms: dict[tuple, tuple[float, float]] = {}  # (h_rms, g_rms) of the cached surfaces
         self._max = max_surfaces
         self._delay = float(os.environ.get("GAPSWEEP_TEST_DELAY", "0") or 0)
         fail = os.environ.get("GAPSWEEP_TEST_FAIL", "")
@@ -284,18 +289,33 @@ class Context:
         """The surface of ``t`` on an ``n x n`` grid, generated once per rank (M2)."""
         from gapsweep import surface
 
-        sp = {k[8:]: v for k, v in t.options if k.startswith("surface.")}
-        key = (t.hurst, t.seed, n, tuple(sorted(sp.items())))
+        sp = t.surface_params()
+        key = self._key(t, n, sp)
         h = self._surfaces.get(key)
         if h is None:
             h = surface.self_affine(n, t.hurst, seed=t.seed, **sp)
             h.setflags(write=False)
             self._surfaces[key] = h
             while len(self._surfaces) > self._max:
-                self._surfaces.popitem(last=False)
+                self._rms.pop(self._surfaces.popitem(last=False)[0], None)
         else:
             self._surfaces.move_to_end(key)
         return h
+
+    def surface_rms(self, t: Task, n: int) -> tuple[float, float]:
+        """``(h_rms, g_rms)`` of :meth:`surface` (M2), computed once per cached surface (``g_rms`` costs an FFT)."""
+        from gapsweep import surface
+
+        sp = t.surface_params()
+        h = self.surface(t, n)
+        key = self._key(t, n, sp)
+        if key not in self._rms:
+            self._rms[key] = (surface.rms_height(h), surface.rms_slope(h, sp["length"]))
+        return self._rms[key]
+
+    @staticmethod
+    def _key(t: Task, n: int, sp: dict[str, Any]) -> tuple:
+        return (t.hurst, t.seed, n, tuple(sorted(sp.items())))
 
 
 def _moments(t: Task, ctx: Context) -> tuple[float, float]:
@@ -303,7 +323,7 @@ def _moments(t: Task, ctx: Context) -> tuple[float, float]:
     on the smallest grid that carries lambda_s (M2: the mode set does not depend on the grid)."""
     from gapsweep import surface
 
-    sp = {k[8:]: v for k, v in t.options if k.startswith("surface.")}
+    sp = t.surface_params()
     if t.opt("h_rms") == "continuum":
         if "rms_height" in sp:
             return sp["rms_height"], math.nan
@@ -311,8 +331,7 @@ def _moments(t: Task, ctx: Context) -> tuple[float, float]:
         return surface.continuum_rms_height(t.hurst, lambda_l=sp["lambda_l"], lambda_s=sp["lambda_s"],
                                             rms_slope=g), g
     n = 2 * int(math.floor(sp["length"] / sp["lambda_s"] * (1 + 1e-9))) + 2
-    h = ctx.surface(t, n)
-    return surface.rms_height(h), surface.rms_slope(h, sp["length"])
+    return ctx.surface_rms(t, n)
 
 
 def _extra(t: Task) -> dict[str, Any]:
@@ -336,7 +355,7 @@ def _run_theory(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
     from gapsweep import theory
 
     h_rms, g_rms = _moments(t, ctx)
-    sp = {k[8:]: v for k, v in t.options if k.startswith("surface.")}
+    sp = t.surface_params()
     kw = dict(hurst=t.hurst, h_rms=h_rms, rho=t.rho, gamma0=t.opt("gamma0"), lambda_l=sp["lambda_l"],
               lambda_s=sp["lambda_s"], e_star=t.opt("e_star"), **_extra(t))
     v: dict[str, float] = {"h_rms": h_rms, "g_rms": g_rms}
@@ -353,10 +372,10 @@ def _run_theory(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
 
 
 def _run_gfmd(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
-    from gapsweep import gfmd, surface
+    from gapsweep import gfmd
 
     h = ctx.surface(t, t.n)
-    sp = {k[8:]: v for k, v in t.options if k.startswith("surface.")}
+    sp = t.surface_params()
     if t.opt("backend") == "cupy":
         import cupy
 
@@ -365,7 +384,8 @@ def _run_gfmd(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
                      length=sp["length"], tol=t.opt("tol"), method=t.opt("method"), backend=t.opt("backend"),
                      max_iter=t.opt("max_iter"), initial=prev if t.opt("warm_start") else None, **_extra(t))
     gap = np.asarray(res.gap, dtype=float)
-    v = {"mean_gap": float(res.mean_gap), "h_rms": surface.rms_height(h), "g_rms": surface.rms_slope(h, sp["length"]),
+    h_rms, g_rms = ctx.surface_rms(t, t.n)
+    v = {"mean_gap": float(res.mean_gap), "h_rms": h_rms, "g_rms": g_rms,
          "residual": float(res.residual), "load_error": float(getattr(res, "load_error", math.nan)),
          "iterations": int(res.iterations), "gap_std": float(np.std(gap)), "gap_min": float(np.min(gap)),
          "gap_max": float(np.max(gap))}
@@ -380,7 +400,7 @@ def _run_sde(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
     from gapsweep import sde
 
     h_rms, g_rms = _moments(t, ctx)
-    sp = {k[8:]: v for k, v in t.options if k.startswith("surface.")}
+    sp = t.surface_params()
     device = t.opt("device")
     if device == "cuda":
         device = f"cuda:{ctx.gpu or 0}"
@@ -462,7 +482,7 @@ def _run_fokker_planck(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, An
     from gapsweep import fokker_planck
 
     h_rms, g_rms = _moments(t, ctx)
-    sp = {k[8:]: v for k, v in t.options if k.startswith("surface.")}
+    sp = t.surface_params()
     kw = dict(hurst=t.hurst, h_rms=h_rms, rho=t.rho, gamma0=t.opt("gamma0"), lambda_l=sp["lambda_l"],
               lambda_s=sp["lambda_s"], e_star=t.opt("e_star"), c2=t.opt("c2"), **_extra(t))
     if t.opt("c1") is not None:
