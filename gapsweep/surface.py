@@ -51,11 +51,25 @@ def _splitmix64(x: np.ndarray) -> np.ndarray:
     return x ^ (x >> _U64(31))
 
 
+def _stream_key(seed: int, stream: int) -> int:
+    """64-bit key of ``(seed, stream)``, injective on ``[0, 2**63) x {0, 1}``.
+
+    Seeds below ``2**62`` keep their original key ``4 seed + stream`` (residues 0, 1 mod 4), so their surfaces
+    are unchanged; larger seeds take the unused residues 2, 3 (``4 (seed - 2**62) + 2 + stream``) instead of
+    wrapping onto ``seed - 2**62``.
+    """
+    if not (0 <= seed < 1 << 63 and stream in (0, 1)):
+        raise ValueError(f"seed must be in [0, 2**63) and stream in (0, 1), got {seed!r}, {stream!r}")
+    if seed < 1 << 62:
+        return seed * 4 + stream
+    return (seed - (1 << 62)) * 4 + 2 + stream
+
+
 def _uniform(seed: int, stream: int, kx: np.ndarray, ky: np.ndarray) -> np.ndarray:
     """Uniform numbers in [0, 1) keyed by (seed, stream, kx, ky): independent of grid size and ordering."""
     off = _U64(1 << 31)
     with np.errstate(over="ignore"):
-        x = _splitmix64(np.full(kx.shape, (seed * 4 + stream) & _MASK, dtype=_U64))
+        x = _splitmix64(np.full(kx.shape, _stream_key(seed, stream), dtype=_U64))
         x = _splitmix64(x ^ (kx.astype(np.int64) + np.int64(1 << 31)).astype(_U64))
         x = _splitmix64(x ^ ((ky.astype(np.int64) + np.int64(1 << 31)).astype(_U64) * off))
     return (x >> _U64(11)).astype(np.float64) * (1.0 / 9007199254740992.0)

@@ -150,3 +150,26 @@ def test_continuum_rms_height_close_to_discrete(hurst):
     """The discrete mode sum approaches the continuum integral of M2 (a few % at zeta_s = 100)."""
     h = surface.self_affine(1024, hurst, **PAPER, seed=0)
     assert surface.rms_height(h) == pytest.approx(surface.continuum_rms_height(hurst, **PAPER), rel=0.05)
+
+
+@pytest.mark.parametrize("seed", [0, 5, 2**62 - 1, 2**62, 2**62 + 5, 2**63 - 1])
+def test_every_allowed_seed_distinct(seed):
+    # issue 9.4: seeds s and s + 2**62 used to share a key (4 seed + stream wrapped mod 2**64)
+    kw = dict(lambda_l=0.25, lambda_s=1 / 20)
+    a = surface.self_affine(64, 0.3, **kw, seed=seed)
+    other = seed + 2**62 if seed < 2**62 else seed - 2**62
+    b = surface.self_affine(64, 0.3, **kw, seed=other)
+    assert np.corrcoef(a.ravel(), b.ravel())[0, 1] < 0.5
+
+
+def test_seed_keys_injective_and_unchanged_below_2_62():
+    from gapsweep.surface import _stream_key
+
+    seeds = [0, 1, 2, 2**61, 2**62 - 1, 2**62, 2**62 + 1, 2**63 - 1]
+    keys = {_stream_key(s, st) for s in seeds for st in (0, 1)}
+    assert len(keys) == 2 * len(seeds) and all(0 <= k < 2**64 for k in keys)
+    # seeds below 2**62 keep the key of stored surfaces (4 seed + stream): their surfaces are bit-identical
+    for s in seeds[:5]:
+        assert (_stream_key(s, 0), _stream_key(s, 1)) == (4 * s, 4 * s + 1)
+    with pytest.raises(ValueError, match="seed"):
+        surface.self_affine(64, 0.3, lambda_l=0.25, lambda_s=1 / 20, seed=2**63)
