@@ -128,10 +128,14 @@ def kernels(dtype_name: str) -> dict[str, Any]:
                      b: wp.array(dtype=real), rb: wp.array(dtype=real), inv_rho: Any, start: Any, shift: Any):
         # The paper's Euler-Maruyama on g itself (baseline for benchmarks): per step k
         # g += D1(z_k) dz + c dz exp(-g/rho) + sqrt(2 D2(z_k) dz) n, with b = D1 dz, rb = c dz, s = sd.
-        # Overflows (inf/nan) on the stiff case of M7: that is what it is kept for.
+        # Overflows (inf/nan) on the stiff case of M7: that is what it is kept for. A step that breaks the
+        # explicit-Euler stability bound of the repulsion, lambda dz = c dz exp(-g/rho)/rho > 2 (linearised
+        # amplification |1 - lambda dz| > 1), marks the realisation failed: it returns NaN instead of a finite
+        # but meaningless gap (docs/model.md M5, M7).
         ilo = wp.uint32(index & MASK32)
         ihi = wp.uint32(index >> SHIFT32)
         g = start
+        failed = int(0)  # noqa: UP018 (warp: a dynamic variable, not a constant)
         n_groups = (n_steps + 3) // 4
         for grp in range(n_groups):
             r0, r1, r2, r3 = philox4x32(wp.uint32(grp), wp.uint32(0), ilo, ihi, k0, k1)
@@ -147,7 +151,12 @@ def kernels(dtype_name: str) -> dict[str, Any]:
                         n = g2
                     elif j == 3:
                         n = g3
-                    g = g + b[k + j] + rb[k + j] * wp.exp(-g * inv_rho) + s[k + j] * n
+                    push = rb[k + j] * wp.exp(-g * inv_rho)
+                    if push * inv_rho > real(2.0) or not wp.isfinite(push):
+                        failed = 1
+                    g = g + b[k + j] + push + s[k + j] * n
+        if failed != 0:
+            g = real(wp.nan)
         return g - shift
 
     @wp.func

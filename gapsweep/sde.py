@@ -333,7 +333,8 @@ def gap_samples(sigma0: float, *, hurst: float, h_rms: float, rho: float, gamma0
     realisations ``first .. first+n-1`` of a seed are the same numbers however they are split into calls or
     batches. ``device``: "cpu", "cuda", "cuda:N" or a list (batches go round-robin). ``scheme="split"`` (default,
     exact repulsion) or ``"euler"`` (the paper's Euler-Maruyama, a baseline that blows up on stiff cases).
-    Raises ``FloatingPointError`` if a realisation became non-finite (only the Euler baseline does that).
+    Raises ``FloatingPointError`` if a realisation failed (only the Euler baseline does that: a step broke its
+    stability bound ``c dzeta exp(-g/rho)/rho <= 2`` or the gap became non-finite).
     """
     job = _job(sigma0, n=n, seed=seed, device=device, dtype=dtype, first=first, batch=batch, scheme=scheme,
                plan_kw=dict(hurst=hurst, h_rms=h_rms, rho=rho, gamma0=gamma0, lambda_l=lambda_l, lambda_s=lambda_s,
@@ -342,7 +343,9 @@ def gap_samples(sigma0: float, *, hurst: float, h_rms: float, rho: float, gamma0
     out = _run_samples(job).astype(np.float64) + job.plan.g0_end
     bad = int(np.count_nonzero(~np.isfinite(out)))
     if bad:
-        raise FloatingPointError(f"{bad} of {job.n} realisations became non-finite")
+        raise FloatingPointError(f"{bad} of {job.n} realisations failed (non-finite, or a scheme='euler' step broke "
+                                 "its stability bound c dzeta exp(-g/rho)/rho <= 2: use scheme='split' or a "
+                                 "smaller dzeta)")
     return out
 
 
@@ -367,7 +370,8 @@ class HistogramResult:
     """Gap histogram binned on the device.
 
     ``edges`` [length] (n_bins+1), ``counts`` per bin, ``below``/``above``: finite samples outside the edges,
-    ``nonfinite``: realisations that were not finite (0 with this scheme), ``n``: realisations run,
+    ``nonfinite``: realisations that failed (non-finite, or a ``scheme="euler"`` step broke the stability bound
+    ``c dzeta exp(-g/rho)/rho <= 2``; never with the default split scheme), ``n``: realisations run,
     ``wall_time`` [s] (kernel launches + the final copy of the counts), ``plan``: the step coefficients.
     """
 
