@@ -3,15 +3,20 @@
 Forward model: :func:`gapsweep.fokker_planck.solve` (noise-free, tens of ms per evaluation), compared with the
 histogram by a distance between densities:
 
-* ``"w1"`` (default): Wasserstein-1, ``int |F_model(g) - F_data(g)| dg`` [length] (CDFs piecewise linear);
-* ``"l1"``: ``int |p_model - p_data| dg`` on the histogram's bins (dimensionless, in [0, 2]);
-* ``"nll"``: multinomial negative log-likelihood per sample, ``-sum_i f_i ln(P_i)`` (needs nothing else).
+* ``"nll"`` (default): multinomial negative log-likelihood per sample, ``-sum_i f_i ln(P_i)``;
+* ``"w1"``: Wasserstein-1, ``int |F_model(g) - F_data(g)| dg`` [length] (CDFs piecewise linear);
+* ``"l1"``: ``int |p_model - p_data| dg`` on the histogram's bins (dimensionless, in [0, 2]).
 
 ``C2`` is searched in ``ln C2`` (bounded scalar minimisation); with ``fit_c1=True`` (``ln C2``, ``ln C1``) by
-Nelder-Mead from the ``C2``-only optimum. Uncertainty: given the number of samples behind the histogram
-(``count``), either the curvature of the multinomial log-likelihood at the optimum (``uncertainty="curvature"``,
-cheap) or a parametric bootstrap over multinomial resamples of the histogram (``"bootstrap"``). GFMD gap fields
-are spatially correlated: pass an effective ``count`` (pixels / correlation area), not the pixel count.
+Nelder-Mead from the ``C2``-only optimum. Uncertainty, given the number of samples behind the histogram
+(``count``): the curvature of the multinomial log-likelihood at the optimum (``"curvature"``, cheap: valid for
+the ``"nll"`` estimator only, whose error it is) or a parametric bootstrap over multinomial resamples of the
+histogram (``"bootstrap"``, any metric). ``uncertainty="auto"`` (default) picks curvature for ``"nll"`` and the
+bootstrap for the distances (their scatter is 2-2.5x the likelihood curvature's). The forward model's own
+discretisation error (the FP solver's step-doubling estimate, relative to the gap's standard deviation) is
+turned into a systematic error of ``C2`` through the sensitivity of the model's mean and standard deviation to
+``ln C2`` and added in quadrature (``c2_sys_err``). GFMD gap fields are spatially correlated: pass an effective
+``count`` (pixels / correlation area), not the pixel count.
 """
 
 from __future__ import annotations
@@ -29,13 +34,16 @@ from gapsweep import fokker_planck
 __all__ = ["CalibrationResult", "distance", "fit"]
 
 DISTANCES = ("w1", "l1", "nll")
+UNCERTAINTIES = ("auto", "curvature", "bootstrap")
 
 
 @dataclass
 class CalibrationResult:
     """Fitted ``c2`` (and ``c1``; ``None`` = the default ``H h_rms^2`` when not fitted), the distance at the
-    optimum, 1-sigma uncertainties ``c2_err``/``c1_err`` (NaN when no ``count`` was given), the model's density
-    on the histogram's bins, the number of forward solves, and ``status`` ("ok" | "at_bound" | "failed")."""
+    optimum, 1-sigma uncertainties ``c2_err``/``c1_err`` (NaN when no ``count`` was given; ``c2_err`` is the
+    statistical ``c2_stat_err`` and the forward model's systematic ``c2_sys_err`` in quadrature), the model's
+    density on the histogram's bins, the number of forward solves, and ``status`` ("ok" | "at_bound" |
+    "failed"). ``uncertainty`` is the method used ("curvature" | "bootstrap")."""
 
     c2: float
     c1: float | None
@@ -49,6 +57,9 @@ class CalibrationResult:
     message: str
     wall_time: float
     bootstrap: np.ndarray = field(default_factory=lambda: np.empty((0, 2)))
+    c2_stat_err: float = math.nan
+    c2_sys_err: float = math.nan
+    uncertainty: str = ""
 
 
 def _histogram(edges, density) -> tuple[np.ndarray, np.ndarray]:
@@ -75,7 +86,7 @@ def distance(model: fokker_planck.FPResult, edges: np.ndarray, density: np.ndarr
         pm = np.maximum(np.diff(model.cdf(e)), 1e-300)
         return float(-np.sum(d * np.diff(e) * np.log(pm)))
     # W1 on the union of the model's cell edges (in g) and the histogram's edges; both CDFs piecewise linear
-    gm = model.g0[-1] + model.y_edges
+    gm = model.g_edges()
     grid = np.union1d(gm, e)
     fd = np.interp(grid, e, np.concatenate(([0.0], np.cumsum(d * np.diff(e)))), left=0.0, right=1.0)
     fm = model.cdf(grid)
@@ -85,9 +96,9 @@ def distance(model: fokker_planck.FPResult, edges: np.ndarray, density: np.ndarr
 
 def fit(edges: np.ndarray, density: np.ndarray, *, sigma0: float, hurst: float, h_rms: float, rho: float,
         gamma0: float, lambda_l: float, lambda_s: float, e_star: float = 1.0, zeta_end: float | None = None,
-        c1: float | None = None, fit_c1: bool = False, metric: str = "w1", c2_bounds: tuple[float, float] =
+        c1: float | None = None, fit_c1: bool = False, metric: str = "nll", c2_bounds: tuple[float, float] =
         (1e-3, 10.0), c1_bounds: tuple[float, float] | None = None, count: int | None = None,
-        uncertainty: str = "curvature", n_boot: int = 20, seed: int = 0, fp_options: dict | None = None
+        uncertainty: str = "auto", n_boot: int = 20, seed: int = 0, fp_options: dict | None = None
         ) -> CalibrationResult:
     """Fit ``C2`` (and ``C1`` if ``fit_c1``) of the M5 gap SDE/FP so its density at ``zeta_end`` matches a histogram.
 
@@ -100,8 +111,13 @@ def fit(edges: np.ndarray, density: np.ndarray, *, sigma0: float, hurst: float, 
     e, d = _histogram(edges, density)
     if metric not in DISTANCES:
         raise ValueError(f"metric must be one of {DISTANCES}, got {metric!r}")
-    if uncertainty not in ("curvature", "bootstrap"):
-        raise ValueError(f"uncertainty must be 'curvature' or 'bootstrap', got {uncertainty!r}")
+    if uncertainty not in UNCERTAINTIES:
+        raise ValueError(f"uncertainty must be one of {UNCERTAINTIES}, got {uncertainty!r}")
+    if uncertainty == "auto":
+        uncertainty = "curvature" if metric == "nll" else "bootstrap"
+    elif uncertainty == "curvature" and metric != "nll":
+        raise ValueError(f"uncertainty='curvature' is the error of the likelihood fit (metric='nll'), not of "
+                         f"metric={metric!r}: use metric='nll' or uncertainty='bootstrap'")
     lo2, hi2 = (chk.positive(c2_bounds[0], "c2_bounds[0]"), chk.positive(c2_bounds[1], "c2_bounds[1]"))
     if not hi2 > lo2:
         raise ValueError(f"c2_bounds must be increasing, got {c2_bounds!r}")
@@ -160,6 +176,7 @@ def fit(edges: np.ndarray, density: np.ndarray, *, sigma0: float, hurst: float, 
         status, message = "at_bound", f"C2 = {c2_fit:.4g} is at the edge of c2_bounds {c2_bounds}"
     c2_err = c1_err = math.nan
     boot = np.empty((0, 2))
+    sys_err = _model_error(model, best, x2, c1_fit) * c2_fit
     if count is not None and uncertainty == "curvature":
         c2_err, c1_err = _curvature_errors(model, e, d, count, x2, x1, fit_c1, c1_fit)
         c2_err *= c2_fit
@@ -180,8 +197,31 @@ def fit(edges: np.ndarray, density: np.ndarray, *, sigma0: float, hurst: float, 
         if len(boot) >= 2:
             c2_err = float(np.std(boot[:, 0], ddof=1))
             c1_err = float(np.std(boot[:, 1], ddof=1)) if fit_c1 else math.nan
+    stat_err = c2_err
+    if math.isfinite(c2_err):
+        c2_err = math.hypot(c2_err, sys_err)
+        if sys_err > stat_err:
+            message = (message + "; " if message else "") + (
+                f"forward-model error dominates: systematic {sys_err:.3g} > statistical {stat_err:.3g} "
+                "(tighten fp_options['tol'])")
     return CalibrationResult(c2_fit, c1_fit, fval, c2_err, c1_err, metric, best.bin_density(e), evals[0], status,
-                             message, time.perf_counter() - t0, boot)
+                             message, time.perf_counter() - t0, boot, stat_err, sys_err, uncertainty)
+
+
+def _model_error(model, best, x2, c1_fit) -> float:
+    """Systematic error of ``ln C2`` from the forward model's discretisation: the FP step-error estimate
+    (``best.error``, relative to the gap's sd) divided by the larger sensitivity of the model's mean and sd to
+    ``ln C2`` (the moment that pins ``C2`` hardest; central difference, step 0.05)."""
+    err = float(getattr(best, "error", 0.0) or 0.0)
+    if err == 0.0:
+        return 0.0
+    h = 0.05
+    rp, rm = model(math.exp(x2 + h), c1_fit), model(math.exp(x2 - h), c1_fit)
+    sd = math.sqrt(best.variance())
+    dm = abs(rp.mean() - rm.mean()) / (2 * h)
+    ds = abs(math.sqrt(rp.variance()) - math.sqrt(rm.variance())) / (2 * h)
+    sens = max(dm, ds)
+    return err * sd / sens if sens > 0 else math.inf
 
 
 def _curvature_errors(model, e, d, count, x2, x1, fit_c1, c1_fit) -> tuple[float, float]:

@@ -488,7 +488,7 @@ def _run_fokker_planck(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, An
     if t.opt("c1") is not None:
         kw["c1"] = t.opt("c1")
     res = fokker_planck.solve(t.sigma0, **kw)
-    g_edges = res.g0[-1] + res.y_edges  # cell edges in g at the final magnification
+    g_edges = res.g_edges()  # cell edges in g at the final magnification
     v: dict[str, float] = {"h_rms": h_rms, "g_rms": g_rms, "mean_gap": res.mean(),
                            "gap_std": float(np.sqrt(max(0.0, res.variance()))), "gap_min": float(g_edges[0]),
                            "gap_max": float(g_edges[-1]), "residual": float(res.mass_error),
@@ -498,7 +498,8 @@ def _run_fokker_planck(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, An
     edges = np.linspace(lo, hi, t.opt("bins") + 1)
     dens = res.bin_density(edges)
     ok = res.status == "ok" and all(math.isfinite(v[k]) for k in ("mean_gap", "gap_std"))
-    msg = "" if ok else f"fokker_planck: {res.status} (edge mass {res.edge_mass:.3g})"
+    msg = "" if ok else (f"fokker_planck: {res.status} (edge mass {res.edge_mass:.3g}, step error "
+                         f"{res.error:.3g} of the sd, tol {res.tol})")
     return TaskResult("done" if ok else "not_converged", msg, v, (edges, dens, 0)), None
 
 

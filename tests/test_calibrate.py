@@ -65,3 +65,41 @@ def test_bad_input_and_bounds():
     edges = np.linspace(ref.g[-1][0], ref.g[-1][-1], 80)
     r = calibrate.fit(edges, ref.bin_density(edges), sigma0=1e-2, c2_bounds=(1e-3, 1.0), **P)
     assert r.status == "at_bound" and r.c2 == pytest.approx(1.0, rel=1e-2)
+
+
+def test_pulls_of_default_fit_have_unit_spread():
+    # issue 9.2: over repeated synthetic targets (multinomial draws of `count` samples from the FP density at the
+    # true C2) the pulls (c2 - truth) / c2_err of the default fit have a standard deviation within [0.7, 1.4]
+    # (24 draws: the sample sd of unit pulls is 1 +- 0.15). With the old default (metric "w1", likelihood
+    # curvature as its error) it was 2.0-2.5.
+    truth, count = 0.3, 4000
+    fast = dict(n_steps=100, tol=None, estimate_error=False)
+    ref = fokker_planck.solve(1e-2, c2=truth, **fast, **P)
+    c = np.cumsum(ref.density[-1] * ref.widths)
+    g = ref.g[-1]
+    edges = np.linspace(g[np.searchsorted(c, 1e-4)], g[np.searchsorted(c, 1 - 1e-4)], 41)
+    prob = np.diff(ref.cdf(edges))
+    rng = np.random.default_rng(11)
+    pulls = []
+    for _ in range(24):
+        counts = rng.multinomial(count, prob / prob.sum())
+        r = calibrate.fit(edges, counts / np.diff(edges), sigma0=1e-2, count=count, fp_options=fast, **P)
+        assert r.status == "ok" and r.uncertainty == "curvature"
+        pulls.append((r.c2 - truth) / r.c2_err)
+    assert 0.7 < np.std(pulls, ddof=1) < 1.4
+    assert abs(np.mean(pulls)) < 3 / math.sqrt(len(pulls))
+
+
+def test_distance_metrics_get_bootstrap_and_forward_model_error_shows():
+    truth = 0.3
+    h = sde.gap_histogram_counts(1e-2, c2=truth, n=20_000, dzeta=0.05, steps="log", seed=5, bins=40, **P)
+    with pytest.raises(ValueError, match="curvature"):
+        calibrate.fit(h.edges, h.density, sigma0=1e-2, count=h.n, metric="w1", uncertainty="curvature", **P)
+    r = calibrate.fit(h.edges, h.density, sigma0=1e-2, count=h.n, metric="w1", n_boot=4, **P)
+    assert r.uncertainty == "bootstrap" and r.bootstrap.shape[0] >= 2
+    # a coarse forward model (10 steps): its estimated error shows as a systematic part of c2_err
+    coarse = calibrate.fit(h.edges, h.density, sigma0=1e-2, count=h.n, fp_options=dict(n_steps=10, max_steps=10,
+                                                                                          tol=None), **P)
+    fine = calibrate.fit(h.edges, h.density, sigma0=1e-2, count=h.n, **P)
+    assert coarse.c2_sys_err > fine.c2_sys_err and coarse.c2_err >= coarse.c2_stat_err
+    assert abs(coarse.c2 - fine.c2) < 3 * math.hypot(coarse.c2_sys_err, fine.c2_sys_err) + 0.5 * fine.c2_stat_err

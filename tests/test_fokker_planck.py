@@ -99,3 +99,33 @@ def test_bad_input():
     r = fokker_planck.solve(1e-2, zetas=[10.0, 100.0], **kw)
     with pytest.raises(ValueError, match="zeta"):
         r.at(50.0)
+
+
+@pytest.mark.parametrize("s0", [1.0, 10.0])
+def test_stiff_high_pressure_matches_sde_moments(s0):
+    # issue 9.1, M7 stiff parameters (rho = 5e-4, C2 = 1): the density is much narrower than rho. The backward
+    # Euler march in the g0 frame used to add numerical diffusion (sd 1.035x the SDE's at sigma0 = 1, 2.09x at 10,
+    # with status "ok"). Tolerances: mean within 0.02 sd + 5 SE, sd within 1.5 % + 5 SE of the SDE (40k paths,
+    # 463 log steps, float64; its step bias is far below these).
+    kw = dict(rho=5e-4, c2=1.0, **P)
+    n = 40_000
+    g = sde.gap_samples(s0, n=n, dzeta=0.01, steps="log", dtype="float64", seed=21, **kw)
+    r = fokker_planck.solve(s0, **kw)
+    assert r.status == "ok" and r.error <= r.tol
+    sd = math.sqrt(r.variance())
+    assert abs(r.mean() - g.mean()) < 0.02 * sd + 5 * g.std() / math.sqrt(n)
+    assert abs(sd / g.std() - 1.0) < 0.015 + 5 * math.sqrt(0.5 / n)
+
+
+def test_error_estimate_sets_status():
+    # a tolerance the allowed steps cannot meet gives status "inaccurate" with the estimate, never a silent "ok"
+    kw = dict(rho=5e-4, c2=1.0, **P)
+    r = fokker_planck.solve(1.0, n_steps=20, max_steps=20, tol=1e-6, **kw)
+    assert r.status == "inaccurate" and r.error > 1e-6
+    fine = fokker_planck.solve(1.0, n_steps=1600, tol=None, **kw)
+    # the estimate is of the right size: the 20-step error of the sd is within 3x of the estimate
+    err_sd = abs(math.sqrt(r.variance()) - math.sqrt(fine.variance())) / math.sqrt(fine.variance())
+    err_m = abs(r.mean() - fine.mean()) / math.sqrt(fine.variance())
+    assert max(err_sd, err_m) < 3 * r.error and r.error < 3 * max(err_sd, err_m) + 1e-3
+    with pytest.raises(ValueError, match="tol"):
+        fokker_planck.solve(1.0, tol=-1.0, **kw)
