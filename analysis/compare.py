@@ -25,6 +25,7 @@ import numpy as np
 import pandas as pd
 
 from analysis.aggregate import HistogramStats, rebin_density
+from gapsweep import theory
 
 __all__ = [
     "ILL_CONDITIONED",
@@ -61,15 +62,21 @@ def theory_vs_gfmd(agg: pd.DataFrame, *, forms: Sequence[str] = _FORMS, gfmd_n: 
     grid of each point); the discrete theory on the same grid when it has it, else on its finest grid.
     Columns: form, hurst, rho, sigma0, sigma0_reduced, h_rms, h_rms_over_rho, n, gfmd, gfmd_sem, gfmd_count,
     gfmd_not_done (failed + not converged + pending + invalid GFMD rows at that point), theory, theory_sem,
-    rel_err, rel_err_sem, red_err, red_err_sem, ill_conditioned. Points where GFMD has no finite value are kept
-    with NaN errors and ``gfmd_count == 0`` so that a report can list them.
+    rel_err, rel_err_sem, red_err, red_err_sem, ill_conditioned, then the h_rms bookkeeping (issue 9.5):
+    ``h_rms`` (and ``h_rms_over_rho``, the reduced axes) is the GFMD surfaces' own (discrete) rms height, mean over
+    seeds; ``theory_h_rms`` says which h_rms the ``theory`` column used ("continuum": the spectrum's integral,
+    forms paper/continuum, as stored by the theory task; "surface": the discrete form, on the surface's own
+    modes); ``h_rms_theory`` is that value; ``theory_hsurf``/``rel_err_hsurf`` are the same form evaluated with
+    the surfaces' ``h_rms`` (equal to ``theory``/``rel_err`` for the discrete form). The verdicts use
+    ``rel_err`` (continuum h_rms, as the paper does). Points where GFMD has no finite value are kept with NaN
+    errors and ``gfmd_count == 0`` so that a report can list them.
     """
     for f in forms:
         if f not in _FORMS:
             raise ValueError(f"forms: unknown form {f!r}; allowed: {', '.join(_FORMS)}")
     cols = ["form", "job", "hurst", "rho", "sigma0", "sigma0_reduced", "h_rms", "h_rms_over_rho", "n", "gfmd",
             "gfmd_sem", "gfmd_count", "gfmd_not_done", "theory", "theory_sem", "rel_err", "rel_err_sem", "red_err",
-            "red_err_sem", "ill_conditioned"]
+            "red_err_sem", "ill_conditioned", "theory_h_rms", "h_rms_theory", "theory_hsurf", "rel_err_hsurf"]
     if agg.empty:
         return pd.DataFrame(columns=cols)
     a = agg.assign(_h=agg["hurst"].map(_rk), _r=agg["rho"].map(_rk), _s=agg["sigma0"].map(_rk))
@@ -105,11 +112,28 @@ def theory_vs_gfmd(agg: pd.DataFrame, *, forms: Sequence[str] = _FORMS, gfmd_n: 
                 "theory": T, "theory_sem": sT, "rel_err": rel, "rel_err_sem": rel_sem,
                 "red_err": (T - G) / h, "red_err_sem": red_sem,
                 "ill_conditioned": bool(np.isfinite(G) and abs(G) < ILL_CONDITIONED * h),
+                **_with_surface_h_rms(form, t, h, G, T),
             })
     out = pd.DataFrame(rows, columns=cols)
     # Two jobs may hold the same tasks (same content id, e.g. fig2 and fig4_5 at H = 0.3, sigma0 = 0.01): one row.
     out = out.drop_duplicates(["form", "hurst", "rho", "sigma0", "n", "gfmd", "theory"])
     return out.sort_values(["form", "hurst", "rho", "sigma0", "job"], ignore_index=True)
+
+
+def _with_surface_h_rms(form: str, t: pd.Series, h_surface: float, G: float, T: float) -> dict[str, Any]:
+    """The theory of ``form`` with the GFMD surfaces' own h_rms (docs/model.md M4), beside the stored value."""
+    if form == "discrete":
+        return {"theory_h_rms": "surface", "h_rms_theory": h_surface, "theory_hsurf": T,
+                "rel_err_hsurf": (T - G) / abs(G) if G != 0 else math.nan}
+    h_th = float(t["h_rms"])
+    try:
+        ts = float(theory.mean_gap(float(t["sigma0"]), hurst=float(t["hurst"]), h_rms=h_surface, rho=float(t["rho"]),
+                                   gamma0=float(t["gamma0"]), lambda_l=float(t["lambda_l"]),
+                                   lambda_s=float(t["lambda_s"]), e_star=float(t["e_star"]), form=form))
+    except (ValueError, KeyError, TypeError):
+        ts = math.nan
+    return {"theory_h_rms": "continuum", "h_rms_theory": h_th, "theory_hsurf": ts,
+            "rel_err_hsurf": (ts - G) / abs(G) if G != 0 and np.isfinite(G) else math.nan}
 
 
 def _tier(err: float, thresholds: Sequence[float]) -> str:
@@ -125,8 +149,11 @@ def agreement_regions(cmp: pd.DataFrame, *, form: str = "paper", thresholds: Seq
 
     Returns ``(points, summary)``. ``points``: the rows of ``cmp`` for ``form`` with a ``tier`` column
     ("<=1%", "<=5%", "<=10%", ">10%", "ill-conditioned" or "no GFMD data"). ``summary``, one row per
-    (hurst, rho) sorted by ``h_rms/rho``: the number of classified points, of ill-conditioned and of missing
-    points, and for each threshold ``t`` the fraction of points within ``t`` (``frac_<=t%``) and the smallest
+    (job, hurst, rho) sorted by ``h_rms/rho`` (the job keeps surface families apart: fig-2, fig-4/5 and fig-6
+    surfaces differ at the same (hurst, rho), issue 9.5): the number of classified points, of ill-conditioned and
+    of missing points, the largest ``|rel_err|`` (continuum h_rms, used by the verdicts) and
+    ``max_abs_rel_err_hsurf`` (the surfaces' h_rms), and for each threshold ``t`` the fraction of points
+    within ``t`` (``frac_<=t%``) and the smallest
     reduced pressure ``sigma0/(E* g_rms)`` from which on every higher pressure agrees within ``t``
     (``sigma0_from_<=t%``, NaN if even the highest pressure does not).
     """
@@ -144,12 +171,14 @@ def agreement_regions(cmp: pd.DataFrame, *, form: str = "paper", thresholds: Seq
             tiers.append(_tier(r["rel_err"], th))
     p["tier"] = tiers
     rows = []
-    for (h, rho), g in p.groupby(["hurst", "rho"], sort=True):
+    for (job, h, rho), g in p.groupby(["job", "hurst", "rho"], sort=True):
         ok = g[~g["tier"].isin(["no GFMD data", "ill-conditioned"])].sort_values("sigma0")
-        row: dict[str, Any] = {"hurst": h, "rho": rho, "h_rms_over_rho": float(g["h_rms_over_rho"].mean()),
+        row: dict[str, Any] = {"job": job, "hurst": h, "rho": rho, "h_rms_over_rho": float(g["h_rms_over_rho"].mean()),
                                "points": len(ok), "ill_conditioned": int((g["tier"] == "ill-conditioned").sum()),
                                "missing": int((g["tier"] == "no GFMD data").sum()),
                                "max_abs_rel_err": float(ok["rel_err"].abs().max()) if len(ok) else math.nan}
+        if "rel_err_hsurf" in ok.columns:
+            row["max_abs_rel_err_hsurf"] = float(ok["rel_err_hsurf"].abs().max()) if len(ok) else math.nan
         for t in th:
             within = (ok["rel_err"].abs() <= t).to_numpy()
             row[f"frac_<={t * 100:g}%"] = float(within.mean()) if len(ok) else math.nan

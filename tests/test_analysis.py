@@ -346,3 +346,34 @@ def test_quick_jobs_end_to_end(tmp_path):
     assert {"fig2_quick", "fig3_quick", "fig4_5_quick"} <= set(agg["job"])
     dist = pd.read_csv(out / "hist_distances.csv")
     assert set(dist["job"]) == {"fig6_quick"} and (dist["method"] == "fp_calibrated").any()
+
+
+def test_surface_families_apart_and_both_h_rms():
+    # issue 9.5: two jobs at the same (H, rho) with different surfaces (h_rms 2e-3 vs 9e-3) stay two summary rows;
+    # theory_vs_gfmd labels which h_rms the theory used and gives the theory at the surfaces' own h_rms too.
+    from gapsweep import theory
+
+    rows, i = [], 0
+    for job, h_cont, h_surf, bias in (("fig2", 2.0e-3, 2.04e-3, 0.01), ("fig6", 9.0e-3, 9.2e-3, 0.5)):
+        for s in (1e-3, 1e-2, 1e-1):
+            p = float(theory.mean_gap(s, hurst=0.3, h_rms=h_cont, rho=2e-3, gamma0=GAMMA0, lambda_l=LL, lambda_s=LS))
+            rows.append(dict(_row(i, "theory", hurst=0.3, rho=2e-3, sigma0=s, mean_gap_paper=p, h_rms=h_cont),
+                             job=job))
+            i += 1
+            for seed in range(2):
+                rows.append(dict(_row(i, "gfmd", hurst=0.3, rho=2e-3, sigma0=s, seed=seed, n=256, h_rms=h_surf,
+                                      mean_gap=p * (1 - bias) * (1 + 1e-4 * seed)), job=job))
+                i += 1
+    df = pd.DataFrame(rows, columns=[*_COLS, "job"])
+    cmp = compare.theory_vs_gfmd(aggregate.aggregate_mean_gap(df), forms=("paper",))
+    assert set(cmp["theory_h_rms"]) == {"continuum"}
+    r = cmp[(cmp["job"] == "fig2") & np.isclose(cmp["sigma0"], 1e-2)].iloc[0]
+    assert r["h_rms_theory"] == pytest.approx(2.0e-3) and r["h_rms"] == pytest.approx(2.04e-3)
+    want = theory.mean_gap(1e-2, hurst=0.3, h_rms=2.04e-3, rho=2e-3, gamma0=GAMMA0, lambda_l=LL, lambda_s=LS)
+    assert r["theory_hsurf"] == pytest.approx(float(want), rel=1e-12)
+    assert r["rel_err_hsurf"] == pytest.approx((want - r["gfmd"]) / r["gfmd"], rel=1e-9)
+    _points, summary = compare.agreement_regions(cmp)
+    assert len(summary) == 2 and set(summary["job"]) == {"fig2", "fig6"}
+    small = summary[summary["job"] == "fig2"].iloc[0]
+    assert small["max_abs_rel_err"] < 0.02 and small["h_rms_over_rho"] == pytest.approx(1.02)
+    assert np.isfinite(small["max_abs_rel_err_hsurf"])
