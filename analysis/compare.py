@@ -34,6 +34,7 @@ __all__ = [
     "calibrate_c2",
     "histogram_distance",
     "histogram_distances",
+    "pressure_trend",
     "theory_vs_gfmd",
 ]
 
@@ -66,8 +67,9 @@ def theory_vs_gfmd(agg: pd.DataFrame, *, forms: Sequence[str] = _FORMS, gfmd_n: 
     ``h_rms`` (and ``h_rms_over_rho``, the reduced axes) is the GFMD surfaces' own (discrete) rms height, mean over
     seeds; ``theory_h_rms`` says which h_rms the ``theory`` column used ("continuum": the spectrum's integral,
     forms paper/continuum, as stored by the theory task; "surface": the discrete form, on the surface's own
-    modes); ``h_rms_theory`` is that value; ``theory_hsurf``/``rel_err_hsurf`` are the same form evaluated with
-    the surfaces' ``h_rms`` (equal to ``theory``/``rel_err`` for the discrete form). The verdicts use
+    modes, or a job whose surfaces are scaled to the theory's h_rms); ``h_rms_theory`` is that value;
+    ``theory_hsurf``/``rel_err_hsurf`` are the same form evaluated with the surfaces' ``h_rms`` (equal to
+    ``theory``/``rel_err`` for the discrete form). The verdicts use
     ``rel_err`` (continuum h_rms, as the paper does). Points where GFMD has no finite value are kept with NaN
     errors and ``gfmd_count == 0`` so that a report can list them.
     """
@@ -132,7 +134,9 @@ def _with_surface_h_rms(form: str, t: pd.Series, h_surface: float, G: float, T: 
                                    lambda_s=float(t["lambda_s"]), e_star=float(t["e_star"]), form=form))
     except (ValueError, KeyError, TypeError):
         ts = math.nan
-    return {"theory_h_rms": "continuum", "h_rms_theory": h_th, "theory_hsurf": ts,
+    # a job that fixes the surfaces' rms height (rms_height=...) gives the theory the same number: say so
+    label = "surface" if math.isclose(h_th, h_surface, rel_tol=1e-6) else "continuum"
+    return {"theory_h_rms": label, "h_rms_theory": h_th, "theory_hsurf": ts,
             "rel_err_hsurf": (ts - G) / abs(G) if G != 0 and np.isfinite(G) else math.nan}
 
 
@@ -194,6 +198,40 @@ def agreement_regions(cmp: pd.DataFrame, *, form: str = "paper", thresholds: Seq
     if not summary.empty:
         summary = summary.sort_values("h_rms_over_rho", ignore_index=True)
     return p.reset_index(drop=True), summary
+
+
+def pressure_trend(cmp: pd.DataFrame, *, form: str = "paper", min_err: float = 0.01) -> pd.DataFrame:
+    """Does the agreement improve with pressure (M6)? One row per surface family (job) and (hurst, rho).
+
+    Over the well-conditioned points with a finite error, Spearman's rank correlation of ``|rel_err|`` (and of
+    ``|rel_err_hsurf|``, the error at the surfaces' own h_rms) with ``sigma0``: negative = improves. Rows with
+    fewer than 3 points or all errors below ``min_err`` are kept with ``improves`` = NaN (nothing to read).
+    Grouping by job keeps the fig-2, fig-4/5 and fig-6 surfaces apart (issue 9.5). Columns: job, hurst, rho,
+    h_rms_over_rho, points, max_abs_rel_err, spearman, spearman_hsurf, improves.
+    """
+    from scipy.stats import spearmanr
+
+    cols = ["job", "hurst", "rho", "h_rms_over_rho", "points", "max_abs_rel_err", "spearman", "spearman_hsurf",
+            "improves"]
+    p = cmp[(cmp["form"] == form) & np.isfinite(cmp["rel_err"]) & ~cmp["ill_conditioned"].astype(bool)]
+    rows = []
+
+    def rank_corr(x, y) -> float:
+        x, y = np.asarray(x, float), np.asarray(y, float)
+        ok = np.isfinite(x) & np.isfinite(y)
+        if ok.sum() < 3 or np.ptp(x[ok]) == 0 or np.ptp(y[ok]) == 0:
+            return math.nan
+        return float(spearmanr(x[ok], y[ok]).statistic)
+
+    for (job, h, rho), g in p.groupby(["job", "hurst", "rho"], sort=True):
+        err = g["rel_err"].abs()
+        rs = rank_corr(g["sigma0"], err)
+        rs_h = rank_corr(g["sigma0"], g["rel_err_hsurf"].abs()) if "rel_err_hsurf" in g else math.nan
+        readable = len(g) >= 3 and float(err.max()) > min_err and np.isfinite(rs)
+        rows.append({"job": job, "hurst": h, "rho": rho, "h_rms_over_rho": float(g["h_rms_over_rho"].mean()),
+                     "points": len(g), "max_abs_rel_err": float(err.max()), "spearman": rs,
+                     "spearman_hsurf": rs_h, "improves": (rs < 0) if readable else math.nan})
+    return pd.DataFrame(rows, columns=cols)
 
 
 # ---------------------------------------------------------------------------------------------------------

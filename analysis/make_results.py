@@ -23,6 +23,16 @@ from analysis import report
 DEFAULT_STORES = ("out/fig2.h5", "out/fig3.h5", "out/fig4_5.h5", "out/fig6.h5")
 
 
+def _write_pressure_trend(out: Path) -> None:
+    """``pressure_trend.csv``: the M6 pressure trend per surface family (job), from ``theory_vs_gfmd.csv``."""
+    import pandas as pd
+
+    from analysis import compare
+
+    cmp = pd.read_csv(out / "theory_vs_gfmd.csv")
+    compare.pressure_trend(cmp).to_csv(out / "pressure_trend.csv", index=False)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Command line: stores (default: the four full-job stores under out/) and ``--out`` (default docs/results)."""
     p = argparse.ArgumentParser(prog="python -m analysis.make_results", description=__doc__,
@@ -42,6 +52,7 @@ def main(argv: list[str] | None = None) -> int:
         print("make_results: no store to read", file=sys.stderr)
         return 1
     path = report.main(stores, args.out)
+    _write_pressure_trend(Path(args.out))
     print(f"report: {path}")
     print((Path(args.out) / "verdicts.md").read_text())
     return 0

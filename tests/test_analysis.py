@@ -377,3 +377,6 @@ def test_surface_families_apart_and_both_h_rms():
     small = summary[summary["job"] == "fig2"].iloc[0]
     assert small["max_abs_rel_err"] < 0.02 and small["h_rms_over_rho"] == pytest.approx(1.02)
     assert np.isfinite(small["max_abs_rel_err_hsurf"])
+    trend = compare.pressure_trend(cmp)
+    assert len(trend) == 2 and set(trend["job"]) == {"fig2", "fig6"}
+    assert (trend["points"] == 3).all()
