@@ -33,7 +33,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import solve_banded
+from scipy.linalg.lapack import dgtsv as _gtsv
 from scipy.special import ndtr
 
 from gapsweep import _checks as chk
@@ -404,7 +404,9 @@ def _march(zt: np.ndarray, g0t: np.ndarray, i2: np.ndarray, mass: np.ndarray, yd
     snaps = {}
     mass_err = 0.0
     edge_mass = 0.0
-    ab = np.zeros((3, n))
+    # node index -> requested zeta (snapshots)
+    at = {int(np.argmin(np.abs(zt - zq))): float(zq) for zq in zs_late}
+    ones = np.ones(n - 1)
     for k in range(zt.size - 1):
         dz = zt[k + 1] - zt[k]
         dcoef = i2[k] / dz
@@ -417,26 +419,24 @@ def _march(zt: np.ndarray, g0t: np.ndarray, i2: np.ndarray, mass: np.ndarray, yd
             ydet = ynew
             drift = u * np.expm1(np.minimum(-edges[1:-1] / rho, _EXP_CAP))
             pe = drift * delta / dcoef
+            bp = _bernoulli(pe)
+            bm = pe + bp  # B(-x) = x + B(x)
         else:
-            pe = np.zeros(n - 1)
-        bp = _bernoulli(pe)
-        bm = pe + bp  # B(-x) = x + B(x)
-        cond = dcoef / delta
-        right = cond * bm / h[:-1]  # rate i -> i+1 per unit mass in cell i
-        left = cond * bp / h[1:]  # rate i+1 -> i per unit mass in cell i+1
-        ab[1, :] = 1.0
-        ab[1, :-1] += dz * right
-        ab[1, 1:] += dz * left
-        ab[0, 1:] = -dz * left  # upper diagonal: column i+1 feeds row i
-        ab[2, :-1] = -dz * right  # lower diagonal: column i feeds row i+1
-        mass = solve_banded((1, 1), ab, mass, overwrite_ab=False, overwrite_b=True, check_finite=False)
+            bp = bm = ones
+        cond = dz * dcoef / delta
+        right = cond * bm / h[:-1]  # dz x rate i -> i+1 per unit mass in cell i
+        left = cond * bp / h[1:]  # dz x rate i+1 -> i per unit mass in cell i+1
+        diag = np.ones(n)
+        diag[:-1] += right
+        diag[1:] += left
+        # tridiagonal solve (LAPACK gtsv): lower diagonal -right (column i feeds row i+1), upper -left
+        _du2, _d, _du, mass, info = _gtsv(-right, diag, -left, mass, overwrite_b=True)
         tot = mass.sum()
-        if not math.isfinite(tot):
+        if info != 0 or not math.isfinite(tot):
             raise FloatingPointError(f"Fokker-Planck step {k} (zeta={zt[k + 1]:.6g}) became non-finite")
         mass_err = max(mass_err, abs(tot - 1.0))
         np.maximum(mass, 0.0, out=mass)  # clears rounding-level negatives only (M-matrix: none beyond that)
         edge_mass = max(edge_mass, float(mass[:2].sum() + mass[-2:].sum()))
-        zq = zt[k + 1]
-        if np.any(np.isclose(zs_late, zq, rtol=1e-12, atol=0.0)):
-            snaps[float(zs_late[np.argmin(np.abs(zs_late - zq))])] = (mass / tot / h, ydet)
+        if k + 1 in at:
+            snaps[at[k + 1]] = (mass / tot / h, ydet)
     return snaps, mass_err, edge_mass
