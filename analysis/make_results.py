@@ -15,10 +15,13 @@ Only aggregated data is written (no raw fields): the CSV tables are a few hundre
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 from pathlib import Path
 
 from analysis import report
+
+logger = logging.getLogger("gapsweep.analysis.make_results")
 
 DEFAULT_STORES = ("out/fig2.h5", "out/fig3.h5", "out/fig4_5.h5", "out/fig6.h5")
 
@@ -42,19 +45,21 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--allow-missing", action="store_true",
                    help="build from the stores that exist (claims without data say 'not enough data')")
     args = p.parse_args(argv)
+    if not logging.getLogger().handlers:
+        logging.basicConfig(level=logging.INFO, format="%(message)s")
     stores = [Path(s) for s in args.stores]
     missing = [str(s) for s in stores if not s.is_file()]
     if missing and not args.allow_missing:
-        print(f"make_results: missing store(s): {', '.join(missing)} (use --allow-missing to go on)", file=sys.stderr)
+        logger.error("make_results: missing store(s): %s (use --allow-missing to go on)", ", ".join(missing))
         return 1
     stores = [s for s in stores if s.is_file()]
     if not stores:
-        print("make_results: no store to read", file=sys.stderr)
+        logger.error("make_results: no store to read")
         return 1
     path = report.main(stores, args.out)
     _write_pressure_trend(Path(args.out))
-    print(f"report: {path}")
-    print((Path(args.out) / "verdicts.md").read_text())
+    logger.info("report: %s", path)
+    logger.info("%s", (Path(args.out) / "verdicts.md").read_text())
     return 0
 
 
