@@ -46,7 +46,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="build from the stores that exist (claims without data say 'not enough data')")
     args = p.parse_args(argv)
     if not logging.getLogger().handlers:
-        logging.basicConfig(level=logging.INFO, format="%(message)s")
+        logging.basicConfig(format="%(message)s")
+    logger.setLevel(logging.INFO)
     stores = [Path(s) for s in args.stores]
     missing = [str(s) for s in stores if not s.is_file()]
     if missing and not args.allow_missing:
