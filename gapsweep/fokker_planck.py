@@ -239,10 +239,12 @@ def solve(sigma0: float, *, hurst: float, h_rms: float, rho: float, gamma0: floa
     # exp(y_det/rho) = 1 + (c/rho) int_1^z exp(-g0/rho) (g0 linear within each interval). The solver's frame
     # moves with g0 + y_det, where the narrow high-pressure density sits still (see _march).
     ydet_a = np.zeros_like(za)
+    log_push = np.full(za.size, -np.inf)  # ln((c/rho) int_1^z exp(-g0/rho))
     if c > 0.0:
         dga = np.diff(ga) / rho_
         log_terms = (math.log(c / rho_) + np.log(np.diff(za)) + np.log(_phi(dga)) - ga[:-1] / rho_)
-        ydet_a[1:] = rho_ * np.logaddexp(0.0, np.logaddexp.accumulate(log_terms))
+        log_push[1:] = np.logaddexp.accumulate(log_terms)
+        ydet_a[1:] = rho_ * np.logaddexp(0.0, log_push[1:])
     # Linearised width in that frame (stiffness k = y_det'/rho): dV = 2 dV_0 - 2 k V dz, exact per interval.
     var_lin = _linear_variance(va, ydet_a / rho_)
 
@@ -255,6 +257,15 @@ def solve(sigma0: float, *, hurst: float, h_rms: float, rho: float, gamma0: floa
         relevant = yw > -width_sd * sd - margin
         lower = np.maximum(-width_sd * sd, yw - margin) - ydet_a
         upper = width_sd * sd + np.maximum(0.0, 2.0 * yw) - ydet_a
+        # Tighter bounds by comparison (g grows with the noise path W): with |W| <= width_sd sd(z) over the
+        # history, g >= g0 - w sd + push(W = +w sd) and g <= g0 + w sd + push(W = -w sd), where the push of a
+        # path held at g0 + W is rho ln(1 + e^{-W/rho} (c/rho) int exp(-g0/rho)). Both bounds hold; keep the
+        # tighter (at high pressure +-2 w sd around y_det instead of the mirror image of the C2 = 0 tail).
+        with np.errstate(over="ignore"):
+            lower = np.maximum(lower, -width_sd * sd + rho_ * np.logaddexp(0.0, log_push - width_sd * sd / rho_)
+                               - ydet_a)
+            upper = np.minimum(upper, width_sd * sd + rho_ * np.logaddexp(0.0, log_push + width_sd * sd / rho_)
+                               - ydet_a)
         lo = float(np.min(lower))
         hi = max(float(np.max(upper)), float(np.max(width_sd * np.sqrt(var_lin))))
         if np.any(relevant):
