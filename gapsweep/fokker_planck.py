@@ -1,28 +1,34 @@
-"""Deterministic solver of the gap Fokker-Planck equation of MODEL.md M5.
+"""Deterministic solver of the gap Fokker-Planck equation (docs/model.md M5).
 
 Equation (magnification ``zeta`` as time, gap ``g`` [length])::
 
-    dP/dzeta = -d/dg [a(g, zeta) P] + D2(zeta) d^2P/dg^2,   a = D1(zeta) + C2 (gamma0/rho) exp(-g/rho),
+    dP/dzeta = -d/dg [a(g, zeta) P] + D2(zeta) d^2P/dg^2,   a = D1(zeta) + c exp(-g/rho),   c = C2 gamma0/rho,
 
 started from a point mass at the flat-surface gap ``g0(1) = rho ln(gamma0/(rho sigma0))``; ``D1``, ``D2`` from
 :mod:`gapsweep.theory`. It is the noise-free reference of :mod:`gapsweep.sde` and a fast path on its own.
 
 Numerics:
 
-* Moving frame ``y = g - g0(zeta)`` (``g0`` = field-theory mean gap, M4), which absorbs ``D1`` exactly, so the
-  grid only has to hold the spread, not the drift of the mean (which can be many standard deviations).
+* Moving frame ``y = g - g0(zeta) - y_det(zeta)``: ``g0`` (field-theory mean gap, M4) absorbs ``D1`` exactly and
+  ``y_det``, the deterministic push of the repulsion (``exp(y_det/rho) = 1 + (c/rho) int_1^zeta exp(-g0/rho)``),
+  absorbs the repulsion at ``y = 0``: the drift left is ``u (exp(-y/rho) - 1)`` with ``u = dy_det/dzeta``. At
+  high pressure the density is much narrower than ``rho`` and rides on ``y_det``; in a frame without it the
+  profile would sweep across the grid and backward Euler would widen it by the numerical diffusion
+  ``u^2 dzeta/2`` (2x the sd at sigma0 = 10 on the M7 stiff case).
 * Conservative finite volumes on a graded grid in ``y``: cells of ``sd/cells_per_sd`` in the bulk (``sd`` of the
-  smallest requested ``zeta``, C2 = 0) and
-  ``rho/cells_per_rho`` in the band the repulsive wall sweeps through, growing geometrically in between.
-  Domain from the theory: ``+- width_sd`` standard deviations of the C2 = 0 Gaussian, cut below the wall and
-  extended above it by the reflected tail.
+  smallest requested ``zeta``, C2 = 0), ``cells_per_sd`` cells per linearised width in a core around ``y = 0``
+  (``dV = 2 D2 dzeta - 2 (u/rho) V dzeta``) and ``rho/cells_per_rho`` in the band the repulsive wall sweeps
+  through, growing geometrically in between. Domain: ``+- width_sd`` standard deviations of the C2 = 0
+  Gaussian, each end moved by the push that a noise path held there would get (comparison principle).
 * Scharfetter-Gummel (exponentially fitted) fluxes, zero flux at both ends, backward Euler in ``zeta``: an
   M-matrix, so the density stays positive and the mass is conserved to rounding whatever the step. Per step the
-  diffusion is ``int D2 / dzeta`` (Gauss-Legendre) and the repulsion ``c <exp(-g0/rho)>_step exp(-y/rho)``
-  (exponent capped at 300: faster than any step can resolve, so nothing physical changes and nothing overflows).
+  diffusion is ``int D2 / dzeta`` (Gauss-Legendre); the exponent of the repulsion is capped at 300 (faster than
+  any step can resolve, so nothing physical changes and nothing overflows).
 * Steps equidistant in ``s(zeta) = V(zeta)/(2 V_end) + ln(zeta)/(2 ln zeta_end)`` (``V = 2 int D2``): short where
   the variance grows fastest, with the requested magnifications inserted as nodes. Start at the ``zeta`` where
   the spread reaches two cells, from the Gaussian there (exact for C2 = 0).
+* Error control: step doubling (the march repeated on every other node) estimates the step error of the mean and
+  sd relative to the sd; the steps double while it exceeds ``tol``; status "inaccurate" if it still does.
 """
 
 from __future__ import annotations
