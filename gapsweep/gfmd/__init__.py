@@ -124,7 +124,7 @@ def solve(
     max_iter: int = 5000,
     initial: GFMDResult | np.ndarray | None = None,
     threads: int | None = None,
-    host: bool = True,
+    host: bool | tuple[str, ...] = True,
 ) -> GFMDResult:
     """Equilibrium gap of an elastic half-space on the rigid surface ``heights`` at mean pressure ``sigma0``.
 
@@ -136,8 +136,9 @@ def solve(
     "auto" (cupy for a cupy array, else pyfftw when installed, else numpy), "numpy", "pyfftw" or "cupy".
     ``max_iter``: force evaluations allowed. ``initial``: an earlier result or a displacement field (any grid
     size: shared Fourier modes are carried over) to start from; default is the linear response of M4.
-    ``threads``: FFTW threads. ``host=False`` leaves the fields of a cupy run on the GPU (skips three n x n
-    device-to-host copies). Warns (UnderResolvedWarning) when ``rho < length/n`` (M7).
+    ``threads``: FFTW threads. ``host``: which fields of a cupy run come to the host (pinned,
+    asynchronous copies): True (all), False (none: they stay on the GPU) or names such as ``("gap",)``.
+    Warns (UnderResolvedWarning) when ``rho < length/n`` (M7).
     """
     t_start = time.perf_counter()
     if not _is_cupy(heights):

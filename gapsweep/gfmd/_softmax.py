@@ -12,7 +12,7 @@ import numpy as np
 
 from gapsweep.fft import available_backends, get_backend
 from gapsweep.gfmd._ops import _is_cupy
-from gapsweep.gfmd._result import GFMDResult
+from gapsweep.gfmd._result import FIELDS, GFMDResult, host_fields
 from gapsweep.gfmd._solvers import _RUNNERS, _half_q, _Problem
 from gapsweep.gfmd.interactions.exponential import Exponential
 
@@ -24,6 +24,7 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
              method: str, backend: str, max_iter: int, initial: Any, threads: int | None, host: bool,
              t_start: float) -> GFMDResult:
     """Exponential repulsion ``law`` on the square grid ``heights`` (inputs validated by ``gfmd.solve``)."""
+    host_fields(host)  # validate before any work
     from gapsweep.gfmd import UnderResolvedWarning, _make_ops, _transfer_modes  # late: tests patch gfmd
 
     shape = heights.shape
@@ -92,8 +93,9 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
     converged = status == "converged" and load_error <= tol and fields_ok
     if status == "converged" and not converged:
         status = "stalled"
-    if host:
-        gap, p, u = fft.to_host(gap), fft.to_host(p), fft.to_host(u)
+    fields = dict(zip(FIELDS, (gap, p, u)))
+    fields.update(fft.to_host_many({k: fields[k] for k in host_fields(host)}))
+    gap, p, u = (fields[k] for k in FIELDS)
     fft.synchronize()
     return GFMDResult(
         mean_gap=g0 - h_shift,
