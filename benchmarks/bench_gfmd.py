@@ -266,13 +266,16 @@ def cmd_gpu(a) -> None:
                 kw = dict(sigma0=s0, gamma0=GAMMA0, rho=rho, method=a.method)
                 gfmd.solve(h, tol=1e-2, **kw)  # warm-up: cuFFT plans, kernels
                 for tol in a.tols:
-                    cupy.cuda.get_current_stream().synchronize()
-                    r = gfmd.solve(h, tol=tol, **kw)
-                    cupy.cuda.get_current_stream().synchronize()
-                    r_dev = gfmd.solve(h, tol=tol, host=False, **kw)
-                    r_dev.histogram(200)
-                    cupy.cuda.get_current_stream().synchronize()
-                    r_gap = gfmd.solve(h, tol=tol, host=("gap",), **kw)
+                    def best(host, tol=tol, kw=kw, h=h):
+                        # best of 3 (the first call of a mode allocates its pinned host blocks)
+                        rs = []
+                        for _ in range(3):
+                            cupy.cuda.get_current_stream().synchronize()
+                            rs.append(gfmd.solve(h, tol=tol, host=host, **kw))
+                        return min(rs, key=lambda x: x.wall_time)
+                    r = best(True)
+                    r_dev = best(False)
+                    r_gap = best(("gap",))
                     fb = get_backend("cupy", n)
                     X = fb.rfft2(h)
                     t_pair = _time(lambda fb=fb, X=X, h=h: (fb.irfft2(X), fb.rfft2(h), fb.synchronize()), 5)

@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import statistics
 import time
 from pathlib import Path
@@ -139,11 +140,9 @@ def kernel_limit(args, fig6: dict, gpu_name: str) -> None:
     lo, hi = float(y_edges[0]), float(y_edges[-1])
     inv_w = nb / (hi - lo)
     src = (Path(__file__).with_name("sde_reference.cu")).read_text()
-    opts = ("-use_fast_math", "--std=c++14")
+    opts = ("-use_fast_math", "--std=c++17")
     mods = {"philox": cp.RawModule(code=src, options=opts)}
     try:
-        import os
-
         inc = [f"-I{p}" for p in (os.environ.get("CUDA_PATH", "/usr/local/cuda") + "/include",) if os.path.isdir(p)]
         mods["curand"] = cp.RawModule(code="#define WITH_CURAND\n" + src, options=(*opts, *inc))
         mods["curand"].get_function("plain_em_curand")
@@ -153,65 +152,58 @@ def kernel_limit(args, fig6: dict, gpu_name: str) -> None:
     f32 = lambda a: cp.asarray(np.asarray(a, dtype=np.float32))  # noqa: E731
     drift, sd, cdz = plan.euler
     sd_d, drift_d, cdz_d = f32(sd), f32(drift), f32(cdz)
-    s_d, b_d, rb_d = f32(plan.noise_sd), f32(plan.wall), f32(plan.rho * plan.wall)
     counts = cp.zeros(nb + 3, dtype=cp.uint64)
     block = 256
     grid = ((n + block - 1) // block,)
     shmem = 4 * (nb + 3)
-    k0, k1 = 1, 0
-    out_counts = {}
 
-    def launcher(mod, kname, split):
+    def launcher(mod, kname):
         fn = mod.get_function(kname)
 
         def run():
             counts.fill(0)
-            if split:
-                fn(grid, (block,), (np.int64(n), np.uint64(0), np.uint32(k0), np.uint32(k1), np.int32(plan.n_steps),
-                                    s_d, b_d, rb_d, np.float32(plan.rho), np.float32(1 / plan.rho), np.float32(lo),
-                                    np.float32(inv_w), np.float32(hi), np.int32(nb), counts), shared_mem=shmem)
-            else:
-                fn(grid, (block,), (np.int64(n), np.uint64(1), np.int32(plan.n_steps), sd_d, drift_d, cdz_d,
-                                    np.float32(1 / plan.rho), np.float32(plan.g0[0]), np.float32(plan.g0_end),
-                                    np.float32(lo), np.float32(inv_w), np.float32(hi), np.int32(nb), counts),
-                   shared_mem=shmem)
-            out_counts[kname] = counts.get()
+            fn(grid, (block,), (np.int64(n), np.uint64(1), np.int32(plan.n_steps), sd_d, drift_d, cdz_d,
+                                np.float32(1 / plan.rho), np.float32(plan.g0[0]), np.float32(plan.g0_end),
+                                np.float32(lo), np.float32(inv_w), np.float32(hi), np.int32(nb), counts),
+               shared_mem=shmem)
+            counts.get()
         return run
 
     sync = cp.cuda.Device().synchronize
     rows = {}
     if "curand" in mods:
         rows["plain EM, cuRAND Philox normal4 (CUDA, fast math)"] = _median_time(
-            launcher(mods["curand"], "plain_em_curand", False), args.repeat, sync)
+            launcher(mods["curand"], "plain_em_curand"), args.repeat, sync)
     rows["plain EM, hand Philox + Box-Muller (CUDA, fast math)"] = _median_time(
-        launcher(mods["philox"], "plain_em_philox", False), args.repeat, sync)
-    rows["split step, CUDA (same Philox stream, log1p poly)"] = _median_time(
-        launcher(mods["philox"], "split_philox", True), args.repeat, sync)
+        launcher(mods["philox"], "plain_em_philox"), args.repeat, sync)
     ref_key = next(iter(rows))
-    warp_counts = {}
-    for variant in K.VARIANTS:
-        K.VARIANT = variant
+    engine_counts = {}
+    for engine in ("cuda", "warp"):
+        os.environ["GAPSWEEP_SDE_ENGINE"] = "auto" if engine == "cuda" else "warp"
+        for variant in (["poly"] if engine == "cuda" else K.VARIANTS):
+            K.VARIANT = variant
+            launch_times: list[float] = []
+            label = "gapsweep CUDA engine (cupy)" if engine == "cuda" else f"warp kernels, log1p={variant}"
 
-        launch_times: list[float] = []
-
-        def call(variant=variant, launch_times=launch_times):
-            r = sde.gap_histogram_counts(s0, **kw)
-            warp_counts[variant] = np.r_[r.counts, r.below, r.above, r.nonfinite]
-            launch_times.append(r.wall_time)
-        rows[f"split step, warp log1p={variant} (whole user call)"] = _median_time(
-            call, args.repeat, lambda: wp.synchronize_device(args.device))
-        # the same calls without the host-side step plan: coefficient upload + launch + count copy
-        rows[f"split step, warp log1p={variant} (upload + launch + copy)"] = statistics.median(launch_times[1:])
+            def call(key=f"{engine}/{variant}", launch_times=launch_times):
+                r = sde.gap_histogram_counts(s0, **kw)
+                engine_counts[key] = np.r_[r.counts, r.below, r.above, r.nonfinite]
+                launch_times.append(r.wall_time)
+            rows[f"split step, {label}: whole user call"] = _median_time(
+                call, args.repeat, lambda: wp.synchronize_device(args.device))
+            # the same calls without the host-side step plan: coefficient upload + launch + count copy
+            rows[f"split step, {label}: upload + launch + copy"] = statistics.median(launch_times[1:])
+    os.environ.pop("GAPSWEEP_SDE_ENGINE", None)
     K.VARIANT = "poly"
+    agree = int(np.abs(engine_counts["cuda/poly"] - engine_counts["warp/poly"]).sum())
     ref = rows[ref_key]
-    agree = int(np.abs(out_counts["split_philox"].astype(np.int64) - warp_counts["poly"]).max())
     lines = [f"# SDE kernel limit on {gpu_name} (n = {n:.0e} x {plan.n_steps} steps, float32, {nb}-bin histogram,"
              f" median of {args.repeat})", "",
-             f"| kernel | time [s] | ratio to {ref_key.split(',')[0]} ({ref_key.split(',')[1].strip()}) |",
+             "| kernel | time [s] | ratio to the first row |",
              "| --- | --- | --- |"]
     for key, t in rows.items():
         lines.append(f"| {key} | {t:.4f} | {t / ref:.2f} |")
-    lines += ["", f"max |count difference| per bin, CUDA split vs warp split (poly), same seed: {agree} of {n}"]
+    lines += ["", f"sum |count difference| over bins, CUDA engine vs warp kernels (poly), same seed: {agree} of {n}"]
     text = "\n".join(lines)
     print(text, flush=True)
     (args.out / "sde_kernel_limit.md").write_text(text + "\n")

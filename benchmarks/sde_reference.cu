@@ -5,8 +5,6 @@
 // plain_em_curand: the plain Euler-Maruyama kernel of the issue: cuRAND Philox4_32_10, curand_normal4, one
 //   thread per realisation, g += drift[k] + cdz[k] exp(-g/rho) + sd[k] n, histogram in shared memory.
 // plain_em_philox: the same with the hand-written Philox + Box-Muller below (no cuRAND header needed).
-// split_philox: the production split step of gapsweep/_sde_kernels.py (same Philox counters, so the same
-//   normals up to fast-math rounding), log1p by the same degree-9 polynomial, histogram in shared memory.
 #ifdef WITH_CURAND
 #include <curand_kernel.h>
 #endif
@@ -96,57 +94,6 @@ extern "C" __global__ void plain_em_philox(long long n, unsigned long long seed,
                 if (k + j < n_steps) g += drift[k + j] + cdz[k + j] * __expf(-g * inv_rho) + sd[k + j] * zz[j];
         }
         bin(g - shift, lo, inv_w, hi, nb, sh);
-    }
-    flush(sh, nb + 3, counts);
-}
-
-__device__ __forceinline__ float log1p_poly(float e) {
-    float p = -0.0032141131814569235f;
-    p = fmaf(p, e, 0.019649622961878777f);
-    p = fmaf(p, e, -0.05643612518906593f);
-    p = fmaf(p, e, 0.10533368587493896f);
-    p = fmaf(p, e, -0.15251556038856506f);
-    p = fmaf(p, e, 0.19651539623737335f);
-    p = fmaf(p, e, -0.24947820603847504f);
-    p = fmaf(p, e, 0.3332909941673279f);
-    p = fmaf(p, e, -0.4999985098838806f);
-    p = fmaf(p, e, 1.0f);
-    return p * e;
-}
-
-__device__ __forceinline__ float split_step(float y, int k, float n, int n_steps, const float *__restrict__ s,
-        const float *__restrict__ b, const float *__restrict__ rb, float rho, float inv_rho) {
-    y += s[k] * n;
-    if (k < n_steps) {
-        float d = b[k] - y * inv_rho;
-        if (d > -40.0f) {
-            float l = rho * log1p_poly(__expf(-fabsf(d)));
-            y = (d <= 0.0f) ? y + l : rb[k] + l;
-        }
-    }
-    return y;
-}
-
-extern "C" __global__ void split_philox(long long n, unsigned long long first, unsigned int k0, unsigned int k1,
-        int n_steps, const float *__restrict__ s, const float *__restrict__ b, const float *__restrict__ rb,
-        float rho, float inv_rho, float lo, float inv_w, float hi, int nb, unsigned long long *counts) {
-    HIST_PROLOGUE
-    if (tid < n) {
-        unsigned long long index = first + (unsigned long long)tid;
-        float y = 0.0f;
-        int n_groups = (n_steps + 1 + 3) / 4;
-        for (int grp = 0; grp < n_groups; ++grp) {
-            unsigned int c[4] = {(unsigned int)grp, 0u, (unsigned int)index, (unsigned int)(index >> 32)};
-            philox(c, k0, k1);
-            float zz[4];
-            box_muller(c[0], c[1], zz[0], zz[1]);
-            box_muller(c[2], c[3], zz[2], zz[3]);
-            int k = grp * 4;
-#pragma unroll
-            for (int j = 0; j < 4; ++j)
-                if (k + j <= n_steps) y = split_step(y, k + j, zz[j], n_steps, s, b, rb, rho, inv_rho);
-        }
-        bin(y, lo, inv_w, hi, nb, sh);
     }
     flush(sh, nb + 3, counts);
 }
