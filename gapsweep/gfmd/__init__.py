@@ -67,7 +67,8 @@ from gapsweep.gfmd._result import GFMDResult
 from gapsweep.gfmd._solvers import _half_q, _Problem  # noqa: F401 - used by benchmarks (gfmd._Problem)
 from gapsweep.gfmd.interactions import INTERACTIONS, Interaction, resolve
 
-__all__ = ["INTERACTIONS", "METHODS", "GFMDResult", "Interaction", "UnderResolvedWarning", "solve"]
+__all__ = ["INTERACTIONS", "METHODS", "BatchProblem", "GFMDResult", "Interaction", "UnderResolvedWarning", "solve",
+           "solve_batch"]
 
 METHODS = _softmax.METHODS  # methods of the exponential law (the job-spec validator uses this list)
 DEFAULT_METHOD = _softmax.DEFAULT_METHOD
@@ -168,3 +169,8 @@ def solve(
     return minimise(heights, law, sigma0=sigma0, e_star=e_star, length=length, tol=tol, method=method,
                     backend=backend, max_iter=max_iter, initial=initial, threads=threads, host=host,
                     t_start=t_start)
+
+
+# Batches of problems of one grid size (gfmd/batched.py): imported last, it builds on solve and _MINIMISERS.
+from gapsweep.gfmd.batched import Problem as BatchProblem  # noqa: E402
+from gapsweep.gfmd.batched import solve_batch  # noqa: E402

@@ -1,0 +1,412 @@
+"""Batched GFMD: many problems of one grid size solved together (docs/gfmd.md, "Batches"; docs/model.md M3).
+
+``solve_batch(problems)`` groups the problems by grid size ``n`` and by the minimiser their interaction law
+needs (its ``load_control``); a group whose minimiser has a batched form runs as one stack of ``B x n x n``
+arrays, every FFT one batched transform (cuFFT on the GPU, pocketfft on the CPU); other groups are solved one by
+one with :func:`gapsweep.gfmd.solve`. Results come back in the order of ``problems``.
+
+The batched "softmax" minimiser (exponential law) is the preconditioned Polak-Ribiere+ CG of
+:mod:`gapsweep.gfmd._solvers` step for step, with every scalar decision taken per problem: each problem keeps
+its own restart flag, line search (Newton/secant/bisection trials; problems whose search needs more trials
+take them while the others wait), iteration count, history and status. A problem that stops (converged,
+max_iter, stalled, non_finite) leaves the stack at once: its fields are finished and the arrays of the others
+are compacted, so it costs no further work. The arithmetic is that of the one-by-one solver (same formulas,
+same order), so results agree to round-off and iteration counts agree unless round-off flips a decision.
+
+Memory: about ``14 n^2 x 8`` bytes per problem in the stack; ``max_batch`` bounds the stack (default: 1/3 of the
+free GPU memory, or 16 problems on the CPU).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from gapsweep import _checks as chk
+from gapsweep.fft import BACKENDS, available_backends
+from gapsweep.gfmd._ops import _is_cupy
+from gapsweep.gfmd._result import FIELDS, GFMDResult, host_fields
+from gapsweep.gfmd._solvers import _half_q
+from gapsweep.gfmd.interactions import Interaction, resolve
+
+__all__ = ["Problem", "solve_batch"]
+
+log = logging.getLogger("gapsweep.gfmd.batched")
+
+_BYTES_PER_POINT = 14 * 8  # real and half-spectrum work arrays per grid point and problem
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One GFMD problem of a batch: the rigid surface ``heights`` (``n x n``, numpy or cupy), the mean pressure
+    ``sigma0`` and the interaction law (a name with its parameters, as for :func:`gapsweep.gfmd.solve`, or an
+    :class:`Interaction` object)."""
+
+    heights: Any
+    sigma0: float
+    interaction: str | Interaction = "exponential"
+    gamma0: float | None = None
+    rho: float | None = None
+
+
+def solve_batch(problems: Sequence[Problem], *, e_star: float = 1.0, length: float = 1.0, tol: float = 1e-6,
+                backend: str = "auto", max_iter: int = 5000, host: bool | tuple[str, ...] = True,
+                max_batch: int | None = None) -> list[GFMDResult]:
+    """Solve ``problems`` (see the module docstring); arguments as in :func:`gapsweep.gfmd.solve`, common to all.
+    ``backend``: "auto" (cupy when cupy is installed and a GPU is present, else numpy), "numpy" or "cupy";
+    ``max_batch``: most problems stacked at once. Every input is validated before any work."""
+    from gapsweep.gfmd import _MINIMISERS, solve  # late: gfmd imports this module
+
+    e_star = chk.positive(e_star, "e_star")
+    length = chk.positive(length, "length")
+    tol = chk.positive(tol, "tol")
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
+        raise ValueError(f"max_iter must be an integer >= 1, got {max_iter!r}")
+    if max_batch is not None:
+        max_batch = chk.count(max_batch, "max_batch")
+    host_fields(host)
+    if not isinstance(backend, str) or backend not in ("auto", *BACKENDS):
+        raise ValueError(f"backend must be one of {', '.join(map(repr, ('auto', *BACKENDS)))}; got {backend!r}")
+    if backend == "auto":
+        backend = "cupy" if "cupy" in available_backends() else "numpy"
+    if backend == "pyfftw":
+        backend = "numpy"  # batched transforms: numpy's pocketfft (pyfftw plans one grid at a time)
+    laws, loads, grids = [], [], []
+    for i, p in enumerate(problems):
+        if not isinstance(p, Problem):
+            raise TypeError(f"problems[{i}] must be a gfmd.batched.Problem, got {type(p).__name__}")
+        shape = getattr(p.heights, "shape", None)
+        if shape is None or len(shape) != 2 or shape[0] != shape[1] or shape[0] < 2:
+            raise ValueError(f"problems[{i}].heights must be a square n x n array (n >= 2), got shape {shape}")
+        law = resolve(p.interaction, gamma0=p.gamma0, rho=p.rho)
+        rng = law.range()
+        if rng is not None and rng < length / shape[0]:
+            from gapsweep.gfmd import UnderResolvedWarning
+
+            warnings.warn(f"problems[{i}]: rho/dx = {rng * shape[0] / length:.3g} < 1: the interaction range is "
+                          "under-resolved (refine n)", UnderResolvedWarning, stacklevel=2)
+        laws.append(law)
+        loads.append(law.check_load(p.sigma0))
+        grids.append(int(shape[0]))
+    groups: dict[tuple[int, str], list[int]] = {}
+    for i, law in enumerate(laws):
+        groups.setdefault((grids[i], law.load_control), []).append(i)
+    out: list[GFMDResult | None] = [None] * len(problems)
+    for (n, control), idx in groups.items():
+        runner = _BATCHED.get(control)
+        if runner is None:  # no batched form for this law's minimiser yet: one by one
+            log.info("batch: %d problem(s) with load_control %r solved one by one", len(idx), control)
+            if control not in _MINIMISERS:
+                raise ValueError(f"no minimiser for load_control {control!r} (interaction {laws[idx[0]].name!r})")
+            for i in idx:
+                out[i] = solve(problems[i].heights, sigma0=loads[i], interaction=laws[i], e_star=e_star,
+                               length=length, tol=tol, backend=backend, max_iter=max_iter, host=host)
+            continue
+        size = max_batch or _default_batch(backend, n)
+        for start in range(0, len(idx), size):
+            chunk = idx[start:start + size]
+            res = runner([problems[i].heights for i in chunk], [laws[i] for i in chunk], [loads[i] for i in chunk],
+                         n=n, e_star=e_star, length=length, tol=tol, backend=backend, max_iter=max_iter, host=host)
+            for i, r in zip(chunk, res):
+                out[i] = r
+    return out  # type: ignore[return-value]
+
+
+def _default_batch(backend: str, n: int) -> int:
+    if backend != "cupy":
+        return 16
+    import cupy
+
+    free, _ = cupy.cuda.runtime.memGetInfo()
+    return max(1, int(free / 3 // (_BYTES_PER_POINT * n * n)))
+
+
+# --------------------------------------------------------------------------------------- batched operations
+class _Stack:
+    """Array operations on a stack of ``B`` problems: real ``(B, n, n)``, half spectra ``(B, n, n//2+1)``."""
+
+    def __init__(self, xp: Any, n: int) -> None:
+        self.xp, self.n, self.even = xp, n, n % 2 == 0
+
+    def rfft2(self, a):
+        return self.xp.fft.rfft2(a, axes=(-2, -1))
+
+    def irfft2(self, a):
+        return self.xp.fft.irfft2(a, s=(self.n, self.n), axes=(-2, -1), norm="forward")
+
+    def dot(self, a, b) -> np.ndarray:
+        """``<A B>`` per problem by Parseval (weights as :meth:`gapsweep.gfmd._ops._Ops.dot`), on the host."""
+        xp = self.xp
+        s = 2.0 * _re_dot(xp, a, b, (1, 2)) - _re_dot(xp, a[:, :, 0], b[:, :, 0], (1,))
+        if self.even:
+            s = s - _re_dot(xp, a[:, :, -1], b[:, :, -1], (1,))
+        return _host(xp, s)
+
+    def sums(self, a) -> np.ndarray:
+        return _host(self.xp, a.sum(axis=(1, 2)))
+
+    def maxes(self, a) -> np.ndarray:
+        return _host(self.xp, a.max(axis=(1, 2)))
+
+
+def _re_dot(xp, a, b, axes):
+    return (a.real * b.real + a.imag * b.imag).sum(axis=axes)
+
+
+def _host(xp, a) -> np.ndarray:
+    return np.asarray(a.get() if xp is not np else a, dtype=np.float64)
+
+
+def _col(xp, v) -> Any:
+    """A per-problem host vector as a ``(B, 1, 1)`` device array for broadcasting."""
+    return xp.asarray(np.asarray(v, dtype=np.float64)).reshape(-1, 1, 1)
+
+
+# ------------------------------------------------------------------------------------- softmax (exponential)
+def _line_search(phi0p: float, a: float, b: float, s0: float, rho: float, S: float, s1: float, s2: float,
+                 eta: float, max_trials: int = 40):
+    """:meth:`gapsweep.gfmd._solvers._Problem.line_search` for one problem as a generator: yields the step
+    ``alpha`` of a trial point, receives its ``(m, S, s1, s2)``; returns ``(alpha, ok, last)`` where ``last``
+    says whether the last trial point is the accepted one (else the caller evaluates ``alpha`` once more)."""
+    curv = b + (s0 / rho) * (s2 / S - (s1 / S) ** 2)
+    alpha = -phi0p / curv if curv > 0 else 1.0
+    lo, hi, dlo, dhi = 0.0, math.inf, phi0p, math.nan
+    for _ in range(max_trials):
+        if not math.isfinite(alpha) or alpha <= 0:
+            break
+        m, S, s1, s2 = yield alpha
+        if not (math.isfinite(m) and math.isfinite(S) and math.isfinite(s1) and math.isfinite(s2)):
+            hi = alpha
+            alpha = 0.5 * (lo + alpha)
+            continue
+        dphi = a + alpha * b - s0 * s1 / S
+        if abs(dphi) <= eta * abs(phi0p):
+            return alpha, True, True
+        if dphi < 0:
+            lo, dlo = alpha, dphi
+        else:
+            hi, dhi = alpha, dphi
+        if hi - lo <= 1e-13 * hi:
+            break
+        curv = b + (s0 / rho) * (s2 / S - (s1 / S) ** 2)
+        new = alpha - dphi / curv if curv > 0 else math.inf
+        if not (lo < new < hi):
+            new = lo - dlo * (hi - lo) / (dhi - dlo) if math.isfinite(hi) else 4.0 * alpha
+            if not (lo < new < hi):
+                new = 0.5 * (lo + hi)
+        alpha = new
+    if lo <= 0.0:
+        return 0.0, False, False
+    return lo, True, False  # round-off or out of trials: the last point known to lie downhill
+
+
+def _softmax_batch(heights: list, laws: list, sigma0s: list[float], *, n: int, e_star: float, length: float,
+                   tol: float, backend: str, max_iter: int, host: Any, eta: float = 0.1) -> list[GFMDResult]:
+    """Batched "softmax" minimiser (exponential law), CG as :func:`gapsweep.gfmd._solvers._run_cg`."""
+    t_start = time.perf_counter()
+    if backend == "cupy":
+        import cupy as xp
+    else:
+        xp = np
+    ops = _Stack(xp, n)
+    B = len(heights)
+    h = xp.stack([xp.asarray(hh, dtype=xp.float64) for hh in heights])
+    if not bool(xp.all(xp.isfinite(h))):
+        bad = [i for i in range(B) if not bool(xp.all(xp.isfinite(h[i])))]
+        raise ValueError(f"heights of batch problem(s) {bad} contain NaN or inf")
+    h_shift = _host(xp, h.mean(axis=(1, 2)))
+    h = h - xp.asarray(h_shift).reshape(-1, 1, 1)
+    rho = np.array([law.rho for law in laws])
+    s0 = np.array(sigma0s, dtype=np.float64)
+    k = 0.5 * e_star * _half_q(xp, n, length)
+    # linear response of M4, per problem as in the one-by-one solver
+    Hq = ops.rfft2(h) * (1.0 / (n * n))
+    X = (Hq * (_col(xp, s0 / rho) / (k + _col(xp, s0 / rho)))).astype(xp.complex128)
+    minv = 1.0 / (k + _col(xp, s0 / rho))
+    minv[:, 0, 0] = 0.0
+    X[:, 0, 0] = 0.0
+    W = (h - ops.irfft2(X)) * _col(xp, 1.0 / rho)
+    m = ops.maxes(W)
+    e = xp.exp(W - _col(xp, m))
+    S = ops.sums(e)
+    G = k * X - _col(xp, s0 / S) * ops.rfft2(e)
+    G[:, 0, 0] = 0.0
+    r2 = ops.dot(G, G)
+    G_old = xp.zeros_like(G)
+    D = xp.zeros_like(X)
+
+    ids = list(range(B))  # original index of each slot
+    nfev = [1] * B
+    history: list[list[float]] = [[] for _ in range(B)]
+    restart = np.ones(B, dtype=bool)
+    zg_old = np.zeros(B)
+    results: list[GFMDResult | None] = [None] * B
+    status: list[str | None] = [None] * B
+
+    def finish(slots: list[int]) -> None:
+        """Fields and records of the problems in ``slots``, then drop them from the stack."""
+        nonlocal X, h, minv, W, e, G, G_old, D, m, S, r2, rho, s0, restart, zg_old, ids, nfev
+        for j in slots:
+            i = ids[j]
+            results[i] = _softmax_fields(xp, ops, X[j], h[j], laws[i], float(s0[j]), float(h_shift[i]),
+                                         status[i], nfev[j], history[i], e_star, length, tol, host, t_start)
+        keep = [j for j in range(len(ids)) if j not in set(slots)]
+        if not keep:
+            ids = []
+            return
+        sel = np.asarray(keep)
+        dsel = xp.asarray(sel)
+        X, h, minv, W, e, G, G_old, D = (a[dsel] for a in (X, h, minv, W, e, G, G_old, D))
+        m, S, r2, rho, s0, restart, zg_old = (a[sel] for a in (m, S, r2, rho, s0, restart, zg_old))
+        ids = [ids[j] for j in keep]
+        nfev = [nfev[j] for j in keep]
+
+    while ids:
+        # _check of _run_cg, per problem
+        done = []
+        for j, i in enumerate(ids):
+            r = math.sqrt(max(float(r2[j]), 0.0)) / float(s0[j])
+            history[i].append(r)
+            st = "non_finite" if not math.isfinite(r) else "converged" if r <= tol else \
+                "max_iter" if nfev[j] >= max_iter else None
+            if st is not None:
+                status[i] = st
+                done.append(j)
+        if done:
+            finish(done)
+            if not ids:
+                break
+        nb = len(ids)
+        # cg_dots and cg_update
+        Z = minv * G
+        zg = ops.dot(Z, G)
+        zg_cross = np.where(restart, 0.0, ops.dot(Z, G_old))
+        beta = np.where(restart, 0.0, np.maximum(0.0, (zg - zg_cross) / np.where(restart, 1.0, zg_old)))
+        D = _col(xp, beta) * D - minv * G
+        kD = k * D
+        phi0p, a, b = ops.dot(G, D), ops.dot(kD, X), ops.dot(kD, D)
+        redo = np.flatnonzero((phi0p >= 0) & (beta > 0))
+        if redo.size:  # not a descent direction (round-off): restart along -M^-1 G
+            r_ = xp.asarray(redo)
+            D[r_] = 0.0 * D[r_] - minv[r_] * G[r_]
+            kD = k * D
+            phi0p, a, b = ops.dot(G, D), ops.dot(kD, X), ops.dot(kD, D)
+        bad = [j for j in range(nb) if not phi0p[j] < 0]
+        for j in bad:
+            status[ids[j]] = "stalled" if math.isfinite(phi0p[j]) else "non_finite"
+        searching = [j for j in range(nb) if phi0p[j] < 0]
+        # line search, all problems in lockstep (one batched trial pass per round)
+        d = ops.irfft2(D)
+        s1 = ops.sums(e * d)
+        s2 = ops.sums(e * d * d)
+        gens = {j: _line_search(phi0p[j], a[j], b[j], s0[j], rho[j], S[j], s1[j], s2[j], eta) for j in searching}
+        alpha = {}
+        outcome: dict[int, tuple[float, bool, bool]] = {}
+        for j, g in gens.items():
+            try:
+                alpha[j] = g.send(None)
+            except StopIteration as stop:
+                outcome[j] = stop.value
+        Wt, et = xp.empty_like(W), xp.empty_like(e)
+        mt, St = np.zeros(nb), np.zeros(nb)
+        while alpha:
+            js = sorted(alpha)
+            sel = xp.asarray(np.asarray(js))
+            c = np.array([-alpha[j] / rho[j] for j in js])
+            wt = d[sel] * _col(xp, c) + W[sel]
+            mm = ops.maxes(wt)
+            ee = xp.exp(wt - _col(xp, mm))
+            SS, t1, t2 = ops.sums(ee), ops.sums(ee * d[sel]), ops.sums(ee * d[sel] * d[sel])
+            Wt[sel], et[sel] = wt, ee
+            for q, j in enumerate(js):
+                mt[j], St[j] = mm[q], SS[q]
+                try:
+                    alpha[j] = gens[j].send((float(mm[q]), float(SS[q]), float(t1[q]), float(t2[q])))
+                except StopIteration as stop:
+                    outcome[j] = stop.value
+                    del alpha[j]
+        # points that the search accepted without evaluating them last: one more trial pass
+        again = [j for j, (al, ok, last) in outcome.items() if ok and not last]
+        if again:
+            sel = xp.asarray(np.asarray(again))
+            c = np.array([-outcome[j][0] / rho[j] for j in again])
+            wt = d[sel] * _col(xp, c) + W[sel]
+            mm = ops.maxes(wt)
+            ee = xp.exp(wt - _col(xp, mm))
+            SS = ops.sums(ee)
+            Wt[sel], et[sel] = wt, ee
+            for q, j in enumerate(again):
+                mt[j], St[j] = mm[q], SS[q]
+        failed = [j for j, (_, ok, _) in outcome.items() if not ok]
+        for j in failed:
+            if restart[j]:
+                status[ids[j]] = "stalled"
+            else:
+                restart[j] = True
+        accepted = sorted(j for j, (_, ok, _) in outcome.items() if ok)
+        if accepted:
+            acc = np.asarray(accepted)
+            sel = xp.asarray(acc)
+            al = np.array([outcome[j][0] for j in accepted])
+            restart[acc] = False
+            zg_old[acc] = zg[acc]
+            W[sel], e[sel] = Wt[sel], et[sel]
+            m[acc], S[acc] = mt[acc], St[acc]
+            G_old[sel] = G[sel]
+            X[sel] = X[sel] + _col(xp, al) * D[sel]
+            Gs = k * X[sel] - _col(xp, s0[acc] / S[acc]) * ops.rfft2(e[sel])
+            Gs[:, 0, 0] = 0.0
+            G[sel] = Gs
+            r2[acc] = ops.dot(Gs, Gs)
+            for j in accepted:
+                nfev[j] += 1
+        stopped = [j for j in range(nb) if status[ids[j]] is not None]
+        if stopped:
+            finish(stopped)
+    return results  # type: ignore[return-value]
+
+
+def _softmax_fields(xp, ops: _Stack, X, h, law, sigma0: float, h_shift: float, status: str, nfev: int,
+                    history: list[float], e_star: float, length: float, tol: float, host: Any,
+                    t_start: float) -> GFMDResult:
+    """Fields and record of one finished problem, as at the end of :func:`gapsweep.gfmd._softmax.minimise`."""
+    n = ops.n
+    rho = law.rho
+    with np.errstate(all="ignore"):
+        u = ops.irfft2(X[None])[0]
+        w = (h - u) * (1.0 / rho)
+        m = float(w.max())
+        e = xp.exp(w - m)
+        S = float(e.sum())
+        lse = m + math.log(S / (n * n)) if S > 0 else math.nan
+        g0 = law.mean_gap(lse, sigma0)
+        p = e * (sigma0 * n * n / S) if S > 0 else e * math.nan
+        gap = (g0 - h_shift) - rho * w
+    load_error = abs(float(p.mean()) / sigma0 - 1.0)
+    residual = history[-1] if history else math.inf
+    fields_ok = math.isfinite(g0) and bool(xp.all(xp.isfinite(gap))) and bool(xp.all(xp.isfinite(p)))
+    if not fields_ok:
+        status = "non_finite"
+    converged = status == "converged" and load_error <= tol and fields_ok
+    if status == "converged" and not converged:
+        status = "stalled"
+    fields = dict(zip(FIELDS, (gap, p, u)))
+    for name in host_fields(host):
+        if _is_cupy(fields[name]):
+            fields[name] = fields[name].get()
+    return GFMDResult(mean_gap=g0 - h_shift, gap=fields["gap"], pressure=fields["pressure"],
+                      displacement=fields["displacement"], iterations=nfev, converged=converged, residual=residual,
+                      load_error=load_error, wall_time=time.perf_counter() - t_start, method="cg",
+                      backend="cupy" if xp is not np else "numpy", status=status, sigma0=sigma0, rho=rho,
+                      gamma0=law.gamma0, e_star=e_star, length=length, tol=tol, history=list(history))
+
+
+# load_control -> batched minimiser; laws with another load_control are solved one by one
+_BATCHED = {"softmax": _softmax_batch}
