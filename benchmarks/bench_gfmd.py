@@ -5,6 +5,7 @@
     python benchmarks/bench_gfmd.py speed   --out OUT [--n 1024 2048] [--tols 1e-3 ... 1e-8]
     python benchmarks/bench_gfmd.py peer    --out OUT [--n 1024]   (needs contactmechanics + adhesion)
     python benchmarks/bench_gfmd.py gpu     --out OUT [--n 4096 8192] (cupy on an NVIDIA GPU)
+    python benchmarks/bench_gfmd.py batch   --out OUT [--n 512 1024 2048] [--backend cupy] (solve_batch vs a loop)
 
 Cases are those of MODEL.md M6: L = 1, E* = 1, lambda_l = 0.25, lambda_s = 2.5e-3, gamma0 = 1e-3, g_rms = 1;
 figure 2: H = 0.3, rho = 2e-3, 1e-3, 5e-4; figure 3: H = 0.8, rho = 5e-3, 2e-3, 1e-3; our pressure grid is
@@ -296,9 +297,53 @@ def cmd_gpu(a) -> None:
           "(pinned, asynchronous); copy3_*: the three n x n float64 fields alone, pageable (cupy.asnumpy) vs pinned")
 
 
+# --------------------------------------------------------------------------------------------------- batch
+def cmd_batch(a) -> None:
+    """gfmd.solve_batch of one surface at the figure pressures x rho values vs the same problems one by one, same
+    backend, same run; agreement of mean gaps and iteration counts."""
+    backend = a.backend[0]
+    if backend == "cupy":
+        import cupy
+
+        xp = cupy
+        name = cupy.cuda.runtime.getDeviceProperties(0)["name"].decode()
+        sync = cupy.cuda.get_current_stream().synchronize
+    else:
+        xp, name, sync = np, platform.processor() or "cpu", (lambda: None)
+    rows = []
+    for n in a.n:
+        h = xp.asarray(surf(n, 0.3))
+        probs = [gfmd.BatchProblem(heights=h, sigma0=s0, gamma0=GAMMA0, rho=rho)
+                 for rho in (2e-3, 1e-3) for s0 in a.sigma0]
+        kw = dict(tol=a.tol, backend=backend, max_iter=a.max_iter)
+        gfmd.solve_batch(probs[:2], **{**kw, "tol": 1e-2})  # warm-up: plans, kernels
+        for p in probs[:2]:
+            gfmd.solve(p.heights, sigma0=p.sigma0, gamma0=GAMMA0, rho=p.rho, tol=1e-2, backend=backend)
+        sync()
+        t = time.perf_counter()
+        rb = gfmd.solve_batch(probs, **kw)
+        sync()
+        t_batch = time.perf_counter() - t
+        t = time.perf_counter()
+        r1 = [gfmd.solve(p.heights, sigma0=p.sigma0, gamma0=GAMMA0, rho=p.rho, **kw) for p in probs]
+        sync()
+        t_loop = time.perf_counter() - t
+        evals = sum(r.iterations for r in rb)
+        rows.append({"device": name, "backend": backend, "n": n, "problems": len(probs), "tol": a.tol,
+                     "force_evals": evals, "batch_s": t_batch, "one_by_one_s": t_loop, "speed-up": t_loop / t_batch,
+                     "batch_ms/eval": 1e3 * t_batch / evals, "loop_ms/eval": 1e3 * t_loop / max(1, sum(
+                         r.iterations for r in r1)),
+                     "same_iterations": sum(x.iterations == y.iterations for x, y in zip(rb, r1)),
+                     "max_rel_gap_diff": max(abs(x.mean_gap - y.mean_gap) / abs(y.mean_gap) for x, y in zip(rb, r1)),
+                     "converged": sum(r.converged for r in rb)})
+        print(rows[-1], flush=True)
+    write(a.out, f"batch_{backend}", rows, f"### Batched GFMD on {name} ({backend}): solve_batch vs one by one, "
+          "one surface (H = 0.3) x rho = 2e-3, 1e-3 x the sigma0 grid; fields copied to the host in both")
+
+
 def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("cmd", choices=["cost", "targets", "speed", "peer", "gpu"])
+    p.add_argument("cmd", choices=["cost", "targets", "speed", "peer", "gpu", "batch"])
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--n", type=int, nargs="+")
     p.add_argument("--backend", nargs="+", default=None)
@@ -320,6 +365,7 @@ def main(argv: list[str] | None = None) -> None:
         "speed": dict(n=[1024, 2048], tols=[1e-3, 1e-4, 1e-6, 1e-8], backend="auto"),
         "peer": dict(n=[1024], backend="auto"),
         "gpu": dict(n=[4096], tols=[1e-6, 1e-8]),
+        "batch": dict(n=[512, 1024, 2048], backend=["cupy"]),
     }[a.cmd]
     for k, v in defaults.items():
         if getattr(a, k) is None:
@@ -328,7 +374,8 @@ def main(argv: list[str] | None = None) -> None:
         a.backend = a.backend[0]
     # The figure surfaces (lambda_s = 2.5e-3) need n > 800 (Nyquist, M2).
     a.cases = [(0.3, 2e-3, 1e-2), (0.8, 1e-3, 1e-3)]
-    {"cost": cmd_cost, "targets": cmd_targets, "speed": cmd_speed, "peer": cmd_peer, "gpu": cmd_gpu}[a.cmd](a)
+    {"cost": cmd_cost, "targets": cmd_targets, "speed": cmd_speed, "peer": cmd_peer, "gpu": cmd_gpu,
+     "batch": cmd_batch}[a.cmd](a)
 
 
 if __name__ == "__main__":

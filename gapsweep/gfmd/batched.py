@@ -318,13 +318,19 @@ def _softmax_batch(heights: list, laws: list, sigma0s: list[float], *, n: int, e
         mt, St = np.zeros(nb), np.zeros(nb)
         while alpha:
             js = sorted(alpha)
-            sel = xp.asarray(np.asarray(js))
+            whole = len(js) == nb  # every problem of the stack: no gather/scatter
+            sel = slice(None) if whole else xp.asarray(np.asarray(js))
             c = np.array([-alpha[j] / rho[j] for j in js])
-            wt = d[sel] * _col(xp, c) + W[sel]
+            ds = d[sel]
+            wt = ds * _col(xp, c) + W[sel]
             mm = ops.maxes(wt)
             ee = xp.exp(wt - _col(xp, mm))
-            SS, t1, t2 = ops.sums(ee), ops.sums(ee * d[sel]), ops.sums(ee * d[sel] * d[sel])
-            Wt[sel], et[sel] = wt, ee
+            ed = ee * ds
+            SS, t1, t2 = ops.sums(ee), ops.sums(ed), ops.sums(ed * ds)
+            if whole:
+                Wt, et = wt, ee
+            else:
+                Wt[sel], et[sel] = wt, ee
             for q, j in enumerate(js):
                 mt[j], St[j] = mm[q], SS[q]
                 try:
@@ -335,7 +341,7 @@ def _softmax_batch(heights: list, laws: list, sigma0s: list[float], *, n: int, e
         # points that the search accepted without evaluating them last: one more trial pass
         again = [j for j, (al, ok, last) in outcome.items() if ok and not last]
         if again:
-            sel = xp.asarray(np.asarray(again))
+            sel = slice(None) if len(again) == nb else xp.asarray(np.asarray(again))
             c = np.array([-outcome[j][0] / rho[j] for j in again])
             wt = d[sel] * _col(xp, c) + W[sel]
             mm = ops.maxes(wt)
@@ -353,11 +359,14 @@ def _softmax_batch(heights: list, laws: list, sigma0s: list[float], *, n: int, e
         accepted = sorted(j for j, (_, ok, _) in outcome.items() if ok)
         if accepted:
             acc = np.asarray(accepted)
-            sel = xp.asarray(acc)
+            sel = slice(None) if len(accepted) == nb else xp.asarray(acc)
             al = np.array([outcome[j][0] for j in accepted])
             restart[acc] = False
             zg_old[acc] = zg[acc]
-            W[sel], e[sel] = Wt[sel], et[sel]
+            if len(accepted) == nb:
+                W, e, Wt, et = Wt, et, W, e
+            else:
+                W[sel], e[sel] = Wt[sel], et[sel]
             m[acc], S[acc] = mt[acc], St[acc]
             G_old[sel] = G[sel]
             X[sel] = X[sel] + _col(xp, al) * D[sel]
