@@ -130,7 +130,10 @@ def _default_batch(backend: str, n: int) -> int:
 
 # --------------------------------------------------------------------------------------- batched operations
 class _Stack:
-    """Array operations on a stack of ``B`` problems: real ``(B, n, n)``, half spectra ``(B, n, n//2+1)``."""
+    """Operations of the batched CG on a stack of ``B`` problems, real ``(B, n, n)`` and half spectra
+    ``(B, n, n//2+1)``, written as plain array code for any namespace (numpy on the CPU: the same arithmetic as
+    the one-by-one solver's array code). Per-problem scalars are host (numpy) vectors of length ``B``;
+    ``active`` (bool vector) restricts an update to some problems."""
 
     def __init__(self, xp: Any, n: int) -> None:
         self.xp, self.n, self.even = xp, n, n % 2 == 0
@@ -142,7 +145,7 @@ class _Stack:
         return self.xp.fft.irfft2(a, s=(self.n, self.n), axes=(-2, -1), norm="forward")
 
     def dot(self, a, b) -> np.ndarray:
-        """``<A B>`` per problem by Parseval (weights as :meth:`gapsweep.gfmd._ops._Ops.dot`), on the host."""
+        """``<A B>`` per problem by Parseval (weights as :meth:`gapsweep.gfmd._ops._Ops.dot`)."""
         xp = self.xp
         s = 2.0 * _re_dot(xp, a, b, (1, 2)) - _re_dot(xp, a[:, :, 0], b[:, :, 0], (1,))
         if self.even:
@@ -154,6 +157,135 @@ class _Stack:
 
     def maxes(self, a) -> np.ndarray:
         return _host(self.xp, a.max(axis=(1, 2)))
+
+    def _sel(self, active):
+        return slice(None) if active is None or active.all() else self.xp.asarray(np.flatnonzero(active))
+
+    def point(self, W, d, c, shift, active, Wt, e) -> tuple[np.ndarray, ...]:
+        """Trial points of the active problems: ``Wt = W + c d``, ``e = exp(Wt - m)`` with ``m = max(Wt)``
+        (``shift`` is a hint that this exact version ignores); returns ``(m, S, s1, s2)`` with
+        ``S = sum e``, ``s1 = sum e d``, ``s2 = sum e d^2`` (entries of inactive problems are 0)."""
+        xp, sel = self.xp, self._sel(active)
+        idx = np.flatnonzero(active)
+        ds = d[sel]
+        wt = ds * _col(xp, c[idx]) + W[sel]
+        mm = self.maxes(wt)
+        ee = xp.exp(wt - _col(xp, mm))
+        ed = ee * ds
+        out = [np.zeros(len(active)) for _ in range(4)]
+        for o, v in zip(out, (mm, self.sums(ee), self.sums(ed), self.sums(ed * ds))):
+            o[idx] = v
+        Wt[sel], e[sel] = wt, ee
+        return tuple(out)
+
+    def moments(self, e, d) -> tuple[np.ndarray, np.ndarray]:
+        ed = e * d
+        return self.sums(ed), self.sums(ed * d)
+
+    def cg_dots(self, minv, G, G_old) -> tuple[np.ndarray, np.ndarray]:
+        """``(<Z G>, <Z G_old>)``, ``Z = M^-1 G``."""
+        Z = minv * G
+        return self.dot(Z, G), self.dot(Z, G_old)
+
+    def cg_update(self, D, beta, minv, G, k, X, active=None) -> tuple[np.ndarray, ...]:
+        """``D = beta D - M^-1 G`` (active problems); returns ``(<G D>, <kD X>, <kD D>)`` (entries of inactive
+        problems undefined)."""
+        sel = self._sel(active)
+        idx = slice(None) if active is None else np.flatnonzero(active)
+        D[sel] = _col(self.xp, beta[idx]) * D[sel] - minv[sel] * G[sel]
+        kD = k * D
+        return self.dot(G, D), self.dot(kD, X), self.dot(kD, D)
+
+    def accept(self, X, D, alpha, e, c, k, G, G_old, active) -> np.ndarray:
+        """Active problems: ``G_old = G``, ``X += alpha D``, ``G = k X - c rfft2(e)`` (0 at q = 0); returns
+        ``<G G>`` of the active problems (in their order)."""
+        xp, sel = self.xp, self._sel(active)
+        idx = np.flatnonzero(active)
+        G_old[sel] = G[sel]
+        X[sel] = X[sel] + _col(xp, alpha[idx]) * D[sel]
+        Gs = k * X[sel] - _col(xp, c[idx]) * self.rfft2(e[sel])
+        Gs[:, 0, 0] = 0.0
+        G[sel] = Gs
+        return self.dot(Gs, Gs)
+
+
+class _FusedStack(_Stack):
+    """GPU variant of :class:`_Stack`: one fused CUDA pass per operation over the whole stack (the ``bt_*``
+    kernels of ``kernels.cu``, problem = ``blockIdx.y``), per-block partials reduced over blocks on the device
+    and one device-to-host copy of the ``B`` results, the only host synchronisation. Trial points are shifted by
+    a hint (the problem's current max) and redone with their own max only when that lies over 50 away
+    (``e <= e^50``: nothing overflows; ``S``, ``s1``, ``s2`` then carry a common factor that cancels in the
+    solver, as in :class:`gapsweep.gfmd._cuda._CupyOps`)."""
+
+    def __init__(self, xp: Any, n: int) -> None:
+        from gapsweep.gfmd._cuda import _cupy_kernels
+
+        super().__init__(xp, n)
+        self.K = _cupy_kernels()
+        self.nh = n // 2 + 1
+        self._geo = (np.uint32(self.nh), np.int32(self.even))
+
+    def _run(self, name: str, nk: int, mx: int, size: int, B: int, args: tuple) -> np.ndarray:
+        xp = self.xp
+        gx = int(max(1, min(-(-size // 256), max(8, 4096 // B))))
+        part = xp.empty((B, nk, gx), dtype=xp.float64)
+        self.K[name]((gx, B), (256,), (*args, np.uint64(size), part))
+        res = part.sum(axis=2)
+        if mx:
+            res[:, 0] = part[:, 0, :].max(axis=1)
+        return _host(xp, res)
+
+    def _dev(self, v, dtype=np.float64):
+        return self.xp.asarray(np.ascontiguousarray(v, dtype=dtype))
+
+    def point(self, W, d, c, shift, active, Wt, e) -> tuple[np.ndarray, ...]:
+        B = W.shape[0]
+        shift = np.where(np.isfinite(shift), shift, 0.0)
+        act = np.asarray(active, dtype=bool).copy()
+        out = np.zeros((B, 4))
+        for _ in range(2):
+            r = self._run("bt_point", 4, 1, self.n * self.n, B,
+                          (W, d, self._dev(c), self._dev(shift), self._dev(act, np.int32), Wt, e))
+            out[act] = r[act]
+            far = act & np.isfinite(r[:, 0]) & (np.abs(r[:, 0] - shift) > 50.0)
+            if not far.any():
+                break
+            shift = np.where(far, r[:, 0], shift)  # exact shift for those
+            act = far
+        return out[:, 0], out[:, 1], out[:, 2], out[:, 3]
+
+    def moments(self, e, d) -> tuple[np.ndarray, np.ndarray]:
+        r = self._run("bt_moments", 2, 0, self.n * self.n, e.shape[0], (e, d))
+        return r[:, 0], r[:, 1]
+
+    def cg_dots(self, minv, G, G_old) -> tuple[np.ndarray, np.ndarray]:
+        r = self._run("bt_cgdots", 2, 0, self.n * self.nh, G.shape[0], (minv, G, G_old, *self._geo))
+        return r[:, 0], r[:, 1]
+
+    def cg_update(self, D, beta, minv, G, k, X, active=None) -> tuple[np.ndarray, ...]:
+        B = D.shape[0]
+        act = np.ones(B, dtype=np.int32) if active is None else np.asarray(active, dtype=np.int32)
+        r = self._run("bt_cgupdate", 3, 0, self.n * self.nh, B,
+                      (D, self._dev(beta), minv, G, k, X, self._dev(act, np.int32), *self._geo))
+        return r[:, 0], r[:, 1], r[:, 2]
+
+    def accept(self, X, D, alpha, e, c, k, G, G_old, active) -> np.ndarray:
+        B = X.shape[0]
+        E = self.rfft2(e)
+        act = np.asarray(active, dtype=bool)
+        r = self._run("bt_accept", 1, 0, self.n * self.nh, B,
+                      (X, D, self._dev(np.where(act, alpha, 0.0)), E, self._dev(np.where(act, c, 0.0)), k, G, G_old,
+                       self._dev(act, np.int32), *self._geo))
+        return r[act, 0]
+
+
+def _make_stack(xp: Any, n: int) -> _Stack:
+    """Fused kernels on the GPU (unless ``GAPSWEEP_GENERIC_KERNELS=1``), the array code otherwise."""
+    import os
+
+    if xp is not np and os.environ.get("GAPSWEEP_GENERIC_KERNELS") != "1":
+        return _FusedStack(xp, n)
+    return _Stack(xp, n)
 
 
 def _re_dot(xp, a, b, axes):
@@ -215,7 +347,7 @@ def _softmax_batch(heights: list, laws: list, sigma0s: list[float], *, n: int, e
         import cupy as xp
     else:
         xp = np
-    ops = _Stack(xp, n)
+    ops = _make_stack(xp, n)
     B = len(heights)
     h = xp.stack([xp.asarray(hh, dtype=xp.float64) for hh in heights])
     if not bool(xp.all(xp.isfinite(h))):
@@ -241,9 +373,10 @@ def _softmax_batch(heights: list, laws: list, sigma0s: list[float], *, n: int, e
     r2 = ops.dot(G, G)
     G_old = xp.zeros_like(G)
     D = xp.zeros_like(X)
+    Wt, et = xp.empty_like(W), xp.empty_like(e)
 
     ids = list(range(B))  # original index of each slot
-    nfev = [1] * B
+    nfev = np.ones(B, dtype=np.int64)
     history: list[list[float]] = [[] for _ in range(B)]
     restart = np.ones(B, dtype=bool)
     zg_old = np.zeros(B)
@@ -252,21 +385,21 @@ def _softmax_batch(heights: list, laws: list, sigma0s: list[float], *, n: int, e
 
     def finish(slots: list[int]) -> None:
         """Fields and records of the problems in ``slots``, then drop them from the stack."""
-        nonlocal X, h, minv, W, e, G, G_old, D, m, S, r2, rho, s0, restart, zg_old, ids, nfev
+        nonlocal X, h, minv, W, e, G, G_old, D, Wt, et, m, S, r2, rho, s0, restart, zg_old, ids, nfev
         for j in slots:
             i = ids[j]
             results[i] = _softmax_fields(xp, ops, X[j], h[j], laws[i], float(s0[j]), float(h_shift[i]),
-                                         status[i], nfev[j], history[i], e_star, length, tol, host, t_start)
-        keep = [j for j in range(len(ids)) if j not in set(slots)]
+                                         status[i], int(nfev[j]), history[i], e_star, length, tol, host, t_start)
+        gone = set(slots)
+        keep = [j for j in range(len(ids)) if j not in gone]
+        ids = [ids[j] for j in keep]
         if not keep:
-            ids = []
             return
         sel = np.asarray(keep)
         dsel = xp.asarray(sel)
         X, h, minv, W, e, G, G_old, D = (a[dsel] for a in (X, h, minv, W, e, G, G_old, D))
-        m, S, r2, rho, s0, restart, zg_old = (a[sel] for a in (m, S, r2, rho, s0, restart, zg_old))
-        ids = [ids[j] for j in keep]
-        nfev = [nfev[j] for j in keep]
+        Wt, et = xp.empty_like(W), xp.empty_like(e)
+        m, S, r2, rho, s0, restart, zg_old, nfev = (a[sel] for a in (m, S, r2, rho, s0, restart, zg_old, nfev))
 
     while ids:
         # _check of _run_cg, per problem
@@ -285,97 +418,74 @@ def _softmax_batch(heights: list, laws: list, sigma0s: list[float], *, n: int, e
                 break
         nb = len(ids)
         # cg_dots and cg_update
-        Z = minv * G
-        zg = ops.dot(Z, G)
-        zg_cross = np.where(restart, 0.0, ops.dot(Z, G_old))
+        zg, zg_cross = ops.cg_dots(minv, G, G_old)
+        zg_cross = np.where(restart, 0.0, zg_cross)
         beta = np.where(restart, 0.0, np.maximum(0.0, (zg - zg_cross) / np.where(restart, 1.0, zg_old)))
-        D = _col(xp, beta) * D - minv * G
-        kD = k * D
-        phi0p, a, b = ops.dot(G, D), ops.dot(kD, X), ops.dot(kD, D)
-        redo = np.flatnonzero((phi0p >= 0) & (beta > 0))
-        if redo.size:  # not a descent direction (round-off): restart along -M^-1 G
-            r_ = xp.asarray(redo)
-            D[r_] = 0.0 * D[r_] - minv[r_] * G[r_]
-            kD = k * D
-            phi0p, a, b = ops.dot(G, D), ops.dot(kD, X), ops.dot(kD, D)
-        bad = [j for j in range(nb) if not phi0p[j] < 0]
-        for j in bad:
-            status[ids[j]] = "stalled" if math.isfinite(phi0p[j]) else "non_finite"
-        searching = [j for j in range(nb) if phi0p[j] < 0]
+        phi0p, a, b = ops.cg_update(D, beta, minv, G, k, X)
+        redo = (phi0p >= 0) & (beta > 0)
+        if redo.any():  # not a descent direction (round-off): restart along -M^-1 G
+            p2, a2, b2 = ops.cg_update(D, np.zeros(nb), minv, G, k, X, active=redo)
+            phi0p, a, b = np.where(redo, p2, phi0p), np.where(redo, a2, a), np.where(redo, b2, b)
+        for j in range(nb):
+            if not phi0p[j] < 0:
+                status[ids[j]] = "stalled" if math.isfinite(phi0p[j]) else "non_finite"
         # line search, all problems in lockstep (one batched trial pass per round)
         d = ops.irfft2(D)
-        s1 = ops.sums(e * d)
-        s2 = ops.sums(e * d * d)
-        gens = {j: _line_search(phi0p[j], a[j], b[j], s0[j], rho[j], S[j], s1[j], s2[j], eta) for j in searching}
-        alpha = {}
+        s1, s2 = ops.moments(e, d)
+        gens = {j: _line_search(phi0p[j], a[j], b[j], s0[j], rho[j], S[j], s1[j], s2[j], eta)
+                for j in range(nb) if phi0p[j] < 0}
+        alpha = np.zeros(nb)
         outcome: dict[int, tuple[float, bool, bool]] = {}
+        pending = set()
         for j, g in gens.items():
             try:
                 alpha[j] = g.send(None)
+                pending.add(j)
             except StopIteration as stop:
                 outcome[j] = stop.value
-        Wt, et = xp.empty_like(W), xp.empty_like(e)
         mt, St = np.zeros(nb), np.zeros(nb)
-        while alpha:
-            js = sorted(alpha)
-            whole = len(js) == nb  # every problem of the stack: no gather/scatter
-            sel = slice(None) if whole else xp.asarray(np.asarray(js))
-            c = np.array([-alpha[j] / rho[j] for j in js])
-            ds = d[sel]
-            wt = ds * _col(xp, c) + W[sel]
-            mm = ops.maxes(wt)
-            ee = xp.exp(wt - _col(xp, mm))
-            ed = ee * ds
-            SS, t1, t2 = ops.sums(ee), ops.sums(ed), ops.sums(ed * ds)
-            if whole:
-                Wt, et = wt, ee
-            else:
-                Wt[sel], et[sel] = wt, ee
-            for q, j in enumerate(js):
-                mt[j], St[j] = mm[q], SS[q]
+        while pending:
+            act = np.zeros(nb, dtype=bool)
+            act[list(pending)] = True
+            mm, SS, t1, t2 = ops.point(W, d, -alpha / rho, m, act, Wt, et)
+            for j in sorted(pending):
+                mt[j], St[j] = mm[j], SS[j]
                 try:
-                    alpha[j] = gens[j].send((float(mm[q]), float(SS[q]), float(t1[q]), float(t2[q])))
+                    alpha[j] = gens[j].send((float(mm[j]), float(SS[j]), float(t1[j]), float(t2[j])))
                 except StopIteration as stop:
                     outcome[j] = stop.value
-                    del alpha[j]
+                    pending.discard(j)
         # points that the search accepted without evaluating them last: one more trial pass
-        again = [j for j, (al, ok, last) in outcome.items() if ok and not last]
-        if again:
-            sel = slice(None) if len(again) == nb else xp.asarray(np.asarray(again))
-            c = np.array([-outcome[j][0] / rho[j] for j in again])
-            wt = d[sel] * _col(xp, c) + W[sel]
-            mm = ops.maxes(wt)
-            ee = xp.exp(wt - _col(xp, mm))
-            SS = ops.sums(ee)
-            Wt[sel], et[sel] = wt, ee
-            for q, j in enumerate(again):
-                mt[j], St[j] = mm[q], SS[q]
-        failed = [j for j, (_, ok, _) in outcome.items() if not ok]
-        for j in failed:
-            if restart[j]:
-                status[ids[j]] = "stalled"
-            else:
-                restart[j] = True
-        accepted = sorted(j for j, (_, ok, _) in outcome.items() if ok)
-        if accepted:
-            acc = np.asarray(accepted)
-            sel = slice(None) if len(accepted) == nb else xp.asarray(acc)
-            al = np.array([outcome[j][0] for j in accepted])
+        again = np.zeros(nb, dtype=bool)
+        for j, (al, ok, last) in outcome.items():
+            if ok and not last:
+                again[j] = True
+                alpha[j] = al
+        if again.any():
+            mm, SS, _, _ = ops.point(W, d, -alpha / rho, m, again, Wt, et)
+            mt[again], St[again] = mm[again], SS[again]
+        for j, (_, ok, _) in outcome.items():
+            if not ok:
+                if restart[j]:
+                    status[ids[j]] = "stalled"
+                else:
+                    restart[j] = True
+        acc = np.zeros(nb, dtype=bool)
+        for j, (al, ok, _) in outcome.items():
+            if ok:
+                acc[j] = True
+                alpha[j] = al
+        if acc.any():
             restart[acc] = False
             zg_old[acc] = zg[acc]
-            if len(accepted) == nb:
+            if acc.all():
                 W, e, Wt, et = Wt, et, W, e
             else:
-                W[sel], e[sel] = Wt[sel], et[sel]
+                mask = xp.asarray(acc).reshape(-1, 1, 1)
+                W, e = xp.where(mask, Wt, W), xp.where(mask, et, e)
             m[acc], S[acc] = mt[acc], St[acc]
-            G_old[sel] = G[sel]
-            X[sel] = X[sel] + _col(xp, al) * D[sel]
-            Gs = k * X[sel] - _col(xp, s0[acc] / S[acc]) * ops.rfft2(e[sel])
-            Gs[:, 0, 0] = 0.0
-            G[sel] = Gs
-            r2[acc] = ops.dot(Gs, Gs)
-            for j in accepted:
-                nfev[j] += 1
+            r2[acc] = ops.accept(X, D, alpha, e, s0 / S, k, G, G_old, acc)
+            nfev[acc] += 1
         stopped = [j for j in range(nb) if status[ids[j]] is not None]
         if stopped:
             finish(stopped)
