@@ -9,9 +9,12 @@ The batched "softmax" minimiser (exponential law) is the preconditioned Polak-Ri
 :mod:`gapsweep.gfmd._solvers` step for step, with every scalar decision taken per problem: each problem keeps
 its own restart flag, line search (Newton/secant/bisection trials; problems whose search needs more trials
 take them while the others wait), iteration count, history and status. A problem that stops (converged,
-max_iter, stalled, non_finite) leaves the stack at once: its fields are finished and the arrays of the others
-are compacted, so it costs no further work. The arithmetic is that of the one-by-one solver (same formulas,
-same order), so results agree to round-off and iteration counts agree unless round-off flips a decision.
+max_iter, stalled, non_finite) has its fields finished at once and costs no further kernel work: it is parked
+(the kernels skip it) and the stack is compacted once a quarter of it is parked, so the number of distinct
+stack sizes (each a new batched FFT plan) stays logarithmic. The arithmetic is that of the one-by-one solver
+(same formulas, same order), so results agree to round-off and iteration counts agree unless round-off flips
+a decision. On the GPU every operation is one fused CUDA pass over the whole stack (``bt_*`` in kernels.cu)
+with one host synchronisation for all problems.
 
 Memory: about ``14 n^2 x 8`` bytes per problem in the stack; ``max_batch`` bounds the stack (default: 1/3 of the
 free GPU memory, or 16 problems on the CPU).
@@ -383,15 +386,20 @@ def _softmax_batch(heights: list, laws: list, sigma0s: list[float], *, n: int, e
     results: list[GFMDResult | None] = [None] * B
     status: list[str | None] = [None] * B
 
+    alive = np.ones(B, dtype=bool)  # slots still iterating (the others are parked until the next compaction)
+
     def finish(slots: list[int]) -> None:
-        """Fields and records of the problems in ``slots``, then drop them from the stack."""
-        nonlocal X, h, minv, W, e, G, G_old, D, Wt, et, m, S, r2, rho, s0, restart, zg_old, ids, nfev
+        """Fields and records of the problems in ``slots``; park them (the kernels skip them) and compact the
+        stack once a quarter of it is parked (a new stack size costs new FFT plans: not at every finish)."""
+        nonlocal X, h, minv, W, e, G, G_old, D, Wt, et, m, S, r2, rho, s0, restart, zg_old, ids, nfev, alive
         for j in slots:
             i = ids[j]
             results[i] = _softmax_fields(xp, ops, X[j], h[j], laws[i], float(s0[j]), float(h_shift[i]),
                                          status[i], int(nfev[j]), history[i], e_star, length, tol, host, t_start)
-        gone = set(slots)
-        keep = [j for j in range(len(ids)) if j not in gone]
+            alive[j] = False
+        if alive.sum() > 0.75 * len(ids):
+            return
+        keep = list(np.flatnonzero(alive))
         ids = [ids[j] for j in keep]
         if not keep:
             return
@@ -399,12 +407,15 @@ def _softmax_batch(heights: list, laws: list, sigma0s: list[float], *, n: int, e
         dsel = xp.asarray(sel)
         X, h, minv, W, e, G, G_old, D = (a[dsel] for a in (X, h, minv, W, e, G, G_old, D))
         Wt, et = xp.empty_like(W), xp.empty_like(e)
-        m, S, r2, rho, s0, restart, zg_old, nfev = (a[sel] for a in (m, S, r2, rho, s0, restart, zg_old, nfev))
+        m, S, r2, rho, s0, restart, zg_old, nfev, alive = (
+            a[sel] for a in (m, S, r2, rho, s0, restart, zg_old, nfev, alive))
 
-    while ids:
+    while ids and alive.any():
         # _check of _run_cg, per problem
         done = []
         for j, i in enumerate(ids):
+            if not alive[j]:
+                continue
             r = math.sqrt(max(float(r2[j]), 0.0)) / float(s0[j])
             history[i].append(r)
             st = "non_finite" if not math.isfinite(r) else "converged" if r <= tol else \
@@ -414,26 +425,27 @@ def _softmax_batch(heights: list, laws: list, sigma0s: list[float], *, n: int, e
                 done.append(j)
         if done:
             finish(done)
-            if not ids:
+            if not ids or not alive.any():
                 break
         nb = len(ids)
         # cg_dots and cg_update
         zg, zg_cross = ops.cg_dots(minv, G, G_old)
         zg_cross = np.where(restart, 0.0, zg_cross)
-        beta = np.where(restart, 0.0, np.maximum(0.0, (zg - zg_cross) / np.where(restart, 1.0, zg_old)))
+        with np.errstate(all="ignore"):  # parked slots may hold anything
+            beta = np.where(restart | ~alive, 0.0, np.maximum(0.0, (zg - zg_cross) / np.where(restart, 1.0, zg_old)))
         phi0p, a, b = ops.cg_update(D, beta, minv, G, k, X)
-        redo = (phi0p >= 0) & (beta > 0)
+        redo = (phi0p >= 0) & (beta > 0) & alive
         if redo.any():  # not a descent direction (round-off): restart along -M^-1 G
             p2, a2, b2 = ops.cg_update(D, np.zeros(nb), minv, G, k, X, active=redo)
             phi0p, a, b = np.where(redo, p2, phi0p), np.where(redo, a2, a), np.where(redo, b2, b)
         for j in range(nb):
-            if not phi0p[j] < 0:
+            if alive[j] and not phi0p[j] < 0:
                 status[ids[j]] = "stalled" if math.isfinite(phi0p[j]) else "non_finite"
         # line search, all problems in lockstep (one batched trial pass per round)
         d = ops.irfft2(D)
         s1, s2 = ops.moments(e, d)
         gens = {j: _line_search(phi0p[j], a[j], b[j], s0[j], rho[j], S[j], s1[j], s2[j], eta)
-                for j in range(nb) if phi0p[j] < 0}
+                for j in range(nb) if alive[j] and phi0p[j] < 0}
         alpha = np.zeros(nb)
         outcome: dict[int, tuple[float, bool, bool]] = {}
         pending = set()
@@ -484,9 +496,11 @@ def _softmax_batch(heights: list, laws: list, sigma0s: list[float], *, n: int, e
                 mask = xp.asarray(acc).reshape(-1, 1, 1)
                 W, e = xp.where(mask, Wt, W), xp.where(mask, et, e)
             m[acc], S[acc] = mt[acc], St[acc]
-            r2[acc] = ops.accept(X, D, alpha, e, s0 / S, k, G, G_old, acc)
+            with np.errstate(all="ignore"):
+                c = s0 / S
+            r2[acc] = ops.accept(X, D, alpha, e, c, k, G, G_old, acc)
             nfev[acc] += 1
-        stopped = [j for j in range(nb) if status[ids[j]] is not None]
+        stopped = [j for j in range(nb) if alive[j] and status[ids[j]] is not None]
         if stopped:
             finish(stopped)
     return results  # type: ignore[return-value]
