@@ -315,7 +315,7 @@ def cmd_batch(a) -> None:
         hs = [xp.asarray(surf(n, 0.3, seed=seed)) for seed in range(1, a.surfaces + 1)]
         probs = [gfmd.BatchProblem(heights=h, sigma0=s0, gamma0=GAMMA0, rho=rho)
                  for h in hs for rho in (2e-3, 1e-3) for s0 in a.sigma0]
-        kw = dict(tol=a.tol, backend=backend, max_iter=a.max_iter)
+        kw = dict(tol=a.tol, backend=backend, max_iter=a.max_iter, host=a.host == "all")
         gfmd.solve_batch(probs[:2], **{**kw, "tol": 1e-2})  # warm-up: plans, kernels
         for p in probs[:2]:
             gfmd.solve(p.heights, sigma0=p.sigma0, gamma0=GAMMA0, rho=p.rho, tol=1e-2, backend=backend)
@@ -343,8 +343,9 @@ def cmd_batch(a) -> None:
                      "converged": sum(r.converged for r in rb)})
         print(rows[-1], flush=True)
     write(a.out, f"batch_{backend}", rows, f"### Batched GFMD on {name} ({backend}): solve_batch vs one by one, "
-          f"{a.surfaces} surface(s) (H = 0.3) x rho = 2e-3, 1e-3 x the sigma0 grid; fields copied to the host in "
-          "both; batch_s: second call (FFT plans cached), batch_s_first: first call")
+          f"{a.surfaces} surface(s) (H = 0.3) x rho = 2e-3, 1e-3 x the sigma0 grid; "
+          f"fields on the host in both modes: {a.host}; batch_s: second call (FFT plans cached), "
+          "batch_s_first: first call")
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -364,6 +365,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--rho", type=float, default=2e-3)
     p.add_argument("--tol", type=float, default=1e-6)
     p.add_argument("--all-cases", action="store_true")
+    p.add_argument("--host", default="none", choices=["none", "all"],
+                   help="batch: fields to the host (all) or left on the GPU (none: the solver alone)")
     p.add_argument("--surfaces", type=int, default=2, help="batch: surfaces (each x 2 rho x the sigma0 grid)")
     a = p.parse_args(argv)
     defaults = {
