@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from gapsweep import _checks as chk
-from gapsweep.fft import BACKENDS, available_backends
+from gapsweep.fft import BACKENDS, available_backends, get_backend
 from gapsweep.gfmd._ops import _is_cupy
 from gapsweep.gfmd._result import FIELDS, GFMDResult, host_fields
 from gapsweep.gfmd._solvers import _half_q
@@ -531,9 +531,9 @@ def _softmax_fields(xp, ops: _Stack, X, h, law, sigma0: float, h_shift: float, s
     if status == "converged" and not converged:
         status = "stalled"
     fields = dict(zip(FIELDS, (gap, p, u)))
-    for name in host_fields(host):
-        if _is_cupy(fields[name]):
-            fields[name] = fields[name].get()
+    wanted = {k: fields[k] for k in host_fields(host) if _is_cupy(fields[k])}
+    if wanted:  # pinned, asynchronous copies as in gfmd.solve
+        fields.update(get_backend("cupy", n).to_host_many(wanted))
     return GFMDResult(mean_gap=g0 - h_shift, gap=fields["gap"], pressure=fields["pressure"],
                       displacement=fields["displacement"], iterations=nfev, converged=converged, residual=residual,
                       load_error=load_error, wall_time=time.perf_counter() - t_start, method="cg",
