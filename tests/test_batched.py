@@ -76,3 +76,22 @@ def test_batch_host_fields_and_errors() -> None:
         solve_batch([p], host=("gaps",))
     with pytest.raises(ValueError, match="max_batch"):
         solve_batch([p], max_batch=0)
+
+
+def test_batch_warm_start_matches_one_by_one() -> None:
+    """``initial`` (a result on the same grid, or a field on a coarser one) as in ``solve``: a pressure chain's
+    next step batched across surfaces."""
+    hs = [_surf(64, s) for s in (1, 2)]
+    first = [solve(h, sigma0=1e-2, gamma0=1e-3, rho=0.02, tol=1e-10) for h in hs]
+    coarse = solve(_surf(32, 3), sigma0=1e-2, gamma0=1e-3, rho=0.04, tol=1e-10)
+    probs = [BatchProblem(heights=h, sigma0=1.3e-2, gamma0=1e-3, rho=0.02, initial=r) for h, r in zip(hs, first)]
+    probs.append(BatchProblem(heights=_surf(64, 3), sigma0=1e-2, gamma0=1e-3, rho=0.04, initial=coarse.displacement))
+    res = solve_batch(probs, tol=1e-10, backend="numpy")
+    for p, r in zip(probs, res):
+        ref = solve(p.heights, sigma0=p.sigma0, gamma0=1e-3, rho=p.rho, tol=1e-10, initial=p.initial)
+        cold = solve(p.heights, sigma0=p.sigma0, gamma0=1e-3, rho=p.rho, tol=1e-10)
+        assert r.converged and r.iterations == ref.iterations
+        assert abs(r.mean_gap - ref.mean_gap) <= 1e-12 * abs(ref.mean_gap)
+        assert ref.iterations != cold.iterations or ref.history[0] != cold.history[0]  # the start was used
+    with pytest.raises(ValueError, match=r"problems\[0\].initial"):
+        solve_batch([BatchProblem(heights=hs[0], sigma0=1e-2, gamma0=1e-3, rho=0.02, initial=np.zeros((4, 5)))])

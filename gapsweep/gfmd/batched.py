@@ -49,14 +49,16 @@ _BYTES_PER_POINT = 14 * 8  # real and half-spectrum work arrays per grid point a
 @dataclass(frozen=True)
 class Problem:
     """One GFMD problem of a batch: the rigid surface ``heights`` (``n x n``, numpy or cupy), the mean pressure
-    ``sigma0`` and the interaction law (a name with its parameters, as for :func:`gapsweep.gfmd.solve`, or an
-    :class:`Interaction` object)."""
+    ``sigma0``, the interaction law (a name with its parameters, as for :func:`gapsweep.gfmd.solve`, or an
+    :class:`Interaction` object) and an optional warm start ``initial`` (an earlier result or a displacement
+    field on any grid, as for ``solve``; default: the linear response of M4)."""
 
     heights: Any
     sigma0: float
     interaction: str | Interaction = "exponential"
     gamma0: float | None = None
     rho: float | None = None
+    initial: Any = None
 
 
 def solve_batch(problems: Sequence[Problem], *, e_star: float = 1.0, length: float = 1.0, tol: float = 1e-6,
@@ -81,7 +83,7 @@ def solve_batch(problems: Sequence[Problem], *, e_star: float = 1.0, length: flo
         backend = "cupy" if "cupy" in available_backends() else "numpy"
     if backend == "pyfftw":
         backend = "numpy"  # batched transforms: numpy's pocketfft (pyfftw plans one grid at a time)
-    laws, loads, grids = [], [], []
+    laws, loads, grids, starts = [], [], [], []
     for i, p in enumerate(problems):
         if not isinstance(p, Problem):
             raise TypeError(f"problems[{i}] must be a gfmd.batched.Problem, got {type(p).__name__}")
@@ -98,6 +100,7 @@ def solve_batch(problems: Sequence[Problem], *, e_star: float = 1.0, length: flo
         laws.append(law)
         loads.append(law.check_load(p.sigma0))
         grids.append(int(shape[0]))
+        starts.append(_initial_field(p.initial, i))
     groups: dict[tuple[int, str], list[int]] = {}
     for i, law in enumerate(laws):
         groups.setdefault((grids[i], law.load_control), []).append(i)
@@ -110,16 +113,29 @@ def solve_batch(problems: Sequence[Problem], *, e_star: float = 1.0, length: flo
                 raise ValueError(f"no minimiser for load_control {control!r} (interaction {laws[idx[0]].name!r})")
             for i in idx:
                 out[i] = solve(problems[i].heights, sigma0=loads[i], interaction=laws[i], e_star=e_star,
-                               length=length, tol=tol, backend=backend, max_iter=max_iter, host=host)
+                               length=length, tol=tol, backend=backend, max_iter=max_iter, host=host,
+                               initial=problems[i].initial)
             continue
         size = max_batch or _default_batch(backend, n)
         for start in range(0, len(idx), size):
             chunk = idx[start:start + size]
             res = runner([problems[i].heights for i in chunk], [laws[i] for i in chunk], [loads[i] for i in chunk],
-                         n=n, e_star=e_star, length=length, tol=tol, backend=backend, max_iter=max_iter, host=host)
+                         [starts[i] for i in chunk], n=n, e_star=e_star, length=length, tol=tol, backend=backend,
+                         max_iter=max_iter, host=host)
             for i, r in zip(chunk, res):
                 out[i] = r
     return out  # type: ignore[return-value]
+
+
+def _initial_field(initial: Any, i: int) -> np.ndarray | None:
+    """The warm-start displacement of problem ``i`` on the host (validated), or None."""
+    if initial is None:
+        return None
+    u0 = initial.displacement if isinstance(initial, GFMDResult) else initial
+    u0 = u0.get() if _is_cupy(u0) else np.asarray(u0, dtype=np.float64)
+    if u0.ndim != 2 or u0.shape[0] != u0.shape[1] or not np.all(np.isfinite(u0)):
+        raise ValueError(f"problems[{i}].initial must be a GFMDResult or a finite square displacement field")
+    return u0
 
 
 def _default_batch(backend: str, n: int) -> int:
@@ -342,7 +358,8 @@ def _line_search(phi0p: float, a: float, b: float, s0: float, rho: float, S: flo
     return lo, True, False  # round-off or out of trials: the last point known to lie downhill
 
 
-def _softmax_batch(heights: list, laws: list, sigma0s: list[float], *, n: int, e_star: float, length: float,
+def _softmax_batch(heights: list, laws: list, sigma0s: list[float], starts: list, *, n: int, e_star: float,
+                   length: float,
                    tol: float, backend: str, max_iter: int, host: Any, eta: float = 0.1) -> list[GFMDResult]:
     """Batched "softmax" minimiser (exponential law), CG as :func:`gapsweep.gfmd._solvers._run_cg`."""
     t_start = time.perf_counter()
@@ -364,6 +381,15 @@ def _softmax_batch(heights: list, laws: list, sigma0s: list[float], *, n: int, e
     # linear response of M4, per problem as in the one-by-one solver
     Hq = ops.rfft2(h) * (1.0 / (n * n))
     X = (Hq * (_col(xp, s0 / rho) / (k + _col(xp, s0 / rho)))).astype(xp.complex128)
+    for j, u0 in enumerate(starts):  # warm starts, as in the one-by-one solver
+        if u0 is None:
+            continue
+        if u0.shape[0] == n:
+            X[j] = ops.rfft2(xp.asarray(u0)[None])[0] * (1.0 / (n * n))
+        else:
+            from gapsweep.gfmd import _transfer_modes
+
+            X[j] = xp.asarray(_transfer_modes(u0, n))
     minv = 1.0 / (k + _col(xp, s0 / rho))
     minv[:, 0, 0] = 0.0
     X[:, 0, 0] = 0.0
