@@ -4,7 +4,14 @@ Times are warm (the first call, which compiles the kernel, is excluded) and incl
 does: the host-side step plan, coefficient upload, the kernel, binning on the device and the copy of the counts.
 The paper: 10^7 realisations in about 20 s on an RTX 4090D.
 
+Kernel limit (issue 14, ``--limit``, needs cupy): the headline case (float32, 9,900 steps, histogram) side by
+side with hand-written CUDA kernels of the same step count built with -use_fast_math
+(benchmarks/sde_reference.cu): the plain cuRAND Euler-Maruyama kernel, the same with a hand-written Philox, and
+the split step written in CUDA; each warp log1p variant (gapsweep._sde_kernels.VARIANTS) is timed too. Times
+are the median of ``--repeat`` warm launches + count copies (events-free: synchronize, then the host clock).
+
     python benchmarks/bench_sde_gpu.py --out results/sde_gpu            # on the GPU machine
+    python benchmarks/bench_sde_gpu.py --out results/sde_gpu --limit --cases none   # kernel limit only
     python benchmarks/bench_sde_gpu.py --device cpu --n 20000 --out /tmp/x   # smoke test on the CPU
 """
 
@@ -13,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import statistics
 import time
 from pathlib import Path
@@ -38,6 +46,8 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=10**7)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--bins", type=int, default=200)
+    ap.add_argument("--limit", action="store_true", help="also time the kernel limit (issue 14; needs cupy)")
+    ap.add_argument("--cases", default="all", choices=("all", "none"), help="the six user-call cases")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
 
@@ -62,7 +72,9 @@ def main() -> None:
          "float32", "split"),
     ]
     rows = []
-    for label, p, s0, c2, dz, steps, dtype, scheme in cases:
+    if args.limit:
+        kernel_limit(args, fig6, name)
+    for label, p, s0, c2, dz, steps, dtype, scheme in (cases if args.cases == "all" else []):
         kw = dict(p, c2=c2, dzeta=dz, steps=steps, dtype=dtype, scheme=scheme, n=args.n, device=args.device,
                   bins=args.bins, seed=1)
         t = time.perf_counter()
@@ -86,6 +98,8 @@ def main() -> None:
                          nonfinite=r.nonfinite, outside=r.below + r.above,
                          mean=float(np.sum(0.5 * (r.edges[1:] + r.edges[:-1]) * r.counts) / max(r.counts.sum(), 1))))
         print(json.dumps(rows[-1]), flush=True)
+    if not rows:
+        return
     (args.out / "bench_sde_gpu.json").write_text(json.dumps(rows, indent=1))
     lines = [f"# SDE GPU benchmark on {name} (n = {args.n:.0e}, warm, best of {args.repeat})", "",
              "| case | steps | time best [s] | median [s] | particle-steps/s | speed-up vs paper 20 s |",
@@ -95,6 +109,106 @@ def main() -> None:
                      f"{r['particle_steps_per_s']:.2e} | {r['speedup_vs_paper_20s']:.0f}x |")
     (args.out / "bench_sde_gpu.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
+
+
+def _median_time(fn, repeat: int, sync) -> float:
+    fn()  # warm-up (compilation, first launch)
+    times = []
+    for _ in range(repeat):
+        sync()
+        t = time.perf_counter()
+        fn()
+        sync()
+        times.append(time.perf_counter() - t)
+    return statistics.median(times)
+
+
+def kernel_limit(args, fig6: dict, gpu_name: str) -> None:
+    """Headline case: warp split kernel (each log1p variant) vs hand-written fast-math CUDA kernels."""
+    import cupy as cp
+    import warp as wp
+
+    from gapsweep import _sde_kernels as K
+
+    s0, c2, n, nb = 1e-4, 0.5, args.n, args.bins
+    kw = dict(fig6, c2=c2, dzeta=0.01, steps="uniform", dtype="float32", scheme="split", n=n, device=args.device,
+              bins=nb, seed=1)
+    plan = sde.plan_steps(s0, **{k: kw[k] for k in ("hurst", "h_rms", "rho", "gamma0", "lambda_l", "lambda_s")},
+                          c2=c2, dzeta=0.01)
+    edges = sde._default_edges(plan, nb)
+    y_edges = (edges - plan.g0_end).astype(np.float32)
+    lo, hi = float(y_edges[0]), float(y_edges[-1])
+    inv_w = nb / (hi - lo)
+    src = (Path(__file__).with_name("sde_reference.cu")).read_text()
+    opts = ("-use_fast_math", "--std=c++17")
+    mods = {"philox": cp.RawModule(code=src, options=opts)}
+    try:
+        inc = [f"-I{p}" for p in (os.environ.get("CUDA_PATH", "/usr/local/cuda") + "/include",) if os.path.isdir(p)]
+        mods["curand"] = cp.RawModule(code="#define WITH_CURAND\n" + src, options=(*opts, *inc))
+        mods["curand"].get_function("plain_em_curand")
+    except Exception as exc:  # header not found: the hand-written Philox plain kernel stands in
+        print(f"cuRAND kernel not built ({type(exc).__name__}: {str(exc)[:200]})", flush=True)
+        mods.pop("curand", None)
+    f32 = lambda a: cp.asarray(np.asarray(a, dtype=np.float32))  # noqa: E731
+    drift, sd, cdz = plan.euler
+    sd_d, drift_d, cdz_d = f32(sd), f32(drift), f32(cdz)
+    counts = cp.zeros(nb + 3, dtype=cp.uint64)
+    block = 256
+    grid = ((n + block - 1) // block,)
+    shmem = 4 * (nb + 3)
+
+    def launcher(mod, kname):
+        fn = mod.get_function(kname)
+
+        def run():
+            counts.fill(0)
+            fn(grid, (block,), (np.int64(n), np.uint64(1), np.int32(plan.n_steps), sd_d, drift_d, cdz_d,
+                                np.float32(1 / plan.rho), np.float32(plan.g0[0]), np.float32(plan.g0_end),
+                                np.float32(lo), np.float32(inv_w), np.float32(hi), np.int32(nb), counts),
+               shared_mem=shmem)
+            counts.get()
+        return run
+
+    sync = cp.cuda.Device().synchronize
+    rows = {}
+    if "curand" in mods:
+        rows["plain EM, cuRAND Philox normal4 (CUDA, fast math)"] = _median_time(
+            launcher(mods["curand"], "plain_em_curand"), args.repeat, sync)
+    rows["plain EM, hand Philox + Box-Muller (CUDA, fast math)"] = _median_time(
+        launcher(mods["philox"], "plain_em_philox"), args.repeat, sync)
+    ref_key = next(iter(rows))
+    engine_counts = {}
+    for engine in ("cuda", "warp"):
+        os.environ["GAPSWEEP_SDE_ENGINE"] = "auto" if engine == "cuda" else "warp"
+        for variant in (["poly"] if engine == "cuda" else K.VARIANTS):
+            K.VARIANT = variant
+            launch_times: list[float] = []
+            label = "gapsweep CUDA engine (cupy)" if engine == "cuda" else f"warp kernels, log1p={variant}"
+
+            def call(key=f"{engine}/{variant}", launch_times=launch_times):
+                r = sde.gap_histogram_counts(s0, **kw)
+                engine_counts[key] = np.r_[r.counts, r.below, r.above, r.nonfinite]
+                launch_times.append(r.wall_time)
+            rows[f"split step, {label}: whole user call"] = _median_time(
+                call, args.repeat, lambda: wp.synchronize_device(args.device))
+            # the same calls without the host-side step plan: coefficient upload + launch + count copy
+            rows[f"split step, {label}: upload + launch + copy"] = statistics.median(launch_times[1:])
+    os.environ.pop("GAPSWEEP_SDE_ENGINE", None)
+    K.VARIANT = "poly"
+    agree = int(np.abs(engine_counts["cuda/poly"] - engine_counts["warp/poly"]).sum())
+    ref = rows[ref_key]
+    lines = [f"# SDE kernel limit on {gpu_name} (n = {n:.0e} x {plan.n_steps} steps, float32, {nb}-bin histogram,"
+             f" median of {args.repeat})", "",
+             "| kernel | time [s] | ratio to the first row |",
+             "| --- | --- | --- |"]
+    for key, t in rows.items():
+        lines.append(f"| {key} | {t:.4f} | {t / ref:.2f} |")
+    lines += ["", f"sum |count difference| over bins, CUDA engine vs warp kernels (poly), same seed: {agree} of {n}"]
+    text = "\n".join(lines)
+    print(text, flush=True)
+    (args.out / "sde_kernel_limit.md").write_text(text + "\n")
+    (args.out / "sde_kernel_limit.json").write_text(json.dumps({"gpu": gpu_name, "n": n, "steps": plan.n_steps,
+                                                                "times_s": rows, "count_diff": agree}, indent=1))
 
 
 if __name__ == "__main__":

@@ -12,7 +12,14 @@ Scheme (one thread per realisation, state ``y = g - g0(zeta)``, the deviation fr
   realisation ``index`` sees the same numbers whatever the launch shape, batch split or device. One Philox call
   gives four normals (two Box-Muller pairs from 32-bit uniforms in (0, 1]).
 
-Kernels are built per float type by :func:`kernels` (warp kernels must be defined in a file).
+* ``log1p`` of the repulsion step, float32 (``VARIANTS``): "poly" (default) evaluates ``e P9(e)``, a degree-9
+  Chebyshev fit of ``log1p(e)/e`` on [0, 1] (max relative error 1.5e-7, about one float32 ulp) with FMAs only;
+  "div" is Goldberg's ``log(1+e) e/((1+e)-1)`` (a log and a division: two special-function unit operations
+  more per step, the issue-14 bottleneck); "log" is plain ``log(1+e)`` (fast-math log, absolute error 2^-21).
+  float64 always uses "div" (exact to rounding). The Philox stream, hence reproducibility from
+  ``(seed, realisation)``, is the same in every variant.
+
+Kernels are built per float type and variant by :func:`kernels` (warp kernels must be defined in a file).
 """
 
 import functools
@@ -29,6 +36,14 @@ MASK32 = wp.constant(wp.uint64(0xFFFFFFFF))
 
 # fast_math: approximate exp/log/sin/cos intrinsics on the GPU (float32); no adjoints needed.
 _OPTIONS = {"fast_math": True, "enable_backward": False}
+
+# log1p variant of the float32 repulsion step (module docstring); benchmarks/bench_sde_gpu.py times them all.
+VARIANTS = ("poly", "div", "log")
+VARIANT = "poly"
+# log1p(e)/e ~ sum LOG1P_POLY[i] e^i on [0, 1]: least-squares Chebyshev fit, degree 9, rounded to float32.
+LOG1P_POLY = (1.0, -0.4999985098838806, 0.3332909941673279, -0.24947820603847504, 0.19651539623737335,
+              -0.15251556038856506, 0.10533368587493896, -0.05643612518906593, 0.019649622961878777,
+              -0.0032141131814569235)
 
 # Number of extra slots after the bins in a histogram count array: below, above, non-finite.
 N_EXTRA = 3
@@ -55,13 +70,22 @@ def philox4x32(c0: wp.uint32, c1: wp.uint32, c2: wp.uint32, c3: wp.uint32, k0: w
     return c0, c1, c2, c3
 
 
-@functools.cache
-def kernels(dtype_name: str) -> dict[str, Any]:
+def kernels(dtype_name: str, variant: str | None = None) -> dict[str, Any]:
     """Kernels for ``dtype_name`` in {"float32", "float64"}: ``{"real": type, "split"|"euler": {"samples",
-    "histogram"}}`` (built once, cached)."""
+    "histogram"}}`` (built once per variant, cached). ``variant`` (float32 only): one of :data:`VARIANTS`,
+    default :data:`VARIANT`."""
     if dtype_name not in ("float32", "float64"):
         raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype_name!r}")
+    variant = VARIANT if variant is None else variant
+    if variant not in VARIANTS:
+        raise ValueError(f"variant must be one of {VARIANTS}, got {variant!r}")
+    return _kernels(dtype_name, "div" if dtype_name == "float64" else variant)
+
+
+@functools.cache
+def _kernels(dtype_name: str, variant: str) -> dict[str, Any]:
     real = wp.float32 if dtype_name == "float32" else wp.float64
+    c0, c1, c2, c3, c4, c5, c6, c7, c8, c9 = (real(c) for c in LOG1P_POLY)
     # Skip the repulsion step when exp(-|d|) < e^-40: it would change y by < 4e-18 rho.
     skip = real(-40.0)
 
@@ -77,7 +101,7 @@ def kernels(dtype_name: str) -> dict[str, Any]:
         return r * wp.cos(t), r * wp.sin(t)
 
     @wp.func
-    def log1p_small(e: Any):
+    def log1p_div(e: Any):
         # log(1 + e) for 0 <= e <= 1, accurate for tiny e (Goldberg's trick; warp has no log1p)
         u = real(1.0) + e
         d = u - real(1.0)
@@ -85,6 +109,27 @@ def kernels(dtype_name: str) -> dict[str, Any]:
         if d != real(0.0):
             r = wp.log(u) * (e / d)
         return r
+
+    @wp.func
+    def log1p_poly(e: Any):
+        # e P9(e), Horner: FMAs only (no special-function unit), relative error <= 1.5e-7 on [0, 1]
+        p = c9
+        p = p * e + c8
+        p = p * e + c7
+        p = p * e + c6
+        p = p * e + c5
+        p = p * e + c4
+        p = p * e + c3
+        p = p * e + c2
+        p = p * e + c1
+        p = p * e + c0
+        return p * e
+
+    @wp.func
+    def log1p_log(e: Any):
+        return wp.log(real(1.0) + e)
+
+    log1p_small = {"div": log1p_div, "poly": log1p_poly, "log": log1p_log}[variant]
 
     @wp.func
     def step(y: Any, k: int, n: Any, n_steps: int, s: wp.array(dtype=real), b: wp.array(dtype=real),

@@ -16,6 +16,10 @@ integrated exactly (``g -> rho ln(exp(g/rho) + c dzeta/rho)``) in a Strang split
 paper's ``dzeta``) or geometric (``steps="log"``: ``zeta_{k+1}/zeta_k = 1 + dzeta``, since ``D1, D2 ~
 zeta^(-2H-1)``). Normals are counter-based (Philox keyed by seed and realisation index): the same seed gives the
 same samples for any batch split, launch shape or device.
+
+Engines: warp kernels (CPU, and CUDA without cupy) and, for the split scheme on CUDA, the equivalent CUDA kernels
+of :mod:`gapsweep._sde_cuda` (same scheme, same Philox stream; 1.08x a plain Euler-Maruyama kernel against
+warp's 1.42x, docs/benchmarks.md). ``GAPSWEEP_SDE_ENGINE=warp`` keeps warp on CUDA too.
 """
 
 from __future__ import annotations
@@ -285,26 +289,27 @@ def _seed_key(seed: int) -> tuple[int, int]:
     return seed & 0xFFFFFFFF, seed >> 32
 
 
-def _coefficient_arrays(wp, plan: StepPlan, real, dtype: str, device: str, scheme: str):
+def _coefficients(plan: StepPlan, scheme: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Per-step coefficient arrays (float64) of the kernels: split ``(s, b, rb, repulse)``, euler
+    ``(sd, drift, cdz, 1)`` (see :mod:`gapsweep._sde_kernels`)."""
     k = plan.n_steps
-    np_dtype = np.dtype(dtype)
     if scheme == "euler":
         if k == 0:
             drift, sd, cdz = np.zeros(1), np.zeros(1), np.zeros(1)
         else:
             drift, sd, cdz = plan.euler
-        arrs = [wp.array(np.asarray(a, dtype=np_dtype), dtype=real, device=device) for a in (sd, drift, cdz)]
-        return (*arrs, 1)
-    s = wp.array(plan.noise_sd.astype(np_dtype), dtype=real, device=device)
+        return np.asarray(sd), np.asarray(drift), np.asarray(cdz), 1
     if plan.c2 > 0.0 and k > 0:
         b_np = plan.wall
         rb_np = plan.rho * plan.wall
     else:
         b_np = rb_np = np.zeros(max(k, 1))
-    b = wp.array(np.asarray(b_np, dtype=np_dtype), dtype=real, device=device)
-    rb = wp.array(np.asarray(rb_np, dtype=np_dtype), dtype=real, device=device)
-    repulse = int(plan.c2 > 0.0 and k > 0)
-    return s, b, rb, repulse
+    return np.asarray(plan.noise_sd), np.asarray(b_np), np.asarray(rb_np), int(plan.c2 > 0.0 and k > 0)
+
+
+def _coefficient_arrays(wp, plan: StepPlan, real, dtype: str, device: str, scheme: str):
+    *arrs, repulse = _coefficients(plan, scheme)
+    return (*[wp.array(np.asarray(a, dtype=dtype), dtype=real, device=device) for a in arrs], repulse)
 
 
 def _common_inputs(plan: StepPlan, real, arrays) -> list:
@@ -349,19 +354,36 @@ def gap_samples(sigma0: float, *, hurst: float, h_rms: float, rho: float, gamma0
     return out
 
 
+def _cuda_engine(job: _Job, device: str):
+    """The CUDA engine (:mod:`gapsweep._sde_cuda`) for ``device`` when it runs this job, else None."""
+    from gapsweep import _sde_cuda
+
+    if not _sde_cuda.enabled(device, job.scheme):
+        return None
+    s, b, rb, repulse = _coefficients(job.plan, job.scheme)
+    return _sde_cuda.Engine(device, job.dtype, s, b, rb, job.plan.rho, repulse, job.plan.n_steps)
+
+
 def _run_samples(job: _Job) -> np.ndarray:
-    wp, real, ks = job.kernels()
     plan = job.plan
     out = np.empty(job.n, dtype=job.dtype)
-    per_dev = {d: _coefficient_arrays(wp, plan, real, job.dtype, d, job.scheme) for d in job.devices}
+    engines = {d: _cuda_engine(job, d) for d in job.devices}
+    warp_devs = [d for d, e in engines.items() if e is None]
+    if warp_devs:
+        wp, real, ks = job.kernels()
+        per_dev = {d: _coefficient_arrays(wp, plan, real, job.dtype, d, job.scheme) for d in warp_devs}
     pending = []
     for d, gidx, start, m in job.launches():
+        eng = engines[d]
+        if eng is not None:
+            pending.append((start, m, eng.samples(gidx, job.k0, job.k1, m), eng))
+            continue
         buf = wp.empty(m, dtype=real, device=d)
         wp.launch(ks["samples"], dim=m, device=d,
                   inputs=[gidx, job.k0, job.k1, *_common_inputs(plan, real, per_dev[d]), buf])
-        pending.append((start, m, buf))
-    for start, m, buf in pending:
-        out[start:start + m] = buf.numpy()
+        pending.append((start, m, buf, None))
+    for start, m, buf, eng in pending:
+        out[start:start + m] = buf.numpy() if eng is None else eng.to_host(buf)
     return out
 
 
@@ -436,27 +458,35 @@ def gap_histogram_counts(sigma0: float, *, hurst: float, h_rms: float, rho: floa
             raise ValueError("bins must be a positive count or a 1-D array of >= 2 finite increasing edges")
     from gapsweep._sde_kernels import N_EXTRA
 
-    wp, real, ks = job.kernels()
     nb = edges.size - 1
     # bin in the y = g - g0 frame: the shift is exact in float64 on the host
     y_edges = (edges - plan.g0_end).astype(dtype)
     widths = np.diff(edges)
     is_uniform = int(np.allclose(widths, widths[0], rtol=1e-9, atol=0.0))
+    lo, inv_w = float(y_edges[0]), nb / float(y_edges[-1] - y_edges[0])
     t0 = time.perf_counter()
+    engines = {d: _cuda_engine(job, d) for d in job.devices}
     state = {}
-    for d in job.devices:
+    for d, eng in engines.items():
+        if eng is not None:
+            state[d] = (None, *eng.histogram_state(y_edges))
+            continue
+        wp, real, ks = job.kernels()
         state[d] = (_coefficient_arrays(wp, plan, real, dtype, d, job.scheme),
                     wp.array(y_edges, dtype=real, device=d),
                     wp.zeros(nb + N_EXTRA, dtype=wp.int64, device=d))
     for d, gidx, _start, m in job.launches():
         arrays, e_arr, counts = state[d]
+        if engines[d] is not None:
+            engines[d].histogram(gidx, job.k0, job.k1, m, e_arr, lo, inv_w, is_uniform, counts)
+            continue
         wp.launch(ks["histogram"], dim=m, device=d,
                   inputs=[gidx, job.k0, job.k1, *_common_inputs(plan, real, arrays), e_arr,
-                          real(float(y_edges[0])), real(nb / float(y_edges[-1] - y_edges[0])), is_uniform,
-                          counts])
+                          real(lo), real(inv_w), is_uniform, counts])
     total = np.zeros(nb + N_EXTRA, dtype=np.int64)
     for d in job.devices:
-        total += state[d][2].numpy()
+        c = state[d][2]
+        total += c.numpy() if engines[d] is None else engines[d].to_host(c).astype(np.int64)
     wall = time.perf_counter() - t0
     return HistogramResult(edges=edges, counts=total[:nb], below=int(total[nb]), above=int(total[nb + 1]),
                            nonfinite=int(total[nb + 2]), n=job.n, wall_time=wall, plan=plan)

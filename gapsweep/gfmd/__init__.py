@@ -1,4 +1,9 @@
-"""Green's function molecular dynamics (GFMD) at fixed mean pressure with exponential repulsion (MODEL.md M3).
+"""Green's function molecular dynamics (GFMD) at fixed mean pressure (MODEL.md M3).
+
+Interaction laws (``interaction=`` of :func:`solve`, one file each in :mod:`gapsweep.gfmd.interactions`, interface
+in :mod:`gapsweep.gfmd.interactions.base`, equations and units in docs/gfmd.md): "exponential" (the default,
+below), and further laws that plug into the same solver through their ``load_control``. The rest of this
+docstring describes the exponential law's minimiser (``gfmd._softmax``).
 
 An elastic half-space (contact modulus ``E*``) is pressed with mean pressure ``sigma0`` onto a rigid periodic
 rough surface ``h`` (``n x n`` grid, side ``length``); the surfaces repel with ``p(g) = (gamma0/rho) exp(-g/rho)``.
@@ -44,28 +49,29 @@ docs/gfmd.md.
 
 from __future__ import annotations
 
-import math
 import os
 import time
-import warnings
 from typing import Any
 
 import numpy as np
 
-# Package layout: _ops (array operations, numba CPU kernels), _cuda (cupy GPU kernels, kernels.cu), _solvers
-# (cg, lbfgs, fire), _result (GFMDResult). solve looks up _have_numba here, so tests monkeypatch gfmd._have_numba;
-# benchmarks use gfmd._Problem and gfmd._make_ops.
+# Package layout: interactions/ (the laws), _softmax (the exponential law's minimiser), _ops (array operations,
+# numba CPU kernels), _cuda (cupy GPU kernels, kernels.cu), _solvers (cg, lbfgs, fire), _result (GFMDResult).
+# _make_ops looks up _have_numba here (tests monkeypatch gfmd._have_numba); benchmarks use gfmd._Problem, _make_ops.
 from gapsweep import _checks as chk
-from gapsweep.fft import BACKENDS, available_backends, get_backend
+from gapsweep.fft import BACKENDS
+from gapsweep.gfmd import _softmax
 from gapsweep.gfmd._cuda import _CupyOps
 from gapsweep.gfmd._ops import _have_numba, _is_cupy, _NumbaOps, _Ops
 from gapsweep.gfmd._result import GFMDResult
-from gapsweep.gfmd._solvers import _RUNNERS, _half_q, _Problem
+from gapsweep.gfmd._solvers import _half_q, _Problem  # noqa: F401 - used by benchmarks (gfmd._Problem)
+from gapsweep.gfmd.interactions import INTERACTIONS, Interaction, resolve
 
-__all__ = ["METHODS", "GFMDResult", "UnderResolvedWarning", "solve"]
+__all__ = ["INTERACTIONS", "METHODS", "BatchProblem", "GFMDResult", "Interaction", "UnderResolvedWarning", "solve",
+           "solve_batch"]
 
-METHODS = ("cg", "lbfgs", "fire")
-DEFAULT_METHOD = "cg"  # decided by benchmarks/bench_gfmd.py speed (docs/benchmarks_gfmd.md)
+METHODS = _softmax.METHODS  # methods of the exponential law (the job-spec validator uses this list)
+DEFAULT_METHOD = _softmax.DEFAULT_METHOD
 STATUSES = ("converged", "max_iter", "non_finite", "stalled")
 
 
@@ -98,12 +104,19 @@ def _transfer_modes(u: np.ndarray, n: int) -> np.ndarray:
     return out[:, : n // 2 + 1]
 
 
+# load_control of a law -> (minimiser, its methods). A new law reuses one of these; no branch per law.
+_MINIMISERS: dict[str, tuple[Any, tuple[str, ...]]] = {
+    "softmax": (_softmax.minimise, _softmax.METHODS),
+}
+
+
 def solve(
     heights: Any,
     *,
     sigma0: float,
-    gamma0: float,
-    rho: float,
+    interaction: str | Interaction = "exponential",
+    gamma0: float | None = None,
+    rho: float | None = None,
     e_star: float = 1.0,
     length: float = 1.0,
     tol: float = 1e-6,
@@ -112,129 +125,52 @@ def solve(
     max_iter: int = 5000,
     initial: GFMDResult | np.ndarray | None = None,
     threads: int | None = None,
-    host: bool = True,
+    host: bool | tuple[str, ...] = True,
 ) -> GFMDResult:
     """Equilibrium gap of an elastic half-space on the rigid surface ``heights`` at mean pressure ``sigma0``.
 
-    Minimises the reduced energy of M3 (module docstring) until ``residual <= tol`` and
-    ``load_error <= tol``. ``heights``: real square ``n x n`` array (numpy, or cupy for the GPU), units of
-    ``length``. ``sigma0``, ``gamma0/rho`` and ``e_star`` are pressures in one unit; ``gamma0`` is an energy per
-    area, ``rho`` a length. ``method``: "auto" (= "cg"), "cg", "lbfgs" or "fire". ``backend``: "auto" (cupy
-    for a cupy array, else pyfftw when installed, else numpy), "numpy", "pyfftw" or "cupy". ``max_iter``: force
-    evaluations allowed. ``initial``: an earlier result or a displacement field (any grid size: shared Fourier
-    modes are carried over) to start from; default is the linear response of M4. ``threads``: FFTW threads.
-    ``host=False`` leaves the fields of a cupy run on the GPU (skips three n x n device-to-host copies).
+    ``interaction``: a law's name or an :class:`Interaction` object (docs/gfmd.md): "exponential" (default;
+    needs ``gamma0``, an energy per area, and ``rho``, a length). For the exponential law the reduced energy of
+    M3 (module docstring) is minimised until ``residual <= tol`` and ``load_error <= tol``. ``heights``: real
+    square ``n x n`` array (numpy, or cupy for the GPU), units of ``length``. ``sigma0``, ``gamma0/rho`` and
+    ``e_star`` are pressures in one unit. ``method``: "auto" (= "cg"), "cg", "lbfgs" or "fire". ``backend``:
+    "auto" (cupy for a cupy array, else pyfftw when installed, else numpy), "numpy", "pyfftw" or "cupy".
+    ``max_iter``: force evaluations allowed. ``initial``: an earlier result or a displacement field (any grid
+    size: shared Fourier modes are carried over) to start from; default is the linear response of M4.
+    ``threads``: FFTW threads. ``host``: which fields of a cupy run come to the host (pinned,
+    asynchronous copies): True (all), False (none: they stay on the GPU) or names such as ``("gap",)``.
     Warns (UnderResolvedWarning) when ``rho < length/n`` (M7).
     """
     t_start = time.perf_counter()
-    on_gpu = _is_cupy(heights)
-    if not on_gpu:
+    if not _is_cupy(heights):
         if isinstance(heights, (str, bytes)) or heights is None:
             raise TypeError(f"heights must be a 2-D real array, got {type(heights).__name__}")
-        h_np = np.asarray(heights)
-        if not (np.issubdtype(h_np.dtype, np.floating) or np.issubdtype(h_np.dtype, np.integer)):
-            raise TypeError(f"heights must be a real array, got dtype {h_np.dtype}")
-        shape = h_np.shape
-    else:
-        shape = heights.shape
-    if len(shape) != 2 or shape[0] != shape[1]:
+        heights = np.asarray(heights)
+        if not (np.issubdtype(heights.dtype, np.floating) or np.issubdtype(heights.dtype, np.integer)):
+            raise TypeError(f"heights must be a real array, got dtype {heights.dtype}")
+    shape = heights.shape
+    if len(shape) != 2:
         raise ValueError(f"heights must be a square 2-D array (n x n), got shape {shape}")
-    n = int(shape[0])
-    if n < 2:
-        raise ValueError(f"heights must be at least 2 x 2, got n={n}")
-    sigma0 = chk.positive(sigma0, "sigma0")
-    gamma0 = chk.positive(gamma0, "gamma0")
-    rho = chk.positive(rho, "rho")
+    if min(shape) < 2:
+        raise ValueError(f"heights must be at least 2 x 2, got shape {shape}")
+    law = resolve(interaction, gamma0=gamma0, rho=rho)
+    sigma0 = law.check_load(sigma0)
     e_star = chk.positive(e_star, "e_star")
     length = chk.positive(length, "length")
     tol = chk.positive(tol, "tol")
     if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
         raise ValueError(f"max_iter must be an integer >= 1, got {max_iter!r}")
-    if not isinstance(method, str) or method not in ("auto", *METHODS):
-        raise ValueError(f"method must be one of {', '.join(map(repr, ('auto', *METHODS)))}; got {method!r}")
-    method = DEFAULT_METHOD if method == "auto" else method
+    minimise, methods = _MINIMISERS[law.load_control]
+    if not isinstance(method, str) or method not in ("auto", *methods):
+        raise ValueError(f"method must be one of {', '.join(map(repr, ('auto', *methods)))} for interaction "
+                         f"{law.name!r}; got {method!r}")
     if not isinstance(backend, str) or backend not in ("auto", *BACKENDS):
         raise ValueError(f"backend must be one of {', '.join(map(repr, ('auto', *BACKENDS)))}; got {backend!r}")
-    if backend == "auto":
-        backend = "cupy" if on_gpu else ("pyfftw" if "pyfftw" in available_backends() else "numpy")
-    fft = get_backend(backend, n, threads=threads)
-    xp = fft.xp
+    return minimise(heights, law, sigma0=sigma0, e_star=e_star, length=length, tol=tol, method=method,
+                    backend=backend, max_iter=max_iter, initial=initial, threads=threads, host=host,
+                    t_start=t_start)
 
-    h = fft.asarray(heights)
-    if not bool(xp.all(xp.isfinite(h))):
-        raise ValueError("heights contain NaN or inf")
-    dx = length / n
-    if rho < dx:
-        warnings.warn(
-            f"rho/dx = {rho / dx:.3g} < 1 (rho={rho:g}, dx={dx:g}): the interaction range is under-resolved; "
-            "the solver still converges but the mean gap carries a discretisation error (refine n)",
-            UnderResolvedWarning,
-            stacklevel=2,
-        )
-    h = h - h.mean()  # only h - <h> matters: <h> shifts g0 by a constant; report the gap of h - <h>
-    h_shift = float(xp.asarray(heights, dtype=xp.float64).mean())
 
-    if initial is None:
-        Hq = fft.rfft2(h) * (1.0 / (n * n))
-        k = 0.5 * e_star * _half_q(xp, n, length)
-        x0 = Hq * ((sigma0 / rho) / (k + sigma0 / rho))  # linear response of M4: h~ / (1 + eta zeta)
-    else:
-        u0 = initial.displacement if isinstance(initial, GFMDResult) else initial
-        u0 = fft.to_host(u0) if _is_cupy(u0) else np.asarray(u0, dtype=np.float64)
-        if u0.ndim != 2 or u0.shape[0] != u0.shape[1] or not np.all(np.isfinite(u0)):
-            raise ValueError("initial must be a GFMDResult or a finite square displacement field")
-        if u0.shape[0] == n:
-            x0 = xp.array(fft.rfft2(xp.asarray(u0)) * (1.0 / (n * n)))
-        else:
-            x0 = xp.asarray(_transfer_modes(u0, n))
-    x0 = xp.array(x0, dtype=xp.complex128)
-
-    ops = _make_ops(xp, n)
-    history: list[float] = []
-    # Non-finite values are caught by the status checks (residual, fields), not by numpy warnings.
-    with np.errstate(all="ignore"):
-        pb = _Problem(h, x0, sigma0=sigma0, rho=rho, e_star=e_star, length=length, fft=fft, ops=ops)
-        status = _RUNNERS[method](pb, tol, max_iter, history)
-
-        # Fields from the Fourier state (fresh transform, no accumulated drift between X and W).
-        u = xp.array(fft.irfft2(pb.X))
-        w = (h - u) * (1.0 / rho)
-        e = xp.empty_like(w)
-        m = float(w.max())
-        S, _, _ = pb.ops.expstats(w, m, e)
-        lse = m + math.log(S / (n * n)) if S > 0 else math.nan  # S >= 1 whenever m is finite
-        g0 = rho * (math.log(gamma0 / (rho * sigma0)) + lse)
-        p = e * (sigma0 * n * n / S) if S > 0 else e * math.nan
-        gap = (g0 - h_shift) - rho * w  # g = g0 + u - h with the caller's h (mean included)
-    load_error = abs(float(p.mean()) / sigma0 - 1.0)
-    residual = history[-1] if history else math.inf
-    fields_ok = math.isfinite(g0) and bool(xp.all(xp.isfinite(gap))) and bool(xp.all(xp.isfinite(p)))
-    if not fields_ok:
-        status = "non_finite"
-    converged = status == "converged" and load_error <= tol and fields_ok
-    if status == "converged" and not converged:
-        status = "stalled"
-    if host:
-        gap, p, u = fft.to_host(gap), fft.to_host(p), fft.to_host(u)
-    fft.synchronize()
-    return GFMDResult(
-        mean_gap=g0 - h_shift,
-        gap=gap,
-        pressure=p,
-        displacement=u,
-        iterations=pb.nfev,
-        converged=converged,
-        residual=residual,
-        load_error=load_error,
-        wall_time=time.perf_counter() - t_start,
-        method=method,
-        backend=backend,
-        status=status,
-        sigma0=sigma0,
-        rho=rho,
-        gamma0=gamma0,
-        e_star=e_star,
-        length=length,
-        tol=tol,
-        history=history,
-    )
+# Batches of problems of one grid size (gfmd/batched.py): imported last, it builds on solve and _MINIMISERS.
+from gapsweep.gfmd.batched import Problem as BatchProblem  # noqa: E402
+from gapsweep.gfmd.batched import solve_batch  # noqa: E402

@@ -30,7 +30,8 @@ def _cupy_kernels() -> Any:
         import cupy
 
         mod = cupy.RawModule(code=_CUDA_SRC, options=("--std=c++14",))
-        names = ("gs_max", "gs_point", "gs_moments", "gs_dot", "gs_grad", "gs_cgdir")
+        names = ("gs_max", "gs_point", "gs_moments", "gs_dot", "gs_grad", "gs_cgdir",
+                 "bt_point", "bt_moments", "bt_cgdots", "bt_cgupdate", "bt_accept")  # bt_*: gfmd/batched.py
         _CUPY_KERNELS = {name: mod.get_function(name) for name in names}
     return _CUPY_KERNELS
 

@@ -10,6 +10,23 @@ import numpy as np
 
 from gapsweep.gfmd._ops import _is_cupy
 
+FIELDS = ("gap", "pressure", "displacement")
+
+
+def host_fields(host: Any) -> tuple[str, ...]:
+    """The result fields a caller wants on the host: ``True`` all of :data:`FIELDS`, ``False`` none (a cupy
+    run keeps them on the GPU), or an iterable of names from :data:`FIELDS` (only those are copied; the others
+    stay where they were computed)."""
+    if host is True or host is False:
+        return FIELDS if host else ()
+    if isinstance(host, str) or not hasattr(host, "__iter__"):
+        raise ValueError(f"host must be True, False or a list of field names from {FIELDS}, got {host!r}")
+    names = tuple(host)
+    bad = [k for k in names if k not in FIELDS]
+    if bad:
+        raise ValueError(f"host: unknown field(s) {bad}; allowed: {', '.join(FIELDS)}")
+    return tuple(k for k in FIELDS if k in names)
+
 
 @dataclass
 class GFMDResult:

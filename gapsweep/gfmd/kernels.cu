@@ -200,3 +200,124 @@ KERNEL_H gs_cgdir(const double2* __restrict__ G, const double* __restrict__ minv
     }
     grid_reduce<3>(v, 0u, part, count, out);
 }
+
+// ------------------------------------------------------------------------------------------------- batches
+// Kernels of gapsweep/gfmd/batched.py: a stack of B problems, problem b = blockIdx.y, its arrays at offset
+// b * N (real n x n: N = n^2; half spectra n x nh: N = n nh; k is shared by all problems). Per-problem scalars
+// come in device arrays; a problem whose active[b] is 0 is skipped (its block-row writes nothing and reduces
+// identities). Each block writes its K partials to part[(b K + k) gridDim.x + blockIdx.x]; the host side sums
+// (or maxes) them over blocks in a fixed order, so results are deterministic.
+template <int K>
+__device__ void batch_reduce(double* v, unsigned mx, double* part) {
+    __shared__ double sh[K][NT / 32];
+    block_reduce<K>(v, mx, sh);
+    if (threadIdx.x == 0) {
+#pragma unroll
+        for (int k = 0; k < K; k++) part[((unsigned long long)blockIdx.y * K + k) * gridDim.x + blockIdx.x] = v[k];
+    }
+}
+
+#define BATCH_LOOP(i, N) GRID_LOOP(i, N)
+
+// Trial point of each active problem: Wt = W + c[b] d, e = exp(Wt - shift[b]);
+// partials (max Wt, sum e, sum e d, sum e d^2).
+KERNEL bt_point(const double* __restrict__ W, const double* __restrict__ d, const double* __restrict__ c,
+                const double* __restrict__ shift, const int* __restrict__ active, double* Wt, double* e,
+                unsigned long long N, double* part) {
+    double v[4] = {neg_inf(), 0.0, 0.0, 0.0};
+    const unsigned b = blockIdx.y;
+    if (active[b]) {
+        const double cb = c[b], sb = shift[b];
+        const unsigned long long o = (unsigned long long)b * N;
+        BATCH_LOOP(i, N) {
+            const double dv = d[o + i];
+            const double w = fma(cb, dv, W[o + i]);
+            Wt[o + i] = w;
+            const double ex = exp(w - sb);
+            e[o + i] = ex;
+            v[0] = comb(v[0], w, true);
+            v[1] += ex;
+            const double ed = ex * dv;
+            v[2] += ed;
+            v[3] += ed * dv;
+        }
+    }
+    batch_reduce<4>(v, 1u, part);
+}
+
+// Partials (sum e d, sum e d^2) of every problem.
+KERNEL bt_moments(const double* __restrict__ e, const double* __restrict__ d, unsigned long long N, double* part) {
+    double v[2] = {0.0, 0.0};
+    const unsigned long long o = (unsigned long long)blockIdx.y * N;
+    BATCH_LOOP(i, N) {
+        const double ed = e[o + i] * d[o + i];
+        v[0] += ed;
+        v[1] += ed * d[o + i];
+    }
+    batch_reduce<2>(v, 0u, part);
+}
+
+// CG dots of every problem: (<Z G>, <Z Gold>), Z = minv G (Parseval weights).
+KERNEL_H bt_cgdots(const double* __restrict__ minv, const double2* __restrict__ G, const double2* __restrict__ Gold,
+                   unsigned nh, int even, unsigned long long N, double* part) {
+    double v[2] = {0.0, 0.0};
+    const unsigned long long o = (unsigned long long)blockIdx.y * N;
+    HALF_LOOP(i, r, j, N, nh) {
+        const double z = PWEIGHT(j, nh, even) * minv[o + i];
+        const double2 g = G[o + i];
+        v[0] += z * cdot(g, g);
+        v[1] += z * cdot(g, Gold[o + i]);
+    }
+    batch_reduce<2>(v, 0u, part);
+}
+
+// Active problems: D = beta[b] D - minv G; partials (<G D>, <kD X>, <kD D>).
+KERNEL_H bt_cgupdate(double2* D, const double* __restrict__ beta, const double* __restrict__ minv,
+                     const double2* __restrict__ G, const double* __restrict__ k, const double2* __restrict__ X,
+                     const int* __restrict__ active, unsigned nh, int even, unsigned long long N, double* part) {
+    double v[3] = {0.0, 0.0, 0.0};
+    const unsigned b = blockIdx.y;
+    if (active[b]) {
+        const double bb = beta[b];
+        const unsigned long long o = (unsigned long long)b * N;
+        HALF_LOOP(i, r, j, N, nh) {
+            const double2 g = G[o + i], d0 = D[o + i];
+            const double mi = minv[o + i];
+            const double2 d = make_double2(bb * d0.x - mi * g.x, bb * d0.y - mi * g.y);
+            D[o + i] = d;
+            const double wgt = PWEIGHT(j, nh, even);
+            const double kw = wgt * k[i];
+            v[0] += wgt * cdot(g, d);
+            v[1] += kw * cdot(d, X[o + i]);
+            v[2] += kw * cdot(d, d);
+        }
+    }
+    batch_reduce<3>(v, 0u, part);
+}
+
+// Active problems accept their step: Gold = G, X += alpha[b] D, G = k X - c[b] E (0 at q = 0);
+// partial <G G>.
+KERNEL_H bt_accept(double2* X, const double2* __restrict__ D, const double* __restrict__ alpha,
+                   const double2* __restrict__ E, const double* __restrict__ c, const double* __restrict__ k,
+                   double2* G, double2* Gold, const int* __restrict__ active, unsigned nh, int even,
+                   unsigned long long N, double* part) {
+    double v[1] = {0.0};
+    const unsigned b = blockIdx.y;
+    if (active[b]) {
+        const double ab = alpha[b], cb = c[b];
+        const unsigned long long o = (unsigned long long)b * N;
+        HALF_LOOP(i, r, j, N, nh) {
+            const double2 g0 = G[o + i], dd = D[o + i], ee = E[o + i];
+            Gold[o + i] = g0;
+            double2 x = X[o + i];
+            x.x = fma(ab, dd.x, x.x);
+            x.y = fma(ab, dd.y, x.y);
+            X[o + i] = x;
+            double2 g = make_double2(k[i] * x.x - cb * ee.x, k[i] * x.y - cb * ee.y);
+            if (i == 0) g = make_double2(0.0, 0.0);
+            G[o + i] = g;
+            v[0] += PWEIGHT(j, nh, even) * cdot(g, g);
+        }
+    }
+    batch_reduce<1>(v, 0u, part);
+}

@@ -1,0 +1,120 @@
+"""The "softmax" minimiser: exponential repulsion at fixed mean pressure, the mean gap eliminated in closed form
+(docs/model.md M3; the algorithm is described in the docstring of :mod:`gapsweep.gfmd`)."""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from typing import Any
+
+import numpy as np
+
+from gapsweep.fft import available_backends, get_backend
+from gapsweep.gfmd._ops import _is_cupy
+from gapsweep.gfmd._result import FIELDS, GFMDResult, host_fields
+from gapsweep.gfmd._solvers import _RUNNERS, _half_q, _Problem
+from gapsweep.gfmd.interactions.exponential import Exponential
+
+METHODS = ("cg", "lbfgs", "fire")
+DEFAULT_METHOD = "cg"  # decided by benchmarks/bench_gfmd.py speed (docs/benchmarks_gfmd.md)
+
+
+def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, length: float, tol: float,
+             method: str, backend: str, max_iter: int, initial: Any, threads: int | None, host: bool,
+             t_start: float) -> GFMDResult:
+    """Exponential repulsion ``law`` on the square grid ``heights`` (inputs validated by ``gfmd.solve``)."""
+    host_fields(host)  # validate before any work
+    from gapsweep.gfmd import UnderResolvedWarning, _make_ops, _transfer_modes  # late: tests patch gfmd
+
+    shape = heights.shape
+    if len(shape) != 2 or shape[0] != shape[1]:
+        raise ValueError(f"heights must be a square 2-D array (n x n) for interaction {law.name!r}, got shape {shape}")
+    n = int(shape[0])
+    rho, gamma0 = law.rho, law.gamma0
+    on_gpu = _is_cupy(heights)
+    method = DEFAULT_METHOD if method == "auto" else method
+    if backend == "auto":
+        backend = "cupy" if on_gpu else ("pyfftw" if "pyfftw" in available_backends() else "numpy")
+    fft = get_backend(backend, n, threads=threads)
+    xp = fft.xp
+
+    h = fft.asarray(heights)
+    if not bool(xp.all(xp.isfinite(h))):
+        raise ValueError("heights contain NaN or inf")
+    dx = length / n
+    if rho < dx:
+        warnings.warn(
+            f"rho/dx = {rho / dx:.3g} < 1 (rho={rho:g}, dx={dx:g}): the interaction range is under-resolved; "
+            "the solver still converges but the mean gap carries a discretisation error (refine n)",
+            UnderResolvedWarning,
+            stacklevel=3,
+        )
+    h = h - h.mean()  # only h - <h> matters: <h> shifts g0 by a constant; report the gap of h - <h>
+    h_shift = float(xp.asarray(heights, dtype=xp.float64).mean())
+
+    if initial is None:
+        Hq = fft.rfft2(h) * (1.0 / (n * n))
+        k = 0.5 * e_star * _half_q(xp, n, length)
+        x0 = Hq * ((sigma0 / rho) / (k + sigma0 / rho))  # linear response of M4: h~ / (1 + eta zeta)
+    else:
+        u0 = initial.displacement if isinstance(initial, GFMDResult) else initial
+        u0 = fft.to_host(u0) if _is_cupy(u0) else np.asarray(u0, dtype=np.float64)
+        if u0.ndim != 2 or u0.shape[0] != u0.shape[1] or not np.all(np.isfinite(u0)):
+            raise ValueError("initial must be a GFMDResult or a finite square displacement field")
+        if u0.shape[0] == n:
+            x0 = xp.array(fft.rfft2(xp.asarray(u0)) * (1.0 / (n * n)))
+        else:
+            x0 = xp.asarray(_transfer_modes(u0, n))
+    x0 = xp.array(x0, dtype=xp.complex128)
+
+    ops = _make_ops(xp, n)
+    history: list[float] = []
+    # Non-finite values are caught by the status checks (residual, fields), not by numpy warnings.
+    with np.errstate(all="ignore"):
+        pb = _Problem(h, x0, sigma0=sigma0, rho=rho, e_star=e_star, length=length, fft=fft, ops=ops)
+        status = _RUNNERS[method](pb, tol, max_iter, history)
+
+        # Fields from the Fourier state (fresh transform, no accumulated drift between X and W).
+        u = xp.array(fft.irfft2(pb.X))
+        w = (h - u) * (1.0 / rho)
+        e = xp.empty_like(w)
+        m = float(w.max())
+        S, _, _ = pb.ops.expstats(w, m, e)
+        lse = m + math.log(S / (n * n)) if S > 0 else math.nan  # S >= 1 whenever m is finite
+        g0 = law.mean_gap(lse, sigma0)
+        p = e * (sigma0 * n * n / S) if S > 0 else e * math.nan
+        gap = (g0 - h_shift) - rho * w  # g = g0 + u - h with the caller's h (mean included)
+    load_error = abs(float(p.mean()) / sigma0 - 1.0)
+    residual = history[-1] if history else math.inf
+    fields_ok = math.isfinite(g0) and bool(xp.all(xp.isfinite(gap))) and bool(xp.all(xp.isfinite(p)))
+    if not fields_ok:
+        status = "non_finite"
+    converged = status == "converged" and load_error <= tol and fields_ok
+    if status == "converged" and not converged:
+        status = "stalled"
+    fields = dict(zip(FIELDS, (gap, p, u)))
+    fields.update(fft.to_host_many({k: fields[k] for k in host_fields(host)}))
+    gap, p, u = (fields[k] for k in FIELDS)
+    fft.synchronize()
+    return GFMDResult(
+        mean_gap=g0 - h_shift,
+        gap=gap,
+        pressure=p,
+        displacement=u,
+        iterations=pb.nfev,
+        converged=converged,
+        residual=residual,
+        load_error=load_error,
+        wall_time=time.perf_counter() - t_start,
+        method=method,
+        backend=backend,
+        status=status,
+        sigma0=sigma0,
+        rho=rho,
+        gamma0=gamma0,
+        e_star=e_star,
+        length=length,
+        tol=tol,
+        history=history,
+    )

@@ -1,0 +1,571 @@
+"""Batched GFMD: many problems of one grid size solved together (docs/gfmd.md, "Batches"; docs/model.md M3).
+
+``solve_batch(problems)`` groups the problems by grid size ``n`` and by the minimiser their interaction law
+needs (its ``load_control``); a group whose minimiser has a batched form runs as one stack of ``B x n x n``
+arrays, every FFT one batched transform (cuFFT on the GPU, pocketfft on the CPU); other groups are solved one by
+one with :func:`gapsweep.gfmd.solve`. Results come back in the order of ``problems``.
+
+The batched "softmax" minimiser (exponential law) is the preconditioned Polak-Ribiere+ CG of
+:mod:`gapsweep.gfmd._solvers` step for step, with every scalar decision taken per problem: each problem keeps
+its own restart flag, line search (Newton/secant/bisection trials; problems whose search needs more trials
+take them while the others wait), iteration count, history and status. A problem that stops (converged,
+max_iter, stalled, non_finite) has its fields finished at once and costs no further kernel work: it is parked
+(the kernels skip it) and the stack is compacted once a quarter of it is parked, so the number of distinct
+stack sizes (each a new batched FFT plan) stays logarithmic. The arithmetic is that of the one-by-one solver
+(same formulas, same order), so results agree to round-off and iteration counts agree unless round-off flips
+a decision. On the GPU every operation is one fused CUDA pass over the whole stack (``bt_*`` in kernels.cu)
+with one host synchronisation for all problems.
+
+Memory: about ``14 n^2 x 8`` bytes per problem in the stack; ``max_batch`` bounds the stack (default: 1/3 of the
+free GPU memory, or 16 problems on the CPU).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from gapsweep import _checks as chk
+from gapsweep.fft import BACKENDS, available_backends, get_backend
+from gapsweep.gfmd._ops import _is_cupy
+from gapsweep.gfmd._result import FIELDS, GFMDResult, host_fields
+from gapsweep.gfmd._solvers import _half_q
+from gapsweep.gfmd.interactions import Interaction, resolve
+
+__all__ = ["Problem", "solve_batch"]
+
+log = logging.getLogger("gapsweep.gfmd.batched")
+
+_BYTES_PER_POINT = 14 * 8  # real and half-spectrum work arrays per grid point and problem
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One GFMD problem of a batch: the rigid surface ``heights`` (``n x n``, numpy or cupy), the mean pressure
+    ``sigma0``, the interaction law (a name with its parameters, as for :func:`gapsweep.gfmd.solve`, or an
+    :class:`Interaction` object) and an optional warm start ``initial`` (an earlier result or a displacement
+    field on any grid, as for ``solve``; default: the linear response of M4)."""
+
+    heights: Any
+    sigma0: float
+    interaction: str | Interaction = "exponential"
+    gamma0: float | None = None
+    rho: float | None = None
+    initial: Any = None
+
+
+def solve_batch(problems: Sequence[Problem], *, e_star: float = 1.0, length: float = 1.0, tol: float = 1e-6,
+                backend: str = "auto", max_iter: int = 5000, host: bool | tuple[str, ...] = True,
+                max_batch: int | None = None) -> list[GFMDResult]:
+    """Solve ``problems`` (see the module docstring); arguments as in :func:`gapsweep.gfmd.solve`, common to all.
+    ``backend``: "auto" (cupy when cupy is installed and a GPU is present, else numpy), "numpy" or "cupy";
+    ``max_batch``: most problems stacked at once. Every input is validated before any work."""
+    from gapsweep.gfmd import _MINIMISERS, solve  # late: gfmd imports this module
+
+    e_star = chk.positive(e_star, "e_star")
+    length = chk.positive(length, "length")
+    tol = chk.positive(tol, "tol")
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
+        raise ValueError(f"max_iter must be an integer >= 1, got {max_iter!r}")
+    if max_batch is not None:
+        max_batch = chk.count(max_batch, "max_batch")
+    host_fields(host)
+    if not isinstance(backend, str) or backend not in ("auto", *BACKENDS):
+        raise ValueError(f"backend must be one of {', '.join(map(repr, ('auto', *BACKENDS)))}; got {backend!r}")
+    if backend == "auto":
+        backend = "cupy" if "cupy" in available_backends() else "numpy"
+    if backend == "pyfftw":
+        backend = "numpy"  # batched transforms: numpy's pocketfft (pyfftw plans one grid at a time)
+    laws, loads, grids, starts = [], [], [], []
+    for i, p in enumerate(problems):
+        if not isinstance(p, Problem):
+            raise TypeError(f"problems[{i}] must be a gfmd.batched.Problem, got {type(p).__name__}")
+        shape = getattr(p.heights, "shape", None)
+        if shape is None or len(shape) != 2 or shape[0] != shape[1] or shape[0] < 2:
+            raise ValueError(f"problems[{i}].heights must be a square n x n array (n >= 2), got shape {shape}")
+        law = resolve(p.interaction, gamma0=p.gamma0, rho=p.rho)
+        rng = law.range()
+        if rng is not None and rng < length / shape[0]:
+            from gapsweep.gfmd import UnderResolvedWarning
+
+            warnings.warn(f"problems[{i}]: rho/dx = {rng * shape[0] / length:.3g} < 1: the interaction range is "
+                          "under-resolved (refine n)", UnderResolvedWarning, stacklevel=2)
+        laws.append(law)
+        loads.append(law.check_load(p.sigma0))
+        grids.append(int(shape[0]))
+        starts.append(_initial_field(p.initial, i))
+    groups: dict[tuple[int, str], list[int]] = {}
+    for i, law in enumerate(laws):
+        groups.setdefault((grids[i], law.load_control), []).append(i)
+    out: list[GFMDResult | None] = [None] * len(problems)
+    for (n, control), idx in groups.items():
+        runner = _BATCHED.get(control)
+        if runner is None:  # no batched form for this law's minimiser yet: one by one
+            log.info("batch: %d problem(s) with load_control %r solved one by one", len(idx), control)
+            if control not in _MINIMISERS:
+                raise ValueError(f"no minimiser for load_control {control!r} (interaction {laws[idx[0]].name!r})")
+            for i in idx:
+                out[i] = solve(problems[i].heights, sigma0=loads[i], interaction=laws[i], e_star=e_star,
+                               length=length, tol=tol, backend=backend, max_iter=max_iter, host=host,
+                               initial=problems[i].initial)
+            continue
+        size = max_batch or _default_batch(backend, n)
+        for start in range(0, len(idx), size):
+            chunk = idx[start:start + size]
+            res = runner([problems[i].heights for i in chunk], [laws[i] for i in chunk], [loads[i] for i in chunk],
+                         [starts[i] for i in chunk], n=n, e_star=e_star, length=length, tol=tol, backend=backend,
+                         max_iter=max_iter, host=host)
+            for i, r in zip(chunk, res):
+                out[i] = r
+    return out  # type: ignore[return-value]
+
+
+def _initial_field(initial: Any, i: int) -> np.ndarray | None:
+    """The warm-start displacement of problem ``i`` on the host (validated), or None."""
+    if initial is None:
+        return None
+    u0 = initial.displacement if isinstance(initial, GFMDResult) else initial
+    u0 = u0.get() if _is_cupy(u0) else np.asarray(u0, dtype=np.float64)
+    if u0.ndim != 2 or u0.shape[0] != u0.shape[1] or not np.all(np.isfinite(u0)):
+        raise ValueError(f"problems[{i}].initial must be a GFMDResult or a finite square displacement field")
+    return u0
+
+
+def _default_batch(backend: str, n: int) -> int:
+    if backend != "cupy":
+        return 16
+    import cupy
+
+    free, _ = cupy.cuda.runtime.memGetInfo()
+    return max(1, int(free / 3 // (_BYTES_PER_POINT * n * n)))
+
+
+# --------------------------------------------------------------------------------------- batched operations
+class _Stack:
+    """Operations of the batched CG on a stack of ``B`` problems, real ``(B, n, n)`` and half spectra
+    ``(B, n, n//2+1)``, written as plain array code for any namespace (numpy on the CPU: the same arithmetic as
+    the one-by-one solver's array code). Per-problem scalars are host (numpy) vectors of length ``B``;
+    ``active`` (bool vector) restricts an update to some problems."""
+
+    def __init__(self, xp: Any, n: int) -> None:
+        self.xp, self.n, self.even = xp, n, n % 2 == 0
+
+    def rfft2(self, a):
+        return self.xp.fft.rfft2(a, axes=(-2, -1))
+
+    def irfft2(self, a):
+        return self.xp.fft.irfft2(a, s=(self.n, self.n), axes=(-2, -1), norm="forward")
+
+    def dot(self, a, b) -> np.ndarray:
+        """``<A B>`` per problem by Parseval (weights as :meth:`gapsweep.gfmd._ops._Ops.dot`)."""
+        xp = self.xp
+        s = 2.0 * _re_dot(xp, a, b, (1, 2)) - _re_dot(xp, a[:, :, 0], b[:, :, 0], (1,))
+        if self.even:
+            s = s - _re_dot(xp, a[:, :, -1], b[:, :, -1], (1,))
+        return _host(xp, s)
+
+    def sums(self, a) -> np.ndarray:
+        return _host(self.xp, a.sum(axis=(1, 2)))
+
+    def maxes(self, a) -> np.ndarray:
+        return _host(self.xp, a.max(axis=(1, 2)))
+
+    def _sel(self, active):
+        return slice(None) if active is None or active.all() else self.xp.asarray(np.flatnonzero(active))
+
+    def point(self, W, d, c, shift, active, Wt, e) -> tuple[np.ndarray, ...]:
+        """Trial points of the active problems: ``Wt = W + c d``, ``e = exp(Wt - m)`` with ``m = max(Wt)``
+        (``shift`` is a hint that this exact version ignores); returns ``(m, S, s1, s2)`` with
+        ``S = sum e``, ``s1 = sum e d``, ``s2 = sum e d^2`` (entries of inactive problems are 0)."""
+        xp, sel = self.xp, self._sel(active)
+        idx = np.flatnonzero(active)
+        ds = d[sel]
+        wt = ds * _col(xp, c[idx]) + W[sel]
+        mm = self.maxes(wt)
+        ee = xp.exp(wt - _col(xp, mm))
+        ed = ee * ds
+        out = [np.zeros(len(active)) for _ in range(4)]
+        for o, v in zip(out, (mm, self.sums(ee), self.sums(ed), self.sums(ed * ds))):
+            o[idx] = v
+        Wt[sel], e[sel] = wt, ee
+        return tuple(out)
+
+    def moments(self, e, d) -> tuple[np.ndarray, np.ndarray]:
+        ed = e * d
+        return self.sums(ed), self.sums(ed * d)
+
+    def cg_dots(self, minv, G, G_old) -> tuple[np.ndarray, np.ndarray]:
+        """``(<Z G>, <Z G_old>)``, ``Z = M^-1 G``."""
+        Z = minv * G
+        return self.dot(Z, G), self.dot(Z, G_old)
+
+    def cg_update(self, D, beta, minv, G, k, X, active=None) -> tuple[np.ndarray, ...]:
+        """``D = beta D - M^-1 G`` (active problems); returns ``(<G D>, <kD X>, <kD D>)`` (entries of inactive
+        problems undefined)."""
+        sel = self._sel(active)
+        idx = slice(None) if active is None else np.flatnonzero(active)
+        D[sel] = _col(self.xp, beta[idx]) * D[sel] - minv[sel] * G[sel]
+        kD = k * D
+        return self.dot(G, D), self.dot(kD, X), self.dot(kD, D)
+
+    def accept(self, X, D, alpha, e, c, k, G, G_old, active) -> np.ndarray:
+        """Active problems: ``G_old = G``, ``X += alpha D``, ``G = k X - c rfft2(e)`` (0 at q = 0); returns
+        ``<G G>`` of the active problems (in their order)."""
+        xp, sel = self.xp, self._sel(active)
+        idx = np.flatnonzero(active)
+        G_old[sel] = G[sel]
+        X[sel] = X[sel] + _col(xp, alpha[idx]) * D[sel]
+        Gs = k * X[sel] - _col(xp, c[idx]) * self.rfft2(e[sel])
+        Gs[:, 0, 0] = 0.0
+        G[sel] = Gs
+        return self.dot(Gs, Gs)
+
+
+class _FusedStack(_Stack):
+    """GPU variant of :class:`_Stack`: one fused CUDA pass per operation over the whole stack (the ``bt_*``
+    kernels of ``kernels.cu``, problem = ``blockIdx.y``), per-block partials reduced over blocks on the device
+    and one device-to-host copy of the ``B`` results, the only host synchronisation. Trial points are shifted by
+    a hint (the problem's current max) and redone with their own max only when that lies over 50 away
+    (``e <= e^50``: nothing overflows; ``S``, ``s1``, ``s2`` then carry a common factor that cancels in the
+    solver, as in :class:`gapsweep.gfmd._cuda._CupyOps`)."""
+
+    def __init__(self, xp: Any, n: int) -> None:
+        from gapsweep.gfmd._cuda import _cupy_kernels
+
+        super().__init__(xp, n)
+        self.K = _cupy_kernels()
+        self.nh = n // 2 + 1
+        self._geo = (np.uint32(self.nh), np.int32(self.even))
+
+    def _run(self, name: str, nk: int, mx: int, size: int, B: int, args: tuple) -> np.ndarray:
+        xp = self.xp
+        gx = int(max(1, min(-(-size // 256), max(8, 4096 // B))))
+        part = xp.empty((B, nk, gx), dtype=xp.float64)
+        self.K[name]((gx, B), (256,), (*args, np.uint64(size), part))
+        res = part.sum(axis=2)
+        if mx:
+            res[:, 0] = part[:, 0, :].max(axis=1)
+        return _host(xp, res)
+
+    def _dev(self, v, dtype=np.float64):
+        return self.xp.asarray(np.ascontiguousarray(v, dtype=dtype))
+
+    def point(self, W, d, c, shift, active, Wt, e) -> tuple[np.ndarray, ...]:
+        B = W.shape[0]
+        shift = np.where(np.isfinite(shift), shift, 0.0)
+        act = np.asarray(active, dtype=bool).copy()
+        out = np.zeros((B, 4))
+        for _ in range(2):
+            r = self._run("bt_point", 4, 1, self.n * self.n, B,
+                          (W, d, self._dev(c), self._dev(shift), self._dev(act, np.int32), Wt, e))
+            out[act] = r[act]
+            far = act & np.isfinite(r[:, 0]) & (np.abs(r[:, 0] - shift) > 50.0)
+            if not far.any():
+                break
+            shift = np.where(far, r[:, 0], shift)  # exact shift for those
+            act = far
+        return out[:, 0], out[:, 1], out[:, 2], out[:, 3]
+
+    def moments(self, e, d) -> tuple[np.ndarray, np.ndarray]:
+        r = self._run("bt_moments", 2, 0, self.n * self.n, e.shape[0], (e, d))
+        return r[:, 0], r[:, 1]
+
+    def cg_dots(self, minv, G, G_old) -> tuple[np.ndarray, np.ndarray]:
+        r = self._run("bt_cgdots", 2, 0, self.n * self.nh, G.shape[0], (minv, G, G_old, *self._geo))
+        return r[:, 0], r[:, 1]
+
+    def cg_update(self, D, beta, minv, G, k, X, active=None) -> tuple[np.ndarray, ...]:
+        B = D.shape[0]
+        act = np.ones(B, dtype=np.int32) if active is None else np.asarray(active, dtype=np.int32)
+        r = self._run("bt_cgupdate", 3, 0, self.n * self.nh, B,
+                      (D, self._dev(beta), minv, G, k, X, self._dev(act, np.int32), *self._geo))
+        return r[:, 0], r[:, 1], r[:, 2]
+
+    def accept(self, X, D, alpha, e, c, k, G, G_old, active) -> np.ndarray:
+        B = X.shape[0]
+        E = self.rfft2(e)
+        act = np.asarray(active, dtype=bool)
+        r = self._run("bt_accept", 1, 0, self.n * self.nh, B,
+                      (X, D, self._dev(np.where(act, alpha, 0.0)), E, self._dev(np.where(act, c, 0.0)), k, G, G_old,
+                       self._dev(act, np.int32), *self._geo))
+        return r[act, 0]
+
+
+def _make_stack(xp: Any, n: int) -> _Stack:
+    """Fused kernels on the GPU (unless ``GAPSWEEP_GENERIC_KERNELS=1``), the array code otherwise."""
+    import os
+
+    if xp is not np and os.environ.get("GAPSWEEP_GENERIC_KERNELS") != "1":
+        return _FusedStack(xp, n)
+    return _Stack(xp, n)
+
+
+def _re_dot(xp, a, b, axes):
+    return (a.real * b.real + a.imag * b.imag).sum(axis=axes)
+
+
+def _host(xp, a) -> np.ndarray:
+    return np.asarray(a.get() if xp is not np else a, dtype=np.float64)
+
+
+def _col(xp, v) -> Any:
+    """A per-problem host vector as a ``(B, 1, 1)`` device array for broadcasting."""
+    return xp.asarray(np.asarray(v, dtype=np.float64)).reshape(-1, 1, 1)
+
+
+# ------------------------------------------------------------------------------------- softmax (exponential)
+def _line_search(phi0p: float, a: float, b: float, s0: float, rho: float, S: float, s1: float, s2: float,
+                 eta: float, max_trials: int = 40):
+    """:meth:`gapsweep.gfmd._solvers._Problem.line_search` for one problem as a generator: yields the step
+    ``alpha`` of a trial point, receives its ``(m, S, s1, s2)``; returns ``(alpha, ok, last)`` where ``last``
+    says whether the last trial point is the accepted one (else the caller evaluates ``alpha`` once more)."""
+    curv = b + (s0 / rho) * (s2 / S - (s1 / S) ** 2)
+    alpha = -phi0p / curv if curv > 0 else 1.0
+    lo, hi, dlo, dhi = 0.0, math.inf, phi0p, math.nan
+    for _ in range(max_trials):
+        if not math.isfinite(alpha) or alpha <= 0:
+            break
+        m, S, s1, s2 = yield alpha
+        if not (math.isfinite(m) and math.isfinite(S) and math.isfinite(s1) and math.isfinite(s2)):
+            hi = alpha
+            alpha = 0.5 * (lo + alpha)
+            continue
+        dphi = a + alpha * b - s0 * s1 / S
+        if abs(dphi) <= eta * abs(phi0p):
+            return alpha, True, True
+        if dphi < 0:
+            lo, dlo = alpha, dphi
+        else:
+            hi, dhi = alpha, dphi
+        if hi - lo <= 1e-13 * hi:
+            break
+        curv = b + (s0 / rho) * (s2 / S - (s1 / S) ** 2)
+        new = alpha - dphi / curv if curv > 0 else math.inf
+        if not (lo < new < hi):
+            new = lo - dlo * (hi - lo) / (dhi - dlo) if math.isfinite(hi) else 4.0 * alpha
+            if not (lo < new < hi):
+                new = 0.5 * (lo + hi)
+        alpha = new
+    if lo <= 0.0:
+        return 0.0, False, False
+    return lo, True, False  # round-off or out of trials: the last point known to lie downhill
+
+
+def _softmax_batch(heights: list, laws: list, sigma0s: list[float], starts: list, *, n: int, e_star: float,
+                   length: float,
+                   tol: float, backend: str, max_iter: int, host: Any, eta: float = 0.1) -> list[GFMDResult]:
+    """Batched "softmax" minimiser (exponential law), CG as :func:`gapsweep.gfmd._solvers._run_cg`."""
+    t_start = time.perf_counter()
+    if backend == "cupy":
+        import cupy as xp
+    else:
+        xp = np
+    ops = _make_stack(xp, n)
+    B = len(heights)
+    h = xp.stack([xp.asarray(hh, dtype=xp.float64) for hh in heights])
+    if not bool(xp.all(xp.isfinite(h))):
+        bad = [i for i in range(B) if not bool(xp.all(xp.isfinite(h[i])))]
+        raise ValueError(f"heights of batch problem(s) {bad} contain NaN or inf")
+    h_shift = _host(xp, h.mean(axis=(1, 2)))
+    h = h - xp.asarray(h_shift).reshape(-1, 1, 1)
+    rho = np.array([law.rho for law in laws])
+    s0 = np.array(sigma0s, dtype=np.float64)
+    k = 0.5 * e_star * _half_q(xp, n, length)
+    # linear response of M4, per problem as in the one-by-one solver
+    Hq = ops.rfft2(h) * (1.0 / (n * n))
+    X = (Hq * (_col(xp, s0 / rho) / (k + _col(xp, s0 / rho)))).astype(xp.complex128)
+    for j, u0 in enumerate(starts):  # warm starts, as in the one-by-one solver
+        if u0 is None:
+            continue
+        if u0.shape[0] == n:
+            X[j] = ops.rfft2(xp.asarray(u0)[None])[0] * (1.0 / (n * n))
+        else:
+            from gapsweep.gfmd import _transfer_modes
+
+            X[j] = xp.asarray(_transfer_modes(u0, n))
+    minv = 1.0 / (k + _col(xp, s0 / rho))
+    minv[:, 0, 0] = 0.0
+    X[:, 0, 0] = 0.0
+    W = (h - ops.irfft2(X)) * _col(xp, 1.0 / rho)
+    m = ops.maxes(W)
+    e = xp.exp(W - _col(xp, m))
+    S = ops.sums(e)
+    G = k * X - _col(xp, s0 / S) * ops.rfft2(e)
+    G[:, 0, 0] = 0.0
+    r2 = ops.dot(G, G)
+    G_old = xp.zeros_like(G)
+    D = xp.zeros_like(X)
+    Wt, et = xp.empty_like(W), xp.empty_like(e)
+
+    ids = list(range(B))  # original index of each slot
+    nfev = np.ones(B, dtype=np.int64)
+    history: list[list[float]] = [[] for _ in range(B)]
+    restart = np.ones(B, dtype=bool)
+    zg_old = np.zeros(B)
+    results: list[GFMDResult | None] = [None] * B
+    status: list[str | None] = [None] * B
+
+    alive = np.ones(B, dtype=bool)  # slots still iterating (the others are parked until the next compaction)
+
+    def finish(slots: list[int]) -> None:
+        """Fields and records of the problems in ``slots``; park them (the kernels skip them) and compact the
+        stack once a quarter of it is parked (a new stack size costs new FFT plans: not at every finish)."""
+        nonlocal X, h, minv, W, e, G, G_old, D, Wt, et, m, S, r2, rho, s0, restart, zg_old, ids, nfev, alive
+        for j in slots:
+            i = ids[j]
+            results[i] = _softmax_fields(xp, ops, X[j], h[j], laws[i], float(s0[j]), float(h_shift[i]),
+                                         status[i], int(nfev[j]), history[i], e_star, length, tol, host, t_start)
+            alive[j] = False
+        if alive.sum() > 0.75 * len(ids):
+            return
+        keep = list(np.flatnonzero(alive))
+        ids = [ids[j] for j in keep]
+        if not keep:
+            return
+        sel = np.asarray(keep)
+        dsel = xp.asarray(sel)
+        X, h, minv, W, e, G, G_old, D = (a[dsel] for a in (X, h, minv, W, e, G, G_old, D))
+        Wt, et = xp.empty_like(W), xp.empty_like(e)
+        m, S, r2, rho, s0, restart, zg_old, nfev, alive = (
+            a[sel] for a in (m, S, r2, rho, s0, restart, zg_old, nfev, alive))
+
+    while ids and alive.any():
+        # _check of _run_cg, per problem
+        done = []
+        for j, i in enumerate(ids):
+            if not alive[j]:
+                continue
+            r = math.sqrt(max(float(r2[j]), 0.0)) / float(s0[j])
+            history[i].append(r)
+            st = "non_finite" if not math.isfinite(r) else "converged" if r <= tol else \
+                "max_iter" if nfev[j] >= max_iter else None
+            if st is not None:
+                status[i] = st
+                done.append(j)
+        if done:
+            finish(done)
+            if not ids or not alive.any():
+                break
+        nb = len(ids)
+        # cg_dots and cg_update
+        zg, zg_cross = ops.cg_dots(minv, G, G_old)
+        zg_cross = np.where(restart, 0.0, zg_cross)
+        with np.errstate(all="ignore"):  # parked slots may hold anything
+            beta = np.where(restart | ~alive, 0.0, np.maximum(0.0, (zg - zg_cross) / np.where(restart, 1.0, zg_old)))
+        phi0p, a, b = ops.cg_update(D, beta, minv, G, k, X)
+        redo = (phi0p >= 0) & (beta > 0) & alive
+        if redo.any():  # not a descent direction (round-off): restart along -M^-1 G
+            p2, a2, b2 = ops.cg_update(D, np.zeros(nb), minv, G, k, X, active=redo)
+            phi0p, a, b = np.where(redo, p2, phi0p), np.where(redo, a2, a), np.where(redo, b2, b)
+        for j in range(nb):
+            if alive[j] and not phi0p[j] < 0:
+                status[ids[j]] = "stalled" if math.isfinite(phi0p[j]) else "non_finite"
+        # line search, all problems in lockstep (one batched trial pass per round)
+        d = ops.irfft2(D)
+        s1, s2 = ops.moments(e, d)
+        gens = {j: _line_search(phi0p[j], a[j], b[j], s0[j], rho[j], S[j], s1[j], s2[j], eta)
+                for j in range(nb) if alive[j] and phi0p[j] < 0}
+        alpha = np.zeros(nb)
+        outcome: dict[int, tuple[float, bool, bool]] = {}
+        pending = set()
+        for j, g in gens.items():
+            try:
+                alpha[j] = g.send(None)
+                pending.add(j)
+            except StopIteration as stop:
+                outcome[j] = stop.value
+        mt, St = np.zeros(nb), np.zeros(nb)
+        while pending:
+            act = np.zeros(nb, dtype=bool)
+            act[list(pending)] = True
+            mm, SS, t1, t2 = ops.point(W, d, -alpha / rho, m, act, Wt, et)
+            for j in sorted(pending):
+                mt[j], St[j] = mm[j], SS[j]
+                try:
+                    alpha[j] = gens[j].send((float(mm[j]), float(SS[j]), float(t1[j]), float(t2[j])))
+                except StopIteration as stop:
+                    outcome[j] = stop.value
+                    pending.discard(j)
+        # points that the search accepted without evaluating them last: one more trial pass
+        again = np.zeros(nb, dtype=bool)
+        for j, (al, ok, last) in outcome.items():
+            if ok and not last:
+                again[j] = True
+                alpha[j] = al
+        if again.any():
+            mm, SS, _, _ = ops.point(W, d, -alpha / rho, m, again, Wt, et)
+            mt[again], St[again] = mm[again], SS[again]
+        for j, (_, ok, _) in outcome.items():
+            if not ok:
+                if restart[j]:
+                    status[ids[j]] = "stalled"
+                else:
+                    restart[j] = True
+        acc = np.zeros(nb, dtype=bool)
+        for j, (al, ok, _) in outcome.items():
+            if ok:
+                acc[j] = True
+                alpha[j] = al
+        if acc.any():
+            restart[acc] = False
+            zg_old[acc] = zg[acc]
+            if acc.all():
+                W, e, Wt, et = Wt, et, W, e
+            else:
+                mask = xp.asarray(acc).reshape(-1, 1, 1)
+                W, e = xp.where(mask, Wt, W), xp.where(mask, et, e)
+            m[acc], S[acc] = mt[acc], St[acc]
+            with np.errstate(all="ignore"):
+                c = s0 / S
+            r2[acc] = ops.accept(X, D, alpha, e, c, k, G, G_old, acc)
+            nfev[acc] += 1
+        stopped = [j for j in range(nb) if alive[j] and status[ids[j]] is not None]
+        if stopped:
+            finish(stopped)
+    return results  # type: ignore[return-value]
+
+
+def _softmax_fields(xp, ops: _Stack, X, h, law, sigma0: float, h_shift: float, status: str, nfev: int,
+                    history: list[float], e_star: float, length: float, tol: float, host: Any,
+                    t_start: float) -> GFMDResult:
+    """Fields and record of one finished problem, as at the end of :func:`gapsweep.gfmd._softmax.minimise`."""
+    n = ops.n
+    rho = law.rho
+    with np.errstate(all="ignore"):
+        u = ops.irfft2(X[None])[0]
+        w = (h - u) * (1.0 / rho)
+        m = float(w.max())
+        e = xp.exp(w - m)
+        S = float(e.sum())
+        lse = m + math.log(S / (n * n)) if S > 0 else math.nan
+        g0 = law.mean_gap(lse, sigma0)
+        p = e * (sigma0 * n * n / S) if S > 0 else e * math.nan
+        gap = (g0 - h_shift) - rho * w
+    load_error = abs(float(p.mean()) / sigma0 - 1.0)
+    residual = history[-1] if history else math.inf
+    fields_ok = math.isfinite(g0) and bool(xp.all(xp.isfinite(gap))) and bool(xp.all(xp.isfinite(p)))
+    if not fields_ok:
+        status = "non_finite"
+    converged = status == "converged" and load_error <= tol and fields_ok
+    if status == "converged" and not converged:
+        status = "stalled"
+    fields = dict(zip(FIELDS, (gap, p, u)))
+    wanted = {k: fields[k] for k in host_fields(host) if _is_cupy(fields[k])}
+    if wanted:  # pinned, asynchronous copies as in gfmd.solve
+        fields.update(get_backend("cupy", n).to_host_many(wanted))
+    return GFMDResult(mean_gap=g0 - h_shift, gap=fields["gap"], pressure=fields["pressure"],
+                      displacement=fields["displacement"], iterations=nfev, converged=converged, residual=residual,
+                      load_error=load_error, wall_time=time.perf_counter() - t_start, method="cg",
+                      backend="cupy" if xp is not np else "numpy", status=status, sigma0=sigma0, rho=rho,
+                      gamma0=law.gamma0, e_star=e_star, length=length, tol=tol, history=list(history))
+
+
+# load_control -> batched minimiser; laws with another load_control are solved one by one
+_BATCHED = {"softmax": _softmax_batch}
