@@ -2,7 +2,7 @@
 
 Variables (one per method and quantity, NaN where a task is absent or not ``done``):
 ``gfmd_mean_gap``, ``theory_paper``, ``theory_continuum``, ``theory_discrete``, ``sde_mean_gap``,
-``fokker_planck_mean_gap`` (mean gap, length units, MODEL.md M3/M4), ``gfmd_h_rms``, ``gfmd_g_rms``,
+``fokker_planck_mean_gap`` (mean gap, length units, docs/model.md M3/M4), ``gfmd_h_rms``, ``gfmd_g_rms``,
 ``gfmd_residual``, ``gfmd_iterations`` and ``<method>_status`` (string: done / failed / not_converged / pending /
 "" for no task). Seed-independent results (paper and continuum theory; SDE without a seeded surface) sit at
 every seed their task has, i.e. usually seed 0 only. When a store holds several GFMD grids ``n`` or several

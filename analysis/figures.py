@@ -1,4 +1,4 @@
-"""The paper's figures (MODEL.md M6) from aggregated frames, PNG and PDF, matplotlib Agg.
+"""The paper's figures (docs/model.md M6) from aggregated frames, PNG and PDF, matplotlib Agg.
 
 * :func:`fig_mean_gap_pressure` -- figures 2 (H = 0.3) and 3 (H = 0.8): ``g0/h_rms`` against
   ``sigma0/(E* g_rms)``, one panel per ``rho``: GFMD (open circles, standard error bars), the field theory
@@ -81,7 +81,7 @@ def _panels(n: int, width: float = 3.2, height: float = 2.8):
 
 def fig_mean_gap_pressure(agg: pd.DataFrame, *, hurst: float, rhos: Sequence[float] | None = None,
                           title: str | None = None) -> plt.Figure:
-    """Figures 2 / 3 (MODEL.md M6): ``g0/h_rms`` vs ``sigma0/(E* g_rms)`` per ``rho`` (descending, as the paper).
+    """Figures 2 / 3 (docs/model.md M6): ``g0/h_rms`` vs ``sigma0/(E* g_rms)`` per ``rho`` (descending, as the paper).
 
     ``agg`` is :func:`analysis.aggregate.aggregate_mean_gap`. Panels without data say so instead of failing.
     """

@@ -1,4 +1,4 @@
-"""The report: figures, tables, provenance and the verdict on each claim of the paper (MODEL.md M6).
+"""The report: figures, tables, provenance and the verdict on each claim of the paper (docs/model.md M6).
 
 ``main(store_paths, out_dir)`` reads the stores (``gapsweep.store.read`` / ``read_histograms``), aggregates
 (:mod:`analysis.aggregate`), compares (:mod:`analysis.compare`), draws (:mod:`analysis.figures`) and writes into
@@ -131,7 +131,7 @@ def _curve_max(v: pd.DataFrame, hurst: float, rho: float) -> tuple[float, float,
 
 
 def verdicts(cmp: pd.DataFrame, dist: pd.DataFrame) -> list[dict[str, str]]:
-    """One entry per claim at the end of MODEL.md M6: ``{"claim", "verdict", "evidence"}``, computed from the
+    """One entry per claim at the end of docs/model.md M6: ``{"claim", "verdict", "evidence"}``, computed from the
     theory-vs-GFMD table (paper form) and the histogram distances (rules in the module docstring)."""
     v = _valid(cmp)
     out: list[dict[str, str]] = []
@@ -397,7 +397,7 @@ def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
 
     ver = verdicts(cmp, dist)
     md: list[str] = [f"# {title}", ""]
-    md += ["## Verdicts on the paper's claims (MODEL.md M6)", "",
+    md += ["## Verdicts on the paper's claims (docs/model.md M6)", "",
            f"Rules: the theory (paper's form) agrees with GFMD on a curve when every point with |g0| >= "
            f"{compare.ILL_CONDITIONED:g} h_rms has |rel err| <= {AGREE * 100:g} %; trends from Spearman's rank "
            f"correlation; the SDE matches GFMD when L1 <= {MATCH_L1:g}.", ""]

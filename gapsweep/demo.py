@@ -1,4 +1,4 @@
-"""Built-in default job, field-theory part: the paper's figure 2 (MODEL.md M4, M6).
+"""Built-in default job, field-theory part: the paper's figure 2 (docs/model.md M4, M6).
 
 Mean gap ``g0/h_rms`` against ``sigma0/(E* g_rms)`` for H = 0.3 and rho/L = 2e-3, 1e-3, 5e-4, with the high- and
 low-pressure limits, printed as a table and drawn as a PNG. Continuum ``h_rms`` of the g_rms = 1 spectrum.

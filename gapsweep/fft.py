@@ -1,4 +1,4 @@
-"""Real 2-D FFT backends for the GFMD solver (MODEL.md M3): pyFFTW, numpy and cupy (cuFFT).
+"""Real 2-D FFT backends for the GFMD solver (docs/model.md M3): pyFFTW, numpy and cupy (cuFFT).
 
 Every backend exposes the same two *unnormalised* transforms of a real ``n x n`` field, in the half-spectrum
 layout of ``numpy.fft.rfft2`` (shape ``(n, n // 2 + 1)``):

@@ -1,4 +1,4 @@
-"""Monte Carlo ensembles of the gap SDE of MODEL.md M5 with NVIDIA warp (one kernel for the GPU and the CPU).
+"""Monte Carlo ensembles of the gap SDE of docs/model.md M5 with NVIDIA warp (one kernel for the GPU and the CPU).
 
 The gap of one realisation obeys (Ito, magnification ``zeta`` as time, M5)::
 

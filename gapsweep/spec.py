@@ -1,7 +1,7 @@
 """Job specifications: TOML files under ``jobs/`` describing a sweep (schema in ``docs/jobs.md``).
 
 A spec names the grid axes (``hurst``, ``rho``, ``sigma0``, ``seeds``), the fixed surface and material
-parameters (MODEL.md M1, M2, M6) and the methods to run at each grid point with their options. Everything is
+parameters (docs/model.md M1, M2, M6) and the methods to run at each grid point with their options. Everything is
 validated before anything runs: an unknown key, a wrong type or an out-of-range value raises
 :class:`SpecError` naming the dotted key and the allowed values.
 
@@ -225,7 +225,7 @@ def _n_list(key: str, v: Any, nyquist: int) -> list[int]:
     out = [_int(f"{key}[{i}]" if isinstance(v, list) else key, x, ge=8, le=65536) for i, x in enumerate(vals)]
     for x in out:
         if x < nyquist:
-            raise SpecError(f"{key}: n={x} cannot carry surface.lambda_s (Nyquist, MODEL.md M2): "
+            raise SpecError(f"{key}: n={x} cannot carry surface.lambda_s (Nyquist, docs/model.md M2): "
                             f"allowed n >= {nyquist}")
     if len(set(out)) != len(out):
         raise SpecError(f"{key}: values must be distinct, got {out}")
@@ -238,7 +238,7 @@ def _method(name: str, t: dict, nyquist: int, norm: str) -> dict[str, Any]:
     o: dict[str, Any] = {}
     if name != "gfmd":
         # Which h_rms feeds the theory/SDE/FP: the continuum value of the spectrum or the rms height of the
-        # discrete surface (seed-dependent only with gaussian amplitudes). MODEL.md M2, M4.
+        # discrete surface (seed-dependent only with gaussian amplitudes). docs/model.md M2, M4.
         o["h_rms"] = _str(f"{key}.h_rms", t.get("h_rms", "continuum"), ("continuum", "surface"))
         if o["h_rms"] == "continuum" and norm == "c0":
             raise SpecError(f"{key}.h_rms: 'continuum' needs surface.rms_slope or surface.rms_height; "

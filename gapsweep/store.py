@@ -11,7 +11,7 @@ written independently, in any order, by any rank; under ``driver="mpio"`` the cr
 * file attributes: format, spec text and hash, job name, shard, provenance (versions, git commit), runs.
 
 The default (earliest) HDF5 file format is used on purpose: it has no "file open for write" superblock flag,
-so a file whose writer was killed with ``kill -9`` stays readable without ``h5clear`` (SETUP.md). Each row is
+so a file whose writer was killed with ``kill -9`` stays readable without ``h5clear`` (docs/store.md). Each row is
 flushed as it is written (serial writer); under ``mpio`` raw data goes straight to MPI-IO (no sieve buffer),
 and all metadata is written and flushed at creation.
 """

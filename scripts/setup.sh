@@ -4,7 +4,7 @@
 #   bash scripts/setup.sh            # creates .venv with everything (MPI + parallel HDF5 where root)
 #
 # With root and apt: Debian's Open MPI + parallel HDF5, the mpi4py wheel and h5py built against
-# that HDF5 (see ../shared/SETUP.md). Without root: pip-only (MPI from the mpich wheel, serial HDF5);
+# that HDF5 (see docs/running.md). Without root: pip-only (MPI from the mpich wheel, serial HDF5);
 # the sweep then falls back to rank-0 writing (GAPSWEEP_NO_APT=1 forces this path). Idempotent: a second run
 # only checks.
 set -euo pipefail

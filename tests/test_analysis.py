@@ -1,4 +1,4 @@
-"""Tests of the analysis package (issue 6) on synthetic store frames, and end to end on a quick job."""
+"""Tests of the analysis package (docs/analysis.md) on synthetic store frames, and end to end on a quick job."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Green's function molecular dynamics (GFMD) at fixed mean pressure with exponential repulsion (MODEL.md M3).
+"""Green's function molecular dynamics (GFMD) at fixed mean pressure with exponential repulsion (docs/model.md M3).
 
 An elastic half-space (contact modulus ``E*``) is pressed with mean pressure ``sigma0`` onto a rigid periodic
 rough surface ``h`` (``n x n`` grid, side ``length``); the surfaces repel with ``p(g) = (gamma0/rho) exp(-g/rho)``.
@@ -17,7 +17,7 @@ construction. The mean gap follows exactly from the log-sum-exp
 
 the gap is ``g = g0 + u - h`` and ``p = (gamma0/rho) exp(-g/rho)`` is the same field as the softmax.
 
-Convergence (issue 3): ``residual = rms(p_el - (p - <p>)) / sigma0`` and ``load_error = |<p> - sigma0|/sigma0``;
+Convergence (docs/gfmd.md): ``residual = rms(p_el - (p - <p>)) / sigma0`` and ``load_error = |<p> - sigma0|/sigma0``;
 ``converged`` iff both are ``<= tol``. The residual is evaluated in Fourier space by Parseval, at no extra FFT.
 
 Methods, one algorithm for every backend (numpy, pyFFTW, cupy); the unknowns are the Fourier modes ``u~(q)``:

@@ -1,4 +1,4 @@
-"""Array operations of the GFMD solver (MODEL.md M3): the backend-neutral :class:`_Ops` (numpy or cupy
+"""Array operations of the GFMD solver (docs/model.md M3): the backend-neutral :class:`_Ops` (numpy or cupy
 namespace) and its fused numba CPU variant :class:`_NumbaOps`."""
 
 from __future__ import annotations
