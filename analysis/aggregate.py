@@ -49,7 +49,7 @@ SOURCES = {
     "sde": ("sde", "mean_gap"),
     "fokker_planck": ("fokker_planck", "mean_gap"),
 }
-_PARAMS = ("h_rms", "g_rms", "e_star", "gamma0", "lambda_l", "lambda_s", "c1")
+_PARAMS = ("h_rms", "g_rms", "e_star", "gamma0", "lambda_l", "lambda_s", "length", "c1")
 
 
 def _check_frame(df: pd.DataFrame, needed: Iterable[str]) -> None:

@@ -26,6 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from gapsweep._extras import require
+
 __all__ = ["BACKENDS", "FFTBackend", "available_backends", "cache_dir", "get_backend"]
 
 BACKENDS = ("numpy", "pyfftw", "cupy")  # the names get_backend accepts
@@ -84,7 +86,7 @@ class _CupyBackend(FFTBackend):
     name = "cupy"
 
     def __init__(self, n: int) -> None:
-        import cupy
+        cupy = require("cupy", 'the GPU FFT backend (backend="cupy")')
 
         self.n = n
         self.xp = cupy
@@ -162,7 +164,7 @@ class _PyFFTWBackend(FFTBackend):
     name = "pyfftw"
 
     def __init__(self, n: int, threads: int, effort: str) -> None:
-        import pyfftw
+        pyfftw = require("pyfftw", 'the FFTW backend (backend="pyfftw")')
 
         self.n = n
         self.xp = np

@@ -268,6 +268,7 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
 
     need_gpu = any(u.gpu for u in units)
     ctx = Context(rank=rank, gpu=_gpu_index(comm) if need_gpu else None)
+    ctx.fields_dir = _fields_dir(path)  # kept GFMD fields, if the spec asks (gapsweep.dataset)
     todo = set(todo_list)
     work = [k for k, u in enumerate(units) if any(i in todo for i in u.tasks)]
 
@@ -421,3 +422,9 @@ def _work(comm: Any, tasks: list[Task], units: list[Unit], todo: set[int], ctx: 
                 res = TaskResult(res.status, "", {})  # rank 0 only counts it
             comm.send((i, res), dest=0, tag=TAG_ROW)
         comm.send(None, dest=0, tag=TAG_READY)
+
+
+def _fields_dir(store: str | Path) -> Path:
+    from gapsweep.dataset import fields_dir
+
+    return fields_dir(store)

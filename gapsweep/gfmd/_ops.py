@@ -96,7 +96,9 @@ def _numba_kernels() -> Any:
     global _NUMBA
     if _NUMBA is not None:
         return _NUMBA
-    import numba
+    from gapsweep._extras import require
+
+    numba = require("numba", "the fused CPU kernels of GFMD")
 
     jit = numba.njit(cache=True, fastmath=False, nogil=True)
 
