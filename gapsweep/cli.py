@@ -106,7 +106,9 @@ def main(argv: list[str] | None = None) -> int:
     from gapsweep.spec import SpecError
 
     try:
-        return _dispatch(args)
+        rc = _dispatch(args)
+        sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit
+        return rc
     except BrokenPipeError:
         # The reader (e.g. `| head`) is gone: no traceback, no "Broken pipe" at exit.
         devnull = os.open(os.devnull, os.O_WRONLY)
