@@ -79,7 +79,7 @@ def status_counts(df: pd.DataFrame) -> pd.DataFrame:
 def long_values(df: pd.DataFrame, sources: Sequence[str] | None = None) -> pd.DataFrame:
     """One row per (task, source): columns task_id, source, status, hurst, rho, sigma0, seed, n, c2, value,
     plus the parameters (h_rms, g_rms, e_star, gamma0, lambda_l, lambda_s, c1) and ``value_reduced``
-    (value / h_rms) and ``sigma0_reduced`` (sigma0 / (e_star g_rms)), docs/model.md M1.
+    (value / h_rms) and ``sigma0_reduced`` (sigma0 / (e_star g_rms)), docs/model.md M1 (``length``: box side L).
 
     A theory row is repeated for each of its three forms; a form never computed (all NaN for that method) is
     dropped, while single NaNs are kept (and counted as ``invalid`` when the status is ``done``).

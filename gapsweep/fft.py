@@ -17,6 +17,7 @@ The thread count defaults to ``$GAPSWEEP_FFT_THREADS`` or 1 (sweeps run one rank
 
 from __future__ import annotations
 
+import logging
 import os
 import pickle
 import tempfile
@@ -27,6 +28,8 @@ from typing import Any
 import numpy as np
 
 from gapsweep._extras import require
+
+log = logging.getLogger(__name__)
 
 __all__ = ["BACKENDS", "FFTBackend", "available_backends", "cache_dir", "get_backend"]
 
@@ -141,8 +144,8 @@ def _load_wisdom(threads: int) -> None:
     try:
         with open(path, "rb") as f:
             pyfftw.import_wisdom(pickle.load(f))
-    except (OSError, pickle.PickleError, EOFError, TypeError, ValueError):
-        pass  # no or unreadable cache: plan from scratch, rewrite it afterwards
+    except (OSError, pickle.PickleError, EOFError, TypeError, ValueError) as e:
+        log.debug("no usable FFTW wisdom at %s (%s): planning from scratch", path, e)
 
 
 def _save_wisdom(threads: int) -> None:
@@ -156,8 +159,8 @@ def _save_wisdom(threads: int) -> None:
         with os.fdopen(fd, "wb") as f:
             pickle.dump(pyfftw.export_wisdom(), f)
         os.replace(tmp, path)
-    except OSError:
-        pass  # a read-only home only costs planning time
+    except OSError as e:
+        log.debug("FFTW wisdom not saved to %s (%s): only costs planning time", path, e)
 
 
 class _PyFFTWBackend(FFTBackend):
