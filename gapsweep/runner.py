@@ -152,9 +152,12 @@ class Progress:
         self.mode = ("bar" if tty else "log") if mode == "auto" else mode
         self.bar = None
         if self.mode == "bar" and total:
-            from tqdm import tqdm
-
-            self.bar = tqdm(total=total, unit="task", dynamic_ncols=True, file=sys.stderr)
+            try:
+                from tqdm import tqdm
+            except ImportError:  # the `progress` extra is not installed: log lines instead of a bar
+                self.mode = "log"
+            else:
+                self.bar = tqdm(total=total, unit="task", dynamic_ncols=True, file=sys.stderr)
 
     def update(self, res: TaskResult) -> None:
         self.count[res.status] += 1
