@@ -20,7 +20,7 @@ DESCRIPTION = """\
 gapsweep: mean gap and gap distribution between an elastic body and a rough surface, by GFMD, the field theory
 and SDE / Fokker-Planck ensembles, over whole parameter grids (docs/model.md; job specs: docs/jobs.md).
 
-  gapsweep demo                                   the paper's figure 2 and a gap distribution, in about a minute
+  gapsweep demo                                   the paper's figure 2 and a gap distribution (minutes on 2 cores)
   gapsweep plan JOB.toml                          validate a job spec, count its tasks, estimate the cost
   gapsweep run JOB.toml --store OUT.h5            run it (under mpiexec: an MPI task farm)
   gapsweep report OUT.h5 --out DIR                figures, tables and (for the paper's sets) verdicts
