@@ -1,5 +1,6 @@
-"""Post-hoc analysis of gapsweep stores (issue 6): aggregation over seeds, theory-vs-simulation comparisons, the
-paper's figures (MODEL.md M6), an xarray view, and the report (``gapsweep report STORE... --out DIR``).
+"""Post-hoc analysis of gapsweep stores (docs/analysis.md): aggregation over seeds, theory-vs-simulation
+comparisons, the
+paper's figures (docs/model.md M6), an xarray view, and the report (``gapsweep report STORE... --out DIR``).
 
 Modules: :mod:`analysis.aggregate`, :mod:`analysis.compare`, :mod:`analysis.figures`, :mod:`analysis.dataset`,
 :mod:`analysis.report`, :mod:`analysis.make_results` (docs/results/ from the full jobs). See docs/analysis.md.

@@ -3,13 +3,13 @@
 Inputs are what ``gapsweep.store.read`` and ``gapsweep.store.read_histograms`` return (the contract columns), never
 the HDF5 file, so every function here is testable on a synthetic DataFrame.
 
-Rules (issue 6):
+Rules (docs/analysis.md):
 * Only rows with ``status == "done"`` and a finite value enter a mean. Rows that are ``failed``,
   ``not_converged`` or ``pending`` (and ``done`` rows without a finite value, counted as ``invalid``) are counted
   per group and reported, never averaged in.
 * The standard error of the mean is ``s / sqrt(k)`` with the sample standard deviation ``s`` (ddof = 1) over
   the ``k`` seeds; it is NaN (shown as "n/a") when ``k < 2``: one seed carries no scatter information.
-* Reduced units follow MODEL.md M1: ``g0 / h_rms`` against ``sigma0 / (E* g_rms)``. The reduced value is formed
+* Reduced units follow docs/model.md M1: ``g0 / h_rms`` against ``sigma0 / (E* g_rms)``. The reduced value is formed
   per row (each seed with its own ``h_rms``) before averaging.
 """
 
@@ -40,7 +40,7 @@ STATUSES = ("done", "failed", "not_converged", "pending")
 # ``job`` (the store's job name, "" when unknown) keeps different surfaces apart, e.g. figure 6's C0-normalised
 # surface and figure 2's g_rms = 1 surface at the same (H, rho, sigma0).
 KEYS = ("job", "source", "hurst", "rho", "sigma0", "n", "c2")
-# One "source" per method and quantity: theory rows carry three forms of the mean gap (MODEL.md M4).
+# One "source" per method and quantity: theory rows carry three forms of the mean gap (docs/model.md M4).
 SOURCES = {
     "gfmd": ("gfmd", "mean_gap"),
     "theory:paper": ("theory", "mean_gap_paper"),
@@ -49,7 +49,7 @@ SOURCES = {
     "sde": ("sde", "mean_gap"),
     "fokker_planck": ("fokker_planck", "mean_gap"),
 }
-_PARAMS = ("h_rms", "g_rms", "e_star", "gamma0", "lambda_l", "lambda_s", "c1")
+_PARAMS = ("h_rms", "g_rms", "e_star", "gamma0", "lambda_l", "lambda_s", "length", "c1")
 
 
 def _check_frame(df: pd.DataFrame, needed: Iterable[str]) -> None:
@@ -79,7 +79,7 @@ def status_counts(df: pd.DataFrame) -> pd.DataFrame:
 def long_values(df: pd.DataFrame, sources: Sequence[str] | None = None) -> pd.DataFrame:
     """One row per (task, source): columns task_id, source, status, hurst, rho, sigma0, seed, n, c2, value,
     plus the parameters (h_rms, g_rms, e_star, gamma0, lambda_l, lambda_s, c1) and ``value_reduced``
-    (value / h_rms) and ``sigma0_reduced`` (sigma0 / (e_star g_rms)), MODEL.md M1.
+    (value / h_rms) and ``sigma0_reduced`` (sigma0 / (e_star g_rms)), docs/model.md M1 (``length``: box side L).
 
     A theory row is repeated for each of its three forms; a form never computed (all NaN for that method) is
     dropped, while single NaNs are kept (and counted as ``invalid`` when the status is ``done``).
@@ -131,7 +131,7 @@ def long_values(df: pd.DataFrame, sources: Sequence[str] | None = None) -> pd.Da
 
 
 def aggregate_mean_gap(df: pd.DataFrame, sources: Sequence[str] | None = None) -> pd.DataFrame:
-    """Mean over seeds per (job, source, hurst, rho, sigma0, n, c2) of the mean gap (MODEL.md M3/M4).
+    """Mean over seeds per (job, source, hurst, rho, sigma0, n, c2) of the mean gap (docs/model.md M3/M4).
 
     Columns: the keys, ``count`` (seeds averaged), ``mean``, ``std``, ``sem`` (absolute units), ``mean_reduced``,
     ``sem_reduced`` (g0 / h_rms), ``sigma0_reduced`` (sigma0/(E* g_rms), mean over the averaged rows), the mean

@@ -1,4 +1,4 @@
-"""Comparisons: field theory against GFMD mean gaps (MODEL.md M4), SDE / Fokker-Planck against GFMD gap
+"""Comparisons: field theory against GFMD mean gaps (docs/model.md M4), SDE / Fokker-Planck against GFMD gap
 histograms (M5), and the parameter regions where the theory agrees with GFMD (M6).
 
 Error measures
@@ -63,7 +63,7 @@ def theory_vs_gfmd(agg: pd.DataFrame, *, forms: Sequence[str] = _FORMS, gfmd_n: 
     grid of each point); the discrete theory on the same grid when it has it, else on its finest grid.
     Columns: form, hurst, rho, sigma0, sigma0_reduced, h_rms, h_rms_over_rho, n, gfmd, gfmd_sem, gfmd_count,
     gfmd_not_done (failed + not converged + pending + invalid GFMD rows at that point), theory, theory_sem,
-    rel_err, rel_err_sem, red_err, red_err_sem, ill_conditioned, then the h_rms bookkeeping (issue 9.5):
+    rel_err, rel_err_sem, red_err, red_err_sem, ill_conditioned, then the h_rms bookkeeping:
     ``h_rms`` (and ``h_rms_over_rho``, the reduced axes) is the GFMD surfaces' own (discrete) rms height, mean over
     seeds; ``theory_h_rms`` says which h_rms the ``theory`` column used ("continuum": the spectrum's integral,
     forms paper/continuum, as stored by the theory task; "surface": the discrete form, on the surface's own
@@ -154,7 +154,7 @@ def agreement_regions(cmp: pd.DataFrame, *, form: str = "paper", thresholds: Seq
     Returns ``(points, summary)``. ``points``: the rows of ``cmp`` for ``form`` with a ``tier`` column
     ("<=1%", "<=5%", "<=10%", ">10%", "ill-conditioned" or "no GFMD data"). ``summary``, one row per
     (job, hurst, rho) sorted by ``h_rms/rho`` (the job keeps surface families apart: fig-2, fig-4/5 and fig-6
-    surfaces differ at the same (hurst, rho), issue 9.5): the number of classified points, of ill-conditioned and
+    surfaces differ at the same (hurst, rho)): the number of classified points, of ill-conditioned and
     of missing points, the largest ``|rel_err|`` (continuum h_rms, used by the verdicts) and
     ``max_abs_rel_err_hsurf`` (the surfaces' h_rms), and for each threshold ``t`` the fraction of points
     within ``t`` (``frac_<=t%``) and the smallest
@@ -206,7 +206,7 @@ def pressure_trend(cmp: pd.DataFrame, *, form: str = "paper", min_err: float = 0
     Over the well-conditioned points with a finite error, Spearman's rank correlation of ``|rel_err|`` (and of
     ``|rel_err_hsurf|``, the error at the surfaces' own h_rms) with ``sigma0``: negative = improves. Rows with
     fewer than 3 points or all errors below ``min_err`` are kept with ``improves`` = NaN (nothing to read).
-    Grouping by job keeps the fig-2, fig-4/5 and fig-6 surfaces apart (issue 9.5). Columns: job, hurst, rho,
+    Grouping by job keeps the fig-2, fig-4/5 and fig-6 surfaces apart. Columns: job, hurst, rho,
     h_rms_over_rho, points, max_abs_rel_err, spearman, spearman_hsurf, improves.
     """
     from scipy.stats import spearmanr

@@ -1,4 +1,4 @@
-"""The paper's figures (MODEL.md M6) from aggregated frames, PNG and PDF, matplotlib Agg.
+"""Figures of a sweep (docs/model.md M6 for the paper's) from aggregated frames, PNG and PDF.
 
 * :func:`fig_mean_gap_pressure` -- figures 2 (H = 0.3) and 3 (H = 0.8): ``g0/h_rms`` against
   ``sigma0/(E* g_rms)``, one panel per ``rho``: GFMD (open circles, standard error bars), the field theory
@@ -10,9 +10,13 @@
   low-pressure (rigid, Gaussian) reference of M5 (dashed).
 * :func:`fig_agreement` -- the agreement tiers of the theory against ``h_rms/rho`` and pressure.
 
-Every function takes the frames of :mod:`analysis.aggregate` / :mod:`analysis.compare` and returns a Figure;
-:func:`save` writes it. The theory lines are evaluated on a dense grid with ``gapsweep.theory`` when the group's
-parameters are known, else the stored theory points are joined.
+Every function takes the frames of :mod:`analysis.aggregate` / :mod:`analysis.compare` and returns a
+``matplotlib.figure.Figure`` built with the object-oriented API: importing this module never selects a backend
+(Jupyter keeps its own), and :func:`save` writes PNG and PDF through the figure's own canvas. Each figure carries
+a footer with the grid size ``N`` and the number of seeds behind its points (:func:`footer`); GFMD points whose
+interaction is under-resolved (``rho < L/N``, docs/model.md M7) are drawn filled grey and named in the legend.
+The theory lines are evaluated on a dense grid with ``gapsweep.theory`` when the group's parameters are known,
+else the stored theory points are joined.
 """
 
 from __future__ import annotations
@@ -23,19 +27,18 @@ from pathlib import Path
 from typing import Any
 
 import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
+from matplotlib.figure import Figure
 
 from analysis.aggregate import HistogramStats
 
-__all__ = ["STYLE", "fig_agreement", "fig_gap_distribution", "fig_mean_gap_hurst", "fig_mean_gap_pressure", "save"]
+__all__ = ["STYLE", "fig_agreement", "fig_gap_distribution", "fig_mean_gap_hurst", "fig_mean_gap_pressure", "footer",
+           "has_data", "save"]
 
 STYLE = {
-    "font.size": 9, "axes.labelsize": 9, "axes.titlesize": 9, "legend.fontsize": 7.5, "xtick.labelsize": 8,
-    "ytick.labelsize": 8, "lines.linewidth": 1.4, "lines.markersize": 5, "axes.grid": True, "grid.alpha": 0.25,
+    "font.size": 10, "axes.labelsize": 10, "axes.titlesize": 10, "legend.fontsize": 8.5, "xtick.labelsize": 9,
+    "ytick.labelsize": 9, "lines.linewidth": 1.4, "lines.markersize": 5, "axes.grid": True, "grid.alpha": 0.25,
     "figure.dpi": 100, "savefig.dpi": 200, "savefig.bbox": "tight", "pdf.fonttype": 42,
 }
 GFMD = {"marker": "o", "mfc": "none", "mec": "k", "ecolor": "k", "color": "k", "ls": "none", "capsize": 2,
@@ -74,30 +77,118 @@ def _theory_curve(sigma0: np.ndarray, *, hurst: float, h_rms: float, rho: float,
                                       lambda_s=lambda_s, e_star=e_star, form=form), dtype=float)
 
 
-def _panels(n: int, width: float = 3.2, height: float = 2.8):
-    fig, axes = plt.subplots(1, max(n, 1), figsize=(width * max(n, 1), height), squeeze=False)
+def _panels(n: int, width: float = 3.6, height: float = 3.1):
+    fig = Figure(figsize=(width * max(n, 1), height))
+    axes = fig.subplots(1, max(n, 1), squeeze=False)
     return fig, axes[0]
 
 
-def fig_mean_gap_pressure(agg: pd.DataFrame, *, hurst: float, rhos: Sequence[float] | None = None,
-                          title: str | None = None) -> plt.Figure:
-    """Figures 2 / 3 (MODEL.md M6): ``g0/h_rms`` vs ``sigma0/(E* g_rms)`` per ``rho`` (descending, as the paper).
+UNDER = {"marker": "o", "color": "0.55", "mec": "k", "ls": "none", "ms": 5, "zorder": 3,
+         "label": "GFMD, under-resolved ($\\rho < L/N$)"}
 
-    ``agg`` is :func:`analysis.aggregate.aggregate_mean_gap`. Panels without data say so instead of failing.
+
+def _under_resolved(g: pd.DataFrame) -> np.ndarray:
+    """GFMD rows whose interaction range is below the grid spacing, ``rho < L/N`` (docs/model.md M7)."""
+    if g.empty or "n" not in g:
+        return np.zeros(len(g), dtype=bool)
+    length = g["length"].to_numpy(float) if "length" in g else np.ones(len(g))
+    length = np.where(np.isfinite(length), length, 1.0)  # L = 1 by default (docs/model.md M1)
+    n = g["n"].to_numpy(float)
+    return (n > 0) & (g["rho"].to_numpy(float) < length / np.where(n > 0, n, 1.0))
+
+
+def _gfmd_points(ax: Any, gf: pd.DataFrame, x: str) -> None:
+    """GFMD means with standard-error bars; under-resolved points filled grey on top."""
+    ax.errorbar(gf[x], gf["mean_reduced"], yerr=gf["sem_reduced"].fillna(0.0), **GFMD)
+    bad = _under_resolved(gf)
+    if bad.any():
+        ax.plot(gf[x].to_numpy()[bad], gf["mean_reduced"].to_numpy()[bad], **UNDER)
+
+
+def has_data(agg: pd.DataFrame, sources: Sequence[str] = ("gfmd", "theory:paper")) -> bool:
+    """Whether ``agg`` has at least one finite mean from ``sources`` (a figure built from it is not blank)."""
+    if agg is None or len(agg) == 0:
+        return False
+    a = agg[agg["source"].isin(list(sources)) & (agg["count"] > 0)]
+    return bool(len(a)) and bool(np.isfinite(a["mean_reduced"].to_numpy(float)).any())
+
+
+def footer(agg: pd.DataFrame, *, quick: bool = False, extra: str = "") -> str:
+    """One line for a figure: GFMD grid sizes ``N``, seeds per point, what the error bars are, and a warning for
+    quick (smoke-test) jobs."""
+    parts = []
+    gf = agg[(agg["source"] == "gfmd") & (agg["count"] > 0)] if len(agg) else agg
+    if len(gf):
+        ns = sorted({int(x) for x in gf["n"].dropna() if x > 0})
+        seeds = sorted({int(x) for x in gf["count"]})
+        parts.append("GFMD: N = " + ", ".join(map(str, ns)) + "; seeds per point: "
+                     + (f"{seeds[0]}" if len(seeds) == 1 else f"{seeds[0]}-{seeds[-1]}")
+                     + ("; error bars: standard error over seeds" if max(seeds) >= 2 else "; one seed: no error bars"))
+    th = agg[agg["source"].astype(str).str.startswith("theory") & (agg["count"] > 0)] if len(agg) else agg
+    if len(th):
+        parts.append("theory: continuum h_rms" if not (th["n"] > 0).any() else "theory")
+    if extra:
+        parts.append(extra)
+    if quick:
+        parts.append("QUICK JOB: smoke test, not for conclusions")
+    return " | ".join(parts)
+
+
+QUICK_NOTE = "QUICK JOB: smoke test, not for conclusions"
+
+
+def _with_quick(note: str | None, quick: bool) -> str | None:
+    if quick and QUICK_NOTE not in (note or ""):
+        return " | ".join(x for x in (note, QUICK_NOTE) if x)
+    return note
+
+
+def _finish(fig: Figure, axes: Sequence[Any], note: str | None) -> None:
+    """One shared legend (every label once, below the panels) and the footer line."""
+    handles, labels = [], []
+    for ax in axes:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            if lab not in labels and not lab.startswith("_"):
+                handles.append(h)
+                labels.append(lab)
+    ncol = max(1, min(len(labels), int(fig.get_figwidth() // 1.9)))
+    if handles:
+        fig.legend(handles, labels, loc="lower center", ncol=ncol, frameon=False)
+    rows = math.ceil(len(labels) / ncol) if handles else 0
+    fh = fig.get_figheight() + 0.24 * rows + (0.22 if note else 0.0)
+    fig.set_figheight(fh)
+    foot = (0.22 / fh) if note else 0.0
+    if handles:
+        fig.legends[-1].set_bbox_to_anchor((0.5, foot))
+    if note:
+        fig.text(0.5, 0.01, note, ha="center", va="bottom", fontsize=7.5, color="0.3")
+    fig.tight_layout(rect=(0, foot + 0.24 * rows / fh + 0.01, 1, 1))
+
+
+def fig_mean_gap_pressure(agg: pd.DataFrame, *, hurst: float, rhos: Sequence[float] | None = None,
+                          title: str | None = None, note: str | None = None, quick: bool = False) -> Figure:
+    """``g0/h_rms`` vs ``sigma0/(E* g_rms)``, one panel per ``rho`` (descending, as the paper's figures 2 and 3,
+    docs/model.md M6): GFMD with standard errors, the field theory and both limits of M4.
+
+    ``agg`` is :func:`analysis.aggregate.aggregate_mean_gap`. With ``rhos=None`` only the ``rho`` values that have
+    data get a panel; an explicitly requested ``rho`` without data gets a panel that says so.
     """
-    with plt.rc_context(STYLE):
+    with matplotlib.rc_context(STYLE):
         a = agg[_close(agg["hurst"], hurst)] if len(agg) else agg
-        rs = sorted(set(a["rho"]) if rhos is None else rhos, reverse=True)
+        if rhos is None:
+            rs = sorted({r for r in a["rho"] if has_data(a[_close(a["rho"], r)])}, reverse=True) if len(a) else []
+        else:
+            rs = sorted(rhos, reverse=True)
         fig, axes = _panels(len(rs))
-        for ax, rho, letter in zip(axes, rs, "abcdefghij"):
+        for ax, rho, letter in zip(axes, rs, "abcdefghijklmnop"):
             g = a[_close(a["rho"], rho)]
             gf = _finest(g[(g["source"] == "gfmd") & (g["count"] > 0)]).sort_values("sigma0")
             th = g[(g["source"] == "theory:paper") & (g["count"] > 0)].sort_values("sigma0")
             ref = th if len(th) else gf
             ax.set_title(f"({letter}) H = {hurst:g}, $\\rho/L$ = {rho:g}")
             ax.set_xscale("log")
-            ax.set_xlabel(r"$\sigma_0/(E^*\bar g)$")
-            ax.set_ylabel(r"$g_0/\bar h$")
+            ax.set_xlabel(r"reduced pressure $\sigma_0/(E^*\bar g)$")
+            ax.set_ylabel(r"mean gap $g_0/\bar h$")
             if ref.empty:
                 ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center", va="center")
                 continue
@@ -121,43 +212,48 @@ def fig_mean_gap_pressure(agg: pd.DataFrame, *, hurst: float, rhos: Sequence[flo
             elif len(th):
                 ax.plot(th["sigma0_reduced"], th["mean_reduced"], **THEORY)
             if len(gf):
-                ax.errorbar(gf["sigma0_reduced"], gf["mean_reduced"], yerr=gf["sem_reduced"].fillna(0.0), **GFMD)
+                _gfmd_points(ax, gf, "sigma0_reduced")
             lo = min(np.nanmin(flat / h), np.nanmin(gf["mean_reduced"]) if len(gf) else np.inf)
             hi = max(np.nanmax((flat + h**2 / (2 * rho)) / h), np.nanmax(gf["mean_reduced"]) if len(gf) else -np.inf)
             ax.set_ylim(lo - 0.05 * (hi - lo), hi + 0.05 * (hi - lo))
-        if axes[0].get_legend_handles_labels()[0]:
-            axes[0].legend(loc="best", frameon=False)
         if title:
             fig.suptitle(title)
-        fig.tight_layout()
+        _finish(fig, axes, _with_quick(note, quick))
     return fig
 
 
-def fig_mean_gap_hurst(agg: pd.DataFrame, *, sigma0_reduced: float, rho: float, title: str | None = None,
-                       rtol: float = 0.02) -> plt.Figure:
-    """Figures 4 / 5 (M6): ``g0/h_rms`` vs ``H`` at ``sigma0/(E* g_rms) = sigma0_reduced`` (within ``rtol``)."""
-    with plt.rc_context(STYLE):
-        fig, axes = _panels(1, width=3.6, height=2.9)
-        ax = axes[0]
-        a = agg[_close(agg["rho"], rho) & _close(agg["sigma0_reduced"], sigma0_reduced, rtol)] if len(agg) else agg
-        gf = _finest(a[(a["source"] == "gfmd") & (a["count"] > 0)]).sort_values("hurst")
-        th = a[(a["source"] == "theory:paper") & (a["count"] > 0)].sort_values("hurst")
-        ax.set_title(title or f"$\\rho/L$ = {rho:g}, $\\sigma_0/(E^*\\bar g)$ = {sigma0_reduced:g}")
-        ax.set_xlabel("Hurst exponent $H$")
-        ax.set_ylabel(r"$g_0/\bar h$")
-        if gf.empty and th.empty:
-            ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center", va="center")
-            return fig
-        if len(th):
-            line = _dense_hurst_line(th, rho)
-            if line is not None:
-                ax.plot(line[0], line[1], **THEORY)
-            else:
-                ax.plot(th["hurst"], th["mean_reduced"], **THEORY)
-        if len(gf):
-            ax.errorbar(gf["hurst"], gf["mean_reduced"], yerr=gf["sem_reduced"].fillna(0.0), **GFMD)
-        ax.legend(loc="best", frameon=False)
-        fig.tight_layout()
+def fig_mean_gap_hurst(agg: pd.DataFrame, *, sigma0_reduced: float | Sequence[float], rho: float,
+                       title: str | None = None, rtol: float = 0.02, note: str | None = None,
+                       quick: bool = False) -> Figure:
+    """``g0/h_rms`` vs ``H`` at ``sigma0/(E* g_rms) = sigma0_reduced`` (within ``rtol``), the paper's figures 4
+    and 5 (docs/model.md M6); one panel per reduced pressure when several are given."""
+    levels = [sigma0_reduced] if np.ndim(sigma0_reduced) == 0 else list(sigma0_reduced)
+    with matplotlib.rc_context(STYLE):
+        fig, axes = _panels(len(levels), width=3.8, height=3.2)
+        for ax, level, letter in zip(axes, levels, "abcdefghijklmnop"):
+            a = (agg[_close(agg["rho"], rho) & _close(agg["sigma0_reduced"], float(level), rtol)]
+                 if len(agg) else agg)
+            gf = _finest(a[(a["source"] == "gfmd") & (a["count"] > 0)]).sort_values("hurst")
+            th = a[(a["source"] == "theory:paper") & (a["count"] > 0)].sort_values("hurst")
+            prefix = f"({letter}) " if len(levels) > 1 else ""
+            ax.set_title(title if (title and len(levels) == 1) else
+                         f"{prefix}$\\rho/L$ = {rho:g}, $\\sigma_0/(E^*\\bar g)$ = {float(level):g}")
+            ax.set_xlabel("Hurst exponent $H$")
+            ax.set_ylabel(r"mean gap $g_0/\bar h$")
+            if gf.empty and th.empty:
+                ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center", va="center")
+                continue
+            if len(th):
+                line = _dense_hurst_line(th, rho)
+                if line is not None:
+                    ax.plot(line[0], line[1], **THEORY)
+                else:
+                    ax.plot(th["hurst"], th["mean_reduced"], **THEORY)
+            if len(gf):
+                _gfmd_points(ax, gf, "hurst")
+        if title and len(levels) > 1:
+            fig.suptitle(title)
+        _finish(fig, axes, _with_quick(note, quick))
     return fig
 
 
@@ -189,7 +285,7 @@ def _dense_hurst_line(th: pd.DataFrame, rho: float) -> tuple[np.ndarray, np.ndar
 
 
 def fig_gap_distribution(hagg: Mapping[tuple, HistogramStats], *, hurst: float, rho: float, max_curves: int = 5,
-                         title: str | None = None) -> plt.Figure:
+                         title: str | None = None, note: str | None = None, quick: bool = False) -> Figure:
     """Figure 6 (M6): ``h_rms P(g)`` vs ``g/h_rms`` for each pressure (one colour each, at most ``max_curves``
     evenly picked): GFMD (open circles with the per-bin standard error), the Fokker-Planck density at the
     calibrated ``C2`` (solid; key method "fp_calibrated", from :func:`analysis.compare.calibrate_c2`), the SDE and
@@ -199,8 +295,8 @@ def fig_gap_distribution(hagg: Mapping[tuple, HistogramStats], *, hurst: float, 
 
     ``hagg``: :func:`analysis.aggregate.aggregate_histograms`, optionally merged with the calibrated models.
     """
-    with plt.rc_context(STYLE):
-        fig, axes = _panels(1, width=4.6, height=3.3)
+    with matplotlib.rc_context(STYLE):
+        fig, axes = _panels(1, width=6.8, height=3.4)
         ax = axes[0]
         sel = {k: v for k, v in hagg.items() if math.isclose(k[1], hurst, rel_tol=1e-6)
                and math.isclose(k[2], rho, rel_tol=1e-6)}
@@ -209,15 +305,15 @@ def fig_gap_distribution(hagg: Mapping[tuple, HistogramStats], *, hurst: float, 
             if k[0] == "gfmd" and (k[3] not in gf or k[4] > gf[k[3]][0]):
                 gf[k[3]] = (k[4], v)
         ax.set_title(title or f"H = {hurst:g}, $\\rho/L$ = {rho:g}")
-        ax.set_xlabel(r"$g/\bar h$")
-        ax.set_ylabel(r"$\bar h\,P(g)$")
+        ax.set_xlabel(r"gap $g/\bar h$")
+        ax.set_ylabel(r"density $\bar h\,P(g)$")
         sigmas = sorted({k[3] for k in sel})
         if not sigmas:
             ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center", va="center")
             return fig
         if len(sigmas) > max_curves:
             sigmas = [sigmas[i] for i in np.unique(np.linspace(0, len(sigmas) - 1, max_curves).round().astype(int))]
-        colors = plt.get_cmap("viridis")(np.linspace(0.0, 0.85, len(sigmas)))
+        colors = matplotlib.colormaps["viridis"](np.linspace(0.0, 0.85, len(sigmas)))
         styles = {"fp_calibrated": ("-", "FP, calibrated C2"), "sde": (":", "SDE, job C2"),
                   "fokker_planck": ("-.", "FP, job C2")}
         seen: set[str] = set()
@@ -247,25 +343,40 @@ def fig_gap_distribution(hagg: Mapping[tuple, HistogramStats], *, hurst: float, 
                 e = v["edges"]
                 ax.plot(np.repeat(e, 2)[1:-1] / h, np.repeat(v["density"], 2) * h, color=col, ls=ls, lw=1.0,
                         label=lbl)
-        ax.plot([], [], color="0.4", ls="--", lw=0.9, label="low-pressure reference")
-        ax.legend(loc="best", frameon=False, fontsize=6.5)
-        fig.tight_layout()
+        ax.plot([], [], color="0.4", ls="--", lw=0.9, label="low-pressure (rigid) reference")
+        ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False, fontsize=8)
+        foot = " | ".join(x for x in (note or _hist_footer(sel), "QUICK JOB: smoke test, not for conclusions"
+                                      if quick else "") if x)
+        fig.text(0.5, 0.005, foot, ha="center", va="bottom", fontsize=7.5, color="0.3")
+        fig.tight_layout(rect=(0, 0.05, 1, 1))
     return fig
+
+
+def _hist_footer(sel: Mapping[tuple, HistogramStats]) -> str:
+    """N and seeds behind the GFMD histograms of a gap-distribution figure."""
+    g = [(k[4], v.get("n_hist", 0)) for k, v in sel.items() if k[0] == "gfmd"]
+    if not g:
+        return ""
+    ns = sorted({int(n) for n, _ in g if n > 0})
+    seeds = sorted({int(c) for _, c in g})
+    return (f"GFMD: N = {', '.join(map(str, ns))}; seeds per histogram: "
+            + (f"{seeds[0]}" if len(seeds) == 1 else f"{seeds[0]}-{seeds[-1]}")
+            + "; error bars: standard error over seeds (Poisson with one seed)")
 
 
 _TIER_COLORS = {"<=1%": "tab:green", "<=5%": "yellowgreen", "<=10%": "orange", ">10%": "tab:red",
                 "ill-conditioned": "0.7", "no GFMD data": "white"}
 
 
-def fig_agreement(points: pd.DataFrame, *, title: str | None = None) -> plt.Figure:
+def fig_agreement(points: pd.DataFrame, *, title: str | None = None, note: str | None = None) -> Figure:
     """Agreement tiers (from :func:`analysis.compare.agreement_regions`) in the plane ``h_rms/rho`` vs
     ``sigma0/(E* g_rms)``, marker shape per H."""
-    with plt.rc_context(STYLE):
+    with matplotlib.rc_context(STYLE):
         fig, axes = _panels(1, width=4.4, height=3.2)
         ax = axes[0]
         ax.set_xscale("log")
-        ax.set_xlabel(r"$\sigma_0/(E^*\bar g)$")
-        ax.set_ylabel(r"$\bar h/\rho$")
+        ax.set_xlabel(r"reduced pressure $\sigma_0/(E^*\bar g)$")
+        ax.set_ylabel(r"roughness over range $\bar h/\rho$")
         ax.set_title(title or "field theory (paper) vs GFMD")
         if points.empty:
             ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center", va="center")
@@ -280,19 +391,19 @@ def fig_agreement(points: pd.DataFrame, *, title: str | None = None) -> plt.Figu
                 ax.scatter([], [], c=col, edgecolors="k", linewidths=0.4, label=tier)
         for h, mk in markers.items():
             ax.scatter([], [], marker=mk, facecolors="none", edgecolors="k", label=f"H = {h:g}")
-        ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False)
-        fig.tight_layout()
+        ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False, title="|theory - GFMD|/GFMD")
+        if note:
+            fig.text(0.5, 0.005, note, ha="center", va="bottom", fontsize=7.5, color="0.3")
+        fig.tight_layout(rect=(0, 0.05 if note else 0, 1, 1))
     return fig
 
 
-def save(fig: plt.Figure, out_dir: str | Path, name: str) -> list[Path]:
+def save(fig: Figure, out_dir: str | Path, name: str) -> list[Path]:
     """Write ``name.png`` and ``name.pdf`` into ``out_dir`` (created) and close the figure."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = [out / f"{name}.png", out / f"{name}.pdf"]
-    try:
+    with matplotlib.rc_context(STYLE):
         for p in paths:
             fig.savefig(p)
-    finally:
-        plt.close(fig)
     return paths

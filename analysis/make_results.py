@@ -1,5 +1,5 @@
-"""Build ``docs/results/`` from the stores of the full jobs (issue 6): figures (PNG + PDF), aggregated CSV tables,
-the report (Markdown + HTML) and ``verdicts.md`` with the verdict on each claim of MODEL.md M6.
+"""Build ``docs/results/`` from the stores of the full jobs: figures (PNG + PDF), aggregated CSV tables,
+the report (Markdown + HTML) and ``verdicts.md`` with the verdict on each claim of docs/model.md M6.
 
 Usage (after running the full jobs, e.g. on the GPU machine)::
 

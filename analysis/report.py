@@ -1,8 +1,12 @@
-"""The report: figures, tables, provenance and the verdict on each claim of the paper (MODEL.md M6).
+"""The report of any sweep: figures, tables, provenance, and the verdicts on the paper's claims where the stores
+hold the paper's parameter sets (docs/model.md M6).
 
 ``main(store_paths, out_dir)`` reads the stores (``gapsweep.store.read`` / ``read_histograms``), aggregates
 (:mod:`analysis.aggregate`), compares (:mod:`analysis.compare`), draws (:mod:`analysis.figures`) and writes into
-``out_dir``: ``report.md``, ``report.html``, ``fig2..fig6`` and ``fig_agreement`` (PNG + PDF), and the CSV tables
+``out_dir``: ``report.md``, ``report.html``, the figures (PNG + PDF) that :func:`plan_figures` chooses from the
+stores' axes and methods (``fig2`` .. ``fig6`` for jobs matching the paper's sets, ``gap_vs_pressure_*``,
+``gap_vs_hurst_*``, ``gap_distribution_*`` for any other sweep, ``fig_agreement``), ``figures.csv`` (each figure
+with the data points of its emptiest panel; a figure with an empty panel is never written), and the CSV tables
 ``status.csv``, ``mean_gap.csv``, ``theory_vs_gfmd.csv``, ``agreement_points.csv``, ``agreement_summary.csv``,
 ``hist_distances.csv``, ``histograms.csv`` (merged densities, long format). :func:`build` does the same from a
 DataFrame and a histogram dict (no store), which is what the tests use.
@@ -17,7 +21,9 @@ from __future__ import annotations
 
 import html
 import json
+import logging
 import math
+import os
 import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -28,7 +34,10 @@ import pandas as pd
 
 from analysis import aggregate, compare, figures
 
-__all__ = ["AGREE", "MATCH_L1", "build", "load", "main", "provenance", "verdicts"]
+__all__ = ["AGREE", "MATCH_L1", "build", "load", "main", "paper_matches", "plan_figures", "provenance", "quick_jobs",
+           "verdicts"]
+
+log = logging.getLogger("gapsweep.analysis.report")
 
 AGREE = 0.05
 MATCH_L1 = 0.10
@@ -131,7 +140,7 @@ def _curve_max(v: pd.DataFrame, hurst: float, rho: float) -> tuple[float, float,
 
 
 def verdicts(cmp: pd.DataFrame, dist: pd.DataFrame) -> list[dict[str, str]]:
-    """One entry per claim at the end of MODEL.md M6: ``{"claim", "verdict", "evidence"}``, computed from the
+    """One entry per claim at the end of docs/model.md M6: ``{"claim", "verdict", "evidence"}``, computed from the
     theory-vs-GFMD table (paper form) and the histogram distances (rules in the module docstring)."""
     v = _valid(cmp)
     out: list[dict[str, str]] = []
@@ -365,20 +374,215 @@ FIGURES = (
     ("fig6", "Figure 6: gap distribution P(g), H = 0.3, rho/L = 2e-3"),
     ("fig_agreement", "Agreement of the field theory (paper form) with GFMD against h_rms/rho and pressure"),
 )
+# The paper's parameter sets (docs/model.md M6): common parameters, then what each figure needs.
+PAPER_COMMON = {"lambda_l": 0.25, "gamma0": 1e-3, "e_star": 1.0, "length": 1.0}
+PAPER_LAMBDA_S = 2.5e-3
+PAPER_PRESSURE_SETS = {"fig2": (0.3, (2e-3, 1e-3, 5e-4)), "fig3": (0.8, (5e-3, 2e-3, 1e-3))}
+PAPER_HURST_SETS = {"fig4": (2e-3, 0.01), "fig5": (2e-3, 0.1)}
+PAPER_DIST_SET = (0.3, 2e-3)
+# Which paper figure each claim (docs/model.md M6, in order) rests on.
+CLAIM_NEEDS = (("fig2",), ("fig2",), ("fig3",), ("fig2", "fig3"), ("fig2", "fig3"), ("fig6",), ("fig6",))
+MAX_FIGURES = 24
+SYMBOLS = (
+    "Symbols: g0 mean gap, h_rms (h with a bar) rms height, g_rms (g with a bar) rms gradient of the surface, "
+    "sigma0 applied mean pressure, E* contact modulus, rho range of the exponential repulsion, H Hurst exponent, "
+    "L box side, N grid points per side, P(g) gap density (docs/model.md M1-M5). Open circles: GFMD mean over "
+    "seeds with its standard error; filled grey circles: GFMD points with an under-resolved interaction "
+    "(rho < L/N, docs/model.md M7); solid green: field theory, the paper's form; dash-dot grey: its continuum "
+    "form; dashed red / blue: the high- / low-pressure limits (docs/model.md M4).")
+
+
+def _slug(x: Any) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", f"{x:g}" if isinstance(x, float) else str(x)).strip("_") or "job"
+
+
+def _jobs(df: pd.DataFrame) -> list[str]:
+    return sorted(set(df["job"].astype(str))) if "job" in df and len(df) else [""]
+
+
+def _job_rows(frame: pd.DataFrame, job: str) -> pd.DataFrame:
+    if len(frame) == 0 or "job" not in frame:
+        return frame
+    return frame[frame["job"].astype(str) == job]
+
+
+def quick_jobs(df: pd.DataFrame, prov: Sequence[Mapping[str, Any]] = ()) -> set[str]:
+    """Jobs that are smoke tests, not for conclusions: named or described "quick", or cut at ``zeta_s`` < 100
+    (the paper's ``lambda_s/L = 2.5e-3``) while otherwise using the paper's common parameters."""
+    out = set()
+    texts = {str(p.get("job_name", "")): str(p.get("spec_text", p.get("spec", ""))) for p in prov}
+    for job in _jobs(df):
+        text = (job + " " + texts.get(job, "")).lower()
+        if "quick" in text or "not for conclusions" in text:
+            out.add(job)
+    return out
+
+
+def _common_ok(rows: pd.DataFrame) -> tuple[bool, bool]:
+    """(paper's common parameters, paper's lambda_s) for the done rows of one job."""
+    if rows.empty:
+        return False, False
+    for k, v in PAPER_COMMON.items():
+        if k in rows and rows[k].notna().any() and not np.allclose(rows[k].dropna().to_numpy(float), v, rtol=1e-6):
+            return False, False
+    ls = rows["lambda_s"].dropna().to_numpy(float) if "lambda_s" in rows else np.array([])
+    return True, bool(len(ls)) and bool(np.allclose(ls, PAPER_LAMBDA_S, rtol=1e-6))
+
+
+def paper_matches(df: pd.DataFrame, agg: pd.DataFrame, hagg: Mapping[tuple, Any],
+                  quick: set[str] = frozenset()) -> dict[str, dict[str, Any]]:
+    """Which of the paper's figures (docs/model.md M6) a job of the stores reproduces: ``{figure: {"job",
+    "quick"}}``. A job matches when it has the common parameters and the figure's H, rho and pressures with
+    GFMD data; it is "quick" when it is a smoke-test job or has another ``lambda_s`` (another ``zeta_s``)."""
+    found: dict[str, dict[str, Any]] = {}
+    for job in _jobs(df):
+        common, same_ls = _common_ok(_job_rows(df, job))
+        if not common:
+            continue
+        is_quick = job in quick or not same_ls
+        a = _job_rows(agg, job)
+        gf = a[(a["source"] == "gfmd") & (a["count"] > 0)] if len(a) else a
+        cand: list[str] = []
+        for name, (hurst, rhos) in PAPER_PRESSURE_SETS.items():
+            g = gf[_near(gf["hurst"], hurst)] if len(gf) else gf
+            if len(g) and all(g[_near(g["rho"], r)]["sigma0"].nunique() >= 3 for r in rhos):
+                cand.append(name)
+        for name, (rho, level) in PAPER_HURST_SETS.items():
+            g = gf[_near(gf["rho"], rho) & _near(gf["sigma0_reduced"], level, 0.02)] if len(gf) else gf
+            if len(g) and g["hurst"].nunique() >= 3:
+                cand.append(name)
+        hh, rr = PAPER_DIST_SET
+        mine = [k for k in hagg if str(k[-1]) == job and math.isclose(k[1], hh, rel_tol=1e-6)
+                and math.isclose(k[2], rr, rel_tol=1e-6)]
+        if any(k[0] == "gfmd" for k in mine) and any(k[0] in ("sde", "fokker_planck") for k in mine):
+            cand.append("fig6")
+        for name in cand:
+            old = found.get(name)
+            if old is None or (old["quick"] and not is_quick):
+                found[name] = {"job": job, "quick": is_quick}
+    return found
+
+
+def _panel_points(fig: Any) -> list[int]:
+    """Finite data points drawn in each panel (lines, markers, error bars, scatter): 0 means a blank panel."""
+    out = []
+    for ax in fig.axes:
+        k = 0
+        for ln in ax.get_lines():
+            y = np.asarray(ln.get_ydata(), dtype=float)
+            k += int(np.isfinite(y).sum())
+        for c in ax.collections:
+            off = np.asarray(c.get_offsets(), dtype=float)
+            if off.ndim == 2 and len(off) and not hasattr(c, "get_segments"):
+                k += int(np.isfinite(off).all(axis=1).sum())
+        if any(t.get_text() == "no data" for t in ax.texts):
+            k = 0
+        out.append(k)
+    return out
+
+
+def plan_figures(agg: pd.DataFrame, hagg: Mapping[tuple, Any], points: pd.DataFrame,
+                 matches: Mapping[str, Mapping[str, Any]], quick: set[str]) -> list[tuple[str, str, Any]]:
+    """Figures chosen from the stores' axes and methods: ``[(name, caption, make)]``, ``make()`` -> Figure.
+
+    The paper's figures (``fig2`` .. ``fig6``) for the jobs that match its parameter sets; for everything else,
+    per job: mean gap against pressure per H (a panel per rho with >= 3 pressures), mean gap against H per rho (a
+    panel per reduced pressure with >= 3 H values), gap distributions per (H, rho); and the agreement map. Only
+    data that exist get a figure or a panel, so no figure is blank."""
+    plan: list[tuple[str, str, Any]] = []
+    covered_p: set[tuple[str, float]] = set()
+    covered_h: set[tuple[str, float, float]] = set()
+    covered_d: set[tuple[str, float, float]] = set()
+
+    def note(a: pd.DataFrame, job: str, q: bool | None = None) -> str:
+        return figures.footer(a, quick=(job in quick) if q is None else q, extra=f"job {job}" if job else "")
+
+    for name, (hurst, rhos) in PAPER_PRESSURE_SETS.items():
+        if name in matches:
+            job, q = matches[name]["job"], matches[name]["quick"]
+            a = _job_rows(agg, job)
+            cap = dict(FIGURES)[name] + f" (the paper's set; job {job or '-'}{', quick' if q else ''})"
+            plan.append((name, cap, lambda a=a, h=hurst, r=rhos, job=job, q=q: figures.fig_mean_gap_pressure(
+                a, hurst=h, rhos=r, note=note(a[_near(a["hurst"], h)], job, q))))
+            covered_p.add((job, hurst))
+    for name, (rho, level) in PAPER_HURST_SETS.items():
+        if name in matches:
+            job, q = matches[name]["job"], matches[name]["quick"]
+            a = _job_rows(agg, job)
+            cap = dict(FIGURES)[name] + f" (the paper's set; job {job or '-'}{', quick' if q else ''})"
+            plan.append((name, cap, lambda a=a, r=rho, lv=level, job=job, q=q: figures.fig_mean_gap_hurst(
+                a, sigma0_reduced=lv, rho=r, note=note(a[_near(a["rho"], r)], job, q))))
+            covered_h.add((job, rho, level))
+    if "fig6" in matches:
+        job, q = matches["fig6"]["job"], matches["fig6"]["quick"]
+        hh, rr = PAPER_DIST_SET
+        sel = {k: v for k, v in hagg.items() if str(k[-1]) == job}
+        cap = dict(FIGURES)["fig6"] + f" (the paper's set; job {job or '-'}{', quick' if q else ''})"
+        plan.append(("fig6", cap, lambda sel=sel, q=q: figures.fig_gap_distribution(sel, hurst=hh, rho=rr, quick=q)))
+        covered_d.add((job, hh, rr))
+
+    generic: list[tuple[str, str, Any]] = []
+    for job in sorted(set(agg["job"].astype(str))) if len(agg) else []:
+        a = _job_rows(agg, job)
+        src = a[a["source"].isin(["gfmd", "theory:paper"]) & (a["count"] > 0)]
+        tag = _slug(job) if job else "store"
+        for hurst in sorted(set(src["hurst"])):
+            if (job, hurst) in covered_p:
+                continue
+            g = src[_near(src["hurst"], hurst)]
+            rhos = [r for r in sorted(set(g["rho"]), reverse=True) if g[_near(g["rho"], r)]["sigma0"].nunique() >= 3]
+            if rhos:
+                cap = (f"Mean gap against pressure, H = {hurst:g}, rho/L = {', '.join(f'{r:g}' for r in rhos)} "
+                       f"(job {job or '-'})")
+                generic.append((f"gap_vs_pressure_{tag}_H{_slug(float(hurst))}", cap,
+                                lambda a=a, h=hurst, r=rhos, job=job: figures.fig_mean_gap_pressure(
+                                    a, hurst=h, rhos=r, note=note(a[_near(a["hurst"], h)], job, f"job {job}"))))
+        for rho in sorted(set(src["rho"]), reverse=True):
+            g = src[_near(src["rho"], rho)]
+            levels = sorted({float(f"{x:.6g}") for x in g["sigma0_reduced"]})
+            levels = [lv for lv in levels if g[_near(g["sigma0_reduced"], lv, 1e-4)]["hurst"].nunique() >= 3
+                      and (job, rho, lv) not in covered_h]
+            if len(levels) > 4:
+                levels = [levels[i] for i in np.unique(np.linspace(0, len(levels) - 1, 4).round().astype(int))]
+            if levels:
+                cap = (f"Mean gap against the Hurst exponent, rho/L = {rho:g}, sigma0/(E* g_rms) = "
+                       f"{', '.join(f'{lv:g}' for lv in levels)} (job {job or '-'})")
+                generic.append((f"gap_vs_hurst_{tag}_rho{_slug(float(rho))}", cap,
+                                lambda a=a, r=rho, lv=levels, job=job: figures.fig_mean_gap_hurst(
+                                    a, sigma0_reduced=lv, rho=r, rtol=1e-4,
+                                    note=note(a[_near(a["rho"], r)], job, f"job {job}"))))
+    for job, hurst, rho in sorted({(str(k[-1]), k[1], k[2]) for k in hagg}):
+        if (job, hurst, rho) in covered_d:
+            continue
+        sel = {k: v for k, v in hagg.items() if str(k[-1]) == job}
+        tag = _slug(job) if job else "store"
+        cap = f"Gap distribution P(g), H = {hurst:g}, rho/L = {rho:g} (job {job or '-'})"
+        generic.append((f"gap_distribution_{tag}_H{_slug(float(hurst))}_rho{_slug(float(rho))}", cap,
+                        lambda sel=sel, h=hurst, r=rho, q=job in quick: figures.fig_gap_distribution(
+                            sel, hurst=h, rho=r, quick=q)))
+    plan += generic
+    if len(points) and (points["tier"] != "no GFMD data").any():
+        plan.append(("fig_agreement", dict(FIGURES)["fig_agreement"],
+                     lambda: figures.fig_agreement(points[points["tier"] != "no GFMD data"],
+                                                   note=figures.footer(agg, quick=bool(quick)))))
+    return plan
 
 
 def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
           prov: Sequence[Mapping[str, Any]] = (), *, title: str = "gapsweep report") -> Path:
     """Write the report and every figure and table into ``out_dir`` from a store frame and its histograms
-    (module docstring); returns the path of ``report.md``."""
+    (module docstring); returns the path of ``report.md``. ``figures.csv`` lists every figure with the number
+    of data points in its emptiest panel."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    if "job" not in df:
+        df = df.assign(job="")
     status = aggregate.status_counts(df)
     agg = aggregate.aggregate_mean_gap(df)
     cmp = compare.theory_vs_gfmd(agg)
     points, summary = compare.agreement_regions(cmp)
     hagg = aggregate.aggregate_histograms(df, hists)
-    # Calibrate C2 only where the store has SDE / FP runs to compare with (figure 6's points).
+    # Calibrate C2 only where the store has SDE / FP runs to compare with.
     where = sorted({(k[1], k[2], k[3], k[6]) for k in hagg if k[0] in ("sde", "fokker_planck")})
     calib, models = compare.calibrate_c2(hagg, keys=where) if where else (pd.DataFrame(), {})
     dist = compare.histogram_distances({**hagg, **models})
@@ -387,30 +591,43 @@ def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
                         ("histograms", _hist_long({**hagg, **models}))):
         frame.to_csv(out / f"{name}.csv", index=False)
 
-    figures.save(figures.fig_mean_gap_pressure(_prefer(agg, "fig2"), hurst=0.3), out, "fig2")
-    figures.save(figures.fig_mean_gap_pressure(_prefer(agg, "fig3"), hurst=0.8), out, "fig3")
-    figures.save(figures.fig_mean_gap_hurst(_prefer(agg, "fig4_5"), sigma0_reduced=0.01, rho=2e-3), out, "fig4")
-    figures.save(figures.fig_mean_gap_hurst(_prefer(agg, "fig4_5"), sigma0_reduced=0.1, rho=2e-3), out, "fig5")
-    figures.save(figures.fig_gap_distribution(_prefer_hist({**hagg, **models}, "fig6"), hurst=0.3, rho=2e-3), out,
-                 "fig6")
-    figures.save(figures.fig_agreement(points), out, "fig_agreement")
+    quick = quick_jobs(df, prov)
+    matches = paper_matches(df, agg, hagg, quick)
+    plan = plan_figures(agg, {**hagg, **models}, points, matches, quick)
+    omitted = plan[MAX_FIGURES:]
+    made: list[dict[str, Any]] = []
+    for name, cap, make in plan[:MAX_FIGURES]:
+        fig = make()
+        pts = _panel_points(fig)
+        if not pts or min(pts) == 0:
+            log.warning("figure %s has a panel without data: left out", name)
+            continue
+        figures.save(fig, out, name)
+        made.append({"figure": name, "caption": cap, "panels": len(pts), "min_points": min(pts)})
+    pd.DataFrame(made, columns=["figure", "caption", "panels", "min_points"]).to_csv(out / "figures.csv", index=False)
 
-    ver = verdicts(cmp, dist)
     md: list[str] = [f"# {title}", ""]
-    md += ["## Verdicts on the paper's claims (MODEL.md M6)", "",
-           f"Rules: the theory (paper's form) agrees with GFMD on a curve when every point with |g0| >= "
-           f"{compare.ILL_CONDITIONED:g} h_rms has |rel err| <= {AGREE * 100:g} %; trends from Spearman's rank "
-           f"correlation; the SDE matches GFMD when L1 <= {MATCH_L1:g}.", ""]
-    md.append(_md_table(pd.DataFrame(ver), ["claim", "verdict", "evidence"]))
+    if quick:
+        md += [f"> **Warning: quick job(s) {', '.join(sorted(quick))}.** Smoke tests on reduced grids (for example "
+               "zeta_s = 16 instead of 100): their numbers check that the pipeline runs and are not for "
+               "conclusions.", ""]
+    ver = _paper_verdicts(cmp, dist, matches) if matches else []
+    md += _verdict_section(ver, matches)
     md += ["## Tasks", "", "Rows per method and status. Failed, not converged, pending and invalid rows are counted "
            "here and in every table, never averaged in.", "", _md_table(status)]
     bad = df[df["status"].isin(["failed", "not_converged"])]
     if len(bad):
-        md += [f"{len(bad)} failed or unconverged tasks (first 20):", "",
-               _md_table(bad, ["task_id", "method", "status", "hurst", "rho", "sigma0", "seed", "n", "message"], 20)]
-    md += ["## Figures", ""]
-    for name, cap in FIGURES:
-        md += [f"### {cap}", "", f"![{name}]({name}.png)", "", f"[PDF]({name}.pdf)", ""]
+        cols = [c for c in ("task_id", "method", "status", "hurst", "rho", "sigma0", "seed", "n", "message")
+                if c in bad]
+        md += [f"{len(bad)} failed or unconverged tasks (first 20):", "", _md_table(bad, cols, 20)]
+    md += ["## Figures", "", SYMBOLS, ""]
+    if not made:
+        md += ["_No figure: the stores hold no finished GFMD, theory or histogram result yet._", ""]
+    for f in made:
+        md += [f"### {f['caption']}", "", f"![{f['figure']}]({f['figure']}.png)", "", f"[PDF]({f['figure']}.pdf)", ""]
+    if omitted:
+        md += [f"_{len(omitted)} more figures were not drawn (at most {MAX_FIGURES}): "
+               + ", ".join(n for n, _, _ in omitted) + "._", ""]
     md += ["## Theory against GFMD", "",
            "rel err = (theory - GFMD)/|GFMD|; red err = (theory - GFMD)/h_rms; uncertainties are standard errors over "
            "seeds (n/a with one seed). Full table: `theory_vs_gfmd.csv`.", ""]
@@ -441,12 +658,71 @@ def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
     path = out / "report.md"
     path.write_text(text)
     (out / "report.html").write_text(_md_to_html(text, title))
-    (out / "verdicts.md").write_text("# Verdicts on the paper's claims\n\n" + _md_table(
-        pd.DataFrame(ver), ["claim", "verdict", "evidence"]))
+    (out / "verdicts.md").write_text("\n".join(["# Verdicts on the paper's claims", "",
+                                                *_verdict_section(ver, matches)[2:]]) + "\n")
+    log.debug("report: %d figures into %s", len(made), out)
     return path
 
 
-def main(store_paths: Sequence[str | Path] | str | Path, out_dir: str | Path) -> Path:
-    """Build the report of one or more stores into ``out_dir`` (CLI: ``gapsweep report STORE... --out DIR``)."""
+def _paper_verdicts(cmp: pd.DataFrame, dist: pd.DataFrame, matches: Mapping[str, Mapping[str, Any]]
+                    ) -> list[dict[str, str]]:
+    """:func:`verdicts`, kept only for claims whose parameter set is in the stores; a claim resting on a quick
+    job says so in its verdict."""
+    out = []
+    for v, needs in zip(verdicts(cmp, dist), CLAIM_NEEDS):
+        have = [matches[n] for n in needs if n in matches]
+        if not have:
+            v = {**v, "verdict": "not evaluated", "evidence": "the stores do not hold this claim's parameter set "
+                 f"({' or '.join(needs)}, docs/model.md M6)"}
+        elif all(m["quick"] for m in have):
+            v = {**v, "verdict": f"{v['verdict']} (quick job: not a conclusion)"}
+        out.append(v)
+    return out
+
+
+def _verdict_section(ver: Sequence[Mapping[str, str]], matches: Mapping[str, Mapping[str, Any]]) -> list[str]:
+    if not matches:
+        return ["## The paper's claims", "",
+                "Not evaluated: no job in these stores holds one of the paper's parameter sets (docs/model.md M6: "
+                "L = 1, E* = 1, lambda_l/L = 0.25, gamma0/(E* L) = 1e-3 and the H, rho and pressures of its "
+                "figures). The figures and tables below describe this sweep on its own terms.", ""]
+    sets = ", ".join(f"{k} (job {v['job'] or '-'}{', quick' if v['quick'] else ''})"
+                     for k, v in sorted(matches.items()))
+    return ["## Verdicts on the paper's claims (docs/model.md M6)", "",
+            f"These verdicts concern the paper's parameter sets found in the stores: {sets}. Rules: the theory "
+            f"(paper's form) agrees with GFMD on a curve when every point with |g0| >= {compare.ILL_CONDITIONED:g} "
+            f"h_rms has |rel err| <= {AGREE * 100:g} %; trends from Spearman's rank correlation; the SDE matches GFMD "
+            f"when L1 <= {MATCH_L1:g}. A set from a quick job (reduced zeta_s or smoke-test grid) cannot confirm or "
+            "refute a claim.", "", _md_table(pd.DataFrame(ver), ["claim", "verdict", "evidence"])]
+
+
+def main(store_paths: Sequence[str | Path] | str | Path, out_dir: str | Path, *, overwrite: bool = True) -> Path:
+    """Build the report of one or more stores into ``out_dir`` (CLI: ``gapsweep report STORE... --out DIR``).
+
+    The report is written into a fresh sibling folder and moved into place at the end, so a failure leaves no
+    half-written report. An existing ``out_dir`` holding a report is replaced when ``overwrite`` (the CLI asks
+    for ``--overwrite``); a non-empty folder that holds no report is never replaced."""
+    import shutil
+    import tempfile
+
+    out = Path(out_dir)
+    if out.exists():
+        if not out.is_dir():
+            raise FileExistsError(f"report --out {out}: exists and is not a folder")
+        if any(out.iterdir()):
+            if not (out / "report.md").is_file():
+                raise FileExistsError(f"report --out {out}: a non-empty folder without a report; choose another")
+            if not overwrite:
+                raise FileExistsError(f"report --out {out}: a report exists there (pass --overwrite to replace it)")
     df, hists, prov = load(store_paths if not isinstance(store_paths, (str, Path)) else [store_paths])
-    return build(df, hists, out_dir, prov)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        build(df, hists, tmp, prov)
+        if out.exists():
+            shutil.rmtree(out)
+        os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out / "report.md"

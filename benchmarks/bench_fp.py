@@ -1,4 +1,4 @@
-"""Speed against error of the Fokker-Planck solver (MODEL.md M5): L1 error of the density against a much finer
+"""Speed against error of the Fokker-Planck solver (docs/model.md M5): L1 error of the density against a much finer
 solve (C2 = 0: the exact Gaussian), on the same 100 bins as benchmarks/bench_sde.py (the reference's 1e-5 ..
 1 - 1e-5 quantiles), as a function of zeta steps and grid resolution, with wall time.
 

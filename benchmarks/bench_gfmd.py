@@ -1,4 +1,5 @@
-"""GFMD benchmarks (issue 3). Each subcommand writes ``<name>.md`` (markdown table) and ``<name>.json`` to --out.
+"""GFMD benchmarks (docs/benchmarks_gfmd.md).
+Each subcommand writes ``<name>.md`` (markdown table) and ``<name>.json`` to --out.
 
     python benchmarks/bench_gfmd.py cost    --out OUT [--n 1024 2048] [--backend pyfftw numpy]
     python benchmarks/bench_gfmd.py targets --out OUT [--n 2048] [--tols 1e-6 1e-8] [--sigma0 1e-4 ... 1]
@@ -7,7 +8,7 @@
     python benchmarks/bench_gfmd.py gpu     --out OUT [--n 4096 8192] (cupy on an NVIDIA GPU)
     python benchmarks/bench_gfmd.py batch   --out OUT [--n 512 1024 2048] [--backend cupy] (solve_batch vs a loop)
 
-Cases are those of MODEL.md M6: L = 1, E* = 1, lambda_l = 0.25, lambda_s = 2.5e-3, gamma0 = 1e-3, g_rms = 1;
+Cases are those of docs/model.md M6: L = 1, E* = 1, lambda_l = 0.25, lambda_s = 2.5e-3, gamma0 = 1e-3, g_rms = 1;
 figure 2: H = 0.3, rho = 2e-3, 1e-3, 5e-4; figure 3: H = 0.8, rho = 5e-3, 2e-3, 1e-3; our pressure grid is
 sigma0 = 1e-4, 1e-3, 1e-2, 1e-1, 1 (the paper does not state its grid). Surfaces: seed 1, fixed amplitudes.
 """
@@ -190,7 +191,8 @@ def cmd_speed(a) -> None:
 
 # ---------------------------------------------------------------------------------------------------- peer
 def peer_solve(h: np.ndarray, *, sigma0: float, rho: float, tol: float, x0: np.ndarray, maxiter: int):
-    """ContactMechanics + Adhesion at fixed mean pressure (SETUP.md "Peers"): PeriodicFFTElasticHalfSpace with
+    """ContactMechanics + Adhesion at fixed mean pressure (docs/benchmarks_gfmd.md):
+    PeriodicFFTElasticHalfSpace with
     stiffness_q0 = 0, RepulsiveExponential(gamma0, rho, 0, 1), the load term sigma0 L^2 <u> added, scipy
     L-BFGS-B; stopped by the same rule as gapsweep (rms force imbalance and load error below tol)."""
     import scipy.optimize

@@ -1,4 +1,4 @@
-"""Speed against error of the gap SDE on the CPU (MODEL.md M5): histogram L1 error against a converged
+"""Speed against error of the gap SDE on the CPU (docs/model.md M5): histogram L1 error against a converged
 Fokker-Planck reference, as a function of step size, step sequence, scheme and realisation count.
 
     python benchmarks/bench_sde.py --out results/sde_cpu [--quick]

@@ -1,4 +1,4 @@
-"""GPU benchmark of the gap SDE (MODEL.md M5): 10^7 realisations, zeta 1 -> 100, dzeta = 0.01 (9,900 steps).
+"""GPU benchmark of the gap SDE (docs/model.md M5): 10^7 realisations, zeta 1 -> 100, dzeta = 0.01 (9,900 steps).
 
 Times are warm (the first call, which compiles the kernel, is excluded) and include everything a user call
 does: the host-side step plan, coefficient upload, the kernel, binning on the device and the copy of the counts.

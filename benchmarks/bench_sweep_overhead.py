@@ -1,4 +1,4 @@
-"""Per-task overhead of the sweep (issue 5 target: <= 5 ms per task for scheduling plus storing).
+"""Per-task overhead of the sweep (docs/benchmarks.md target: <= 5 ms per task for scheduling plus storing).
 
 Runs a job of N field-theory tasks (default 10^4) through ``gapsweep run`` and reports
 ``overhead = (wall time of the run - sum of the tasks' own wall times) / N``: everything the sweep adds per task

@@ -1,4 +1,5 @@
-"""Strong scaling of the MPI task farm on a GFMD sweep (issue 5 target: parallel efficiency >= 85 % at 16 ranks).
+"""Strong scaling of the MPI task farm on a GFMD sweep (docs/benchmarks.md target:
+parallel efficiency >= 85 % at 16 ranks).
 
 The job: GFMD at N = ``--n`` (default 1024) on H = 0.3 and 0.8, rho = 2e-3, 8 pressures 1e-4..1, ``--seeds``
 surfaces; independent tasks (no warm-start chains) unless ``--warm-start``. CPU only: the FFT backend is forced

@@ -1,10 +1,11 @@
-"""Grid-refinement and tolerance study of GFMD (issue 3): the same resolution-independent surface (MODEL.md M2,
+"""Grid-refinement and tolerance study of GFMD (docs/gfmd.md): the
+same resolution-independent surface (docs/model.md M2,
 seed fixed) solved on n = 1024 ... 8192, errors of the mean gap and of the gap histogram against the finest grid,
 and errors against tol on one grid.
 
     python benchmarks/refinement.py --out OUT [--n 1024 2048] [--backend auto|numpy|pyfftw|cupy]
 
-Cases: MODEL.md M6 (L = 1, E* = 1, lambda_l = 0.25, lambda_s = 2.5e-3, gamma0 = 1e-3, g_rms = 1), figure 2
+Cases: docs/model.md M6 (L = 1, E* = 1, lambda_l = 0.25, lambda_s = 2.5e-3, gamma0 = 1e-3, g_rms = 1), figure 2
 (H = 0.3, rho = 2e-3, 1e-3, 5e-4) and figure 3 (H = 0.8, rho = 5e-3, 2e-3, 1e-3) at sigma0 = 1e-4, 1e-2, 1.
 Writes refinement.json (every run: mean gap, iterations, histogram on fixed edges) and refinement.md; the
 constants of gapsweep.resolution are an envelope of these errors.

@@ -47,7 +47,7 @@ def nonnegative(x: float, name: str) -> float:
 
 
 def hurst(h: float, name: str = "hurst") -> float:
-    """Hurst exponent ``H`` in the open interval ``(0, 1)`` (MODEL.md M2) as a float."""
+    """Hurst exponent ``H`` in the open interval ``(0, 1)`` (docs/model.md M2) as a float."""
     v = real(h, name)
     if not 0.0 < v < 1.0:  # also false for NaN
         raise ValueError(f"{name} must lie in (0, 1), got {h!r}")
@@ -96,7 +96,7 @@ def positive_array(x: ArrayLike, name: str) -> np.ndarray:
 
 
 def square_heights(heights: ArrayLike, name: str = "heights") -> np.ndarray:
-    """Surface heights as a finite, real, square ``(n, n)`` float64 array with ``n >= 2`` (MODEL.md M2 grid)."""
+    """Surface heights as a finite, real, square ``(n, n)`` float64 array with ``n >= 2`` (docs/model.md M2 grid)."""
     h = finite_array(heights, name)
     if h.ndim != 2 or h.shape[0] != h.shape[1] or h.shape[0] < 2:
         raise ValueError(f"{name} must be a square 2-D array with n >= 2, got shape {h.shape}")

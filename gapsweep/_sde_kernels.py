@@ -1,4 +1,4 @@
-"""Warp kernels of the gap SDE (MODEL.md M5); the host side is :mod:`gapsweep.sde`.
+"""Warp kernels of the gap SDE (docs/model.md M5); the host side is :mod:`gapsweep.sde`.
 
 Scheme (one thread per realisation, state ``y = g - g0(zeta)``, the deviation from the field-theory mean gap):
 

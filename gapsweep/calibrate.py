@@ -1,4 +1,4 @@
-"""Calibrate the fudge factors ``C2`` (and optionally ``C1``) of MODEL.md M5 against a gap histogram.
+"""Calibrate the fudge factors ``C2`` (and optionally ``C1``) of docs/model.md M5 against a gap histogram.
 
 Forward model: :func:`gapsweep.fokker_planck.solve` (noise-free, tens of ms per evaluation), compared with the
 histogram by a distance between densities:

@@ -1,20 +1,47 @@
-"""Command-line interface (thin): ``gapsweep plan | run | status | merge | report | demo``.
+"""Command-line interface (thin): ``gapsweep plan | run | status | merge | report | export | demo``.
 
-Exit codes: 0 success, 1 a task-independent error (a run that cannot start, a store that cannot be merged),
-2 an invalid job spec or argument (nothing is written).
+Exit codes: 0 success, 1 a task-independent error (a run that cannot start, a store that cannot be merged, a
+missing optional dependency, an output that exists), 2 an invalid job spec or argument (nothing is written),
+141 the reader of standard output went away (``gapsweep ... | head``), as for any command killed by SIGPIPE.
+
+The library logs through ``logging.getLogger("gapsweep")``; :func:`main` attaches one stderr handler to it
+(``-v`` for debug messages, ``-q`` for warnings only) and prints the commands' own results on stdout.
 """
 
 from __future__ import annotations
 
 import argparse
+import logging
+import os
 import sys
 from pathlib import Path
 
+DESCRIPTION = """\
+gapsweep: mean gap and gap distribution between an elastic body and a rough surface, by GFMD, the field theory
+and SDE / Fokker-Planck ensembles, over whole parameter grids (docs/model.md; job specs: docs/jobs.md).
+
+  gapsweep demo                                   the paper's figure 2 and a gap distribution (minutes on 2 cores)
+  gapsweep plan JOB.toml                          validate a job spec, count its tasks, estimate the cost
+  gapsweep run JOB.toml --store OUT.h5            run it (under mpiexec: an MPI task farm)
+  gapsweep report OUT.h5 --out DIR                figures, tables and (for the paper's sets) verdicts
+  gapsweep export OUT.h5 --out OUT.nc             the store as netCDF4 (xarray, ncdump, ...)
+"""
+EPILOG = """\
+Open MPI as root needs OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1, and more ranks than cores
+OMPI_MCA_rmaps_base_oversubscribe=1 (docs/running.md). Exit codes: 0 ok, 1 error, 2 invalid spec or argument.
+"""
+
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="gapsweep", description=__doc__,
+    from gapsweep import __version__
+
+    p = argparse.ArgumentParser(prog="gapsweep", description=DESCRIPTION, epilog=EPILOG,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = p.add_subparsers(dest="command", required=True)
+    p.add_argument("--version", action="version", version=f"gapsweep {__version__}")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("-v", "--verbose", action="store_true", help="also log debug messages of the library")
+    g.add_argument("-q", "--quiet", action="store_true", help="log only warnings and errors")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     s = sub.add_parser("plan", help="validate a job spec, print its task count and cost estimate")
     s.add_argument("job", help="job spec (TOML), see docs/jobs.md")
@@ -37,30 +64,59 @@ def _parser() -> argparse.ArgumentParser:
                    help="auto: use MPI when started by an MPI launcher")
 
     s = sub.add_parser("status", help="summarise a running or finished store")
-    s.add_argument("store")
+    s.add_argument("store", help="HDF5 store written by `gapsweep run`")
 
     s = sub.add_parser("merge", help="merge shard stores of one job into one store")
-    s.add_argument("shards", nargs="+")
-    s.add_argument("--out", required=True)
-    s.add_argument("--overwrite", action="store_true")
+    s.add_argument("shards", nargs="+", help="shard stores of one job (same spec)")
+    s.add_argument("--out", required=True, help="merged store to write")
+    s.add_argument("--overwrite", action="store_true", help="replace an existing --out")
 
-    s = sub.add_parser("report", help="figures and tables from one or more stores (analysis package)")
-    s.add_argument("store", nargs="+")
-    s.add_argument("--out", default="out/report")
+    s = sub.add_parser("report", help="figures, tables and verdicts from one or more stores (analysis package)")
+    s.add_argument("store", nargs="+", help="HDF5 stores; figures are chosen from their axes and methods")
+    s.add_argument("--out", default="out/report", help="report folder (default: out/report)")
+    s.add_argument("--overwrite", action="store_true", help="replace a report already in --out")
 
-    s = sub.add_parser("demo", help="run jobs/demo.toml into out/demo.h5, print a summary and the fig-2 table")
+    s = sub.add_parser("export", help="write a store as a netCDF4 file that xarray and netCDF tools open")
+    s.add_argument("store", help="HDF5 store written by `gapsweep run`")
+    s.add_argument("--out", required=True, help="netCDF file to write (e.g. out/demo.nc)")
+    s.add_argument("--overwrite", action="store_true", help="replace an existing --out")
+
+    s = sub.add_parser("demo", help="run the shipped demo job: GFMD vs field theory (figure 2) and a gap distribution")
     s.add_argument("--out", default="out", help="output directory (default: out)")
-    s.add_argument("--job", default=None, help="job spec (default: the repository's jobs/demo.toml)")
-    s.add_argument("--theory-only", action="store_true", help="only the field-theory figure-2 table")
+    s.add_argument("--job", default=None, help="job spec (default: the demo.toml shipped with gapsweep)")
+    s.add_argument("--theory-only", action="store_true", help="only the field-theory figure-2 table and figure")
     return p
+
+
+def _setup_logging(verbose: bool, quiet: bool) -> None:
+    """One stderr handler on the "gapsweep" logger (the library only logs; applications configure)."""
+    log = logging.getLogger("gapsweep")
+    log.setLevel(logging.DEBUG if verbose else logging.WARNING if quiet else logging.INFO)
+    if not any(getattr(h, "_gapsweep_cli", False) for h in log.handlers):
+        h = logging.StreamHandler(sys.stderr)
+        h.setFormatter(logging.Formatter("gapsweep: %(message)s"))
+        h._gapsweep_cli = True  # type: ignore[attr-defined]
+        log.addHandler(h)
 
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    _setup_logging(args.verbose, args.quiet)
+    from gapsweep._extras import MissingExtraError
     from gapsweep.spec import SpecError
 
     try:
-        return _dispatch(args)
+        rc = _dispatch(args)
+        sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit
+        return rc
+    except BrokenPipeError:
+        # The reader (e.g. `| head`) is gone: no traceback, no "Broken pipe" at exit.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 141
+    except MissingExtraError as e:
+        print(f"gapsweep: {e}", file=sys.stderr)
+        return 1
     except SpecError as e:
         print(f"gapsweep: invalid job spec: {e}", file=sys.stderr)
         return 2
@@ -106,7 +162,12 @@ def _dispatch(args: argparse.Namespace) -> int:
         except ImportError:
             print("gapsweep report: the analysis package is not available", file=sys.stderr)
             return 1
-        print(f"report: {report_main(args.store, args.out)}")
+        print(f"report: {report_main(args.store, args.out, overwrite=args.overwrite)}")
+        return 0
+    if args.command == "export":
+        from gapsweep import dataset
+
+        print(f"netCDF4: {dataset.export_netcdf(args.store, args.out, overwrite=args.overwrite)}")
         return 0
     if args.command == "demo":
         return _demo(args)
@@ -114,32 +175,26 @@ def _dispatch(args: argparse.Namespace) -> int:
 
 
 def _demo(args: argparse.Namespace) -> int:
-    from gapsweep.demo import fig2_theory
+    from gapsweep import demo
 
     out = Path(args.out)
-    if not args.theory_only:
-        job = Path(args.job) if args.job else Path(__file__).resolve().parent.parent / "jobs" / "demo.toml"
-        if job.is_file():
-            from gapsweep import runner, store
+    if args.theory_only:
+        print(demo.fig2_theory(out))
+        print(f"figure: {out / 'fig2_theory.png'}")
+        return 0
+    from gapsweep import jobs
 
-            path = out / "demo.h5"
-            try:
-                runner.run(job, path, resume=True)
-            except runner.RunError:  # a demo store of an older demo spec: start again
-                runner.run(job, path, overwrite=True)
-            print(store.status(path))
-            df = store.read(path)
-            done = df[df.status == "done"]
-            if len(done):
-                print("\nmean gap / h_rms by method (done tasks, averaged over seeds):")
-                tab = (done.assign(g=done.mean_gap / done.h_rms)
-                       .groupby(["method", "hurst", "rho", "sigma0"]).g.mean().unstack("method"))
-                print(tab.to_string(float_format=lambda x: f"{x:.4f}"))
-            print(f"\nstore: {path}   (gapsweep status {path}; gapsweep.store.read('{path}'))\n")
-        else:
-            print(f"(no job spec at {job}: field-theory table only)")
-    print(fig2_theory(out))
-    print(f"figure: {out}/fig2_theory.png")
+    job = Path(args.job) if args.job else jobs.path("demo")
+    if not job.is_file():
+        raise FileNotFoundError(f"demo job spec {job}: no such file")
+    res = demo.run(job, out)
+    print(res["status"])
+    if res["table"]:
+        print("\nmean gap / h_rms by method (done tasks, averaged over seeds):")
+        print(res["table"])
+    print(f"\nstore: {res['store']}   (gapsweep status {res['store']}; gapsweep.store.read('{res['store']}'))")
+    for f in res["figures"]:
+        print(f"figure: {f}")
     return 0
 
 

@@ -1,4 +1,4 @@
-"""Real 2-D FFT backends for the GFMD solver (MODEL.md M3): pyFFTW, numpy and cupy (cuFFT).
+"""Real 2-D FFT backends for the GFMD solver (docs/model.md M3): pyFFTW, numpy and cupy (cuFFT).
 
 Every backend exposes the same two *unnormalised* transforms of a real ``n x n`` field, in the half-spectrum
 layout of ``numpy.fft.rfft2`` (shape ``(n, n // 2 + 1)``):
@@ -17,6 +17,7 @@ The thread count defaults to ``$GAPSWEEP_FFT_THREADS`` or 1 (sweeps run one rank
 
 from __future__ import annotations
 
+import logging
 import os
 import pickle
 import tempfile
@@ -25,6 +26,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from gapsweep._extras import require
+
+log = logging.getLogger(__name__)
 
 __all__ = ["BACKENDS", "FFTBackend", "available_backends", "cache_dir", "get_backend"]
 
@@ -88,7 +93,7 @@ class _CupyBackend(FFTBackend):
     name = "cupy"
 
     def __init__(self, n: int) -> None:
-        import cupy
+        cupy = require("cupy", 'the GPU FFT backend (backend="cupy")')
 
         self.n = n
         self.xp = cupy
@@ -160,8 +165,8 @@ def _load_wisdom(threads: int) -> None:
     try:
         with open(path, "rb") as f:
             pyfftw.import_wisdom(pickle.load(f))
-    except (OSError, pickle.PickleError, EOFError, TypeError, ValueError):
-        pass  # no or unreadable cache: plan from scratch, rewrite it afterwards
+    except (OSError, pickle.PickleError, EOFError, TypeError, ValueError) as e:
+        log.debug("no usable FFTW wisdom at %s (%s): planning from scratch", path, e)
 
 
 def _save_wisdom(threads: int) -> None:
@@ -175,15 +180,15 @@ def _save_wisdom(threads: int) -> None:
         with os.fdopen(fd, "wb") as f:
             pickle.dump(pyfftw.export_wisdom(), f)
         os.replace(tmp, path)
-    except OSError:
-        pass  # a read-only home only costs planning time
+    except OSError as e:
+        log.debug("FFTW wisdom not saved to %s (%s): only costs planning time", path, e)
 
 
 class _PyFFTWBackend(FFTBackend):
     name = "pyfftw"
 
     def __init__(self, n: int, threads: int, effort: str) -> None:
-        import pyfftw
+        pyfftw = require("pyfftw", 'the FFTW backend (backend="pyfftw")')
 
         self.n = n
         self.xp = np

@@ -1,4 +1,4 @@
-"""Deterministic solver of the gap Fokker-Planck equation (docs/model.md M5).
+"""Deterministic solver of the gap Fokker-Planck equation of docs/model.md M5.
 
 Equation (magnification ``zeta`` as time, gap ``g`` [length])::
 

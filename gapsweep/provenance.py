@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import logging
 import os
 import re
 import subprocess
@@ -13,6 +14,8 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["git_commit", "now", "store_attrs", "versions"]
+
+log = logging.getLogger(__name__)
 
 _PACKAGES = ("gapsweep", "numpy", "scipy", "h5py", "mpi4py", "pyfftw", "warp-lang", "numba", "pandas")
 
@@ -57,11 +60,13 @@ def git_commit() -> str:
                            text=True, timeout=10)
         sha = p.stdout.strip()
         if p.returncode != 0 or not re.fullmatch(r"[0-9a-f]{40}", sha):
+            log.debug("no git commit for %s (not a checkout): recorded as 'unknown'", root)
             return "unknown"
         dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
                                capture_output=True, text=True, timeout=10).stdout.strip()
         return sha + ("-dirty" if dirty else "")
-    except (OSError, subprocess.SubprocessError):
+    except (OSError, subprocess.SubprocessError) as e:
+        log.debug("git not usable (%s): commit recorded as 'unknown'", e)
         return "unknown"
 
 

@@ -1,4 +1,5 @@
-"""Grid size and tolerance for a GFMD run at a requested accuracy (issue 3 refinement study, MODEL.md M2, M3).
+"""Grid size and tolerance for a GFMD run at a requested accuracy (refinement study in
+docs/benchmarks_gfmd.md; docs/model.md M2, M3).
 
 The rule is an envelope of the refinement study ``benchmarks/refinement.py`` (same seed on n = 1024 ... 8192 on
 an H200, figure-2/3 cases of M6, sigma0 = 1e-4, 1e-2, 1; results in docs/benchmarks_gfmd.md) and was checked on

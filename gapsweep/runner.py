@@ -152,9 +152,12 @@ class Progress:
         self.mode = ("bar" if tty else "log") if mode == "auto" else mode
         self.bar = None
         if self.mode == "bar" and total:
-            from tqdm import tqdm
-
-            self.bar = tqdm(total=total, unit="task", dynamic_ncols=True, file=sys.stderr)
+            try:
+                from tqdm import tqdm
+            except ImportError:  # the `progress` extra is not installed: log lines instead of a bar
+                self.mode = "log"
+            else:
+                self.bar = tqdm(total=total, unit="task", dynamic_ncols=True, file=sys.stderr)
 
     def update(self, res: TaskResult) -> None:
         self.count[res.status] += 1
@@ -268,6 +271,7 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
 
     need_gpu = any(u.gpu for u in units)
     ctx = Context(rank=rank, gpu=_gpu_index(comm) if need_gpu else None)
+    ctx.fields_dir = _fields_dir(path)  # kept GFMD fields, if the spec asks (gapsweep.dataset)
     todo = set(todo_list)
     work = [k for k, u in enumerate(units) if any(i in todo for i in u.tasks)]
 
@@ -421,3 +425,9 @@ def _work(comm: Any, tasks: list[Task], units: list[Unit], todo: set[int], ctx: 
                 res = TaskResult(res.status, "", {})  # rank 0 only counts it
             comm.send((i, res), dest=0, tag=TAG_ROW)
         comm.send(None, dest=0, tag=TAG_READY)
+
+
+def _fields_dir(store: str | Path) -> Path:
+    from gapsweep.dataset import fields_dir
+
+    return fields_dir(store)

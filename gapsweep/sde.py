@@ -1,4 +1,4 @@
-"""Monte Carlo ensembles of the gap SDE of MODEL.md M5 with NVIDIA warp (one kernel for the GPU and the CPU).
+"""Monte Carlo ensembles of the gap SDE of docs/model.md M5 with NVIDIA warp (one kernel for the GPU and the CPU).
 
 The gap of one realisation obeys (Ito, magnification ``zeta`` as time, M5)::
 
@@ -24,15 +24,22 @@ warp's 1.42x, docs/benchmarks.md). ``GAPSWEEP_SDE_ENGINE=warp`` keeps warp on CU
 
 from __future__ import annotations
 
+import logging
 import math
+import os
+import sys
 import time
 from collections.abc import Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from gapsweep import _checks as chk
 from gapsweep import theory
+from gapsweep._extras import require
+
+log = logging.getLogger(__name__)
 
 __all__ = [
     "HistogramResult",
@@ -78,11 +85,45 @@ def _devices(device: str | Sequence[str]) -> list[str]:
     return out
 
 
-def _warp():
-    import warp as wp
+def _cuda_driver_present() -> bool:
+    """Whether the NVIDIA driver library can be loaded (warp looks for the same names)."""
+    import ctypes
 
+    names = ("nvcuda.dll",) if sys.platform == "win32" else ("libcuda.so", "libcuda.so.1")
+    for name in names:
+        try:
+            ctypes.CDLL(name)
+        except OSError:
+            continue
+        return True
+    return sys.platform == "darwin"  # no CUDA there; warp says nothing
+
+
+@contextmanager
+def _quiet_stderr():
+    """Silence file descriptor 2 (native code's fprintf) for the duration of the block."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
+            yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+def _warp():
+    """Import and initialise warp. Without an NVIDIA driver, warp's native "could not load the CUDA driver"
+    warning (printed on every CPU-only run) is silenced and logged at debug level instead."""
+    wp = require("warp", "the SDE ensembles (gapsweep.sde)")
     wp.config.log_level = max(wp.config.log_level, 30)  # no init banner (logging.WARNING)
-    wp.init()
+    if _cuda_driver_present():
+        wp.init()
+    else:
+        with _quiet_stderr():
+            wp.init()
+        log.debug("no NVIDIA driver found: warp runs on the CPU only")
     return wp
 
 

@@ -1,7 +1,7 @@
 """Job specifications: TOML files under ``jobs/`` describing a sweep (schema in ``docs/jobs.md``).
 
 A spec names the grid axes (``hurst``, ``rho``, ``sigma0``, ``seeds``), the fixed surface and material
-parameters (MODEL.md M1, M2, M6) and the methods to run at each grid point with their options. Everything is
+parameters (docs/model.md M1, M2, M6) and the methods to run at each grid point with their options. Everything is
 validated before anything runs: an unknown key, a wrong type or an out-of-range value raises
 :class:`SpecError` naming the dotted key and the allowed values.
 
@@ -198,7 +198,8 @@ _GRID_AXES = ("hurst", "rho", "sigma0", "seeds")
 _TOP = ("job", "grid", "surface", "material", "histogram", "methods")
 _METHOD_KEYS = {
     "theory": ("forms", "n", "h_rms", "extra", *_GRID_AXES),
-    "gfmd": ("n", "tol", "max_iter", "method", "backend", "warm_start", "order", "extra", *_GRID_AXES),
+    "gfmd": ("n", "tol", "max_iter", "method", "backend", "warm_start", "order", "extra", "keep_fields",
+             *_GRID_AXES),
     "sde": ("samples", "dzeta", "zeta_end", "c1", "c2", "dtype", "device", "h_rms", "extra", *_GRID_AXES),
     "fokker_planck": ("c1", "c2", "h_rms", "extra", *_GRID_AXES),
 }
@@ -225,7 +226,7 @@ def _n_list(key: str, v: Any, nyquist: int) -> list[int]:
     out = [_int(f"{key}[{i}]" if isinstance(v, list) else key, x, ge=8, le=65536) for i, x in enumerate(vals)]
     for x in out:
         if x < nyquist:
-            raise SpecError(f"{key}: n={x} cannot carry surface.lambda_s (Nyquist, MODEL.md M2): "
+            raise SpecError(f"{key}: n={x} cannot carry surface.lambda_s (Nyquist, docs/model.md M2): "
                             f"allowed n >= {nyquist}")
     if len(set(out)) != len(out):
         raise SpecError(f"{key}: values must be distinct, got {out}")
@@ -238,7 +239,7 @@ def _method(name: str, t: dict, nyquist: int, norm: str) -> dict[str, Any]:
     o: dict[str, Any] = {}
     if name != "gfmd":
         # Which h_rms feeds the theory/SDE/FP: the continuum value of the spectrum or the rms height of the
-        # discrete surface (seed-dependent only with gaussian amplitudes). MODEL.md M2, M4.
+        # discrete surface (seed-dependent only with gaussian amplitudes). docs/model.md M2, M4.
         o["h_rms"] = _str(f"{key}.h_rms", t.get("h_rms", "continuum"), ("continuum", "surface"))
         if o["h_rms"] == "continuum" and norm == "c0":
             raise SpecError(f"{key}.h_rms: 'continuum' needs surface.rms_slope or surface.rms_height; "
@@ -270,6 +271,8 @@ def _method(name: str, t: dict, nyquist: int, norm: str) -> dict[str, Any]:
         o["backend"] = _str(f"{key}.backend", t.get("backend", "auto"), ("auto", *FFT_BACKENDS))
         o["warm_start"] = _bool(f"{key}.warm_start", t.get("warm_start", True))
         o["order"] = _str(f"{key}.order", t.get("order", "decreasing"), ("decreasing", "increasing"))
+        if "keep_fields" in t:  # only when asked: the task ids of other specs stay as they were
+            o["keep_fields"] = _keep_fields(f"{key}.keep_fields", t["keep_fields"])
     elif name == "sde":
         o["samples"] = _int(f"{key}.samples", t.get("samples", 100000), ge=1, le=10**10)
         o["dzeta"] = _num(f"{key}.dzeta", t.get("dzeta", 0.01), gt=0.0, le=10.0)
@@ -282,6 +285,31 @@ def _method(name: str, t: dict, nyquist: int, norm: str) -> dict[str, Any]:
             o["c1"] = _num(f"{key}.c1", t["c1"], gt=0.0)
         o["c2"] = _num(f"{key}.c2", t.get("c2", 0.0), ge=0.0, le=10.0)
     return o
+
+
+def _keep_fields(key: str, v: Any) -> str:
+    """``keep_fields = {fields = [...], hurst = [...], rho = [...], sigma0 = [...], seeds = [...], n = [...]}``:
+    the GFMD fields to keep and which tasks keep them (a missing selector: every value). Returned as canonical
+    JSON (task options must be hashable). See docs/jobs.md and gapsweep.dataset."""
+    import json
+
+    from gapsweep.dataset import FIELD_NAMES
+
+    t = _table(key, v)
+    _known(key, t, ("fields", "hurst", "rho", "sigma0", "seeds", "n"))
+    fields = t.get("fields")
+    if not isinstance(fields, list) or not fields:
+        raise SpecError(f"{key}.fields: expected a non-empty list from {', '.join(FIELD_NAMES)}")
+    out: dict[str, Any] = {"fields": sorted({_str(f"{key}.fields[{i}]", f, FIELD_NAMES) for i, f in enumerate(fields)})}
+    for sel in ("hurst", "rho", "sigma0"):
+        if sel in t:
+            vals = t[sel] if isinstance(t[sel], list) else [t[sel]]
+            out[sel] = [_num(f"{key}.{sel}[{i}]", x, gt=0.0) for i, x in enumerate(vals)]
+    for sel in ("seeds", "n"):
+        if sel in t:
+            vals = t[sel] if isinstance(t[sel], list) else [t[sel]]
+            out[sel] = [_int(f"{key}.{sel}[{i}]", x, ge=0) for i, x in enumerate(vals)]
+    return json.dumps(out, sort_keys=True)
 
 
 def loads(text: str) -> JobSpec:

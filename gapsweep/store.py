@@ -11,7 +11,7 @@ written independently, in any order, by any rank; under ``driver="mpio"`` the cr
 * file attributes: format, spec text and hash, job name, shard, provenance (versions, git commit), runs.
 
 The default (earliest) HDF5 file format is used on purpose: it has no "file open for write" superblock flag,
-so a file whose writer was killed with ``kill -9`` stays readable without ``h5clear`` (SETUP.md). Each row is
+so a file whose writer was killed with ``kill -9`` stays readable without ``h5clear`` (docs/store.md). Each row is
 flushed as it is written (serial writer); under ``mpio`` raw data goes straight to MPI-IO (no sieve buffer),
 and all metadata is written and flushed at creation.
 """
@@ -383,3 +383,44 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
         st.close()
     os.replace(tmp, outp)
     return {name: int(np.sum(results["status"] == code)) for name, code in STATUS.items()}
+
+
+# ---------------------------------------------------------------------------------------------------------
+# standard data views (gapsweep.dataset): xarray, netCDF4, a tolerant diff, kept fields
+
+__all__ += ["export_netcdf", "open_fields", "to_dataset"]
+_exact_diff = diff
+
+
+def diff(a: str | Path, b: str | Path, *, rtol: float = 0.0, atol: float = 0.0,
+         ignore: Sequence[str] = VOLATILE) -> list[str]:
+    """Differences in content between two stores (empty list: equal). With ``rtol = atol = 0`` (default) bit
+    for bit, as before; otherwise float results and histograms may differ by ``atol + rtol |b|`` (e.g. a merge of
+    shards that summed in another order), see :func:`gapsweep.dataset.diff`."""
+    if rtol == 0 and atol == 0:
+        return _exact_diff(a, b, ignore=ignore)
+    from gapsweep import dataset
+
+    return dataset.diff(a, b, rtol=rtol, atol=atol, ignore=ignore)
+
+
+def to_dataset(path: str | Path, *, n: int | None = None, c2: float | None = None):
+    """The store at ``path`` as an ``xarray.Dataset`` (CF attributes, provenance), see
+    :func:`gapsweep.dataset.to_dataset`."""
+    from gapsweep import dataset
+
+    return dataset.to_dataset(path, n=n, c2=c2)
+
+
+def export_netcdf(path: str | Path, out: str | Path, *, overwrite: bool = False) -> Path:
+    """Write the store as netCDF4 (``gapsweep export``): :func:`gapsweep.dataset.export_netcdf`."""
+    from gapsweep import dataset
+
+    return dataset.export_netcdf(path, out, overwrite=overwrite)
+
+
+def open_fields(path: str | Path, task_ids: Iterable[str] | None = None) -> dict:
+    """Kept fields of chosen GFMD tasks as xarray Datasets: :func:`gapsweep.dataset.open_fields`."""
+    from gapsweep import dataset
+
+    return dataset.open_fields(path, task_ids)

@@ -1,4 +1,4 @@
-"""Self-affine random-phase rough surfaces (MODEL.md M2).
+"""Self-affine random-phase rough surfaces (docs/model.md M2).
 
 A surface is ``h(r) = sum_q h~(q) exp(i q.r)`` on a periodic ``n x n`` grid of side ``length`` (M1), with
 ``q = 2 pi (kx, ky) / length`` and the isotropic power spectrum

@@ -25,6 +25,7 @@ import warnings
 from collections import OrderedDict
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -278,6 +279,7 @@ class Context:
     def __init__(self, rank: int = 0, gpu: int | None = None, max_surfaces: int = 4) -> None:
         self.rank = rank
         self.gpu = gpu
+        self.fields_dir: Path | None = None  # where GFMD tasks keep their fields (set by the runner)
         self._surfaces: OrderedDict[tuple, np.ndarray] = OrderedDict()
         self._rms: dict[tuple, tuple[float, float]] = {}  # (h_rms, g_rms) of the cached surfaces
         self._max = max_surfaces
@@ -371,13 +373,33 @@ def _run_theory(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
     return TaskResult("done", "", v), None
 
 
+def _keep_fields(t: Task, ctx: Context, res: Any, h: np.ndarray, gap: np.ndarray, length: float) -> None:
+    """Write the fields this task keeps (``[methods.gfmd] keep_fields``) beside the store (gapsweep.dataset)."""
+    from gapsweep import dataset
+
+    want = dataset.field_selected(json.loads(t.opt("keep_fields")), hurst=t.hurst, rho=t.rho, sigma0=t.sigma0,
+                                  seed=t.seed, n=t.n)
+    if not want:
+        return
+    g0 = float(res.mean_gap)
+    arrays = {"gap": gap, "height": np.asarray(h, dtype=float)}
+    arrays["displacement"] = gap - g0 + arrays["height"]  # g = g0 + u - h (docs/model.md M3)
+    arrays["pressure"] = np.asarray(getattr(res, "pressure", None) if getattr(res, "pressure", None) is not None
+                                    else t.opt("gamma0") / t.rho * np.exp(-gap / t.rho), dtype=float)
+    attrs = {"method": t.method, "hurst": t.hurst, "rho": t.rho, "sigma0": t.sigma0, "seed": t.seed, "n": t.n,
+             "gamma0": t.opt("gamma0"), "e_star": t.opt("e_star"), "mean_gap": g0, "residual": float(res.residual)}
+    dataset.write_fields(ctx.fields_dir, t.task_id, {k: arrays[k] for k in want}, length=length, attrs=attrs)
+
+
 def _run_gfmd(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
     from gapsweep import gfmd
 
     h = ctx.surface(t, t.n)
     sp = t.surface_params()
     if t.opt("backend") == "cupy":
-        import cupy
+        from gapsweep._extras import require
+
+        cupy = require("cupy", 'GFMD on the GPU (backend = "cupy")')
 
         cupy.cuda.Device(ctx.gpu or 0).use()  # this rank's GPU (one GPU per rank on a node)
     res = gfmd.solve(h, sigma0=t.sigma0, gamma0=t.opt("gamma0"), rho=t.rho, e_star=t.opt("e_star"),
@@ -385,6 +407,8 @@ def _run_gfmd(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
                      max_iter=t.opt("max_iter"), initial=prev if t.opt("warm_start") else None, **_extra(t))
     gap = np.asarray(res.gap, dtype=float)
     h_rms, g_rms = ctx.surface_rms(t, t.n)
+    if t.opt("keep_fields") and getattr(ctx, "fields_dir", None) is not None:
+        _keep_fields(t, ctx, res, h, gap, sp["length"])
     v = {"mean_gap": float(res.mean_gap), "h_rms": h_rms, "g_rms": g_rms,
          "residual": float(res.residual), "load_error": float(getattr(res, "load_error", math.nan)),
          "iterations": int(res.iterations), "gap_std": float(np.std(gap)), "gap_min": float(np.min(gap)),

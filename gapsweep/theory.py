@@ -1,6 +1,6 @@
-"""Field theory of the mean gap (MODEL.md M4) and the magnification coefficients of the gap distribution (M5).
+"""Field theory of the mean gap (docs/model.md M4) and the magnification coefficients of the gap distribution (M5).
 
-All lengths and pressures are in absolute model units (MODEL.md M1: box side ``L``, modulus ``E* = e_star``).
+All lengths and pressures are in absolute model units (docs/model.md M1: box side ``L``, modulus ``E* = e_star``).
 Every public function validates its inputs and raises ``ValueError`` naming the argument and its allowed range;
 for valid (finite) inputs the results are finite -- no silent NaN.
 
@@ -61,7 +61,7 @@ _BLOCK = 16384
 def _zeta_array(zeta: ArrayLike, name: str = "zeta") -> np.ndarray:
     z = chk.finite_array(zeta, name)
     if np.any(z < 1.0):
-        raise ValueError(f"{name} must be >= 1 (magnification zeta = q/q_l, MODEL.md M2) and finite")
+        raise ValueError(f"{name} must be >= 1 (magnification zeta = q/q_l, docs/model.md M2) and finite")
     return z
 
 
@@ -203,7 +203,7 @@ def mean_gap(
     zeta: ArrayLike | None = None,
     form: str = "paper",
 ) -> float | np.ndarray:
-    """Field-theory mean gap ``g0(sigma0)`` [length] (MODEL.md M4, paper Eq. mean-gap-field).
+    """Field-theory mean gap ``g0(sigma0)`` [length] (docs/model.md M4, paper Eq. mean-gap-field).
 
     ``g0 = rho ln(gamma0/(rho sigma0)) + (P/rho) int_1^zeta (eta z/(1+eta z))^2 z^(-2H-1) dz``, with
     ``eta = rho q_l E*/(2 sigma0)`` and prefactor ``P = H h_rms^2`` (``form="paper"``, default, the paper's

@@ -1,4 +1,4 @@
-"""Tests of the analysis package (issue 6) on synthetic store frames, and end to end on a quick job."""
+"""Tests of the analysis package (docs/analysis.md) on synthetic store frames, and end to end on a quick job."""
 
 from __future__ import annotations
 
@@ -278,11 +278,16 @@ def test_report_build_writes_every_figure_and_counts_failures(tmp_path):
     df, hists = _synthetic()
     path = report.build(df, hists, tmp_path)
     text = path.read_text()
+    # The synthetic store holds every parameter set of the paper: every paper figure, each panel with data.
+    figs = pd.read_csv(tmp_path / "figures.csv").set_index("figure")
+    assert set(figs.index) == {name for name, _ in report.FIGURES}
+    assert (figs["min_points"] > 0).all(), figs
     for name, _ in report.FIGURES:
         for ext in ("png", "pdf"):
             f = tmp_path / f"{name}.{ext}"
             assert f.is_file() and f.stat().st_size > 1000, f
         assert f"({name}.png)" in text
+    assert "## Verdicts on the paper's claims" in text and "(quick job: not a conclusion)" not in text
     for csv in ("status", "mean_gap", "theory_vs_gfmd", "agreement_summary", "hist_distances", "histograms"):
         assert (tmp_path / f"{csv}.csv").stat().st_size > 0
     st = pd.read_csv(tmp_path / "status.csv").set_index("method")
@@ -336,9 +341,18 @@ def test_quick_jobs_end_to_end(tmp_path):
     out = tmp_path / "report"
     path = report.main(stores, out)
     text = path.read_text()
-    for name, _ in report.FIGURES:
+    figs = pd.read_csv(out / "figures.csv")
+    assert (figs["min_points"] > 0).all(), figs
+    for name in figs["figure"]:
         assert (out / f"{name}.png").stat().st_size > 1000
         assert (out / f"{name}.pdf").stat().st_size > 1000
+    # The quick jobs hold the paper's H, rho and pressures at zeta_s = 16: the paper's figures are drawn, and
+    # every verdict is either "not evaluated" or labelled as coming from a quick job, under a warning.
+    assert {"fig2", "fig3", "fig4", "fig5", "fig6"} <= set(figs["figure"]), figs
+    assert "Warning: quick job(s)" in text
+    verdicts = (out / "verdicts.md").read_text()
+    rows = [r for r in verdicts.splitlines() if r.startswith("| ") and not r.startswith(("| claim", "| ---"))]
+    assert rows and all("(quick job: not a conclusion)" in r or "| not evaluated |" in r for r in rows), rows
     assert "## Provenance" in text and str(stores[0]) in text
     agg = pd.read_csv(out / "mean_gap.csv")
     assert (agg["source"] == "gfmd").any() and (agg["source"] == "theory:paper").any()

@@ -1,4 +1,4 @@
-"""Tests of gapsweep.calibrate (MODEL.md M5): recover a known C2 (and C1) from synthetic histograms."""
+"""Tests of gapsweep.calibrate (docs/model.md M5): recover a known C2 (and C1) from synthetic histograms."""
 
 import math
 

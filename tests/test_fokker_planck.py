@@ -1,4 +1,4 @@
-"""Tests of gapsweep.fokker_planck (MODEL.md M5, M7): exact Gaussian for C2 = 0, positivity and mass,
+"""Tests of gapsweep.fokker_planck (docs/model.md M5, M7): exact Gaussian for C2 = 0, positivity and mass,
 convergence in steps and grid, extreme pressures, bad input."""
 
 import math

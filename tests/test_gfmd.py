@@ -1,4 +1,4 @@
-"""Tests of the GFMD solver (MODEL.md M3, M4 limits, M7 hard cases); all CPU, small grids."""
+"""Tests of the GFMD solver (docs/model.md M3, M4 limits, M7 hard cases); all CPU, small grids."""
 
 from __future__ import annotations
 

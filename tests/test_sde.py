@@ -1,4 +1,4 @@
-"""Tests of gapsweep.sde (MODEL.md M5, M7): exact Gaussian for C2 = 0, agreement with the Fokker-Planck
+"""Tests of gapsweep.sde (docs/model.md M5, M7): exact Gaussian for C2 = 0, agreement with the Fokker-Planck
 solver, counter-based seeds, the stiff case, extreme pressures and bad input. CPU warp, small ensembles."""
 
 import math
@@ -9,7 +9,7 @@ from scipy import stats
 
 from gapsweep import fokker_planck, sde, theory
 
-# MODEL.md M6 common parameters, g_rms = 1 at H = 0.3 (h_rms from the continuum spectrum, M2)
+# docs/model.md M6 common parameters, g_rms = 1 at H = 0.3 (h_rms from the continuum spectrum, M2)
 P = dict(hurst=0.3, h_rms=2.34e-3, gamma0=1e-3, lambda_l=0.25, lambda_s=2.5e-3)
 STIFF = dict(P, rho=5e-4)
 

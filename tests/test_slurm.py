@@ -1,4 +1,5 @@
-"""The Slurm scripts on a real single-node Slurm cluster (SETUP.md recipe: slurmctld + slurmd + munge, brought up
+"""The Slurm scripts on a real single-node Slurm cluster (recipe in docs/running.md:
+slurmctld + slurmd + munge, brought up
 here in a temporary directory; skipped unless slurmctld/slurmd/munged are installed and we are root): a 3-shard
 array job plus the merge job chained with --dependency=afterok equals a single-run store; so does an MPI job."""
 

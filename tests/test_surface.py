@@ -1,4 +1,4 @@
-"""Tests of gapsweep.surface against the definitions of MODEL.md M2."""
+"""Tests of gapsweep.surface against the definitions of docs/model.md M2."""
 
 import math
 
@@ -7,7 +7,7 @@ import pytest
 
 from gapsweep import surface
 
-PAPER = {"lambda_l": 0.25, "lambda_s": 2.5e-3}  # MODEL.md M6: zeta_s = 100
+PAPER = {"lambda_l": 0.25, "lambda_s": 2.5e-3}  # docs/model.md M6: zeta_s = 100
 SMALL = {"lambda_l": 0.25, "lambda_s": 1 / 40}  # carried by n >= 81
 
 

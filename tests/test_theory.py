@@ -1,4 +1,4 @@
-"""Tests of gapsweep.theory (MODEL.md M4, M5) against mpmath, asymptotic expansions and independent methods."""
+"""Tests of gapsweep.theory (docs/model.md M4, M5) against mpmath, asymptotic expansions and independent methods."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 
 from gapsweep import theory as th
 
-# Figure-2 parameters (MODEL.md M6) used as the default physical setting.
+# Figure-2 parameters (docs/model.md M6) used as the default physical setting.
 P = dict(hurst=0.3, h_rms=0.02, rho=2e-3, gamma0=1e-3, lambda_l=0.25, lambda_s=2.5e-3)
 Q_L = 2 * math.pi / P["lambda_l"]
 
@@ -70,7 +70,7 @@ def test_mpmath_references_agree(eta):
 
 
 def test_mean_gap_against_mpmath_extreme_pressures():
-    # sigma0 from 1e-7 to 10 (MODEL.md M7) at figure-2 parameters, both forms.
+    # sigma0 from 1e-7 to 10 (docs/model.md M7) at figure-2 parameters, both forms.
     sigma0 = np.logspace(-7, 1, 9)
     zeta_s = P["lambda_l"] / P["lambda_s"]
     for form in ("paper", "continuum"):
@@ -153,7 +153,7 @@ def test_continuum_over_paper_ratio():
     r = (th.mean_gap(sigma0, **P, form="continuum") - flat) / (th.mean_gap(sigma0, **P) - flat)
     expected = 1 / (1 - 100 ** (-0.6))
     np.testing.assert_allclose(r, expected, rtol=1e-12)
-    assert expected == pytest.approx(1.0673, abs=1e-4)  # the "6 % apart" of MODEL.md M4
+    assert expected == pytest.approx(1.0673, abs=1e-4)  # the "6 % apart" of docs/model.md M4
 
 
 # ----------------------------------------------------------------------------------------------------------

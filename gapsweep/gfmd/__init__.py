@@ -1,4 +1,4 @@
-"""Green's function molecular dynamics (GFMD) at fixed mean pressure (MODEL.md M3).
+"""Green's function molecular dynamics (GFMD) at fixed mean pressure (docs/model.md M3).
 
 Interaction laws (``interaction=`` of :func:`solve`, one file each in :mod:`gapsweep.gfmd.interactions`, interface
 in :mod:`gapsweep.gfmd.interactions.base`, equations and units in docs/gfmd.md): "exponential" (the default,
@@ -22,7 +22,7 @@ construction. The mean gap follows exactly from the log-sum-exp
 
 the gap is ``g = g0 + u - h`` and ``p = (gamma0/rho) exp(-g/rho)`` is the same field as the softmax.
 
-Convergence (issue 3): ``residual = rms(p_el - (p - <p>)) / sigma0`` and ``load_error = |<p> - sigma0|/sigma0``;
+Convergence (docs/gfmd.md): ``residual = rms(p_el - (p - <p>)) / sigma0`` and ``load_error = |<p> - sigma0|/sigma0``;
 ``converged`` iff both are ``<= tol``. The residual is evaluated in Fourier space by Parseval, at no extra FFT.
 
 Methods, one algorithm for every backend (numpy, pyFFTW, cupy); the unknowns are the Fourier modes ``u~(q)``:

@@ -1,4 +1,4 @@
-"""GPU kernels of the GFMD solver (MODEL.md M3): :class:`_CupyOps`, one fused CUDA pass per operation. The
+"""GPU kernels of the GFMD solver (docs/model.md M3): :class:`_CupyOps`, one fused CUDA pass per operation. The
 CUDA C source lives in ``kernels.cu`` next to this module (package data), compiled by NVRTC on first use."""
 
 from __future__ import annotations

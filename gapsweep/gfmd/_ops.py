@@ -1,4 +1,4 @@
-"""Array operations of the GFMD solver (MODEL.md M3): the backend-neutral :class:`_Ops` (numpy or cupy
+"""Array operations of the GFMD solver (docs/model.md M3): the backend-neutral :class:`_Ops` (numpy or cupy
 namespace) and its fused numba CPU variant :class:`_NumbaOps`."""
 
 from __future__ import annotations
@@ -96,7 +96,9 @@ def _numba_kernels() -> Any:
     global _NUMBA
     if _NUMBA is not None:
         return _NUMBA
-    import numba
+    from gapsweep._extras import require
+
+    numba = require("numba", "the fused CPU kernels of GFMD")
 
     jit = numba.njit(cache=True, fastmath=False, nogil=True)
 

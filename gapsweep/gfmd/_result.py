@@ -1,4 +1,4 @@
-"""Result record of a GFMD run (MODEL.md M3, M5)."""
+"""Result record of a GFMD run (docs/model.md M3, M5)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Minimisers of the reduced GFMD energy (MODEL.md M3): the shared state :class:`_Problem` with its
+"""Minimisers of the reduced GFMD energy (docs/model.md M3): the shared state :class:`_Problem` with its
 FFT-free line search, and the "cg", "lbfgs" and "fire" loops."""
 
 from __future__ import annotations
@@ -68,7 +68,7 @@ class _Problem:
                                   self.G)
 
     def residual(self) -> float:
-        """rms force imbalance over sigma0 (issue 3), by Parseval."""
+        """rms force imbalance over sigma0 (docs/gfmd.md, convergence), by Parseval."""
         return math.sqrt(max(self.r2, 0.0)) / self.sigma0
 
     def line_search(self, D, phi0p: float, a: float, b: float, eta: float, alpha0: float | None = None,

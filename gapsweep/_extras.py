@@ -1,0 +1,60 @@
+"""Optional dependencies: import one, or fail with an error that names the extra to install.
+
+The core install (numpy, scipy, h5py, pandas, matplotlib) computes the field theory, runs GFMD with numpy's FFT,
+runs sweeps in one process and writes reports. Everything else is an extra of ``pip install gapsweep[...]``:
+
+| extra | packages | brings |
+| --- | --- | --- |
+| ``fast`` | pyFFTW, numba | faster CPU FFTs and fused GFMD kernels |
+| ``sde`` | warp-lang | the SDE ensembles (CPU and GPU) |
+| ``gpu`` | cupy | GFMD on an NVIDIA GPU (``backend="cupy"``) |
+| ``mpi`` | mpi4py | MPI task farms (``mpiexec -n P gapsweep run``) |
+| ``xarray`` | xarray, netCDF4 | ``gapsweep.store.to_dataset``, ``gapsweep export``, kept fields |
+| ``topography`` | SurfaceTopography | Gaussian-amplitude surfaces by a peer code (benchmarks) |
+| ``progress`` | tqdm | a progress bar on a terminal (log lines otherwise) |
+"""
+
+from __future__ import annotations
+
+import importlib
+from types import ModuleType
+
+__all__ = ["EXTRAS", "MissingExtraError", "has", "require"]
+
+# import name -> (distribution on PyPI, extra that brings it)
+EXTRAS: dict[str, tuple[str, str]] = {
+    "pyfftw": ("pyFFTW", "fast"),
+    "numba": ("numba", "fast"),
+    "warp": ("warp-lang", "sde"),
+    "cupy": ("cupy-cuda12x", "gpu"),
+    "cupyx": ("cupy-cuda12x", "gpu"),
+    "mpi4py": ("mpi4py", "mpi"),
+    "xarray": ("xarray", "xarray"),
+    "netCDF4": ("netCDF4", "xarray"),
+    "SurfaceTopography": ("SurfaceTopography", "topography"),
+    "tqdm": ("tqdm", "progress"),
+}
+
+
+class MissingExtraError(ImportError):
+    """An optional dependency is missing; the message names the extra that installs it."""
+
+
+def has(module: str) -> bool:
+    """Whether ``module`` can be imported (without raising)."""
+    try:
+        importlib.import_module(module)
+    except ImportError:
+        return False
+    return True
+
+
+def require(module: str, feature: str) -> ModuleType:
+    """Import ``module`` or raise :class:`MissingExtraError` saying which ``feature`` needs which extra."""
+    try:
+        return importlib.import_module(module)
+    except ImportError as e:
+        dist, extra = EXTRAS.get(module.split(".")[0], (module, "all"))
+        raise MissingExtraError(
+            f"{feature} needs the optional package {dist!r}, which is not installed ({e}); "
+            f"install it with: pip install 'gapsweep[{extra}]'") from e

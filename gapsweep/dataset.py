@@ -1,0 +1,377 @@
+"""Standard data views of a store: an ``xarray.Dataset``, a netCDF4 export, a tolerant diff, kept fields.
+
+* :func:`to_dataset` opens a store by path as an ``xarray.Dataset`` with dims ``hurst``, ``rho``, ``sigma0`` and
+  ``seed``. Seed-dependent results (GFMD, the discrete theory, SDE ensembles over several seeds) carry the
+  ``seed`` dimension; seed-independent ones (the paper's and the continuum theory, a Fokker-Planck density)
+  have no ``seed`` dimension, so that ``ds.gfmd_mean_gap - ds.theory_paper`` broadcasts over every seed.
+  Every variable has CF-style ``units`` (UDUNITS strings: model quantities are dimensionless, ``"1"``, with the
+  model unit they are measured in under ``reference_unit``, docs/model.md M1) and a ``long_name``; the status
+  variables are CF flags (``flag_values``, ``flag_meanings``); the file attributes carry the provenance
+  (job, spec hash, versions, git commit).
+* :func:`export_netcdf` writes that dataset as a netCDF4 file (xarray, ``ncdump``, netCDF4-python open it).
+* :func:`diff` compares two stores with a tolerance (``rtol``, ``atol``) on the float results and histograms.
+* Kept fields: a job spec may ask GFMD to keep the full fields of chosen tasks (``[methods.gfmd] keep_fields``,
+  docs/jobs.md). Each is written, atomically, to ``<store>.fields/<task_id>.nc``: a netCDF4 file with the
+  variables ``gap``, ``pressure``, ``displacement``, ``height`` on ``(x, y)``, chunked and compressed;
+  :func:`open_fields` reads them back with xarray.
+
+xarray and h5netcdf are the ``xarray`` extra (``pip install 'gapsweep[xarray]'``); writing kept fields needs
+only h5py.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gapsweep._extras import require
+
+__all__ = [
+    "FIELD_NAMES",
+    "diff",
+    "export_netcdf",
+    "field_selected",
+    "fields_dir",
+    "from_frame",
+    "open_fields",
+    "to_dataset",
+    "write_fields",
+]
+
+DIMS = ("hurst", "rho", "sigma0", "seed")
+COORD_META = {
+    "hurst": {"long_name": "Hurst exponent H of the surface spectrum", "units": "1"},
+    "rho": {"long_name": "range rho of the exponential repulsion", "units": "1", "reference_unit": "L"},
+    "sigma0": {"long_name": "applied mean pressure sigma0", "units": "1", "reference_unit": "E*"},
+    "seed": {"long_name": "seed of the random surface (and of the SDE noise)", "units": "1"},
+}
+_LEN = {"units": "1", "reference_unit": "L"}
+# store column -> (variable, long_name, unit attributes); one table per method.
+VARIABLES: dict[str, dict[str, tuple[str, str, dict[str, str]]]] = {
+    "gfmd": {
+        "mean_gap": ("gfmd_mean_gap", "mean gap g0 by GFMD", _LEN),
+        "h_rms": ("gfmd_h_rms", "rms height of the simulated surface", _LEN),
+        "g_rms": ("gfmd_g_rms", "rms gradient of the simulated surface", {"units": "1"}),
+        "residual": ("gfmd_residual", "GFMD residual rms(p_el - (p - <p>))/sigma0", {"units": "1"}),
+        "load_error": ("gfmd_load_error", "GFMD load error |<p> - sigma0|/sigma0", {"units": "1"}),
+        "iterations": ("gfmd_iterations", "GFMD iterations (force evaluations)", {"units": "1"}),
+        "gap_std": ("gfmd_gap_std", "standard deviation of the gap field", _LEN),
+        "gap_min": ("gfmd_gap_min", "smallest gap of the gap field", _LEN),
+    },
+    "theory": {
+        "mean_gap_paper": ("theory_paper", "mean gap g0, field theory, the paper's closed form", _LEN),
+        "mean_gap_continuum": ("theory_continuum", "mean gap g0, field theory, exact continuum prefactor", _LEN),
+        "mean_gap_discrete": ("theory_discrete", "mean gap g0, field theory, sum over the modes of the surface",
+                              _LEN),
+        "h_rms": ("theory_h_rms", "rms height used by the field theory", _LEN),
+    },
+    "sde": {
+        "mean_gap": ("sde_mean_gap", "mean gap of the SDE ensemble", _LEN),
+        "gap_std": ("sde_gap_std", "standard deviation of the SDE gap distribution", _LEN),
+    },
+    "fokker_planck": {
+        "mean_gap": ("fokker_planck_mean_gap", "mean gap of the Fokker-Planck density", _LEN),
+        "gap_std": ("fokker_planck_gap_std", "standard deviation of the Fokker-Planck gap density", _LEN),
+    },
+}
+# Results that never depend on the seed (docs/model.md M4): no seed dimension.
+SEED_FREE = {"theory": ("mean_gap_paper", "mean_gap_continuum"), "fokker_planck": ("mean_gap", "gap_std")}
+STATUS_FLAGS = {"pending": 0, "done": 1, "failed": 2, "not_converged": 3}
+FIELD_NAMES = ("gap", "pressure", "displacement", "height")
+FIELD_META = {
+    "gap": ("local gap g(r) = g0 + u(r) - h(r)", _LEN),
+    "pressure": ("local pressure p(r) = (gamma0/rho) exp(-g/rho)", {"units": "1", "reference_unit": "E*"}),
+    "displacement": ("elastic displacement u(r), zero mean", _LEN),
+    "height": ("surface height h(r), zero mean", _LEN),
+}
+
+
+# ---------------------------------------------------------------------------------------------------------
+# xarray views
+
+
+def _xr():
+    return require("xarray", "gapsweep.store.to_dataset (an xarray view of a store)")
+
+
+def _pick(sub: Any, col: str, want: float | None, label: str, method: str, attrs: dict[str, Any]) -> Any:
+    """Rows of one GFMD grid ``n`` / one SDE or FP ``c2`` (default: the finest grid, the smallest C2)."""
+    vals = sorted(set(sub[col].dropna()))
+    if len(vals) <= 1:
+        return sub
+    pick = want if want is not None else (max(vals) if col == "n" else min(vals))
+    keep = np.isclose(sub[col].to_numpy(float), float(pick), rtol=1e-9, atol=0.0)
+    if not keep.any():
+        raise ValueError(f"{label}: {method} has {col} values {vals}, got {want!r}")
+    attrs[f"{method}_{col}"] = pick if col != "n" else int(pick)
+    return sub[keep]
+
+
+def from_frame(df: Any, *, n: int | None = None, c2: float | None = None, attrs: Mapping[str, Any] | None = None):
+    """The dataset of :func:`to_dataset` from a store frame (:func:`gapsweep.store.read`)."""
+    import pandas as pd
+
+    xr = _xr()
+    need = ("method", "status", "hurst", "rho", "sigma0", "seed")
+    missing = [c for c in need if c not in df.columns]
+    if missing:
+        raise ValueError(f"df lacks the contract column(s) {missing}; see gapsweep.store.read")
+    coords = {k: np.sort(df[k].unique()) for k in DIMS}
+    shape = tuple(len(v) for v in coords.values())
+    index = {k: {v: i for i, v in enumerate(c)} for k, c in coords.items()}
+    ds_attrs: dict[str, Any] = {}
+    data: dict[str, Any] = {}
+    for method, cols in VARIABLES.items():
+        sub = df[df["method"].astype(str) == method]
+        if sub.empty:
+            continue
+        if method in ("gfmd", "theory") and "n" in sub:
+            sub = _pick(sub, "n", n, "n", method, ds_attrs)
+        if method in ("sde", "fokker_planck") and "c2" in sub:
+            sub = _pick(sub, "c2", c2, "c2", method, ds_attrs)
+        idx = tuple(np.array([index[k][v] for v in sub[k]], dtype=int) for k in DIMS)
+        done = (sub["status"].astype(str) == "done").to_numpy()
+        for col, (name, long_name, units) in cols.items():
+            if col not in sub:
+                continue
+            vals = pd.to_numeric(sub[col], errors="coerce").to_numpy(float)
+            if col == "iterations":
+                vals = np.where(vals < 0, np.nan, vals)
+            if not np.isfinite(vals[done]).any():
+                continue
+            a = np.full(shape, np.nan)
+            a[tuple(i[done] for i in idx)] = vals[done]
+            meta = {"long_name": long_name, **units}
+            if col in SEED_FREE.get(method, ()):
+                data[name] = (DIMS[:3], _collapse_seed(a, name), {**meta, "comment": "seed-independent: "
+                              "no seed dimension, broadcasts over every seed"})
+            else:
+                data[name] = (DIMS, a, meta)
+        st = np.full(shape, -1, dtype=np.int8)
+        st[idx] = [STATUS_FLAGS.get(x, -1) for x in sub["status"].astype(str)]
+        data[f"{method}_status"] = (DIMS, st, {
+            "long_name": f"status of the {method} task", "units": "1", "_FillValue": np.int8(-1),
+            "flag_values": np.array(list(STATUS_FLAGS.values()), dtype=np.int8),
+            "flag_meanings": " ".join(STATUS_FLAGS)})
+    ds = xr.Dataset({k: xr.Variable(d, a, attrs={k2: v2 for k2, v2 in m.items() if k2 != "_FillValue"})
+                     for k, (d, a, m) in data.items()}, coords=coords)
+    for k, (_, _, m) in data.items():
+        if "_FillValue" in m:
+            ds[k].encoding["_FillValue"] = m["_FillValue"]
+    for k, m in COORD_META.items():
+        ds[k].attrs.update(m)
+    ds.attrs.update({"Conventions": "CF-1.10", "title": "gapsweep store", **ds_attrs, **dict(attrs or {})})
+    return ds
+
+
+def _collapse_seed(a: np.ndarray, name: str) -> np.ndarray:
+    """Drop the seed axis of a seed-independent result; different values at different seeds are an error."""
+    with np.errstate(invalid="ignore"):
+        lo, hi = np.nanmin(np.where(np.isnan(a), np.inf, a), axis=3), np.nanmax(np.where(np.isnan(a), -np.inf, a),
+                                                                               axis=3)
+    have = np.isfinite(lo)
+    if np.any(have & ~np.isclose(lo, hi, rtol=1e-12, atol=0.0)):
+        raise ValueError(f"{name}: values differ between seeds although the result is seed-independent")
+    return np.where(have, lo, np.nan)
+
+
+def _provenance(path: str | Path) -> dict[str, Any]:
+    from gapsweep import __version__, store
+
+    a = store.read_attrs(path)
+    keep = ("format", "format_version", "job_name", "spec_sha256", "shard", "gapsweep_version", "git_commit",
+            "versions", "created", "finished", "runs", "merged_from", "spec_text")
+    out = {f"gapsweep_{k}" if not k.startswith("gapsweep") else k: (v if isinstance(v, str) else
+                                                                     (v.item() if hasattr(v, "item") else v))
+           for k, v in a.items() if k in keep}
+    out.update({"title": f"gapsweep store of job {a.get('job_name', '?')}",
+                "source": f"gapsweep {a.get('gapsweep_version', '?')} (read by gapsweep {__version__})",
+                "history": f"opened from {Path(path).resolve()} by gapsweep.store.to_dataset",
+                "references": "docs/model.md (the model), docs/store.md (the store)"})
+    return out
+
+
+def to_dataset(path: str | Path, *, n: int | None = None, c2: float | None = None):
+    """Open the store at ``path`` as an ``xarray.Dataset`` (module docstring). ``n`` picks the GFMD (and discrete
+    theory) grid and ``c2`` the SDE / Fokker-Planck fudge factor when a store holds several (default: the
+    finest grid, the smallest C2); the choices are recorded in the attributes."""
+    from gapsweep import store
+
+    _xr()
+    return from_frame(store.read(path), n=n, c2=c2, attrs=_provenance(path))
+
+
+def export_netcdf(path: str | Path, out: str | Path, *, overwrite: bool = False, **kw: Any) -> Path:
+    """Write :func:`to_dataset` of the store ``path`` to the netCDF4 file ``out`` (written to a temporary name
+    and moved into place: never half-written). Refuses to replace ``out`` unless ``overwrite``."""
+    outp = Path(out)
+    if outp.exists() and not overwrite:
+        raise FileExistsError(f"export --out {outp}: exists (pass --overwrite to replace it)")
+    ds = to_dataset(path, **kw)
+    require("h5netcdf", "the netCDF4 export")
+    outp.parent.mkdir(parents=True, exist_ok=True)
+    tmp = outp.with_name(f".{outp.name}.tmp")
+    try:
+        ds.to_netcdf(tmp, engine="h5netcdf", format="NETCDF4")
+        os.replace(tmp, outp)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return outp
+
+
+# ---------------------------------------------------------------------------------------------------------
+# tolerant diff
+
+
+def diff(a: str | Path, b: str | Path, *, rtol: float = 0.0, atol: float = 0.0,
+         ignore: Sequence[str] = ("wall_time", "rank")) -> list[str]:
+    """Differences in content between two stores (empty list: equal within the tolerance).
+
+    Parameters and statuses must match exactly; float results and histograms within
+    ``|x - y| <= atol + rtol |y|`` (NaN equals NaN), integer results exactly. ``ignore`` lists result columns
+    left out (wall time and rank by default). With ``rtol = atol = 0`` this is a bit-for-bit comparison."""
+    from gapsweep import store
+    from gapsweep.tasks import FLOAT_RESULTS
+
+    if not (rtol >= 0 and atol >= 0 and math.isfinite(rtol) and math.isfinite(atol)):
+        raise ValueError(f"rtol and atol must be finite and >= 0, got rtol={rtol!r}, atol={atol!r}")
+    out: list[str] = []
+    ma, mb = store.read_attrs(a), store.read_attrs(b)
+    if ma.get("spec_sha256") != mb.get("spec_sha256"):
+        out.append("spec_sha256 differs")
+    da, db = store.read(a), store.read(b)
+    if len(da) != len(db):
+        return [*out, f"task count {len(da)} != {len(db)}"]
+    if list(da["task_id"]) != list(db["task_id"]):
+        db = db.set_index("task_id").reindex(da["task_id"]).reset_index()
+        if db["method"].isna().any():
+            return [*out, "task ids differ"]
+    for col in da.columns:
+        if col in ignore or col == "task_id":
+            continue
+        x, y = da[col].to_numpy(), db[col].to_numpy()
+        if col in FLOAT_RESULTS:
+            bad = ~_close(x.astype(float), y.astype(float), rtol, atol)
+        elif x.dtype.kind == "f":
+            bad = ~((x == y) | (np.isnan(x) & np.isnan(y)))
+        else:
+            bad = x != y
+        if bad.any():
+            rows = np.flatnonzero(bad)
+            kind = "results" if col in FLOAT_RESULTS or col in ("status", "message", "iterations", "count") \
+                else "tasks"
+            worst = ""
+            if col in FLOAT_RESULTS:
+                dd = np.abs(x.astype(float) - y.astype(float))[rows]
+                worst = f", max |diff| {np.nanmax(dd) if np.isfinite(dd).any() else float('nan'):.3g}"
+            out.append(f"{kind}.{col} differs in {rows.size} rows (first: {rows[:5].tolist()}{worst})")
+    ha, hb = store.read_histograms(a), store.read_histograms(b)
+    if set(ha) != set(hb):
+        out.append(f"histograms: {len(set(ha) ^ set(hb))} tasks have a histogram in one store only")
+    nbad = sum(1 for t in set(ha) & set(hb)
+               if ha[t][0].shape != hb[t][0].shape or not (_close(ha[t][0], hb[t][0], rtol, atol).all()
+                                                          and _close(ha[t][1], hb[t][1], rtol, atol).all()))
+    if nbad:
+        out.append(f"histograms differ for {nbad} tasks")
+    return out
+
+
+def _close(x: np.ndarray, y: np.ndarray, rtol: float, atol: float) -> np.ndarray:
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    with np.errstate(invalid="ignore"):
+        return (np.isnan(x) & np.isnan(y)) | (x == y) | (np.abs(x - y) <= atol + rtol * np.abs(y))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# kept fields
+
+
+def fields_dir(store_path: str | Path) -> Path:
+    """The folder of a store's kept fields: ``<store>.fields`` beside it."""
+    p = Path(store_path)
+    return p.with_name(p.name + ".fields")
+
+
+def field_selected(opts: Mapping[str, Any] | None, *, hurst: float, rho: float, sigma0: float, seed: int,
+                   n: int) -> list[str]:
+    """The fields to keep for one GFMD task under the job's ``keep_fields`` option ([] for none)."""
+    if not opts:
+        return []
+    for key, v in (("hurst", hurst), ("rho", rho), ("sigma0", sigma0), ("seeds", seed), ("n", n)):
+        want = opts.get(key)
+        if want is not None and not any(math.isclose(float(v), float(w), rel_tol=1e-9) for w in want):
+            return []
+    return list(opts.get("fields", ()))
+
+
+def write_fields(directory: str | Path, task_id: str, arrays: Mapping[str, np.ndarray], *, length: float,
+                 attrs: Mapping[str, Any]) -> Path:
+    """Write one task's fields as ``directory/<task_id>.nc``: netCDF4 (HDF5 with dimension scales), float64 on
+    ``(x, y)`` cell centres, chunked and gzip-compressed; written under a temporary name and renamed."""
+    import h5py
+
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    final = d / f"{task_id}.nc"
+    tmp = d / f".{task_id}.{os.getpid()}.tmp"
+    n = next(iter(arrays.values())).shape[0]
+    x = (np.arange(n) + 0.5) * (length / n)
+    chunk = (min(n, 256), min(n, 256))
+    try:
+        with h5py.File(tmp, "w", track_order=True) as f:
+            for name in ("x", "y"):
+                ds = f.create_dataset(name, data=x)
+                ds.make_scale(name)
+                ds.attrs.update({"long_name": f"{name} position of the cell centre", "units": "1",
+                                 "reference_unit": "L"})
+            for name, a in arrays.items():
+                long_name, units = FIELD_META[name]
+                ds = f.create_dataset(name, data=np.asarray(a, dtype=np.float64), chunks=chunk, compression="gzip",
+                                      compression_opts=4, shuffle=True)
+                ds.dims[0].attach_scale(f["x"])
+                ds.dims[1].attach_scale(f["y"])
+                ds.attrs.update({"long_name": long_name, **units})
+            f.attrs.update({"Conventions": "CF-1.10", "title": f"gapsweep kept fields of task {task_id}",
+                            "task_id": task_id})
+            for k, v in attrs.items():
+                f.attrs[k] = v if isinstance(v, (int, float, str, np.integer, np.floating)) else json.dumps(v)
+        os.replace(tmp, final)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return final
+
+
+def _field_files(store_path: str | Path) -> dict[str, Path]:
+    """Kept-field files of a store and, for a merged store, of the shards it was merged from."""
+    from gapsweep import store
+
+    dirs = [fields_dir(store_path)]
+    try:
+        merged = json.loads(store.read_attrs(store_path).get("merged_from", "[]") or "[]")
+    except (ValueError, FileNotFoundError):
+        merged = []
+    dirs += [fields_dir(s) for s in merged]
+    out: dict[str, Path] = {}
+    for d in dirs:
+        if d.is_dir():
+            for f in sorted(d.glob("*.nc")):
+                out.setdefault(f.stem, f)
+    return out
+
+
+def open_fields(store_path: str | Path, task_ids: Iterable[str] | None = None):
+    """The kept fields of a store as ``xarray.Dataset`` s: ``{task_id: Dataset}`` (dims ``x``, ``y``; the task's
+    parameters and status in the attributes). ``task_ids`` restricts the selection."""
+    xr = _xr()
+    require("h5netcdf", "reading kept fields")
+    files = _field_files(store_path)
+    want = set(task_ids) if task_ids is not None else None
+    return {t: xr.load_dataset(p, engine="h5netcdf") for t, p in files.items() if want is None or t in want}

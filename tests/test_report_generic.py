@@ -1,0 +1,64 @@
+"""The report of a sweep that is not the paper's (jobs/test_generic.toml: H = 0.5/0.7, rho/L = 4e-3/8e-3,
+zeta_s = 16): figures chosen from the store's axes, every panel with data, no verdict on the paper's claims,
+and the CLI's manners around it (no silent overwrite)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+JOB = ROOT / "jobs" / "test_generic.toml"
+
+
+@pytest.fixture(scope="module")
+def generic_store(tmp_path_factory):
+    from gapsweep import runner
+
+    path = tmp_path_factory.mktemp("generic") / "generic.h5"
+    runner.run(JOB, path, progress="none", mpi="off")
+    return path
+
+
+@pytest.mark.timeout(300)
+def test_generic_report_has_no_blank_figure(generic_store, tmp_path):
+    from analysis import report
+
+    out = tmp_path / "report"
+    text = report.main([generic_store], out).read_text()
+    figs = pd.read_csv(out / "figures.csv")
+    # One pressure figure per H (a panel per rho), the gap distribution at (0.5, 8e-3), the agreement map.
+    names = set(figs["figure"])
+    assert {"gap_vs_pressure_test-generic_H0.5", "gap_vs_pressure_test-generic_H0.7", "fig_agreement"} <= names, names
+    assert any(n.startswith("gap_distribution_test-generic_H0.5_rho0.008") for n in names), names
+    assert not names & {"fig2", "fig3", "fig4", "fig5", "fig6"}  # not the paper's parameter sets
+    assert (figs["min_points"] > 0).all(), figs
+    assert figs.loc[figs["figure"] == "gap_vs_pressure_test-generic_H0.5", "panels"].item() == 2
+    for name in names:
+        for ext in ("png", "pdf"):
+            assert (out / f"{name}.{ext}").stat().st_size > 1000
+        assert f"({name}.png)" in text
+    # No PNG that the manifest does not list (a stale or blank figure).
+    assert {p.stem for p in out.glob("*.png")} == names
+    assert "Not evaluated: no job in these stores holds one of the paper's parameter sets" in text
+    assert "| confirmed |" not in text and "not confirmed" not in text
+    assert "Symbols:" in text
+
+
+@pytest.mark.timeout(120)
+def test_cli_report_refuses_to_overwrite(generic_store, tmp_path):
+    out = tmp_path / "rep"
+    cmd = [sys.executable, "-m", "gapsweep", "report", str(generic_store), "--out", str(out)]
+    first = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=110)
+    assert first.returncode == 0, first.stderr[-2000:]
+    before = (out / "report.md").stat().st_mtime_ns
+    again = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=110)
+    assert again.returncode != 0 and "--overwrite" in again.stderr
+    assert (out / "report.md").stat().st_mtime_ns == before  # untouched
+    forced = subprocess.run([*cmd, "--overwrite"], capture_output=True, text=True, cwd=ROOT, timeout=110)
+    assert forced.returncode == 0, forced.stderr[-2000:]
+    assert (out / "report.md").stat().st_mtime_ns != before
