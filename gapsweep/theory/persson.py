@@ -56,6 +56,8 @@ _TAIL = 7.0  # exp(-x^2) integrands are negligible (< 1e-21 relative) beyond y +
 # --------------------------------------------------------------------------------------------------------------
 def _spectrum(hurst, lambda_l, lambda_s, rms_slope, rms_height, c0, length, heights) -> spec.Spectrum:
     if heights is not None:
+        if np.ndim(length) == 0:
+            heights = chk.square_heights(heights)  # a rectangular map needs length = (Lx, Ly)
         return spec.from_heights(heights, length, lambda_l=lambda_l)
     if hurst is None or lambda_l is None or lambda_s is None:
         raise ValueError("give hurst, lambda_l and lambda_s (self-affine spectrum) or heights= (a height map)")
