@@ -159,10 +159,10 @@ def hybrid(
     n_c = 8
     while n_c <= 2 * k_c:
         n_c *= 2
-    n_c = min(n_c, h.shape[0])
-    hc = coarse_surface(h, k_c, n_c)
+    # zeta_c at or beyond the grid's Nyquist: everything is resolved, the full surface is the coarse one
+    hc = coarse_surface(h, k_c, n_c) if n_c < h.shape[0] else h - h.mean()
     delta = unresolved_shift(sigma0, h, k_c=k_c, rho=rho, length=length, e_star=e_star)
     res = gfmd.solve(hc, sigma0=sigma0, gamma0=gamma0 * math.exp(delta / rho), rho=rho, e_star=e_star,
                      length=length, tol=tol, initial=initial)
-    log.debug("hybrid zeta_c=%g n_c=%d delta=%g status=%s", zeta_c, n_c, delta, res.status)
+    log.debug("hybrid zeta_c=%g n_c=%d delta=%g status=%s", zeta_c, hc.shape[0], delta, res.status)
     return float(res.mean_gap), res
