@@ -179,3 +179,13 @@ def test_mean_separation_large_load_and_single_mode():
         ref = math.sqrt(2 / math.pi) / q * integrate.quad(
             lambda s, c=c: float(P.separation_kernel(c / s, 0.42)) if s > 0 else 0.0, 0, g, limit=200)[0]
         assert P.mean_separation(s0, heights=h, lambda_l=1.0) == pytest.approx(ref, rel=1e-8)
+
+
+def test_gap_distribution_normalised():
+    u = np.linspace(0.0, 0.1, 20001)
+    for s0 in (1e-3, 0.1):
+        dens, w0 = P.gap_distribution(u, s0, **SA)
+        assert w0 >= P.contact_area(s0, **SA)
+        assert np.all(dens >= 0)
+        assert np.trapezoid(dens, u) + w0 == pytest.approx(1.0, abs=1e-6)
+    assert np.all(P.gap_distribution(np.array([-1e-3]), 0.01, **SA)[0] == 0.0)
