@@ -93,6 +93,21 @@ def evaluate(stores: Path, seeds: int, zeta_cs: list[float]) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def markdown(df: pd.DataFrame, floatfmt: str = ".4g", index: bool = False) -> str:
+    """A GitHub markdown table of ``df`` (no optional dependency)."""
+    d = df.reset_index() if index else df
+    cols = [str(c) for c in d.columns]
+
+    def cell(v) -> str:
+        if isinstance(v, (float, np.floating)):
+            return format(float(v), floatfmt)
+        return str(v)
+
+    lines = ["| " + " | ".join(cols) + " |", "| " + " | ".join("---" for _ in cols) + " |"]
+    lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in d.itertuples(index=False)]
+    return "\n".join(lines)
+
+
 def per_point(df: pd.DataFrame, names: list[str]) -> pd.DataFrame:
     """Seed means per point and each predictor's error: relative where |g0| >= h_rms, else absolute / h_rms."""
     agg = df.groupby(["job", "hurst", "rho", "sigma0"]).mean(numeric_only=True).reset_index()
@@ -159,14 +174,14 @@ def main(argv: list[str] | None = None) -> int:
                 "(goal 0.05). `paper` uses the continuum h_rms of the spectrum, `paper_hs` the surface's own. "
                 "Predictors: docs/theory.md.\n\n")
         f.write("## Error per predictor and regime\n\n")
-        f.write(tab.to_markdown(index=False, floatfmt=".4f") + "\n\n")
+        f.write(markdown(tab, ".4f") + "\n\n")
         f.write("## The next-order indicator (`theory.cumulant`) against the discrete theory's error\n\n")
         f.write("Flag \"do not trust\" where |T| > 5 % of |g0| (|g0| >= h_rms) or > 0.05 h_rms (else).\n\n")
-        f.write(conf.to_markdown() + "\n\n")
+        f.write(markdown(conf, index=True) + "\n\n")
         f.write("## Hybrid: accuracy against cost\n\nWall time per pressure on this 2-core VM (one core, "
                 "warm-started chain), against GFMD at N = 2048 on the H200 (`gfmd_s` median "
                 f"{df.gfmd_s.median():.2f} s per pressure).\n\n")
-        f.write(cost.to_markdown(index=False, floatfmt=".4f") + "\n")
+        f.write(markdown(cost, ".4f") + "\n")
     tab.to_csv(a.out / "predictors_summary.csv", index=False)
     print((a.out / "predictors.md").read_text())
     return 0
