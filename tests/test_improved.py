@@ -90,3 +90,13 @@ def test_trusted_rule():
     with pytest.raises(ValueError, match="order"):
         improved.gap_fluctuations(0.1, np.zeros((4, 4)), rho=1.0, order=3)
     assert math.isfinite(cumulant.next_order_term(0.1, np.zeros((4, 4)), rho=1.0))
+
+
+def test_resummed_term_identity():
+    h = surface.self_affine(64, 0.8, lambda_l=0.5, lambda_s=0.05, seed=5)
+    h *= 4e-3 / surface.rms_height(h)
+    for s0 in (1e-4, 1e-2):
+        got = cumulant.resummed_term(s0, h, rho=1e-3)
+        ref = improved.lme_second_order(s0, h, rho=1e-3, gamma0=1e-3) - theory.mean_gap_discrete(
+            s0, h, rho=1e-3, gamma0=1e-3, lambda_l=0.5)
+        assert got == pytest.approx(ref, rel=1e-9, abs=1e-15)

@@ -15,13 +15,16 @@ the expansion is not converged, whatever its sign. Lengths in the unit of ``leng
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.special import logsumexp
 
 from gapsweep import _checks as chk
 from gapsweep.theory.improved import gap_fluctuations
 
-__all__ = ["next_order_term", "trusted"]
+__all__ = ["next_order_term", "resummed_term", "trusted"]
 
 
 def next_order_term(
@@ -39,6 +42,28 @@ def next_order_term(
         k2_1 = float(np.mean((d1 - d1.mean()) ** 2))
         k4 = m4 - 3.0 * m2 * m2
         out[i] = (m2 - k2_1) / (2.0 * rho) - m3 / (6.0 * rho**2) + k4 / (24.0 * rho**3)
+    out = out.reshape(s.shape)
+    return float(out) if out.ndim == 0 else out
+
+
+def resummed_term(
+    sigma0: ArrayLike, heights: ArrayLike, *, rho: float, length: float = 1.0, e_star: float = 1.0
+) -> float | np.ndarray:
+    """All orders beyond the paper's: ``rho ln<exp(-dg/rho)> - kappa_2(dg1)/(2 rho)`` [length], ``dg = dg1 + dg2``.
+
+    The truncated ``T`` of :func:`next_order_term` misses the low-pressure failure at large ``h_rms/rho``, where
+    the extreme tail of the surface (every cumulant) sets ``<exp(-dg/rho)>``; this resummed form catches it
+    (docs/results/predictors.md). It equals ``improved.lme_second_order - mean_gap_discrete``.
+    """
+    s = chk.positive_array(sigma0, "sigma0")
+    rho = chk.positive(rho, "rho")
+    out = np.empty(s.size)
+    for i, si in enumerate(s.ravel()):
+        d1 = gap_fluctuations(float(si), heights, rho=rho, length=length, e_star=e_star, order=1)
+        d = gap_fluctuations(float(si), heights, rho=rho, length=length, e_star=e_star, order=2)
+        w = -d.ravel() / rho
+        lme = rho * (float(logsumexp(w)) - math.log(w.size))
+        out[i] = lme - float(np.mean((d1 - d1.mean()) ** 2)) / (2.0 * rho)
     out = out.reshape(s.shape)
     return float(out) if out.ndim == 0 else out
 
