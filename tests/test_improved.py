@@ -67,7 +67,7 @@ def test_hybrid_limits():
 
 
 def test_hybrid_against_stored_gfmd():
-    """Figure 3 (H = 0.8), the hardest grid: the hybrid at zeta_c = 16 (GFMD on 128^2) against the stored GFMD
+    """Figure 3 (H = 0.8), the hardest grid: the hybrid at zeta_c = 16 (GFMD on 256^2) against the stored GFMD
     mean over 8 seeds at N = 2048, at rho = 1e-3 (where the paper's form is 56 % off) and sigma0 = 1e-3."""
     tab = pd.read_csv(ROOT / "docs" / "results" / "mean_gap.csv")
     row = tab[(tab.job == "fig3") & (tab.source == "gfmd") & (tab.n == 2048) & np.isclose(tab.rho, 1e-3)
