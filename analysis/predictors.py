@@ -101,9 +101,10 @@ def markdown(df: pd.DataFrame, floatfmt: str = ".4g", index: bool = False) -> st
     def cell(v) -> str:
         if isinstance(v, (float, np.floating)):
             return format(float(v), floatfmt)
-        return str(v)
+        return str(v).replace("|", "\\|")  # a pipe inside a cell would end it
 
-    lines = ["| " + " | ".join(cols) + " |", "| " + " | ".join("---" for _ in cols) + " |"]
+    head = " | ".join(c.replace("|", "\\|") for c in cols)
+    lines = ["| " + head + " |", "| " + " | ".join("---" for _ in cols) + " |"]
     lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in d.itertuples(index=False)]
     return "\n".join(lines)
 

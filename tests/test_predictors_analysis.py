@@ -19,3 +19,8 @@ def test_per_point_errors_and_regimes():
     assert agg.loc["b", "err_x"] == pytest.approx((0.004 - 0.002) / 0.01)  # absolute, in h_rms
     md = predictors.markdown(agg.reset_index()[["job", "err_x"]], ".2f")
     assert md.splitlines()[0] == "| job | err_x |" and "| a | 0.05 |" in md
+
+
+def test_markdown_escapes_pipes():
+    md = predictors.markdown(pd.DataFrame({"regime": ["|g0|<h_rms"]}))
+    assert md.splitlines()[2] == "| \\|g0\\|<h_rms |"
