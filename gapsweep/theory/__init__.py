@@ -8,6 +8,7 @@ One module per theory (a new theory is a new file here):
                 distributions.
 ``cumulant``    next-order cumulant terms of the field theory: an error indicator for the paper's form.
 ``improved``    improved mean-gap predictors for exponential repulsion (beyond the paper).
+``closure``     a gap-distribution closure whose strength is fixed by the mean-pressure identity.
 
 The names of the original single-module ``gapsweep.theory`` (the field theory) are re-exported here, so
 ``from gapsweep import theory; theory.mean_gap(...)`` works as before.
@@ -15,6 +16,7 @@ The names of the original single-module ``gapsweep.theory`` (the field theory) a
 
 from __future__ import annotations
 
+from gapsweep.theory import closure, cumulant, improved, persson, spectrum
 from gapsweep.theory.field import (
     FORMS,
     diffusion,
@@ -33,16 +35,21 @@ from gapsweep.theory.field import (
 
 __all__ = [
     "FORMS",
+    "closure",
+    "cumulant",
     "diffusion",
     "drift",
     "eta",
     "flat_gap",
     "high_pressure_limit",
+    "improved",
     "low_pressure_limit",
     "mean_gap",
     "mean_gap_discrete",
     "mean_gap_spectrum",
+    "persson",
     "rigid_gap_density",
     "rigid_mean_gap",
     "roughness_integral",
+    "spectrum",
 ]
