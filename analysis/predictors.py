@@ -109,6 +109,26 @@ def markdown(df: pd.DataFrame, floatfmt: str = ".4g", index: bool = False) -> st
     return "\n".join(lines)
 
 
+def add_local(df: pd.DataFrame, zeta_cs: list[float]) -> pd.DataFrame:
+    """Add ``hybrid_local_<zeta_c>`` (and its wall time) to a per-seed table from :func:`evaluate`."""
+    df = df.copy()
+    for (job, hurst, seed), grp in df.groupby(["job", "hurst", "seed"]):
+        h = surface.self_affine(N_SURFACE, hurst, lambda_l=0.25, lambda_s=2.5e-3, rms_slope=1.0, seed=int(seed))
+        for i, r in grp.iterrows():
+            for zc in zeta_cs:
+                t0 = time.perf_counter()
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    g0, res = improved.hybrid(float(r.sigma0), h, zeta_c=zc, rho=float(r.rho), gamma0=1e-3,
+                                              lambda_l=0.25, local=True)
+                if res.status != "converged":
+                    raise SystemExit(f"local hybrid did not converge at {job} H={hurst} sigma0={r.sigma0}")
+                df.loc[i, f"hybrid_local_{zc:g}"] = g0
+                df.loc[i, f"hybrid_local_{zc:g}_s"] = time.perf_counter() - t0
+        log.info("local: %s H=%g seed=%d done", job, hurst, seed)
+    return df
+
+
 def per_point(df: pd.DataFrame, names: list[str]) -> pd.DataFrame:
     """Seed means per point and each predictor's error: relative where |g0| >= h_rms, else absolute / h_rms."""
     agg = df.groupby(["job", "hurst", "rho", "sigma0"]).mean(numeric_only=True).reset_index()
@@ -143,15 +163,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, default=4)
     ap.add_argument("--zeta-c", type=float, nargs="+", default=[4, 8, 16, 32])
     ap.add_argument("--points-csv", type=Path, default=None, help="reuse an earlier predictors_points.csv")
+    ap.add_argument("--add-local", type=float, nargs="*", default=None,
+                    help="with --points-csv: add hybrid_local_<zeta_c> columns (local-pressure Delta) and save")
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
+    local = [] if a.add_local is None else a.add_local
     if a.points_csv:
         df = pd.read_csv(a.points_csv)
+        if local:
+            df = add_local(df, local)
+            df.to_csv(a.points_csv, index=False)
     else:
         df = evaluate(a.stores, a.seeds, a.zeta_c)
         a.out.mkdir(parents=True, exist_ok=True)
         df.to_csv(a.out / "predictors_points.csv", index=False)
     hyb = [f"hybrid_{z:g}" for z in a.zeta_c]
+    hyb += sorted((c[:-2] for c in df.columns if c.startswith("hybrid_local_") and c.endswith("_s")),
+                  key=lambda c: float(c.rsplit("_", 1)[1]))
     names = list(BASE) + hyb
     agg = per_point(df, names)
     agg.to_csv(a.out / "predictors.csv", index=False)

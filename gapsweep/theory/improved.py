@@ -116,6 +116,23 @@ def unresolved_shift(
     return float(np.sum(power[fine] * (ez[fine] / (1.0 + ez[fine])) ** 2) / (2.0 * rho))
 
 
+def _fine_shells(h: np.ndarray, k_c: int, length: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(|q|, summed |h~|^2)`` of the shells ``|k| > k_c`` (one entry per distinct ``|k|^2``)."""
+    n = h.shape[0]
+    k = np.fft.fftfreq(n, d=1.0 / n).astype(np.int64)
+    k2 = (k[:, None] ** 2 + k[None, :] ** 2).ravel()
+    power = (np.abs(np.fft.fft2(h) / h.size) ** 2).ravel()
+    keep = k2 > k_c * k_c
+    uk2, inv = np.unique(k2[keep], return_inverse=True)
+    return (2.0 * math.pi / length) * np.sqrt(uk2.astype(float)), np.bincount(inv, weights=power[keep])
+
+
+def _shift_of_pressure(p: np.ndarray, q: np.ndarray, pw: np.ndarray, rho: float, e_star: float) -> np.ndarray:
+    """``Delta(p) = (1/(2 rho)) sum |h~|^2 (eta zeta/(1 + eta zeta))^2`` at local pressures ``p`` (M4)."""
+    ez = rho * q[None, :] * e_star / (2.0 * np.asarray(p, float)[:, None])
+    return ((ez / (1.0 + ez)) ** 2) @ pw / (2.0 * rho)
+
+
 def coarse_surface(heights: ArrayLike, k_c: int, n_c: int) -> np.ndarray:
     """The modes ``|k| <= k_c`` of ``heights`` on an ``n_c x n_c`` grid (``n_c > 2 k_c``), same ``h~(q)`` (M2)."""
     h = chk.square_heights(heights)
@@ -142,6 +159,8 @@ def hybrid(
     e_star: float = 1.0,
     tol: float = 1e-6,
     initial=None,
+    local: bool = False,
+    iterations: int = 2,
 ):
     """Multiscale hybrid mean gap [length]: GFMD on the modes ``|q| <= zeta_c q_l``, field theory for the rest.
 
@@ -150,6 +169,12 @@ def hybrid(
     so the coarse problem is an ordinary GFMD problem (``gapsweep.gfmd.solve``) on the smallest power-of-two
     grid that carries ``zeta_c``. ``Delta`` is evaluated at the mean pressure ``sigma0`` (the approximation: the
     unresolved modes in a contact spot see a higher local pressure). Returns ``(g0, GFMDResult)``.
+
+    ``local=True`` evaluates ``Delta`` at the local coarse pressure instead, ``Delta(r) = Delta(p_c(r))``, by a
+    fixed point (``iterations`` more coarse solves, each warm-started): the effective law
+    ``(gamma0/rho) exp(-(g_c - Delta(r))/rho)`` is GFMD on the heights ``h_c + Delta(r)`` (made zero-mean), and the
+    mean gap is that solve's mean gap plus ``<Delta>`` (the fine modes have zero mean, so the mean gap is the
+    coarse one; docs/theory.md).
     """
     from gapsweep import gfmd  # local: theory stays importable without the solver's optional deps
 
@@ -165,4 +190,18 @@ def hybrid(
     res = gfmd.solve(hc, sigma0=sigma0, gamma0=gamma0 * math.exp(delta / rho), rho=rho, e_star=e_star,
                      length=length, tol=tol, initial=initial)
     log.debug("hybrid zeta_c=%g n_c=%d delta=%g status=%s", zeta_c, hc.shape[0], delta, res.status)
-    return float(res.mean_gap), res
+    g0 = float(res.mean_gap)
+    if local and delta > 0.0:
+        iterations = chk.count(iterations, "iterations")
+        q, pw = _fine_shells(h, k_c, length)
+        for _ in range(iterations):
+            lp = np.log(np.maximum(np.asarray(res.pressure, float), 1e-300))
+            # Delta is smooth in ln p: tabulate on 64 points and interpolate (the fine shells are many)
+            grid = np.linspace(lp.min(), lp.max() + 1e-12, 64)
+            d = np.interp(lp, grid, _shift_of_pressure(np.exp(grid), q, pw, rho, e_star))
+            he = hc + d
+            res = gfmd.solve(he - he.mean(), sigma0=sigma0, gamma0=gamma0, rho=rho, e_star=e_star, length=length,
+                             tol=tol, initial=res)
+            g0 = float(res.mean_gap) + float(d.mean())
+            log.debug("hybrid local step: g0=%g <Delta>=%g status=%s", g0, d.mean(), res.status)
+    return g0, res
