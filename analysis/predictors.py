@@ -206,7 +206,10 @@ def main(argv: list[str] | None = None) -> int:
                 f"seeds 0..{a.seeds - 1}; {len(agg)} points). Errors of seed means: relative where "
                 "|g0| >= h_rms (goal 5 %), absolute in units of the surface's own h_rms where |g0| < h_rms "
                 "(goal 0.05). `paper` uses the continuum h_rms of the spectrum, `paper_hs` the surface's own. "
-                "Predictors: docs/theory.md.\n\n")
+                "Predictors: docs/theory.md."
+                + (" The `hybrid_local_*` columns were added by `--points-csv predictors_points.csv --add-local "
+                   "8 16` (local-pressure shift, `improved.hybrid(local=True)`)." if len(hyb) > len(a.zeta_c) else "")
+                + "\n\n")
         f.write("## Error per predictor and regime\n\n")
         f.write(markdown(tab, ".4f") + "\n\n")
         f.write("## The next-order indicator (`theory.cumulant`) against the discrete theory's error\n\n")

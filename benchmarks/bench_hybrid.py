@@ -3,7 +3,8 @@
     python benchmarks/bench_hybrid.py --stores DIR [--threads 1] [--out benchmarks/results/hybrid.csv]
 
 For a few figure 2/3 points (seed 0) it times, cold-started in one process: full GFMD (``gfmd.solve``) at
-N = 1024 (the smallest power of two carrying lambda_s = L/400) and the hybrid at zeta_c = 4, 8, 16, 32, and
+N = 1024 (the smallest power of two carrying lambda_s = L/400), the hybrid at zeta_c = 4, 8, 16, 32 and its
+local-pressure variant at zeta_c = 8, 16, and
 reports the mean gap of each against the stored GFMD result at N = 2048 (``DIR/fig2.h5``, ``fig3.h5``).
 """
 
@@ -42,13 +43,14 @@ def main(argv: list[str] | None = None) -> int:
             t_full = time.perf_counter() - t0
             rows.append(dict(job=job, hurst=hurst, rho=rho, sigma0=s0, method="gfmd_N1024", seconds=t_full,
                              mean_gap=full.mean_gap, rel_err=full.mean_gap / ref.mean_gap - 1, speedup=1.0))
-            for zc in (4, 8, 16, 32):
+            for zc, local in ((4, False), (8, False), (16, False), (32, False), (8, True), (16, True)):
                 t0 = time.perf_counter()
-                g0, _ = improved.hybrid(s0, h, zeta_c=zc, rho=rho, gamma0=1e-3, lambda_l=0.25)
+                g0, _ = improved.hybrid(s0, h, zeta_c=zc, rho=rho, gamma0=1e-3, lambda_l=0.25, local=local)
                 dt = time.perf_counter() - t0
-                rows.append(dict(job=job, hurst=hurst, rho=rho, sigma0=s0, method=f"hybrid_{zc}", seconds=dt,
+                name = f"hybrid_local_{zc}" if local else f"hybrid_{zc}"
+                rows.append(dict(job=job, hurst=hurst, rho=rho, sigma0=s0, method=name, seconds=dt,
                                  mean_gap=g0, rel_err=g0 / ref.mean_gap - 1, speedup=t_full / dt))
-        print(pd.DataFrame(rows[-5:]).to_string(index=False), flush=True)
+        print(pd.DataFrame(rows[-7:]).to_string(index=False), flush=True)
     df = pd.DataFrame(rows)
     df["machine"] = f"{platform.node()} {platform.processor() or platform.machine()}"
     a.out.parent.mkdir(parents=True, exist_ok=True)
