@@ -31,6 +31,7 @@ from numpy.typing import ArrayLike
 from scipy.special import logsumexp
 
 from gapsweep import _checks as chk
+from gapsweep.theory import spectrum
 
 __all__ = [
     "diffusion",
@@ -41,6 +42,7 @@ __all__ = [
     "low_pressure_limit",
     "mean_gap",
     "mean_gap_discrete",
+    "mean_gap_spectrum",
     "rigid_gap_density",
     "rigid_mean_gap",
     "roughness_integral",
@@ -193,15 +195,17 @@ def _check_wavelengths(lambda_l: float, lambda_s: float) -> tuple[float, float]:
 def mean_gap(
     sigma0: ArrayLike,
     *,
-    hurst: float,
-    h_rms: float,
+    hurst: float | None = None,
+    h_rms: float | None = None,
     rho: float,
     gamma0: float,
     lambda_l: float,
-    lambda_s: float,
+    lambda_s: float | None = None,
     e_star: float = 1.0,
     zeta: ArrayLike | None = None,
-    form: str = "paper",
+    form: str | None = None,
+    heights: ArrayLike | None = None,
+    length: float | tuple[float, float] = 1.0,
 ) -> float | np.ndarray:
     """Field-theory mean gap ``g0(sigma0)`` [length] (docs/model.md M4, paper Eq. mean-gap-field).
 
@@ -213,7 +217,25 @@ def mean_gap(
 
     ``zeta=None`` integrates up to ``zeta_s``; ``sigma0`` and ``zeta`` broadcast against each other.
     ``h_rms`` is the rms height of the full spectrum (up to ``zeta_s``) in both forms.
+
+    The surface's own spectrum: ``heights=`` (a 2-D map of side ``length``; a pair ``(Lx, Ly)`` for a
+    rectangular map) replaces ``hurst``, ``h_rms`` and ``lambda_s``. ``form="continuum"`` (the default then) sums
+    the radially averaged PSD (``theory.spectrum.radial``), ``form="discrete"`` every Fourier mode (as
+    :func:`mean_gap_discrete`); ``zeta`` is not used.
     """
+    if heights is not None:
+        form = "continuum" if form is None else form
+        if form not in ("continuum", "discrete"):
+            raise ValueError(f"form must be 'continuum' or 'discrete' with heights=, got {form!r}")
+        if zeta is not None:
+            raise ValueError("zeta is not supported with heights= (the spectrum of the map is summed in full)")
+        hs = _heights(heights, length)
+        sp = spectrum.radial(hs, length) if form == "continuum" else spectrum.from_heights(hs, length)
+        return mean_gap_spectrum(sigma0, sp, rho=rho, gamma0=gamma0, e_star=e_star)
+    form = "paper" if form is None else form
+    for name, val in (("hurst", hurst), ("h_rms", h_rms), ("lambda_s", lambda_s)):
+        if val is None:
+            raise ValueError(f"{name} is required unless heights= gives the surface's own spectrum")
     s = chk.positive_array(sigma0, "sigma0")
     hurst = chk.hurst(hurst)
     h_rms = chk.nonnegative(h_rms, "h_rms")
@@ -237,20 +259,38 @@ def mean_gap(
 # --------------------------------------------------------------------------------------------------------------
 # mean gap: discrete form for one surface, exact rigid limit
 # --------------------------------------------------------------------------------------------------------------
-def _mode_table(h: np.ndarray, length: float) -> tuple[np.ndarray, np.ndarray]:
-    """Unique non-zero |q| of the grid and the summed power ``sum |h~(q)|^2`` on each (``h~ = fft2(h)/n^2``)."""
-    n = h.shape[0]
-    power = np.abs(np.fft.fft2(h) / n**2) ** 2
-    k = np.fft.fftfreq(n, d=1.0 / n).astype(np.int64)  # integer wave numbers in FFT order
-    k2 = (k[:, None] ** 2 + k[None, :] ** 2).ravel()
-    power = power.ravel()
-    keep = (k2 > 0) & (power > 0)
-    # Modes on one |q| shell share the response factor: summing their power first makes the pressure sweep
-    # cost O(#shells) instead of O(n^2) per pressure.
-    k2_unique, inverse = np.unique(k2[keep], return_inverse=True)
-    shell_power = np.bincount(inverse, weights=power[keep])
-    q = (2.0 * math.pi / length) * np.sqrt(k2_unique.astype(float))
-    return q, shell_power
+def _heights(heights: ArrayLike, length: float | tuple[float, float]) -> np.ndarray:
+    """A square map for a scalar ``length`` (the M1 box), any ``nx x ny`` map for ``length = (Lx, Ly)``."""
+    if np.ndim(length) == 0:
+        return chk.square_heights(heights)
+    return spectrum.heights_array(heights)
+
+
+def mean_gap_spectrum(
+    sigma0: ArrayLike, spec: spectrum.Spectrum, *, rho: float, gamma0: float, e_star: float = 1.0
+) -> float | np.ndarray:
+    """Field-theory mean gap on a spectrum of shells ``(q_k, v_k)`` [length] (M4):
+
+    ``g0 = rho ln(gamma0/(rho sigma0)) + (1/(2 rho)) sum_k v_k (eta zeta_k/(1 + eta zeta_k))^2``, with
+    ``eta zeta_k = rho q_k E*/(2 sigma0)``. Vectorised over ``sigma0``.
+    """
+    s = chk.positive_array(sigma0, "sigma0")
+    rho = chk.positive(rho, "rho")
+    gamma0 = chk.positive(gamma0, "gamma0")
+    e_star = chk.positive(e_star, "e_star")
+    le = np.log(s).ravel()
+    rough = np.empty(le.shape, dtype=float)
+    # ln(1/(eta zeta_k)) = ln sigma0 - ln(rho q_k E*/2)
+    log_inv = -np.log(rho * spec.q * e_star / 2.0) if spec.q.size else spec.q
+    block = max(1, _BLOCK * 64 // max(1, spec.q.size))
+    for i0 in range(0, le.size, block):
+        sl = slice(i0, i0 + block)
+        with np.errstate(over="ignore", under="ignore"):
+            u = np.exp(np.minimum(log_inv[None, :] + le[sl, None], 700.0))
+            r = 1.0 / (1.0 + u)
+            rough[sl] = (r * r) @ spec.v
+    flat = rho * (math.log(gamma0) - math.log(rho) - np.log(s))
+    return _out(flat + rough.reshape(s.shape) / (2.0 * rho))
 
 
 def mean_gap_discrete(
@@ -260,38 +300,27 @@ def mean_gap_discrete(
     rho: float,
     gamma0: float,
     lambda_l: float,
-    length: float = 1.0,
+    length: float | tuple[float, float] = 1.0,
     e_star: float = 1.0,
 ) -> float | np.ndarray:
     """Field-theory mean gap summed over the actual Fourier modes of one surface [length] (M4).
 
     ``g0 = rho ln(gamma0/(rho sigma0)) + (1/(2 rho)) sum_{q != 0} |h~(q)|^2 (eta zeta_q/(1 + eta zeta_q))^2``,
-    ``h~ = fft2(h)/n^2`` (M2), ``zeta_q = |q|/q_l``, ``eta = rho q_l E*/(2 sigma0)``. ``lambda_l`` only sets
+    ``h~ = fft2(h)/(nx ny)`` (M2), ``zeta_q = |q|/q_l``, ``eta = rho q_l E*/(2 sigma0)``. ``lambda_l`` only sets
     the unit of ``zeta`` (``eta zeta_q = rho |q| E*/(2 sigma0)`` does not depend on it).
     The mean gap is measured from the mean plane of ``heights`` (the q = 0 mode is excluded), as everywhere in
-    gapsweep (``<h> = 0``, M2). Vectorised over ``sigma0``.
+    gapsweep (``<h> = 0``, M2). A rectangular ``nx x ny`` map needs ``length = (Lx, Ly)``. Vectorised over
+    ``sigma0``.
     """
     s = chk.positive_array(sigma0, "sigma0")
-    h = chk.square_heights(heights)
+    h = _heights(heights, length)
     rho = chk.positive(rho, "rho")
     gamma0 = chk.positive(gamma0, "gamma0")
     lambda_l = chk.positive(lambda_l, "lambda_l")
-    length = chk.positive(length, "length")
+    spectrum.lengths(length)
     e_star = chk.positive(e_star, "e_star")
-    q, shell_power = _mode_table(h, length)
-    zq = q / (2.0 * math.pi / lambda_l)
-    le = _log_eta(s, rho, lambda_l, e_star).ravel()
-    rough = np.empty(le.shape, dtype=float)
-    log_inv_z = -np.log(zq) if zq.size else zq
-    block = max(1, _BLOCK * 64 // max(1, zq.size))
-    for i0 in range(0, le.size, block):
-        sl = slice(i0, i0 + block)
-        with np.errstate(over="ignore", under="ignore"):
-            u = np.exp(np.minimum(log_inv_z[None, :] - le[sl, None], 700.0))
-            r = 1.0 / (1.0 + u)
-            rough[sl] = (r * r) @ shell_power
-    flat = rho * (math.log(gamma0) - math.log(rho) - np.log(s))
-    return _out(flat + rough.reshape(s.shape) / (2.0 * rho))
+    return mean_gap_spectrum(s, spectrum.from_heights(h, length, lambda_l=lambda_l), rho=rho, gamma0=gamma0,
+                             e_star=e_star)
 
 
 def rigid_mean_gap(heights: ArrayLike, sigma0: ArrayLike, *, rho: float, gamma0: float) -> float | np.ndarray:

@@ -1,0 +1,207 @@
+"""Improved mean-gap predictors for exponential repulsion, beyond the paper's field theory (docs/theory.md, "Beyond
+the paper").
+
+All three work on one actual surface (``heights``, square ``n x n``, side ``length``) and share the notation of
+docs/model.md M4: ``eta zeta_q = rho |q| E* / (2 sigma0)``, the linear-response gap fluctuation
+``dg1~(q) = -h~(q) eta zeta_q / (1 + eta zeta_q)`` and the exact identity ``g0 = rho ln(gamma0/(rho sigma0)) +
+rho ln < exp(-dg/rho) >`` (M3), where ``dg = g - g0`` is the true gap fluctuation. Lengths in the unit of
+``length``, pressures in the unit of ``e_star``.
+
+``lme_linear``        ``rho ln<exp(-dg1/rho)>`` with the linear response: all cumulants of the linear field.
+``lme_second_order``  the same with ``dg1 + dg2``, the response expanded to second order in the heights.
+``hybrid``            GFMD resolves the surface up to ``zeta_c``; the field theory adds the finer modes as a
+                      renormalised ``gamma0`` (multiscale hybrid, cost set by ``zeta_c``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.special import logsumexp
+
+from gapsweep import _checks as chk
+
+__all__ = ["gap_fluctuations", "hybrid", "lme_linear", "lme_second_order", "unresolved_shift"]
+
+log = logging.getLogger("gapsweep.theory.improved")
+
+
+def _q_grid(n: int, length: float) -> np.ndarray:
+    k = np.fft.fftfreq(n, d=1.0 / n)
+    return (2.0 * math.pi / length) * np.hypot(k[:, None], k[None, :])
+
+
+def gap_fluctuations(
+    sigma0: float, heights: ArrayLike, *, rho: float, length: float = 1.0, e_star: float = 1.0, order: int = 1
+) -> np.ndarray:
+    """Gap fluctuation field ``dg = g - <g>`` [length] of the response expanded to ``order`` (1 or 2) in ``h``.
+
+    ``dg1~ = -h~ eta zeta/(1 + eta zeta)`` (M4 linear response); ``order=2`` adds
+    ``dg2~ = [dg1^2 - <dg1^2>]~ / (2 rho (1 + eta zeta))``, from expanding the local law
+    ``p = P0 exp(-dg/rho)`` to second order (docs/theory.md, "Next-order terms").
+    """
+    s = chk.positive(sigma0, "sigma0")
+    h = chk.square_heights(heights)
+    rho = chk.positive(rho, "rho")
+    length = chk.positive(length, "length")
+    e_star = chk.positive(e_star, "e_star")
+    if order not in (1, 2):
+        raise ValueError(f"order must be 1 or 2, got {order!r}")
+    q = _q_grid(h.shape[0], length)
+    ez = rho * q * e_star / (2.0 * s)  # eta zeta_q
+    hq = np.fft.fft2(h - h.mean())
+    dg = np.fft.ifft2(-hq * ez / (1.0 + ez)).real
+    if order == 2:
+        sq = dg * dg
+        dg = dg + np.fft.ifft2(np.fft.fft2(sq - sq.mean()) / (2.0 * rho * (1.0 + ez))).real
+    return dg
+
+
+def _lme(dg: np.ndarray, rho: float) -> float:
+    """``rho ln < exp(-dg/rho) >`` by log-sum-exp (no overflow)."""
+    w = -dg.ravel() / rho
+    return rho * (float(logsumexp(w)) - math.log(w.size))
+
+
+def _flat(sigma0: float, rho: float, gamma0: float) -> float:
+    return rho * (math.log(gamma0) - math.log(rho) - math.log(sigma0))
+
+
+def lme_linear(
+    sigma0: ArrayLike, heights: ArrayLike, *, rho: float, gamma0: float, length: float = 1.0, e_star: float = 1.0
+) -> float | np.ndarray:
+    """Mean gap ``rho ln(gamma0/(rho sigma0)) + rho ln<exp(-dg1/rho)>`` [length] with the linear response ``dg1``.
+
+    Its second cumulant is ``mean_gap_discrete``; the higher cumulants of the actual (finite, random-phase)
+    surface are kept. Two FFTs per pressure. Vectorised over ``sigma0``.
+    """
+    return _lme_order(sigma0, heights, rho, gamma0, length, e_star, 1)
+
+
+def lme_second_order(
+    sigma0: ArrayLike, heights: ArrayLike, *, rho: float, gamma0: float, length: float = 1.0, e_star: float = 1.0
+) -> float | np.ndarray:
+    """As :func:`lme_linear` with the response to second order, ``dg1 + dg2`` (four FFTs per pressure)."""
+    return _lme_order(sigma0, heights, rho, gamma0, length, e_star, 2)
+
+
+def _lme_order(sigma0, heights, rho, gamma0, length, e_star, order) -> float | np.ndarray:
+    s = chk.positive_array(sigma0, "sigma0")
+    gamma0 = chk.positive(gamma0, "gamma0")
+    rho = chk.positive(rho, "rho")
+    out = np.array([
+        _flat(float(si), rho, gamma0)
+        + _lme(gap_fluctuations(float(si), heights, rho=rho, length=length, e_star=e_star, order=order), rho)
+        for si in s.ravel()
+    ]).reshape(s.shape)
+    return float(out) if out.ndim == 0 else out
+
+
+def unresolved_shift(
+    sigma0: float, heights: ArrayLike, *, k_c: int, rho: float, length: float = 1.0, e_star: float = 1.0
+) -> float:
+    """Field-theory mean-gap contribution ``(1/(2 rho)) sum_{|k| > k_c} |h~|^2 (eta zeta/(1+eta zeta))^2`` [length]
+    of the modes finer than integer wave number ``k_c`` (M4, discrete form restricted to the unresolved shells)."""
+    s = chk.positive(sigma0, "sigma0")
+    h = chk.square_heights(heights)
+    n = h.shape[0]
+    k = np.fft.fftfreq(n, d=1.0 / n)
+    kk = np.hypot(k[:, None], k[None, :])
+    power = np.abs(np.fft.fft2(h) / h.size) ** 2
+    ez = rho * (2.0 * math.pi / length) * kk * e_star / (2.0 * s)
+    fine = kk > k_c
+    return float(np.sum(power[fine] * (ez[fine] / (1.0 + ez[fine])) ** 2) / (2.0 * rho))
+
+
+def _fine_shells(h: np.ndarray, k_c: int, length: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(|q|, summed |h~|^2)`` of the shells ``|k| > k_c`` (one entry per distinct ``|k|^2``)."""
+    n = h.shape[0]
+    k = np.fft.fftfreq(n, d=1.0 / n).astype(np.int64)
+    k2 = (k[:, None] ** 2 + k[None, :] ** 2).ravel()
+    power = (np.abs(np.fft.fft2(h) / h.size) ** 2).ravel()
+    keep = k2 > k_c * k_c
+    uk2, inv = np.unique(k2[keep], return_inverse=True)
+    return (2.0 * math.pi / length) * np.sqrt(uk2.astype(float)), np.bincount(inv, weights=power[keep])
+
+
+def _shift_of_pressure(p: np.ndarray, q: np.ndarray, pw: np.ndarray, rho: float, e_star: float) -> np.ndarray:
+    """``Delta(p) = (1/(2 rho)) sum |h~|^2 (eta zeta/(1 + eta zeta))^2`` at local pressures ``p`` (M4)."""
+    ez = rho * q[None, :] * e_star / (2.0 * np.asarray(p, float)[:, None])
+    return ((ez / (1.0 + ez)) ** 2) @ pw / (2.0 * rho)
+
+
+def coarse_surface(heights: ArrayLike, k_c: int, n_c: int) -> np.ndarray:
+    """The modes ``|k| <= k_c`` of ``heights`` on an ``n_c x n_c`` grid (``n_c > 2 k_c``), same ``h~(q)`` (M2)."""
+    h = chk.square_heights(heights)
+    n = h.shape[0]
+    if not 2 * k_c < n_c <= n:
+        raise ValueError(f"n_c must satisfy 2 k_c < n_c <= n, got k_c={k_c}, n_c={n_c}, n={n}")
+    ht = np.fft.fft2(h) / h.size
+    kc_ = np.fft.fftfreq(n_c, d=1.0 / n_c).astype(int)
+    src = kc_ % n  # FFT-order index of the same integer wave number on the fine grid
+    out = ht[np.ix_(src, src)]
+    out[np.hypot(kc_[:, None], kc_[None, :]) > k_c] = 0.0
+    return np.fft.ifft2(out).real * (n_c * n_c)
+
+
+def hybrid(
+    sigma0: float,
+    heights: ArrayLike,
+    *,
+    zeta_c: float,
+    rho: float,
+    gamma0: float,
+    lambda_l: float,
+    length: float = 1.0,
+    e_star: float = 1.0,
+    tol: float = 1e-6,
+    initial=None,
+    local: bool = False,
+    iterations: int = 2,
+):
+    """Multiscale hybrid mean gap [length]: GFMD on the modes ``|q| <= zeta_c q_l``, field theory for the rest.
+
+    The unresolved modes add ``Delta = unresolved_shift(sigma0)`` to the gap of every resolved point. For the
+    exponential law a constant shift is exactly a renormalised amplitude ``gamma0_eff = gamma0 exp(Delta/rho)``,
+    so the coarse problem is an ordinary GFMD problem (``gapsweep.gfmd.solve``) on the smallest power-of-two
+    grid that carries ``zeta_c``. ``Delta`` is evaluated at the mean pressure ``sigma0`` (the approximation: the
+    unresolved modes in a contact spot see a higher local pressure). Returns ``(g0, GFMDResult)``.
+
+    ``local=True`` evaluates ``Delta`` at the local coarse pressure instead, ``Delta(r) = Delta(p_c(r))``, by a
+    fixed point (``iterations`` more coarse solves, each warm-started): the effective law
+    ``(gamma0/rho) exp(-(g_c - Delta(r))/rho)`` is GFMD on the heights ``h_c + Delta(r)`` (made zero-mean), and the
+    mean gap is that solve's mean gap plus ``<Delta>`` (the fine modes have zero mean, so the mean gap is the
+    coarse one; docs/theory.md).
+    """
+    from gapsweep import gfmd  # local: theory stays importable without the solver's optional deps
+
+    h = chk.square_heights(heights)
+    zeta_c = chk.positive(zeta_c, "zeta_c")
+    k_c = int(math.floor(zeta_c * length / lambda_l + 1e-9))
+    n_c = 8
+    while n_c <= 2 * k_c:
+        n_c *= 2
+    # zeta_c at or beyond the grid's Nyquist: everything is resolved, the full surface is the coarse one
+    hc = coarse_surface(h, k_c, n_c) if n_c < h.shape[0] else h - h.mean()
+    delta = unresolved_shift(sigma0, h, k_c=k_c, rho=rho, length=length, e_star=e_star)
+    res = gfmd.solve(hc, sigma0=sigma0, gamma0=gamma0 * math.exp(delta / rho), rho=rho, e_star=e_star,
+                     length=length, tol=tol, initial=initial)
+    log.debug("hybrid zeta_c=%g n_c=%d delta=%g status=%s", zeta_c, hc.shape[0], delta, res.status)
+    g0 = float(res.mean_gap)
+    if local and delta > 0.0:
+        iterations = chk.count(iterations, "iterations")
+        q, pw = _fine_shells(h, k_c, length)
+        for _ in range(iterations):
+            lp = np.log(np.maximum(np.asarray(res.pressure, float), 1e-300))
+            # Delta is smooth in ln p: tabulate on 64 points and interpolate (the fine shells are many)
+            grid = np.linspace(lp.min(), lp.max() + 1e-12, 64)
+            d = np.interp(lp, grid, _shift_of_pressure(np.exp(grid), q, pw, rho, e_star))
+            he = hc + d
+            res = gfmd.solve(he - he.mean(), sigma0=sigma0, gamma0=gamma0, rho=rho, e_star=e_star, length=length,
+                             tol=tol, initial=res)
+            g0 = float(res.mean_gap) + float(d.mean())
+            log.debug("hybrid local step: g0=%g <Delta>=%g status=%s", g0, d.mean(), res.status)
+    return g0, res
