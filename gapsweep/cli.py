@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from pathlib import Path
 
@@ -80,6 +81,17 @@ def _setup_logging() -> None:
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     _setup_logging()
+    code = _main(args)
+    from gapsweep import store
+
+    if store.io_failed():  # HDF5 may crash in its exit handlers after a failed write: leave without them
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    return code
+
+
+def _main(args: argparse.Namespace) -> int:
     from gapsweep.limits import Interrupted
     from gapsweep.spec import SpecError
 

@@ -36,6 +36,7 @@ from gapsweep import budget, lease, limits, provenance, storecheck
 from gapsweep import spec as specmod
 from gapsweep.limits import Interrupted, TaskTimeout
 from gapsweep.store import Store, StoreError, StoreWriteError, open_read
+from gapsweep.store import io_failed as store_io_failed
 from gapsweep.tasks import (
     STATUS,
     Context,
@@ -130,6 +131,19 @@ def _select(spec: specmod.JobSpec, shard: tuple[int, int] | None) -> tuple[list[
     return [tasks_all[i] for i in sel], [Unit(tuple(remap[i] for i in u.tasks), u.cost, u.gpu) for u in units]
 
 
+def _load(job: str | Path | specmod.JobSpec) -> specmod.JobSpec:
+    """Load and validate a spec, including its ``extra`` keys against the solvers' signatures."""
+    if isinstance(job, specmod.JobSpec):
+        check_extra(job)
+        return job
+    spec = specmod.load(job)
+    try:
+        check_extra(spec)
+    except specmod.SpecError as e:
+        raise specmod.SpecError(f"{job}: {e}") from None
+    return spec
+
+
 def plan(job: str | Path | specmod.JobSpec, shard: tuple[int, int] | None = None, ranks: int = 1,
          store: str | Path | None = None) -> str:
     """Text summary of a job: tasks per method, units, cost estimate (core-seconds and wall time on ``ranks``),
@@ -137,8 +151,7 @@ def plan(job: str | Path | specmod.JobSpec, shard: tuple[int, int] | None = None
     does not take) and ``RunError`` for what will not fit (memory of this machine, free disk at ``store``)."""
     if not isinstance(ranks, int) or ranks < 1:
         raise ValueError(f"--ranks: expected an integer >= 1, got {ranks!r}")
-    spec = job if isinstance(job, specmod.JobSpec) else specmod.load(job)
-    check_extra(spec)
+    spec = _load(job)
     tasks, units = _select(spec, shard)
     lines = [f"job {spec.name!r}: {len(tasks)} tasks in {len(units)} units"
              + (f" (shard {shard[0]}/{shard[1]})" if shard else "")]
@@ -324,8 +337,7 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
                          "--overwrite discards them")
     if task_timeout is not None and not (isinstance(task_timeout, (int, float)) and 0 < task_timeout < 1e9):
         raise ValueError(f"--task-timeout: expected seconds > 0, got {task_timeout!r}")
-    spec = job if isinstance(job, specmod.JobSpec) else specmod.load(job)
-    check_extra(spec)
+    spec = _load(job)
     comm = _comm(mpi)
     rank, size = (comm.rank, comm.size) if comm is not None else (0, 1)
     if os.environ.get("GAPSWEEP_TEST_PIDDIR"):  # test hook: lets a test kill -9 one particular rank
@@ -467,7 +479,8 @@ def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list
     except (StoreWriteError, OSError) as e:
         if comm is None:
             if st is not None:
-                _abandon(st)
+                record.update(stopped=str(e)[:200], stopped_at=provenance.now())
+                _abandon(st, record)
                 st = None
             raise RunError(f"{e if isinstance(e, StoreWriteError) else f'store {path}: {e}'}; every row finished "
                            "before is intact: fix the cause (free space, file-size limit) and run again with "
@@ -496,7 +509,11 @@ def _open_store(path: Path, mode: str, tasks: list[Task], attrs: dict[str, Any],
     if mode == "create":
         tmp = path.with_name(f".{path.name}.tmp-{run_id}")
         try:
-            Store.create(tmp, tasks, attrs, bins, comm=comm).close()
+            try:
+                Store.create(tmp, tasks, attrs, bins, comm=comm).close()
+            except StoreWriteError as e:
+                raise StoreWriteError(f"store {path}: cannot be created ({str(e).split(': ', 1)[-1]}); "
+                                      "nothing was written") from None
             if comm is not None:
                 comm.Barrier()
             if rank == 0:
@@ -523,10 +540,14 @@ def _close_record(st: Store, record: dict[str, Any]) -> None:
         st.close()
 
 
-def _abandon(st: Store) -> None:
-    """Close a store after an error without letting a second error (a full disk again) escape."""
+def _abandon(st: Store, record: dict[str, Any] | None = None) -> None:
+    """Close a store after an error (recording why the run stopped, if that can still be written) without
+    letting a second error (a full disk again) escape."""
     try:
-        st.close()
+        if record is not None and not store_io_failed():
+            _close_record(st, record)
+        else:
+            st.close()
     except Exception as e:  # the rows were flushed one by one; only this last flush is lost
         log.warning("closing %s after an error: %s", st.f.filename if st.f else "store", e)
 

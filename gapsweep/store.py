@@ -74,6 +74,60 @@ class StoreWriteError(StoreError):
     """Writing to a store failed (full disk, file-size limit, I/O error); rows written before are intact."""
 
 
+# Set when an HDF5 write or close failed in this process: the library may then crash while tearing down at
+# interpreter exit (seen with ENOSPC / EFBIG), so the CLI ends such a process with os._exit after its message.
+_io_failed = False
+
+
+def io_failed() -> bool:
+    """Whether an HDF5 write failed in this process (see ``_io_failed``)."""
+    return _io_failed
+
+
+_kept: list[Any] = []
+
+
+@contextmanager
+def _quiet_dealloc():
+    """After a failed write HDF5 reports each object it cannot release through ``sys.unraisablehook`` (a
+    traceback per object); the error raised to the caller says it once, so those are logged at debug level."""
+    import sys
+
+    old = sys.unraisablehook
+
+    def hook(u: Any) -> None:
+        if "h5py" in repr(getattr(u, "object", "")) or "ObjectID" in repr(getattr(u, "object", "")):
+            log.debug("HDF5 release after a failed write: %s", u.exc_value)
+        else:
+            old(u)
+
+    import io
+
+    sys.unraisablehook = hook
+    err, sys.stderr = sys.stderr, io.StringIO()  # h5py prints some of those tracebacks itself
+    try:
+        yield
+    finally:
+        sys.unraisablehook = old
+        caught, sys.stderr = sys.stderr.getvalue(), err
+        if caught:
+            log.debug("HDF5 release after a failed write: %s", caught)
+
+
+def _failed(msg: str) -> StoreWriteError:
+    """The error to raise after a failed HDF5 write (called inside the ``except``). HDF5 may crash when the
+    objects of a file whose write failed are released, so they (and the failing frames) are kept alive to the
+    end of the process."""
+    global _io_failed
+    import gc
+    import sys
+
+    _io_failed = True
+    _kept.append(sys.exc_info()[2])
+    _kept.extend(o for o in gc.get_objects() if isinstance(o, (h5py.File, h5py.Group, h5py.Dataset, Store)))
+    return StoreWriteError(msg)
+
+
 def _early() -> Any:
     # Allocate every dataset's storage at creation: a row write then only overwrites bytes the file already
     # has, so a disk that fills up (or a file-size limit) during the run cannot hit a row write.
@@ -141,11 +195,17 @@ class Store:
                comm: Any = None) -> Store:
         """Create the file with every dataset preallocated. With ``comm`` (mpio) all ranks must call this with
         the same arguments; rank 0 then writes the task table and the initial (pending) rows."""
+        with _quiet_dealloc():
+            return cls._create(path, tasks, attrs, bins, comm)
+
+    @classmethod
+    def _create(cls, path: str | Path, tasks: Sequence[Task], attrs: dict[str, Any], bins: int,
+                comm: Any) -> Store:
         n = len(tasks)
-        if comm is not None:
-            f = h5py.File(path, "w", driver="mpio", comm=comm)
-        else:
-            f = h5py.File(path, "w")
+        try:
+            f = h5py.File(path, "w", driver="mpio", comm=comm) if comm is not None else h5py.File(path, "w")
+        except (OSError, RuntimeError) as e:
+            raise _failed(f"store {path}: cannot create ({e})") from None
         try:
             for k, v in attrs.items():
                 f.attrs[k] = v
@@ -161,6 +221,11 @@ class Store:
             f.flush()
             if comm is not None:
                 comm.Barrier()
+        except (OSError, RuntimeError) as e:
+            if isinstance(e, StoreError):
+                f.close()
+                raise
+            raise _failed(f"store {path}: creating the datasets failed ({e})") from None  # not closed: see _failed
         except BaseException:
             f.close()
             raise
@@ -194,6 +259,10 @@ class Store:
         :class:`StoreWriteError`."""
         if res.hist is not None and (len(res.hist[1]) != self.bins or len(res.hist[0]) != self.bins + 1):
             raise StoreError(f"histogram of task {i} has {len(res.hist[1])} bins, the store has {self.bins}")
+        with _quiet_dealloc():
+            self._write(i, res, flush)
+
+    def _write(self, i: int, res: TaskResult, flush: bool) -> None:
         try:
             if res.hist is not None:
                 edges, density, _ = res.hist
@@ -201,24 +270,47 @@ class Store:
                 self._density[i] = density
                 if flush and not self.parallel:
                     self.f.flush()
+            self._inject()
             self._res[i] = result_row(res)[0]
             if flush and not self.parallel:
                 self.f.flush()
-        except OSError as e:
-            raise StoreWriteError(f"store {self.f.filename}: writing row {i} failed ({e})") from None
+        except (OSError, RuntimeError) as e:
+            raise _failed(f"store {self.f.filename}: writing row {i} failed ({e})") from None
+
+    _writes = 0
+
+    def _inject(self) -> None:
+        # Test hook (tests/faults): GAPSWEEP_TEST_WRITE_ERROR=k makes the k-th row write of this process fail
+        # between its payload and its status, as a full disk would.
+        # GAPSWEEP_TEST_KILL_AT_WRITE=k kills the process (SIGKILL) at that same point.
+        k = os.environ.get("GAPSWEEP_TEST_WRITE_ERROR", "")
+        kill = os.environ.get("GAPSWEEP_TEST_KILL_AT_WRITE", "")
+        if k or kill:
+            Store._writes += 1
+            if kill and Store._writes == int(kill):
+                import signal
+
+                os.kill(os.getpid(), signal.SIGKILL)
+            if k and Store._writes == int(k):
+                raise OSError(28, "No space left on device (injected by GAPSWEEP_TEST_WRITE_ERROR)")
 
     def set_attrs(self, attrs: dict[str, Any], *, flush: bool = False) -> None:
         """Set file attributes (collective under mpio: every rank passes the same values)."""
         try:
-            for k, v in attrs.items():
-                self.f.attrs[k] = v
-            if flush:
-                self.f.flush()
-        except OSError as e:
-            raise StoreWriteError(f"store {self.f.filename}: writing attributes failed ({e})") from None
+            with _quiet_dealloc():
+                for k, v in attrs.items():
+                    self.f.attrs[k] = v
+                if flush:
+                    self.f.flush()
+        except (OSError, RuntimeError) as e:
+            raise _failed(f"store {self.f.filename}: writing attributes failed ({e})") from None
 
     def close(self) -> None:
-        self.f.close()
+        try:
+            with _quiet_dealloc():
+                self.f.close()
+        except (OSError, RuntimeError) as e:
+            raise _failed(f"store {self.f.filename if self.f else ''}: closing failed ({e})") from None
 
 
 # ---------------------------------------------------------------------------------------------------------
