@@ -62,3 +62,27 @@ def human(n: float) -> str:
             return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
         n /= 1000
     return f"{n:.1f} TB"  # pragma: no cover
+
+
+PROBE_BYTES = 1 << 20
+
+
+def probe_growth(path: str | Path, nbytes: int = PROBE_BYTES, size: int | None = None) -> None:
+    """Check that the store at ``path`` can grow by ``nbytes``: write that many bytes to a scratch file beside
+    it (full disk) and one byte at offset ``size + nbytes`` (file-size limit; ``size``: the store's size, or
+    the size a new store will have), then remove it. Raises OSError.
+
+    HDF5 does not survive a failed metadata write (a store can be left unreadable), so metadata updates of an
+    existing store (its run record) are made only after this check (docs/reliability.md)."""
+    p = Path(path)
+    if size is None:
+        size = p.stat().st_size if p.exists() else 0
+    probe = p.with_name(f".{p.name}.probe-{os.getpid()}")
+    fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    try:
+        os.write(fd, b"\0" * nbytes)
+        os.pwrite(fd, b"\0", size + nbytes)
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+        probe.unlink(missing_ok=True)

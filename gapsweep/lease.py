@@ -147,9 +147,13 @@ def acquire(store: str | Path, *, break_lease: bool = False, purpose: str = "run
                 os.replace(p, p.with_name(p.name + f".broken-{run_id}"))
                 os.unlink(p.with_name(p.name + f".broken-{run_id}"))
             continue
-        with os.fdopen(fd, "w") as fh:
-            json.dump(info, fh)
-            fh.flush()
-            os.fsync(fh.fileno())
+        try:
+            with os.fdopen(fd, "w") as fh:
+                json.dump(info, fh)
+                fh.flush()
+                os.fsync(fh.fileno())
+        except OSError as e:
+            p.unlink(missing_ok=True)
+            raise LeaseError(f"store {store}: cannot write its lease file {p} ({e.strerror})") from None
         return Lease(p, run_id)
     raise LeaseError(f"store {store}: could not take the lease {p} (another process keeps taking it)")

@@ -202,6 +202,11 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
         free = budget.disk_free(path.parent)
         if size > free:
             raise RunError(f"store {path}: needs ~{budget.human(size)}, only {budget.human(free)} free there")
+        try:  # a file-size limit (ulimit -f) would otherwise fail inside the collective creation under mpio
+            budget.probe_growth(path, min(size, budget.PROBE_BYTES), size=size)
+        except OSError as e:
+            raise RunError(f"store {path}: cannot be created ({e.strerror}: full disk or file-size limit, "
+                           f"~{budget.human(size)} needed); nothing was written") from None
         return "create", list(range(len(tasks)))
     try:
         with open_read(path) as f:
@@ -220,6 +225,11 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
     if not resume:
         raise RunError(f"store {path} exists with {len(todo)} of {len(tasks)} tasks pending: pass --resume to "
                        "finish it or --overwrite to start again")
+    try:
+        budget.probe_growth(path)
+    except OSError as e:
+        raise RunError(f"store {path}: no room to record a new run ({e.strerror}: full disk or file-size "
+                       "limit); nothing was changed: free space and run again") from None
     return "resume", todo
 
 
@@ -528,14 +538,27 @@ def _open_store(path: Path, mode: str, tasks: list[Task], attrs: dict[str, Any],
 
 
 def _close_record(st: Store, record: dict[str, Any]) -> None:
-    """Replace the run's record (the last one) and close the store (collective under mpio)."""
+    """Replace the run's record (the last one) and close the store (collective under mpio). The record is
+    written only if the file can grow (budget.probe_growth; a failed metadata write can ruin an HDF5 file):
+    otherwise it is left as it was (the run then reads as "running or killed") and a warning says why."""
     runs = json.loads(st.f.attrs.get("runs", "[]"))
     runs[-1] = record
     new = {"runs": json.dumps(runs)}
     if record.get("finished"):
         new["finished"] = record["finished"]
+    ok: Any = True
+    if st.comm is None or st.comm.rank == 0:
+        try:
+            budget.probe_growth(st.path)
+        except OSError as e:
+            ok = e.strerror
+    if st.comm is not None:
+        ok = st.comm.bcast(ok, root=0)
     try:
-        st.set_attrs(new, flush=True)
+        if ok is True:
+            st.set_attrs(new, flush=True)
+        else:
+            log.warning("%s: the run record was not updated (%s); every row is written", st.path, ok)
     finally:
         st.close()
 
@@ -549,7 +572,7 @@ def _abandon(st: Store, record: dict[str, Any] | None = None) -> None:
         else:
             st.close()
     except Exception as e:  # the rows were flushed one by one; only this last flush is lost
-        log.warning("closing %s after an error: %s", st.f.filename if st.f else "store", e)
+        log.warning("closing %s after an error: %s", st.path, e)
 
 
 def _abort(comm: Any, rank: int, wmode: str, held: lease.Lease | None, e: BaseException) -> None:

@@ -182,6 +182,7 @@ class Store:
 
     def __init__(self, f: h5py.File, comm: Any = None) -> None:
         self.f = f
+        self.path = f.filename  # kept: a file whose close failed must not be asked again
         self.comm = comm
         self._res = f["results"]
         self._edges = f["histograms/edges"]
@@ -275,7 +276,7 @@ class Store:
             if flush and not self.parallel:
                 self.f.flush()
         except (OSError, RuntimeError) as e:
-            raise _failed(f"store {self.f.filename}: writing row {i} failed ({e})") from None
+            raise _failed(f"store {self.path}: writing row {i} failed ({e})") from None
 
     _writes = 0
 
@@ -303,14 +304,14 @@ class Store:
                 if flush:
                     self.f.flush()
         except (OSError, RuntimeError) as e:
-            raise _failed(f"store {self.f.filename}: writing attributes failed ({e})") from None
+            raise _failed(f"store {self.path}: writing attributes failed ({e})") from None
 
     def close(self) -> None:
         try:
             with _quiet_dealloc():
                 self.f.close()
         except (OSError, RuntimeError) as e:
-            raise _failed(f"store {self.f.filename if self.f else ''}: closing failed ({e})") from None
+            raise _failed(f"store {self.path}: closing failed ({e})") from None
 
 
 # ---------------------------------------------------------------------------------------------------------
