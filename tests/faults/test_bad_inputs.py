@@ -179,3 +179,15 @@ def test_nonfinite_theory_result_is_failed(tmp_path, monkeypatch):
     assert set(df.status) == {"failed"}
     assert all("non-finite result" in m for m in df.message)
 
+
+
+def test_plan_refuses_what_will_not_fit(tmp_path):
+    """A GFMD grid of 65536^2 needs ~1 TB per rank: plan says so and refuses (exit 1). (`run` is not tried: it does not
+    refuse on this rough upper bound and would start allocating.)"""
+    job = tmp_path / "big.toml"
+    job.write_text(BASE.replace('[methods.theory]\nforms = ["paper", "continuum", "discrete"]\nn = 64',
+                                "[methods.gfmd]\nn = 65536\nseeds = [0]\nhurst = [0.3]\nrho = [2e-3]\n"
+                                "sigma0 = [1e-2]"))
+    p = gs("plan", job)
+    one_line_error(p, "per rank", "more than this machine")
+    assert p.returncode == 1
