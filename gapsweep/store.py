@@ -11,9 +11,10 @@ written independently, in any order, by any rank; under ``driver="mpio"`` the cr
 * file attributes: format, spec text and hash, job name, shard, provenance (versions, git commit), runs.
 
 The default (earliest) HDF5 file format is used on purpose: it has no "file open for write" superblock flag,
-so a file whose writer was killed with ``kill -9`` stays readable without ``h5clear`` (SETUP.md). Each row is
-flushed as it is written (serial writer); under ``mpio`` raw data goes straight to MPI-IO (no sieve buffer),
-and all metadata is written and flushed at creation.
+so a file whose writer was killed with ``kill -9`` stays readable without ``h5clear`` (docs/store.md). Storage is
+allocated at creation (a row write never grows the file); each row is written payload first, status last, and
+flushed (serial writer); under ``mpio`` raw data goes straight to MPI-IO (no sieve buffer), and all metadata is
+written and flushed at creation. Reliability (leases, validation, write errors): docs/reliability.md.
 """
 
 from __future__ import annotations
@@ -38,7 +39,9 @@ __all__ = [
     "FORMAT",
     "Store",
     "StoreError",
+    "StoreWriteError",
     "diff",
+    "io_failed",
     "merge",
     "open_read",
     "read",
