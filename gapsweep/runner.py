@@ -444,6 +444,8 @@ def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list
                     with stop.critical():
                         st.write(i, res)
                     prog.update(res)
+                    if stop.requested():  # the stop file (a signal raises by itself)
+                        raise Interrupted(stop.signum)
         elif rank == 0:
             works = coordinator_works == "yes" or (coordinator_works == "auto" and size <= 4)
             gpus = comm.gather(ctx.gpu, root=0)

@@ -118,3 +118,20 @@ def test_task_timeout_mpi_rank0_thread(tmp_path):
     df = store.read(path)
     assert set(df.status) == {"failed"} and set(df["rank"]) == {0, 1}
     assert all(m.startswith("timeout:") for m in df.message)
+
+
+def test_stop_file_serial(tmp_path, refs):
+    path = tmp_path / "s.h5"
+    p = gs_popen("run", JOBS["theory"], "--store", path, "--mpi", "off", "--progress", "none",
+                 GAPSWEEP_TEST_DELAY="0.05")
+    wait_done(path, 4, p)
+    seen = done_rows(path)
+    (tmp_path / "s.h5.stop").touch()
+    rc, _, err = finish(p)
+    assert rc == 143, err
+    assert_only_done_pending(path)
+    assert_done_kept(seen, path)
+    assert _last_run(path)["interrupted"] == "SIGTERM"
+    assert lease.read(path) is None
+    resume_to_ref(path, refs["theory"], JOBS["theory"])
+    assert not (tmp_path / "s.h5.stop").exists()
