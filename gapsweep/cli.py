@@ -1,8 +1,9 @@
 """Command-line interface (thin): ``gapsweep plan | run | status | merge | report | export | demo``.
 
-Exit codes: 0 success, 1 a task-independent error (a run that cannot start, a store that cannot be merged, a
-missing optional dependency, an output that exists), 2 an invalid job spec or argument (nothing is written),
-141 the reader of standard output went away (``gapsweep ... | head``), as for any command killed by SIGPIPE.
+Exit codes: 0 success, 1 a task-independent error (a run that cannot start, a store that cannot be read or
+merged, a write error, a missing optional dependency, an output that exists), 2 an invalid job spec or argument
+(nothing is written), 3 a run in which every task failed, 130 / 143 a run stopped by SIGINT / SIGTERM (recorded
+as interrupted; finish it with --resume), 141 the reader of standard output went away (``gapsweep ... | head``).
 
 The library logs through ``logging.getLogger("gapsweep")``; :func:`main` attaches one stderr handler to it
 (``-v`` for debug messages, ``-q`` for warnings only) and prints the commands' own results on stdout.
@@ -47,6 +48,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("job", help="job spec (TOML), see docs/jobs.md")
     s.add_argument("--shard", help="i/n: plan only shard i of n")
     s.add_argument("--ranks", type=int, default=1, help="ranks for the wall-time estimate (default 1)")
+    s.add_argument("--store", help="check that the store fits on the disk of this path")
 
     s = sub.add_parser("run", help="run a job into a store (serial, or under mpiexec as an MPI task farm)")
     s.add_argument("job", help="job spec (TOML)")
@@ -62,6 +64,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="whether MPI rank 0 also runs tasks (auto: when 4 ranks or fewer)")
     s.add_argument("--mpi", choices=("auto", "on", "off"), default="auto",
                    help="auto: use MPI when started by an MPI launcher")
+    s.add_argument("--break-lease", action="store_true",
+                   help="take over the store's lease from a run that is gone (killed, or on a lost node)")
+    s.add_argument("--task-timeout", type=float, default=None, metavar="SECONDS",
+                   help="record a task running longer than this as failed (timeout) and go on")
 
     s = sub.add_parser("status", help="summarise a running or finished store")
     s.add_argument("store", help="HDF5 store written by `gapsweep run`")
@@ -70,6 +76,11 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("shards", nargs="+", help="shard stores of one job (same spec)")
     s.add_argument("--out", required=True, help="merged store to write")
     s.add_argument("--overwrite", action="store_true", help="replace an existing --out")
+    s.add_argument("--on-conflict", choices=("error", "first", "last"), default="error",
+                   help="rows of one task with equal status and different results in two shards: refuse "
+                        "(default) or keep the first / last shard's; a better status always wins (done > "
+                        "not_converged > failed)")
+    s.add_argument("--break-lease", action="store_true", help="take over the output's lease from a merge that is gone")
 
     s = sub.add_parser("report", help="figures, tables and verdicts from one or more stores (analysis package)")
     s.add_argument("store", nargs="+", help="HDF5 stores; figures are chosen from their axes and methods")
@@ -102,7 +113,19 @@ def _setup_logging(verbose: bool, quiet: bool) -> None:
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     _setup_logging(args.verbose, args.quiet)
+    code = _main(args)
+    from gapsweep import store
+
+    if store.io_failed():  # HDF5 may crash in its exit handlers after a failed write: leave without them
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    return code
+
+
+def _main(args: argparse.Namespace) -> int:
     from gapsweep._extras import MissingExtraError
+    from gapsweep.limits import Interrupted
     from gapsweep.spec import SpecError
 
     try:
@@ -117,6 +140,15 @@ def main(argv: list[str] | None = None) -> int:
     except MissingExtraError as e:
         print(f"gapsweep: {e}", file=sys.stderr)
         return 1
+    except Interrupted as e:
+        c = e.counts
+        print(f"gapsweep: run {e}: {c.get('done', 0)} done, {c.get('failed', 0)} failed, "
+              f"{c.get('not_converged', 0)} not converged in this run; recorded as interrupted, finish with "
+              "--resume", file=sys.stderr)
+        return e.exit_code
+    except KeyboardInterrupt:
+        print("gapsweep: interrupted", file=sys.stderr)
+        return 130
     except SpecError as e:
         print(f"gapsweep: invalid job spec: {e}", file=sys.stderr)
         return 2
@@ -132,17 +164,25 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "plan":
         from gapsweep import runner
 
-        print(runner.plan(args.job, runner.parse_shard(args.shard), args.ranks))
+        if args.ranks < 1:
+            raise ValueError(f"--ranks: expected an integer >= 1, got {args.ranks}")
+        print(runner.plan(args.job, runner.parse_shard(args.shard), args.ranks, store=args.store))
         return 0
     if args.command == "run":
         from gapsweep import runner
 
         s = runner.run(args.job, args.store, resume=args.resume, overwrite=args.overwrite,
                        shard=runner.parse_shard(args.shard), writer=args.writer, progress=args.progress,
-                       coordinator_works=args.coordinator_works, mpi=args.mpi)
+                       coordinator_works=args.coordinator_works, mpi=args.mpi, break_lease=args.break_lease,
+                       task_timeout=args.task_timeout)
         if s["rank"] == 0 and args.progress != "none":
             print(f"{s['store']}: {s['mode']}, {s['todo']} of {s['tasks']} tasks run: {s['done']} done, "
                   f"{s['failed']} failed, {s['not_converged']} not converged")
+        if s["todo"] and s["failed"] == s["todo"]:
+            if s["rank"] == 0:
+                print(f"gapsweep: every task of this run failed ({s['failed']}); see `gapsweep status "
+                      f"{s['store']}`", file=sys.stderr)
+            return 3
         return 0
     if args.command == "status":
         from gapsweep import store
@@ -152,7 +192,8 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "merge":
         from gapsweep import store
 
-        counts = store.merge(args.shards, args.out, overwrite=args.overwrite)
+        counts = store.merge(args.shards, args.out, overwrite=args.overwrite, on_conflict=args.on_conflict,
+                             break_lease=args.break_lease)
         print(f"merged {len(args.shards)} shard(s) into {args.out}: "
               + ", ".join(f"{v} {k}" for k, v in counts.items()))
         return 0

@@ -11,31 +11,52 @@
   file content.
 * Any exception outside a task on any rank ends the job with ``comm.Abort(1)`` (a rank leaving a collective call
   would otherwise hang the others). Exceptions inside a task are recorded in its row and the sweep goes on.
+* Reliability (docs/reliability.md): the store's lease is taken by the process (rank 0) that decides, before
+  any HDF5 open for writing; a new store is created under a temporary name and renamed into place; the store is
+  validated on resume and incomplete rows are re-run; a write error stops the run with one line; SIGINT/SIGTERM
+  or a ``<store>.stop`` file end the run cleanly, recorded as interrupted (exit 130/143).
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import os
 import queue
 import socket
 import sys
 import threading
 import time
-import traceback
 from collections import deque
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from gapsweep import provenance
+from gapsweep import budget, lease, limits, provenance, storecheck
 from gapsweep import spec as specmod
-from gapsweep.store import Store, StoreError, open_read
-from gapsweep.tasks import STATUS, Context, Task, TaskResult, Unit, expand, make_units, run_unit, shard_units
+from gapsweep.limits import Interrupted, TaskTimeout
+from gapsweep.store import Store, StoreError, StoreWriteError, open_read
+from gapsweep.store import io_failed as store_io_failed
+from gapsweep.tasks import (
+    STATUS,
+    Context,
+    Task,
+    TaskResult,
+    Unit,
+    check_extra,
+    expand,
+    make_units,
+    run_task,
+    shard_units,
+)
 
-__all__ = ["RunError", "parse_shard", "plan", "run"]
+__all__ = ["Interrupted", "RunError", "parse_shard", "plan", "run"]
 
-TAG_READY, TAG_WORK, TAG_ROW = 1, 2, 3
+log = logging.getLogger("gapsweep.runner")
+
+TAG_READY, TAG_WORK, TAG_ROW, TAG_STOP = 1, 2, 3, 4
 _MPI_ENV = ("OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_RANK", "MPI_LOCALNRANKS", "PMI_RANK")
+_MPI_SIZE_ENV = ("OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_SIZE", "MPI_LOCALNRANKS")
 
 
 class RunError(RuntimeError):
@@ -65,13 +86,37 @@ def parse_shard(text: str | None) -> tuple[int, int] | None:
     return i, n
 
 
-def _comm(mpi: str) -> Any:
-    """COMM_WORLD when launched by an MPI launcher (or ``mpi="on"``) and its size is > 1, else None."""
-    if mpi == "off" or (mpi == "auto" and not any(k in os.environ for k in _MPI_ENV)):
-        return None
-    from mpi4py import MPI
+def _launcher_size() -> int:
+    """Number of ranks the MPI launcher started, from its environment (1 when not under a launcher)."""
+    for k in _MPI_SIZE_ENV:
+        v = os.environ.get(k, "")
+        if v.isdigit() and int(v) > 0:
+            return int(v)
+    return 1
 
+
+def _comm(mpi: str) -> Any:
+    """COMM_WORLD when launched by an MPI launcher (or ``mpi="on"``) and its size is > 1, else None.
+
+    Refuses (RunError, on every rank) a launch of several ranks with ``mpi="off"`` -- each would run the whole
+    job into the same store -- and an mpi4py that sees one rank where the launcher started several (mpi4py
+    built against another MPI library)."""
+    launched = _launcher_size()
+    if mpi == "off":
+        if launched > 1:
+            raise RunError(f"started by an MPI launcher with {launched} ranks but with --mpi off: every rank would "
+                           "run the whole job; drop --mpi off, or start one process")
+        return None
+    if mpi == "auto" and not any(k in os.environ for k in _MPI_ENV):
+        return None
+    try:
+        from mpi4py import MPI
+    except ImportError as e:
+        raise RunError(f"MPI requested or launcher detected, but mpi4py cannot be imported ({e})") from None
     comm = MPI.COMM_WORLD
+    if launched > 1 and comm.size != launched:
+        raise RunError(f"the MPI launcher started {launched} ranks but mpi4py sees {comm.size}: mpi4py is built "
+                       "against another MPI library than the launcher's (see docs/running.md)")
     return comm if comm.size > 1 else None
 
 
@@ -86,9 +131,27 @@ def _select(spec: specmod.JobSpec, shard: tuple[int, int] | None) -> tuple[list[
     return [tasks_all[i] for i in sel], [Unit(tuple(remap[i] for i in u.tasks), u.cost, u.gpu) for u in units]
 
 
-def plan(job: str | Path | specmod.JobSpec, shard: tuple[int, int] | None = None, ranks: int = 1) -> str:
-    """Text summary of a job: tasks per method, units, cost estimate (core-seconds and wall time on ``ranks``)."""
-    spec = job if isinstance(job, specmod.JobSpec) else specmod.load(job)
+def _load(job: str | Path | specmod.JobSpec) -> specmod.JobSpec:
+    """Load and validate a spec, including its ``extra`` keys against the solvers' signatures."""
+    if isinstance(job, specmod.JobSpec):
+        check_extra(job)
+        return job
+    spec = specmod.load(job)
+    try:
+        check_extra(spec)
+    except specmod.SpecError as e:
+        raise specmod.SpecError(f"{job}: {e}") from None
+    return spec
+
+
+def plan(job: str | Path | specmod.JobSpec, shard: tuple[int, int] | None = None, ranks: int = 1,
+         store: str | Path | None = None) -> str:
+    """Text summary of a job: tasks per method, units, cost estimate (core-seconds and wall time on ``ranks``),
+    peak memory per rank and store size. Raises ``SpecError`` for what cannot run (an ``extra`` key the solver
+    does not take) and ``RunError`` for what will not fit (memory of this machine, free disk at ``store``)."""
+    if not isinstance(ranks, int) or ranks < 1:
+        raise ValueError(f"--ranks: expected an integer >= 1, got {ranks!r}")
+    spec = _load(job)
     tasks, units = _select(spec, shard)
     lines = [f"job {spec.name!r}: {len(tasks)} tasks in {len(units)} units"
              + (f" (shard {shard[0]}/{shard[1]})" if shard else "")]
@@ -106,6 +169,19 @@ def plan(job: str | Path | specmod.JobSpec, shard: tuple[int, int] | None = None
     longest = max((u.cost for u in units), default=0.0)
     lines.append(f"  estimated cost ~{total:.1f} core-s; on {ranks} rank(s) ~{max(total / ranks, longest):.1f} s "
                  "wall (rough model, see docs/jobs.md)")
+    mem = budget.peak_memory(tasks)
+    size = budget.store_bytes(len(tasks), spec.histogram["bins"], len(spec.text))
+    lines.append(f"  peak memory ~{budget.human(mem)} per rank; store ~{budget.human(size)}")
+    ram = budget.memory_total()
+    if ram and mem > ram:
+        raise RunError(f"the job needs ~{budget.human(mem)} per rank, more than this machine's "
+                       f"{budget.human(ram)}: use smaller grids (n, samples) or fewer tasks per job (shards)")
+    if store is not None:
+        path = _store_path(store, shard)
+        free = budget.disk_free(path.parent)
+        lines.append(f"  free disk at {path.parent}: {budget.human(free)}")
+        if size > free:
+            raise RunError(f"store {path}: needs ~{budget.human(size)}, only {budget.human(free)} free there")
     return "\n".join(lines)
 
 
@@ -118,26 +194,42 @@ def _store_path(path: str | Path, shard: tuple[int, int] | None) -> Path:
 
 def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: str, resume: bool,
             overwrite: bool) -> tuple[str, list[int]]:
-    """('create' | 'resume' | 'noop', task indices to run). Raises RunError when the store cannot be used."""
+    """('create' | 'resume' | 'noop', task indices to run). Raises RunError when the store cannot be used.
+    On resume the store is validated (docs/reliability.md): pending rows, rows of unknown status and done rows
+    without a complete result are run again."""
     if not path.exists() or overwrite:
+        size = budget.store_bytes(len(tasks), spec.histogram["bins"], len(spec.text))
+        free = budget.disk_free(path.parent)
+        if size > free:
+            raise RunError(f"store {path}: needs ~{budget.human(size)}, only {budget.human(free)} free there")
+        try:  # a file-size limit (ulimit -f) would otherwise fail inside the collective creation under mpio
+            budget.probe_growth(path, min(size, budget.PROBE_BYTES), size=size)
+        except OSError as e:
+            raise RunError(f"store {path}: cannot be created ({e.strerror}: full disk or file-size limit, "
+                           f"~{budget.human(size)} needed); nothing was written") from None
         return "create", list(range(len(tasks)))
     try:
         with open_read(path) as f:
             sha, shard = f.attrs.get("spec_sha256"), f.attrs.get("shard")
             ids = [x.decode() for x in f["tasks"].fields("task_id")[...]] if f["tasks"].shape[0] else []
-            st = f["results"].fields("status")[...] if ids else []
-    except (OSError, StoreError, KeyError) as e:
-        raise RunError(f"store {path} exists but cannot be read as a gapsweep store ({e}); "
-                       "pass --overwrite to replace it") from None
-    if sha != spec.sha256 or shard != shard_text or ids != [t.task_id for t in tasks]:
+            todo = storecheck.incomplete_rows(f, path)
+    except (OSError, StoreError) as e:
+        raise RunError(f"{e}; pass --overwrite to replace it") from None
+    if isinstance(sha, bytes):
+        sha = sha.decode()
+    if sha not in (spec.sha256, spec.text_sha256) or shard != shard_text or ids != [t.task_id for t in tasks]:
         raise RunError(f"store {path} was written for another job spec or shard; pass --overwrite to replace "
                        "it or choose another --store")
-    todo = [i for i, s in enumerate(st) if s == STATUS["pending"]]
     if not todo:
         return "noop", []
     if not resume:
         raise RunError(f"store {path} exists with {len(todo)} of {len(tasks)} tasks pending: pass --resume to "
                        "finish it or --overwrite to start again")
+    try:
+        budget.probe_growth(path)
+    except OSError as e:
+        raise RunError(f"store {path}: no room to record a new run ({e.strerror}: full disk or file-size "
+                       "limit); nothing was changed: free space and run again") from None
     return "resume", todo
 
 
@@ -168,13 +260,13 @@ class Progress:
             t = time.monotonic()
             if t - self.last >= self.every:
                 self.last = t
-                print(self.line(), file=sys.stderr, flush=True)
+                log.info(self.line())
 
     def line(self) -> str:
         n = sum(self.count.values())
         el = time.monotonic() - self.t0
         eta = el / n * (self.total - n) if n else float("nan")
-        return (f"[gapsweep] {n}/{self.total} finished ({self.count['done']} done, {self.count['failed']} failed, "
+        return (f"{n}/{self.total} finished ({self.count['done']} done, {self.count['failed']} failed, "
                 f"{self.count['not_converged']} not converged), {self.total - n} remaining, "
                 f"elapsed {el:.1f} s, ETA {eta:.1f} s")
 
@@ -182,7 +274,7 @@ class Progress:
         if self.bar is not None:
             self.bar.close()
         if self.mode != "none":
-            print(self.line(), file=sys.stderr, flush=True)
+            log.info(self.line())
 
 
 def _gpu_index(comm: Any) -> int | None:
@@ -209,14 +301,56 @@ def _gpu_index(comm: Any) -> int | None:
     return local if local < n else None
 
 
+def _run_unit(tasks: list[Task], unit: Unit, ctx: Context, todo: set[int], limit: float | None,
+              stop: limits.Stop | None) -> Iterator[tuple[int, TaskResult]]:
+    """Run a unit's tasks in order, yielding ``(task index, result)`` for those in ``todo``; a chain runs from
+    its start up to its last wanted task, so warm starts are the same as in a full run. ``limit``: per-task
+    wall-time limit [s] (an overrunning task is a failed row, ``timeout: ...``). In flag mode (MPI) a stop
+    request ends the unit after the current task."""
+    want = [i for i in unit.tasks if i in todo]
+    if not want:
+        return
+    last = unit.tasks.index(want[-1])
+    state = None
+    for i in unit.tasks[: last + 1]:
+        res, state = run_task(tasks[i], ctx, state) if not limit else _run_limited(tasks[i], ctx, state, limit)
+        if i in todo:
+            yield i, res
+        if stop is not None and stop.mode == "flag" and stop.requested():
+            return
+
+
+def _run_limited(t: Task, ctx: Context, state: Any, limit: float) -> tuple[TaskResult, Any]:
+    msg = f"timeout: task exceeded its time limit of {limit:g} s"
+    try:
+        with limits.deadline(limit):
+            res, state = run_task(t, ctx, state)
+    except TaskTimeout:  # delivered just after the task returned
+        res, state = TaskResult("failed", msg, {"wall_time": limit, "rank": ctx.rank}), None
+    if res.status == "failed" and res.message.startswith("TaskTimeout"):
+        res.message, state = msg, None
+    return res, state
+
+
 def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = False, overwrite: bool = False,
         shard: tuple[int, int] | None = None, writer: str = "auto", progress: str = "auto",
-        coordinator_works: str = "auto", mpi: str = "auto") -> dict[str, Any]:
+        coordinator_works: str = "auto", mpi: str = "auto", break_lease: bool = False,
+        task_timeout: float | None = None) -> dict[str, Any]:
     """Run a job into a store (serially or as an MPI task farm). Returns a summary dict on every rank.
 
     ``writer``: auto | mpio | rank0 (env ``GAPSWEEP_WRITER`` overrides auto); ``progress``: auto | bar | log |
-    none; ``coordinator_works``: auto (rank 0 works when P <= 4) | yes | no; ``mpi``: auto | on | off."""
-    spec = job if isinstance(job, specmod.JobSpec) else specmod.load(job)
+    none; ``coordinator_works``: auto (rank 0 works when P <= 4) | yes | no; ``mpi``: auto | on | off;
+    ``break_lease``: take over the lease of a run that is gone; ``task_timeout``: per-task wall-time limit [s].
+
+    Raises :class:`RunError` when the run cannot start or a write fails (rows finished before stay done),
+    :class:`~gapsweep.limits.Interrupted` after a clean stop on SIGINT/SIGTERM or a ``<store>.stop`` file (the
+    run is recorded as interrupted in the store)."""
+    if resume and overwrite:
+        raise ValueError("--resume and --overwrite exclude each other: --resume keeps the finished rows, "
+                         "--overwrite discards them")
+    if task_timeout is not None and not (isinstance(task_timeout, (int, float)) and 0 < task_timeout < 1e9):
+        raise ValueError(f"--task-timeout: expected seconds > 0, got {task_timeout!r}")
+    spec = _load(job)
     comm = _comm(mpi)
     rank, size = (comm.rank, comm.size) if comm is not None else (0, 1)
     if os.environ.get("GAPSWEEP_TEST_PIDDIR"):  # test hook: lets a test kill -9 one particular rank
@@ -225,23 +359,47 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     path = _store_path(store, shard)
     shard_text = f"{shard[0]}/{shard[1]}" if shard else ""
 
-    # Decide on rank 0 (file system checks once), then share: every rank raises the same error.
+    # Rank 0 takes the lease and decides (file system checks once), then shares: every rank raises the same
+    # error. Nothing opens the store for writing before the lease is held.
     decision: Any = None
+    held: lease.Lease | None = None
     if rank == 0:
         try:
-            decision = _decide(path, spec, tasks, shard_text, resume, overwrite)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            held = lease.acquire(path, break_lease=break_lease)
+            decision = (*_decide(path, spec, tasks, shard_text, resume, overwrite), held.run_id)
+            _stop_file(path).unlink(missing_ok=True)  # a stop request of an earlier run
         except Exception as e:  # every rank must learn about it, or the others wait in bcast forever
-            decision = e if isinstance(e, RunError) else RunError(f"store {path}: {type(e).__name__}: {e}")
+            decision = e if isinstance(e, RunError) else RunError(
+                str(e) if isinstance(e, (lease.LeaseError, StoreError)) else f"store {path}: {e}")
+            if held is not None:
+                held.release()
+                held = None
     if comm is not None:
         decision = comm.bcast(decision, root=0)
     if isinstance(decision, RunError):
         raise decision
-    mode, todo_list = decision
+    try:
+        return _execute(spec, comm, rank, size, tasks, units, path, shard_text, decision, writer, progress,
+                        coordinator_works, task_timeout, held)
+    finally:
+        if held is not None:
+            held.release()
+
+
+def _stop_file(path: Path) -> Path:
+    return path.with_name(path.name + ".stop")
+
+
+def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list[Task], units: list[Unit],
+             path: Path, shard_text: str, decision: tuple, writer: str, progress: str, coordinator_works: str,
+             task_timeout: float | None, held: lease.Lease | None) -> dict[str, Any]:
+    mode, todo_list, run_id = decision
     summary: dict[str, Any] = {"store": str(path), "tasks": len(tasks), "todo": len(todo_list), "mode": mode,
                                "mpi_size": size, "rank": rank, **dict.fromkeys(STATUS, 0)}
     if mode == "noop":
         if rank == 0 and progress != "none":
-            print(f"[gapsweep] {path}: all {len(tasks)} tasks finished already; nothing to do", file=sys.stderr)
+            log.info("%s: all %d tasks finished already; nothing to do", path, len(tasks))
         return summary
 
     req = os.environ.get("GAPSWEEP_WRITER", "auto") if writer == "auto" else writer
@@ -258,40 +416,40 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     else:
         wmode = "mpio"
     summary["writer"] = wmode
-    if rank == 0:
-        path.parent.mkdir(parents=True, exist_ok=True)
-
-    # Static attributes and the run record come from rank 0 so that every rank writes identical values.
-    hosts = sorted(set(comm.allgather(socket.gethostname()))) if comm is not None else [socket.gethostname()]
-    attrs = provenance.store_attrs(spec, shard=shard_text) if rank == 0 else None
-    record = {"started": provenance.now(), "finished": None, "mpi_size": size, "hosts": hosts, "writer": wmode,
-              "mode": mode, "todo": len(todo_list)}
-    if comm is not None:
-        attrs, record = comm.bcast((attrs, record), root=0)
-
-    need_gpu = any(u.gpu for u in units)
-    ctx = Context(rank=rank, gpu=_gpu_index(comm) if need_gpu else None)
-    ctx.fields_dir = _fields_dir(path)  # kept GFMD fields, if the spec asks (gapsweep.dataset)
-    todo = set(todo_list)
-    work = [k for k, u in enumerate(units) if any(i in todo for i in u.tasks)]
-
+    stop = limits.Stop("raise" if comm is None else "flag", _stop_file(path)).install()
     st: Store | None = None
+    prog: Progress | None = None
+    record: dict[str, Any] = {}
     try:
+        # Static attributes and the run record come from rank 0 so that every rank writes identical values.
+        hosts = sorted(set(comm.allgather(socket.gethostname()))) if comm is not None else [socket.gethostname()]
+        attrs = provenance.store_attrs(spec, shard=shard_text) if rank == 0 else None
+        record = {"started": provenance.now(), "finished": None, "mpi_size": size, "hosts": hosts,
+                  "writer": wmode, "mode": mode, "todo": len(todo_list), "run_id": run_id}
+        if comm is not None:
+            attrs, record = comm.bcast((attrs, record), root=0)
+        need_gpu = any(u.gpu for u in units)
+        ctx = Context(rank=rank, gpu=_gpu_index(comm) if need_gpu else None)
+        ctx.fields_dir = _fields_dir(path)  # kept GFMD fields, if the spec asks (gapsweep.dataset)
+        todo = set(todo_list)
+        work = [k for k, u in enumerate(units) if any(i in todo for i in u.tasks)]
         if wmode == "mpio" or rank == 0:
-            c = comm if wmode == "mpio" else None
-            st = (Store.create(path, tasks, attrs, spec.histogram["bins"], comm=c) if mode == "create"
-                  else Store.open(path, comm=c))
-            runs = json.loads(st.f.attrs.get("runs", "[]"))
-            st.set_attrs({"runs": json.dumps([*runs, record])})
-            st.f.flush()  # collective under mpio; makes the run record survive a kill -9
+            with stop.critical():
+                st = _open_store(path, mode, tasks, attrs, spec.histogram["bins"], comm if wmode == "mpio" else None,
+                                 rank, run_id)
+                runs = json.loads(st.f.attrs.get("runs", "[]"))
+                st.set_attrs({"runs": json.dumps([*runs, record])}, flush=True)  # survives a kill -9
         if os.environ.get("GAPSWEEP_TEST_ABORT_RANK", "") == str(rank):
             raise RuntimeError(f"injected error on rank {rank} (GAPSWEEP_TEST_ABORT_RANK)")
         prog = Progress(len(todo), progress if rank == 0 else "none")
         if comm is None:
             for k in work:
-                for i, res in run_unit(tasks, units[k], ctx, todo):
-                    st.write(i, res)
+                for i, res in _run_unit(tasks, units[k], ctx, todo, task_timeout, stop):
+                    with stop.critical():
+                        st.write(i, res)
                     prog.update(res)
+                    if stop.requested():  # the stop file (a signal raises by itself)
+                        raise Interrupted(stop.signum)
         elif rank == 0:
             works = coordinator_works == "yes" or (coordinator_works == "auto" and size <= 4)
             gpus = comm.gather(ctx.gpu, root=0)
@@ -299,44 +457,145 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
                     and any(units[k].gpu for k in work) and all(g is None for g in gpus[1:])):
                 # One GPU per node and it is rank 0's: rank 0 must work, or GPU units would find no taker.
                 works = True
-            _coordinate(comm, tasks, units, work, todo, ctx, st, prog, works, wmode, gpus)
+            _coordinate(comm, tasks, units, work, todo, ctx, st, prog, works, wmode, gpus, task_timeout, stop)
         else:
             comm.gather(ctx.gpu, root=0)
-            _work(comm, tasks, units, todo, ctx, st, wmode)
+            _work(comm, tasks, units, todo, ctx, st, wmode, task_timeout, stop)
         prog.close()
-        for k in STATUS:
-            summary[k] = prog.count[k]
+        counts = dict(prog.count)
+        stopped = stop.signum if stop.requested() else None
         if comm is not None:
-            counts = comm.bcast(prog.count if rank == 0 else None, root=0)
-            for k in STATUS:
-                summary[k] = counts[k]
+            counts, stopped = comm.bcast((counts, stopped) if rank == 0 else None, root=0)
             comm.Barrier()
+        summary.update(counts)
+        if stopped is not None:
+            record.update(_interrupted(stopped, counts))
+        else:
+            record["finished"] = provenance.now()
+        if comm is not None and wmode == "mpio":
+            record = comm.bcast(record, root=0)
         if st is not None:
-            record["finished"] = provenance.now() if rank == 0 else None
-            if comm is not None and wmode == "mpio":
-                record = comm.bcast(record, root=0)
-            runs = json.loads(st.f.attrs.get("runs", "[]"))
-            runs[-1] = record
-            st.set_attrs({"runs": json.dumps(runs), "finished": record["finished"]})
-            st.close()
+            _close_record(st, record)
             st = None
-    except BaseException:
+        if stopped is not None:
+            raise Interrupted(stopped, counts)
+    except Interrupted as e:
+        if comm is not None or st is None:  # MPI: raised after the collective close above
+            raise
+        counts = dict(prog.count) if prog is not None else {}
+        if prog is not None:
+            prog.close()
+        record.update(_interrupted(e.signum, counts))
+        try:
+            _close_record(st, record)
+        except StoreError as w:
+            log.error("%s", w)
+        st = None
+        raise Interrupted(e.signum, counts) from None
+    except (StoreWriteError, OSError) as e:
+        if comm is None:
+            if st is not None:
+                record.update(stopped=str(e)[:200], stopped_at=provenance.now())
+                _abandon(st, record)
+                st = None
+            raise RunError(f"{e if isinstance(e, StoreWriteError) else f'store {path}: {e}'}; every row finished "
+                           "before is intact: fix the cause (free space, file-size limit) and run again with "
+                           "--resume") from None
+        _abort(comm, rank, wmode, held, e)
+    except BaseException as e:
         if comm is not None:
-            sys.stderr.write(f"[gapsweep] rank {rank}: fatal error, aborting the MPI job\n")
-            traceback.print_exc()
-            sys.stderr.flush()
-            comm.Abort(1)
+            _abort(comm, rank, wmode, held, e)
         raise
     finally:
+        stop.restore()
         if st is not None and comm is None:
-            st.close()
+            _abandon(st)
     return summary
 
 
+def _interrupted(signum: int, counts: dict[str, int]) -> dict[str, Any]:
+    name = limits.SIGNAL_NAMES.get(signum, f"signal {signum}")
+    return {"interrupted": name, "interrupted_at": provenance.now(), "counts": counts}
+
+
+def _open_store(path: Path, mode: str, tasks: list[Task], attrs: dict[str, Any], bins: int, comm: Any, rank: int,
+                run_id: str) -> Store:
+    """Open the store for writing; a new one is created under a temporary name and renamed into place
+    (collectively under mpio), so that a store path never holds a half-created file."""
+    if mode == "create":
+        tmp = path.with_name(f".{path.name}.tmp-{run_id}")
+        try:
+            try:
+                Store.create(tmp, tasks, attrs, bins, comm=comm).close()
+            except StoreWriteError as e:
+                raise StoreWriteError(f"store {path}: cannot be created ({str(e).split(': ', 1)[-1]}); "
+                                      "nothing was written") from None
+            if comm is not None:
+                comm.Barrier()
+            if rank == 0:
+                os.replace(tmp, path)
+            if comm is not None:
+                comm.Barrier()
+        except BaseException:
+            if rank == 0:
+                tmp.unlink(missing_ok=True)
+            raise
+    return Store.open(path, comm=comm)
+
+
+def _close_record(st: Store, record: dict[str, Any]) -> None:
+    """Replace the run's record (the last one) and close the store (collective under mpio). The record is
+    written only if the file can grow (budget.probe_growth; a failed metadata write can ruin an HDF5 file):
+    otherwise it is left as it was (the run then reads as "running or killed") and a warning says why."""
+    runs = json.loads(st.f.attrs.get("runs", "[]"))
+    runs[-1] = record
+    new = {"runs": json.dumps(runs)}
+    if record.get("finished"):
+        new["finished"] = record["finished"]
+    ok: Any = True
+    if st.comm is None or st.comm.rank == 0:
+        try:
+            budget.probe_growth(st.path)
+        except OSError as e:
+            ok = e.strerror
+    if st.comm is not None:
+        ok = st.comm.bcast(ok, root=0)
+    try:
+        if ok is True:
+            st.set_attrs(new, flush=True)
+        else:
+            log.warning("%s: the run record was not updated (%s); every row is written", st.path, ok)
+    finally:
+        st.close()
+
+
+def _abandon(st: Store, record: dict[str, Any] | None = None) -> None:
+    """Close a store after an error (recording why the run stopped, if that can still be written) without
+    letting a second error (a full disk again) escape."""
+    try:
+        if record is not None and not store_io_failed():
+            _close_record(st, record)
+        else:
+            st.close()
+    except Exception as e:  # the rows were flushed one by one; only this last flush is lost
+        log.warning("closing %s after an error: %s", st.path, e)
+
+
+def _abort(comm: Any, rank: int, wmode: str, held: lease.Lease | None, e: BaseException) -> None:
+    log.error("rank %d: fatal error, aborting the MPI job: %s: %s", rank, type(e).__name__, e,
+              exc_info=not isinstance(e, (StoreError, OSError)))
+    if held is not None and wmode != "mpio":  # rank 0 alone wrote: its rows are flushed, the store is free
+        held.release()
+    sys.stderr.flush()
+    comm.Abort(1)
+
+
 def _coordinate(comm: Any, tasks: list[Task], units: list[Unit], work: list[int], todo: set[int], ctx: Context,
-                st: Store | None, prog: Progress, works: bool, wmode: str, gpus: list[int | None]) -> None:
+                st: Store | None, prog: Progress, works: bool, wmode: str, gpus: list[int | None],
+                limit: float | None, stop: limits.Stop) -> None:
     """Rank 0: hand out units largest-first to workers, optionally work on the smallest ones in a thread,
-    write rows sent by workers (rank0 writer) and track progress."""
+    write rows sent by workers (rank0 writer) and track progress. A stop request (signal, stop file, a
+    worker's TAG_STOP) empties the queue: the units in flight finish, then every rank leaves the farm."""
     from mpi4py import MPI
 
     q = deque(work)  # unit indices, largest first
@@ -359,7 +618,7 @@ def _coordinate(comm: Any, tasks: list[Task], units: list[Unit], work: list[int]
     def local_worker() -> None:
         try:
             while (k := take(True, gpus[0] is not None)) is not None:
-                for item in run_unit(tasks, units[k], ctx, todo):
+                for item in _run_unit(tasks, units[k], ctx, todo, limit, stop):
                     results.put(item)
         except BaseException as e:  # surfaced on the main thread, which aborts the job
             results.put(e)
@@ -380,13 +639,27 @@ def _coordinate(comm: Any, tasks: list[Task], units: list[Unit], work: list[int]
         prog.update(res)
 
     status = MPI.Status()
+    stopping, next_check = False, 0.0
     while active or local_alive:
         progressed = False
+        now = time.monotonic()
+        if not stopping and now >= next_check:
+            next_check = now + 0.5
+            if stop.requested():
+                stopping = True
+                with lock:
+                    q.clear()
+                log.warning("stop requested (%s): finishing the tasks in flight",
+                            limits.SIGNAL_NAMES.get(stop.signum, stop.signum))
         while active and comm.Iprobe(source=MPI.ANY_SOURCE, tag=MPI.ANY_TAG, status=status):
             src, tag = status.Get_source(), status.Get_tag()
             msg = comm.recv(source=src, tag=tag)
             if tag == TAG_ROW:
                 handle(msg, False)
+            elif tag == TAG_STOP:
+                if stop.signum is None:
+                    stop.signum = msg
+                next_check = 0.0
             elif tag == TAG_READY:
                 k = take(False, gpus[src] is not None)
                 comm.send(k, dest=src, tag=TAG_WORK)
@@ -406,24 +679,26 @@ def _coordinate(comm: Any, tasks: list[Task], units: list[Unit], work: list[int]
             else:
                 handle(item, True)
         if not progressed:
-            if local_alive:
-                time.sleep(2e-4)
-            elif active:
-                comm.Probe(source=MPI.ANY_SOURCE, tag=MPI.ANY_TAG)
+            time.sleep(2e-4 if local_alive else 2e-3)
     if thread is not None:
         thread.join()
 
 
 def _work(comm: Any, tasks: list[Task], units: list[Unit], todo: set[int], ctx: Context, st: Store | None,
-          wmode: str) -> None:
-    """Worker rank: ask for a unit, run it, write (mpio) or send (rank0 writer) each row as it finishes."""
+          wmode: str, limit: float | None, stop: limits.Stop) -> None:
+    """Worker rank: ask for a unit, run it, write (mpio) or send (rank0 writer) each row as it finishes. A
+    signal to this rank is passed on to rank 0 (TAG_STOP), which stops handing out work."""
+    told = False
     comm.send(None, dest=0, tag=TAG_READY)
     while (k := comm.recv(source=0, tag=TAG_WORK)) is not None:
-        for i, res in run_unit(tasks, units[k], ctx, todo):
+        for i, res in _run_unit(tasks, units[k], ctx, todo, limit, stop):
             if wmode == "mpio":
                 st.write(i, res)
                 res = TaskResult(res.status, "", {})  # rank 0 only counts it
             comm.send((i, res), dest=0, tag=TAG_ROW)
+        if stop.signum is not None and not told:
+            comm.send(stop.signum, dest=0, tag=TAG_STOP)
+            told = True
         comm.send(None, dest=0, tag=TAG_READY)
 
 

@@ -12,7 +12,9 @@ grid that cannot carry ``lambda_s`` fails here rather than in the middle of a sw
 from __future__ import annotations
 
 import hashlib
+import json
 import math
+import os
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,9 +28,26 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-__all__ = ["METHODS", "JobSpec", "SpecError", "load", "loads"]
+__all__ = ["MAX_TASKS", "METHODS", "JobSpec", "SpecError", "load", "loads", "max_tasks"]
 
 METHODS = ("theory", "gfmd", "sde", "fokker_planck")
+# Cap on the tasks of one job (every rank holds the task list: ~1.5 kB per task); raise it with
+# GAPSWEEP_MAX_TASKS=<n> (docs/jobs.md, docs/reliability.md).
+MAX_TASKS = 200_000
+
+
+def max_tasks() -> int:
+    """The task cap: ``GAPSWEEP_MAX_TASKS`` if set (a positive integer), else :data:`MAX_TASKS`."""
+    v = os.environ.get("GAPSWEEP_MAX_TASKS", "")
+    if not v:
+        return MAX_TASKS
+    try:
+        n = int(v)
+        if n < 1:
+            raise ValueError
+    except ValueError:
+        raise SpecError(f"GAPSWEEP_MAX_TASKS: expected a positive integer, got {v!r}") from None
+    return n
 THEORY_FORMS = ("paper", "continuum", "discrete")
 
 
@@ -51,8 +70,31 @@ class JobSpec:
 
     @property
     def sha256(self) -> str:
-        """Hash of the spec text (stored in the store's attributes; resume and merge compare it)."""
+        """Hash of the parsed, canonical spec (every validated value, defaults filled in; not the text), stored
+        in the store's attributes; resume and merge compare it, so comments and formatting do not matter."""
+        return hashlib.sha256(self.canonical().encode()).hexdigest()
+
+    @property
+    def text_sha256(self) -> str:
+        """Hash of the spec text (what stores written before the canonical hash carry)."""
         return hashlib.sha256(self.text.encode()).hexdigest()
+
+    def canonical(self) -> str:
+        """The validated spec as canonical JSON (sorted keys), the basis of :attr:`sha256`."""
+        d = {"name": self.name, "description": self.description, "grid": self.grid, "surface": self.surface,
+             "material": self.material, "histogram": self.histogram, "methods": self.methods}
+        return json.dumps(d, sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+    def task_count(self) -> int:
+        """Upper bound of the number of tasks (product of the axes of each method), computed without
+        expanding the grid."""
+        total = 0
+        for o in self.methods.values():
+            k = 1
+            for ax in ("hurst", "rho", "sigma0", "seeds"):
+                k *= len(o.get(ax, self.grid[ax]))
+            total += k * len(o.get("n", [0]))
+        return total
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -362,8 +404,10 @@ def loads(text: str) -> JobSpec:
     bins = _int("histogram.bins", h.get("bins", 64), ge=1, le=100000)
     rng = h.get("range", "auto")
     if rng != "auto":
-        if not (isinstance(rng, list) and len(rng) == 2 and all(_is_num(x) for x in rng) and rng[0] < rng[1]):
-            raise SpecError(f"histogram.range: expected 'auto' or [lo, hi] with lo < hi (absolute gap), got {rng!r}")
+        if not (isinstance(rng, list) and len(rng) == 2 and all(_is_num(x) and math.isfinite(x) for x in rng)
+                and rng[0] < rng[1]):
+            raise SpecError(f"histogram.range: expected 'auto' or [lo, hi] with finite lo < hi (absolute gap), "
+                            f"got {rng!r}")
         rng = [float(rng[0]), float(rng[1])]
     histogram = {"bins": bins, "range": rng}
 
@@ -372,8 +416,13 @@ def loads(text: str) -> JobSpec:
     if not meth:
         raise SpecError(f"methods: empty; add at least one of [methods.{'], [methods.'.join(METHODS)}]")
     methods = {k: _method(k, _table(f"methods.{k}", v), nyquist, norm) for k, v in meth.items()}
-    return JobSpec(name=name, description=description, text=text, grid=grid, surface=surface,
-                   material=material, histogram=histogram, methods=methods)
+    js = JobSpec(name=name, description=description, text=text, grid=grid, surface=surface,
+                 material=material, histogram=histogram, methods=methods)
+    n, cap = js.task_count(), max_tasks()
+    if n > cap:
+        raise SpecError(f"grid: the job has up to {n:,} tasks, more than the cap of {cap:,} (every rank holds "
+                        "the task list); split the job, or raise the cap with GAPSWEEP_MAX_TASKS=<n>")
+    return js
 
 
 def load(path: str | Path) -> JobSpec:
@@ -381,4 +430,13 @@ def load(path: str | Path) -> JobSpec:
     p = Path(path)
     if not p.is_file():
         raise SpecError(f"job spec {str(p)!r}: no such file")
-    return loads(p.read_text())
+    try:
+        text = p.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise SpecError(f"job spec {str(p)!r}: not UTF-8 text (byte {e.start}); TOML files must be UTF-8") from None
+    except OSError as e:
+        raise SpecError(f"job spec {str(p)!r}: cannot be read ({e.strerror})") from None
+    try:
+        return loads(text)
+    except SpecError as e:
+        raise SpecError(f"{p}: {e}") from None

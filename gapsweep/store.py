@@ -11,14 +11,16 @@ written independently, in any order, by any rank; under ``driver="mpio"`` the cr
 * file attributes: format, spec text and hash, job name, shard, provenance (versions, git commit), runs.
 
 The default (earliest) HDF5 file format is used on purpose: it has no "file open for write" superblock flag,
-so a file whose writer was killed with ``kill -9`` stays readable without ``h5clear`` (docs/store.md). Each row is
-flushed as it is written (serial writer); under ``mpio`` raw data goes straight to MPI-IO (no sieve buffer),
-and all metadata is written and flushed at creation.
+so a file whose writer was killed with ``kill -9`` stays readable without ``h5clear`` (docs/store.md). Storage is
+allocated at creation (a row write never grows the file); each row is written payload first, status last, and
+flushed (serial writer); under ``mpio`` raw data goes straight to MPI-IO (no sieve buffer), and all metadata is
+written and flushed at creation. Reliability (leases, validation, write errors): docs/reliability.md.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 from collections.abc import Iterable, Sequence
@@ -31,11 +33,15 @@ import numpy as np
 
 from gapsweep.tasks import FLOAT_RESULTS, INT_RESULTS, STATUS, Task, TaskResult
 
+log = logging.getLogger("gapsweep.store")
+
 __all__ = [
     "FORMAT",
     "Store",
     "StoreError",
+    "StoreWriteError",
     "diff",
+    "io_failed",
     "merge",
     "open_read",
     "read",
@@ -65,6 +71,72 @@ VOLATILE = ("wall_time", "rank")
 
 class StoreError(RuntimeError):
     """A store cannot be used as asked (wrong spec, wrong format, conflicting merge)."""
+
+
+class StoreWriteError(StoreError):
+    """Writing to a store failed (full disk, file-size limit, I/O error); rows written before are intact."""
+
+
+# Set when an HDF5 write or close failed in this process: the library may then crash while tearing down at
+# interpreter exit (seen with ENOSPC / EFBIG), so the CLI ends such a process with os._exit after its message.
+_io_failed = False
+
+
+def io_failed() -> bool:
+    """Whether an HDF5 write failed in this process (see ``_io_failed``)."""
+    return _io_failed
+
+
+_kept: list[Any] = []
+
+
+@contextmanager
+def _quiet_dealloc():
+    """After a failed write HDF5 reports each object it cannot release through ``sys.unraisablehook`` (a
+    traceback per object); the error raised to the caller says it once, so those are logged at debug level."""
+    import sys
+
+    old = sys.unraisablehook
+
+    def hook(u: Any) -> None:
+        if "h5py" in repr(getattr(u, "object", "")) or "ObjectID" in repr(getattr(u, "object", "")):
+            log.debug("HDF5 release after a failed write: %s", u.exc_value)
+        else:
+            old(u)
+
+    import io
+
+    sys.unraisablehook = hook
+    err, sys.stderr = sys.stderr, io.StringIO()  # h5py prints some of those tracebacks itself
+    try:
+        yield
+    finally:
+        sys.unraisablehook = old
+        caught, sys.stderr = sys.stderr.getvalue(), err
+        if caught:
+            log.debug("HDF5 release after a failed write: %s", caught)
+
+
+def _failed(msg: str) -> StoreWriteError:
+    """The error to raise after a failed HDF5 write (called inside the ``except``). HDF5 may crash when the
+    objects of a file whose write failed are released, so they (and the failing frames) are kept alive to the
+    end of the process."""
+    global _io_failed
+    import gc
+    import sys
+
+    _io_failed = True
+    _kept.append(sys.exc_info()[2])
+    _kept.extend(o for o in gc.get_objects() if isinstance(o, (h5py.File, h5py.Group, h5py.Dataset, Store)))
+    return StoreWriteError(msg)
+
+
+def _early() -> Any:
+    # Allocate every dataset's storage at creation: a row write then only overwrites bytes the file already
+    # has, so a disk that fills up (or a file-size limit) during the run cannot hit a row write.
+    dcpl = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
+    dcpl.set_alloc_time(h5py.h5d.ALLOC_TIME_EARLY)
+    return dcpl
 
 
 def _nan_or(v: Any) -> float:
@@ -113,6 +185,7 @@ class Store:
 
     def __init__(self, f: h5py.File, comm: Any = None) -> None:
         self.f = f
+        self.path = f.filename  # kept: a file whose close failed must not be asked again
         self.comm = comm
         self._res = f["results"]
         self._edges = f["histograms/edges"]
@@ -126,19 +199,25 @@ class Store:
                comm: Any = None) -> Store:
         """Create the file with every dataset preallocated. With ``comm`` (mpio) all ranks must call this with
         the same arguments; rank 0 then writes the task table and the initial (pending) rows."""
+        with _quiet_dealloc():
+            return cls._create(path, tasks, attrs, bins, comm)
+
+    @classmethod
+    def _create(cls, path: str | Path, tasks: Sequence[Task], attrs: dict[str, Any], bins: int,
+                comm: Any) -> Store:
         n = len(tasks)
-        if comm is not None:
-            f = h5py.File(path, "w", driver="mpio", comm=comm)
-        else:
-            f = h5py.File(path, "w")
+        try:
+            f = h5py.File(path, "w", driver="mpio", comm=comm) if comm is not None else h5py.File(path, "w")
+        except (OSError, RuntimeError) as e:
+            raise _failed(f"store {path}: cannot create ({e})") from None
         try:
             for k, v in attrs.items():
                 f.attrs[k] = v
-            dt = f.create_dataset("tasks", shape=(n,), dtype=TASK_DTYPE)
-            dr = f.create_dataset("results", shape=(n,), dtype=RESULT_DTYPE)
+            dt = f.create_dataset("tasks", shape=(n,), dtype=TASK_DTYPE, dcpl=_early())
+            dr = f.create_dataset("results", shape=(n,), dtype=RESULT_DTYPE, dcpl=_early())
             g = f.create_group("histograms")
-            g.create_dataset("edges", shape=(n, bins + 1), dtype="f8", fillvalue=np.nan)
-            g.create_dataset("density", shape=(n, bins), dtype="f8", fillvalue=np.nan)
+            g.create_dataset("edges", shape=(n, bins + 1), dtype="f8", fillvalue=np.nan, dcpl=_early())
+            g.create_dataset("density", shape=(n, bins), dtype="f8", fillvalue=np.nan, dcpl=_early())
             if comm is None or comm.rank == 0:
                 if n:
                     dt[...] = task_rows(tasks)
@@ -146,6 +225,11 @@ class Store:
             f.flush()
             if comm is not None:
                 comm.Barrier()
+        except (OSError, RuntimeError) as e:
+            if isinstance(e, StoreError):
+                f.close()
+                raise
+            raise _failed(f"store {path}: creating the datasets failed ({e})") from None  # not closed: see _failed
         except BaseException:
             f.close()
             raise
@@ -153,10 +237,17 @@ class Store:
 
     @classmethod
     def open(cls, path: str | Path, *, comm: Any = None) -> Store:
-        f = h5py.File(path, "r+", driver="mpio", comm=comm) if comm is not None else h5py.File(path, "r+")
-        if f.attrs.get("format") != FORMAT:
+        from gapsweep import storecheck
+
+        try:
+            f = h5py.File(path, "r+", driver="mpio", comm=comm) if comm is not None else h5py.File(path, "r+")
+        except OSError as e:
+            raise StoreError(f"store {path}: cannot open for writing ({e})") from None
+        try:
+            storecheck.check(f, path)
+        except BaseException:
             f.close()
-            raise StoreError(f"{path}: not a gapsweep store")
+            raise
         return cls(f, comm)
 
     def statuses(self) -> np.ndarray:
@@ -166,25 +257,64 @@ class Store:
         return [x.decode() for x in self.f["tasks"].fields("task_id")[...]] if self.n_tasks else []
 
     def write(self, i: int, res: TaskResult, *, flush: bool = True) -> None:
-        """Write row ``i`` (independent I/O under mpio). The serial writer flushes each row so that a
-        ``kill -9`` loses at most the rows in flight."""
+        """Write row ``i`` (independent I/O under mpio): payload first (histogram), status row last, so that a
+        row whose status says ``done`` is complete. The serial writer flushes after the payload and after the
+        status, so that a ``kill -9`` loses at most the row in flight. An I/O error raises
+        :class:`StoreWriteError`."""
         if res.hist is not None and (len(res.hist[1]) != self.bins or len(res.hist[0]) != self.bins + 1):
             raise StoreError(f"histogram of task {i} has {len(res.hist[1])} bins, the store has {self.bins}")
-        self._res[i] = result_row(res)[0]
-        if res.hist is not None:
-            edges, density, _ = res.hist
-            self._edges[i] = edges
-            self._density[i] = density
-        if flush and not self.parallel:
-            self.f.flush()
+        with _quiet_dealloc():
+            self._write(i, res, flush)
 
-    def set_attrs(self, attrs: dict[str, Any]) -> None:
+    def _write(self, i: int, res: TaskResult, flush: bool) -> None:
+        try:
+            if res.hist is not None:
+                edges, density, _ = res.hist
+                self._edges[i] = edges
+                self._density[i] = density
+                if flush and not self.parallel:
+                    self.f.flush()
+            self._inject()
+            self._res[i] = result_row(res)[0]
+            if flush and not self.parallel:
+                self.f.flush()
+        except (OSError, RuntimeError) as e:
+            raise _failed(f"store {self.path}: writing row {i} failed ({e})") from None
+
+    _writes = 0
+
+    def _inject(self) -> None:
+        # Test hook (tests/faults): GAPSWEEP_TEST_WRITE_ERROR=k makes the k-th row write of this process fail
+        # between its payload and its status, as a full disk would.
+        # GAPSWEEP_TEST_KILL_AT_WRITE=k kills the process (SIGKILL) at that same point.
+        k = os.environ.get("GAPSWEEP_TEST_WRITE_ERROR", "")
+        kill = os.environ.get("GAPSWEEP_TEST_KILL_AT_WRITE", "")
+        if k or kill:
+            Store._writes += 1
+            if kill and Store._writes == int(kill):
+                import signal
+
+                os.kill(os.getpid(), signal.SIGKILL)
+            if k and Store._writes == int(k):
+                raise OSError(28, "No space left on device (injected by GAPSWEEP_TEST_WRITE_ERROR)")
+
+    def set_attrs(self, attrs: dict[str, Any], *, flush: bool = False) -> None:
         """Set file attributes (collective under mpio: every rank passes the same values)."""
-        for k, v in attrs.items():
-            self.f.attrs[k] = v
+        try:
+            with _quiet_dealloc():
+                for k, v in attrs.items():
+                    self.f.attrs[k] = v
+                if flush:
+                    self.f.flush()
+        except (OSError, RuntimeError) as e:
+            raise _failed(f"store {self.path}: writing attributes failed ({e})") from None
 
     def close(self) -> None:
-        self.f.close()
+        try:
+            with _quiet_dealloc():
+                self.f.close()
+        except (OSError, RuntimeError) as e:
+            raise _failed(f"store {self.path}: closing failed ({e})") from None
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -192,22 +322,38 @@ class Store:
 
 
 @contextmanager
-def open_read(path: str | Path):
-    """Open a store read-only without taking HDF5's file lock (it may be running)."""
+def open_read(path: str | Path, *, check: bool = True):
+    """Open a store read-only without taking HDF5's file lock (it may be running). With ``check`` the
+    structure is validated (:mod:`gapsweep.storecheck`): a damaged store raises :class:`StoreError` naming the
+    file and the problem."""
+    from gapsweep import storecheck
+
     p = Path(path)
     if not p.is_file():
         raise FileNotFoundError(f"store {str(p)!r}: no such file")
+    if p.stat().st_size == 0:
+        raise StoreError(f"store {p}: empty file (0 bytes): not a gapsweep store")
     try:
-        f = h5py.File(p, "r", **_locking_kw())
+        try:
+            f = h5py.File(p, "r", **_locking_kw())
+        except OSError as e:
+            # Already open in this process (HDF5 shares the file) with other locking flags: open it as it is.
+            if "locking flag" not in str(e):
+                raise
+            f = h5py.File(p, "r")
     except OSError as e:
-        # Already open in this process (HDF5 shares the file) with other locking flags: open it as it is.
-        if "locking flag" not in str(e):
-            raise
-        f = h5py.File(p, "r")
+        raise StoreError(f"store {p}: not a readable HDF5 file ({e}): truncated or damaged") from None
     with f:
-        if f.attrs.get("format") != FORMAT:
-            raise StoreError(f"{p}: not a gapsweep store (format attribute {f.attrs.get('format')!r})")
-        yield f
+        if check:
+            storecheck.check(f, p)
+        elif f.attrs.get("format") != FORMAT:
+            raise StoreError(f"store {p}: not a gapsweep store (format attribute {f.attrs.get('format')!r})")
+        try:
+            yield f
+        except (KeyError, IndexError, ValueError) as e:
+            raise StoreError(f"store {p}: damaged ({type(e).__name__}: {e})") from None
+        except OSError as e:
+            raise StoreError(f"store {p}: read error ({e}): damaged store") from None
 
 
 def read_attrs(path: str | Path) -> dict[str, Any]:
@@ -259,16 +405,25 @@ def read_histograms(path: str | Path, task_ids: Iterable[str] | None = None,
 
 def status(path: str | Path) -> str:
     """A short text summary of a running or finished store (counts per method and status, runs, failures)."""
+    from gapsweep import lease, storecheck
+
     attrs = read_attrs(path)
     df = read(path)
+    with open_read(path, check=False) as f:
+        report = storecheck.check(f, path)
     lines = [f"store {path}: job {attrs.get('job_name')!r}, {len(df)} tasks"
              + (f", shard {attrs['shard']}" if attrs.get("shard") else "")]
+    held = lease.read(path)
+    if held is not None:
+        lines.append(f"lease: held by {lease.describe(held)}")
+    lines.extend(f"check: {x}" for x in report.lines())
     if len(df):
         tab = df.groupby(["method", "status"]).size().unstack(fill_value=0)
-        for s in STATUS:
+        cols = [*STATUS, "unknown"] if "unknown" in tab.columns else list(STATUS)
+        for s in cols:
             if s not in tab.columns:
                 tab[s] = 0
-        tab = tab[list(STATUS)]
+        tab = tab[cols]
         tab.loc["total"] = tab.sum()
         lines.append(tab.to_string())
         done = df[(df.status != "pending") & df.wall_time.notna()]
@@ -277,7 +432,12 @@ def status(path: str | Path) -> str:
                          f"(max {np.nanmax(done.wall_time):.2f} s)")
     runs = json.loads(attrs.get("runs", "[]"))
     for r in runs:
-        lines.append(f"run: started {r.get('started')} finished {r.get('finished') or '(running or killed)'} "
+        end = r.get("finished") or "(running or killed)"
+        if r.get("interrupted"):
+            end = f"{r.get('interrupted_at')} (interrupted by {r['interrupted']}, {r.get('counts')})"
+        elif r.get("stopped"):
+            end = f"{r.get('stopped_at')} (stopped: {r['stopped']})"
+        lines.append(f"run: started {r.get('started')} finished {end} "
                      f"ranks {r.get('mpi_size')} writer {r.get('writer')} hosts {','.join(r.get('hosts', []))}")
     bad = df[df.status.isin(["failed", "not_converged"])]
     for _, row in bad.head(10).iterrows():
@@ -327,18 +487,41 @@ def _same(x: np.ndarray, y: np.ndarray) -> bool:
 # merge
 
 
-def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = False) -> dict[str, int]:
+# Which of two finished rows of one task a merge keeps: a better status always wins (failed never beats done).
+_RANK = {STATUS["pending"]: 0, STATUS["failed"]: 1, STATUS["not_converged"]: 2, STATUS["done"]: 3}
+CONFLICT_CHOICES = ("error", "first", "last")
+
+
+def _row_equal(x: np.ndarray, y: np.ndarray, ex: np.ndarray, ey: np.ndarray, dx: np.ndarray,
+               dy: np.ndarray) -> bool:
+    for k in RESULT_DTYPE.names:
+        if k not in VOLATILE and not _same(np.asarray(x[k]), np.asarray(y[k])):
+            return False
+    return _same(ex, ey) and _same(dx, dy)
+
+
+def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = False,
+          on_conflict: str = "error", break_lease: bool = False) -> dict[str, int]:
     """Merge shard stores of one job into ``out`` (rows in the job's canonical task order, keyed by task id).
 
-    All shards must carry the same spec (hash). A task found done in two shards keeps the first; the merged
-    store lists every task of the job (missing ones stay pending). Returns counts per status."""
-    from gapsweep import provenance
+    All shards must carry the same spec (hash). When a task has a finished row in several shards, the better
+    status wins (done > not_converged > failed; a failed row never replaces a done one). Rows of equal status
+    and different content (wall time and rank aside) are a conflict: ``on_conflict="error"`` (default) refuses
+    the merge naming the task, ``"first"`` / ``"last"`` keep the row of the first / last shard named. Rows
+    that a check finds incomplete (unknown status, done without result) count as pending. The merged store
+    lists every task of the job (missing ones stay pending); it is written under a temporary name and renamed
+    into place, holding ``out``'s lease. Returns counts per status (and ``conflicts`` resolved)."""
+    from gapsweep import lease, provenance, storecheck
     from gapsweep import spec as specmod
     from gapsweep import tasks as tasksmod
 
     if not shards:
         raise StoreError("merge: no shard stores given")
+    if on_conflict not in CONFLICT_CHOICES:
+        raise ValueError(f"merge: on_conflict must be one of {', '.join(CONFLICT_CHOICES)}, got {on_conflict!r}")
     outp = Path(out)
+    if any(Path(x).resolve() == outp.resolve() for x in shards):
+        raise StoreError(f"merge: the output {outp} is also a shard; choose another --out")
     if outp.exists() and not overwrite:
         raise StoreError(f"merge: {outp} exists (pass --overwrite to replace it)")
     metas = [read_attrs(s) for s in shards]
@@ -353,36 +536,67 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
         runs.extend(json.loads(m.get("runs", "[]")))
     attrs = provenance.store_attrs(js, shard="", extra={"merged_from": json.dumps([str(s) for s in shards]),
                                                         "runs": json.dumps(runs)})
-    tmp = outp.with_name(outp.name + ".tmp")
-    st = Store.create(tmp, tasks, attrs, js.histogram["bins"])
-    try:
-        results = empty_results(len(tasks))
-        edges = np.full((len(tasks), st.bins + 1), np.nan)
-        dens = np.full((len(tasks), st.bins), np.nan)
-        for s in shards:
-            with open_read(s) as f:
-                if f["tasks"].shape[0] == 0:
+    attrs["spec_sha256"] = metas[0]["spec_sha256"]
+    bins = js.histogram["bins"]
+    results = empty_results(len(tasks))
+    edges = np.full((len(tasks), bins + 1), np.nan)
+    dens = np.full((len(tasks), bins), np.nan)
+    source = [""] * len(tasks)
+    conflicts: list[str] = []
+    for s in shards:
+        with open_read(s) as f:
+            rep = storecheck.check(f, s)
+            if f["tasks"].shape[0] == 0:
+                continue
+            if f["histograms/density"].shape[1] != bins:
+                raise StoreError(f"merge: {s} has {f['histograms/density'].shape[1]} histogram bins, the job {bins}")
+            ids = [x.decode() for x in f["tasks"].fields("task_id")[...]]
+            r = f["results"][...]
+            e, d = f["histograms/edges"][...], f["histograms/density"][...]
+        bad = set(rep.rerun)
+        for j, tid in enumerate(ids):
+            if tid not in index:
+                raise StoreError(f"merge: task {tid} of {s} is not in the job")
+            if j in bad or r["status"][j] == STATUS["pending"]:
+                continue
+            i = index[tid]
+            new, old = _RANK[int(r["status"][j])], _RANK[int(results["status"][i])]
+            if new < old:
+                continue
+            if new == old:
+                if _row_equal(results[i], r[j], edges[i], e[j], dens[i], d[j]):
                     continue
-                ids = [x.decode() for x in f["tasks"].fields("task_id")[...]]
-                r = f["results"][...]
-                e, d = f["histograms/edges"][...], f["histograms/density"][...]
-            for j, tid in enumerate(ids):
-                if tid not in index:
-                    raise StoreError(f"merge: task {tid} of {s} is not in the job")
-                i = index[tid]
-                if r["status"][j] == STATUS["pending"] or results["status"][i] != STATUS["pending"]:
+                conflicts.append(f"task {tid}: {source[i]} and {s} both have a {STATUS_NAMES[int(r['status'][j])]!r} "
+                                 "row with different results")
+                if on_conflict != "last":
                     continue
-                results[i] = r[j]
-                edges[i], dens[i] = e[j], d[j]
-        if len(tasks):
-            st.f["results"][...] = results
-            st.f["histograms/edges"][...] = edges
-            st.f["histograms/density"][...] = dens
-        st.f.attrs["finished"] = provenance.now()
-    finally:
-        st.close()
-    os.replace(tmp, outp)
-    return {name: int(np.sum(results["status"] == code)) for name, code in STATUS.items()}
+            results[i] = r[j]
+            edges[i], dens[i] = e[j], d[j]
+            source[i] = str(s)
+    if conflicts and on_conflict == "error":
+        raise StoreError(f"merge: {len(conflicts)} conflicting row(s), e.g. {conflicts[0]}; pass "
+                         "--on-conflict first|last to choose, nothing was written")
+    for c in conflicts:
+        log.warning("merge: %s (kept the %s)", c, on_conflict)
+    with lease.acquire(outp, break_lease=break_lease, purpose="merge"):
+        tmp = outp.with_name(f".{outp.name}.tmp-{os.getpid()}")
+        try:
+            st = Store.create(tmp, tasks, attrs, bins)
+            try:
+                if len(tasks):
+                    st.f["histograms/edges"][...] = edges
+                    st.f["histograms/density"][...] = dens
+                    st.f["results"][...] = results
+                st.f.attrs["finished"] = provenance.now()
+            finally:
+                st.close()
+            os.replace(tmp, outp)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+    counts = {name: int(np.sum(results["status"] == code)) for name, code in STATUS.items()}
+    counts["conflicts"] = len(conflicts)
+    return counts
 
 
 # ---------------------------------------------------------------------------------------------------------

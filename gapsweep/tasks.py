@@ -530,6 +530,48 @@ def _run_fokker_planck(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, An
 _RUN = {"theory": _run_theory, "gfmd": _run_gfmd, "sde": _run_sde, "fokker_planck": _run_fokker_planck}
 
 
+# The solver function that receives each method's ``extra`` options, and the keywords the task sets itself.
+_EXTRA_TARGET = {
+    "theory": ("gapsweep.theory", "mean_gap", ("sigma0", "form", "hurst", "h_rms", "rho", "gamma0", "lambda_l",
+                                               "lambda_s", "e_star")),
+    "gfmd": ("gapsweep.gfmd", "solve", ("heights", "sigma0", "gamma0", "rho", "e_star", "length", "tol", "method",
+                                        "backend", "max_iter", "initial")),
+    "sde": ("gapsweep.sde", "gap_samples", ("sigma0", "hurst", "h_rms", "rho", "gamma0", "lambda_l", "lambda_s",
+                                            "e_star", "c1", "c2", "dzeta", "zeta_end", "n", "seed", "device",
+                                            "dtype", "bins")),
+    "fokker_planck": ("gapsweep.fokker_planck", "solve", ("sigma0", "hurst", "h_rms", "rho", "gamma0", "lambda_l",
+                                                          "lambda_s", "e_star", "c1", "c2")),
+}
+
+
+def check_extra(spec: JobSpec) -> None:
+    """Check every ``[methods.<m>.extra]`` key against the signature of the solver it is passed to (at plan
+    time, so that a typo fails before a sweep instead of failing every task). Raises ``SpecError``."""
+    import importlib
+
+    from gapsweep.spec import SpecError
+
+    for m, o in spec.methods.items():
+        extra = o.get("extra", {})
+        if not extra:
+            continue
+        mod, fn, fixed = _EXTRA_TARGET[m]
+        params = inspect.signature(getattr(importlib.import_module(mod), fn)).parameters
+        names = [k for k, p in params.items() if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+        allowed = [k for k in names if k not in fixed]
+        for k in extra:
+            if k in fixed:
+                raise SpecError(f"methods.{m}.extra.{k}: set by the sweep itself (use the method's own key or the "
+                                "grid), not allowed in extra")
+            if k not in names:
+                raise SpecError(f"methods.{m}.extra.{k}: not a parameter of {mod}.{fn}; allowed extra keys: "
+                                f"{', '.join(allowed) or '(none)'}")
+
+
+def _non_finite(res: TaskResult) -> list[str]:
+    return [k for k, v in res.values.items() if k.startswith("mean_gap") and not math.isfinite(v)]
+
+
 def run_task(t: Task, ctx: Context, prev: Any = None) -> tuple[TaskResult, Any]:
     """Run one task; never raises: an exception becomes status ``failed`` with the message.
     Returns the result and the warm-start state for the next task of a chain (or None)."""
@@ -545,6 +587,10 @@ def run_task(t: Task, ctx: Context, prev: Any = None) -> tuple[TaskResult, Any]:
         if caught and not res.message:  # solver warnings (e.g. under-resolved rho) go into the row's message
             w = caught[0]
             res.message = f"warning: {w.category.__name__}: {w.message}"
+        bad = _non_finite(res) if res.status == "done" else []
+        if bad:  # never store a NaN as success
+            res.status, res.message = "failed", f"non-finite result: {', '.join(bad)}"
+            state = None
     except Exception as e:  # the sweep goes on; the row records what happened
         res, state = TaskResult("failed", f"{type(e).__name__}: {e}"), None
     res.values["wall_time"] = time.perf_counter() - t0

@@ -128,7 +128,10 @@ def test_kill9_then_resume_equals_uninterrupted(tmp_path, theory_ref):
     assert 10 <= n_done < 48
     assert set(df.status) == {"done", "pending"}
     assert store.read_attrs(path)["runs"].count('"finished": null') == 1
-    s = _run(THEORY_JOB, path, resume=True)
+    # the killed run's lease is stale: reported, and broken only when asked
+    with pytest.raises(runner.RunError, match=r"no longer running.*--break-lease"):
+        _run(THEORY_JOB, path, resume=True)
+    s = _run(THEORY_JOB, path, resume=True, break_lease=True)
     assert s["mode"] == "resume" and s["todo"] == 48 - n_done and s["done"] == s["todo"]
     assert store.diff(path, theory_ref) == []
 

@@ -135,3 +135,43 @@ def test_gpu_units_go_to_gpu_ranks():
     gpu = tasks.make_units(tasks.expand(spec.loads(BASE.replace("n = 64", 'n = 64\nbackend = "cupy"'))))
     assert [u.gpu for u in gpu if len(u.tasks) > 1] == [True, True]
     assert not any(u.gpu for u in gpu if len(u.tasks) == 1)  # the theory tasks
+
+
+def test_canonical_hash_ignores_comments_and_formatting():
+    text = (Path(__file__).resolve().parent.parent / "jobs" / "test_theory.toml").read_text()
+    a = spec.loads(text)
+    b = spec.loads("# comment\n" + text.replace("rho = [2e-3, 1e-3]", "rho   = [ 0.002, 1.0e-3 ]   # x"))
+    c = spec.loads(text.replace("rho = [2e-3, 1e-3]", "rho = [2e-3, 1.5e-3]"))
+    assert a.sha256 == b.sha256 != c.sha256
+    assert a.text_sha256 != b.text_sha256
+
+
+def test_task_cap(monkeypatch):
+    text = (Path(__file__).resolve().parent.parent / "jobs" / "test_theory.toml").read_text()
+    assert spec.loads(text).task_count() == 48
+    monkeypatch.setenv("GAPSWEEP_MAX_TASKS", "47")
+    with pytest.raises(spec.SpecError, match=r"up to 48 tasks.*cap of 47.*GAPSWEEP_MAX_TASKS"):
+        spec.loads(text)
+
+
+@pytest.mark.parametrize("rng", ["[-inf, inf]", "[0.0, inf]", "[nan, 1.0]"])
+def test_histogram_range_must_be_finite(rng):
+    text = (Path(__file__).resolve().parent.parent / "jobs" / "test_theory.toml").read_text()
+    with pytest.raises(spec.SpecError, match=r"histogram\.range.*finite"):
+        spec.loads(text + f"\n[histogram]\nrange = {rng}\n")
+
+
+def test_extra_keys_checked_against_solver_signature():
+    text = (Path(__file__).resolve().parent.parent / "jobs" / "test_theory.toml").read_text()
+    tasks.check_extra(spec.loads(text + "\n[methods.theory.extra]\nzeta = 2.0\n"))  # a real parameter
+    with pytest.raises(spec.SpecError, match=r"methods\.theory\.extra\.zetta: not a parameter.*allowed.*zeta"):
+        tasks.check_extra(spec.loads(text + "\n[methods.theory.extra]\nzetta = 2.0\n"))
+    with pytest.raises(spec.SpecError, match=r"methods\.theory\.extra\.rho: set by the sweep"):
+        tasks.check_extra(spec.loads(text + "\n[methods.theory.extra]\nrho = 2.0\n"))
+
+
+def test_non_utf8_spec_names_the_file(tmp_path):
+    p = tmp_path / "x.toml"
+    p.write_bytes(b"[job]\nname = '\xff'\n")
+    with pytest.raises(spec.SpecError, match=r"x\.toml.*not UTF-8"):
+        spec.load(p)

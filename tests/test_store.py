@@ -125,3 +125,57 @@ def test_git_commit_outside_a_checkout_is_unknown(monkeypatch):
     provenance.git_commit.cache_clear()
     assert provenance.git_commit() == "0ee057e"
     provenance.git_commit.cache_clear()
+
+
+def test_lease_exclusive_stale_and_broken(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    from gapsweep import lease
+
+    path = tmp_path / "s.h5"
+    held = lease.acquire(path)
+    info = lease.read(path)
+    assert info["pid"] == os.getpid() and info["alive"] is True
+    with pytest.raises(lease.LeaseError, match="in use by"):
+        lease.acquire(path)
+    with pytest.raises(lease.LeaseError, match="in use by"):
+        lease.acquire(path, break_lease=True)  # a live holder on this host is never broken
+    held.release()
+    assert lease.read(path) is None
+    # a lease of a process that has exited is stale: reported, broken only when asked
+    code = f"from gapsweep import lease; lease.acquire({str(path)!r})"
+    subprocess.run([sys.executable, "-c", code], check=True)
+    assert lease.read(path)["alive"] is False
+    with pytest.raises(lease.LeaseError, match=r"no longer running.*--break-lease"):
+        lease.acquire(path)
+    with lease.acquire(path, break_lease=True) as mine:
+        assert lease.read(path)["run_id"] == mine.run_id
+    assert lease.read(path) is None
+
+
+def test_storecheck_structural_and_row_problems(tmp_path):
+    from gapsweep import storecheck
+
+    js = spec.loads(JOB)
+    ts = tasks.expand(js)
+    path = tmp_path / "s.h5"
+    st = store.Store.create(path, ts, provenance.store_attrs(js), js.histogram["bins"])
+    st.close()
+    with h5py.File(path, "r") as f:
+        rep = storecheck.check(f, path)
+    assert rep.rerun == [] and rep.n_tasks == len(ts)
+    with h5py.File(path, "r+") as f:
+        r = f["results"][...]
+        r["status"][0] = 9  # unknown code
+        r["status"][1] = 1  # done without a result
+        f["results"][...] = r
+    with h5py.File(path, "r") as f:
+        rep = storecheck.check(f, path)
+        assert rep.unknown_status == [0] and rep.done_incomplete == [1]
+        assert storecheck.incomplete_rows(f, path) == list(range(len(ts)))
+    with h5py.File(path, "r+") as f:
+        del f["histograms/edges"]
+    with pytest.raises(store.StoreError, match=r"s\.h5: dataset /histograms/edges missing"):
+        store.read(path)

@@ -111,7 +111,7 @@ def test_kill9_rank_then_resume(tmp_path, refs, writer):
     n_done = int((df.status == "done").sum())
     assert 8 <= n_done < len(df)
     assert set(df.status) == {"done", "pending"}
-    q = mpirun(2, ["run", str(THEORY_JOB), "--store", str(path), "--resume", "--writer", writer])
+    q = mpirun(2, ["run", str(THEORY_JOB), "--store", str(path), "--resume", "--writer", writer, "--break-lease"])
     assert q.returncode == 0, q.stdout + q.stderr
     assert f"resume, {len(df) - n_done} of {len(df)} tasks run" in q.stdout
     assert store.diff(path, refs["theory"]) == []

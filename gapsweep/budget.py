@@ -1,0 +1,88 @@
+"""Resource estimates of a job: store size on disk and peak memory per rank (``gapsweep plan``,
+``docs/reliability.md``). Rough upper bounds, meant to refuse what cannot fit before anything runs."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+from gapsweep.tasks import SDE_HOST_SAMPLES_MAX, Task
+
+__all__ = ["BASE_MEMORY", "TASK_LIST_BYTES", "disk_free", "memory_total", "peak_memory", "store_bytes"]
+
+BASE_MEMORY = 300e6  # interpreter, numpy/scipy/h5py/numba, FFT plans [bytes]
+TASK_LIST_BYTES = 1600  # one expanded Task with its options, on every rank (measured: ~1.5 kB) [bytes]
+
+
+def store_bytes(n_tasks: int, bins: int, spec_text_len: int = 0) -> int:
+    """Size of a store of ``n_tasks`` rows and ``bins`` histogram bins: all datasets are allocated at
+    creation (docs/store.md), plus attributes and HDF5 metadata [bytes]."""
+    from gapsweep.store import RESULT_DTYPE, TASK_DTYPE
+
+    per_row = TASK_DTYPE.itemsize + RESULT_DTYPE.itemsize + (2 * bins + 1) * 8
+    return int(n_tasks * per_row + 2 * spec_text_len + 64 * 1024)
+
+
+def task_memory(t: Task) -> float:
+    """Peak working memory of one task [bytes] (arrays of the solver; order-of-magnitude model)."""
+    if t.method == "gfmd":
+        return 8.0 * t.n * t.n * 28  # 4 cached surfaces + solver vectors + complex FFT buffers
+    if t.method == "theory":
+        return 8.0 * t.n * t.n * 10 if t.n else 1e6
+    if t.method == "sde":
+        return 8.0 * min(int(t.opt("samples")), SDE_HOST_SAMPLES_MAX) * 8
+    return 100e6  # fokker_planck: a graded grid of at most max_cells cells and its time steps
+
+
+def peak_memory(tasks: list[Task]) -> float:
+    """Peak resident memory of one rank [bytes]: base + the task list + the largest task."""
+    return BASE_MEMORY + TASK_LIST_BYTES * len(tasks) + max((task_memory(t) for t in tasks), default=0.0)
+
+
+def memory_total() -> int:
+    """Physical memory of this machine [bytes] (0 if unknown)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # pragma: no cover
+        return 0
+
+
+def disk_free(path: str | Path) -> int:
+    """Free bytes on the file system that holds ``path`` (or its nearest existing parent)."""
+    p = Path(path).absolute()
+    while not p.exists() and p != p.parent:
+        p = p.parent
+    return shutil.disk_usage(p).free
+
+
+def human(n: float) -> str:
+    for unit in ("B", "kB", "MB", "GB", "TB"):
+        if abs(n) < 1000 or unit == "TB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1000
+    return f"{n:.1f} TB"  # pragma: no cover
+
+
+PROBE_BYTES = 1 << 20
+
+
+def probe_growth(path: str | Path, nbytes: int = PROBE_BYTES, size: int | None = None) -> None:
+    """Check that the store at ``path`` can grow by ``nbytes``: write that many bytes to a scratch file beside
+    it (full disk) and one byte at offset ``size + nbytes`` (file-size limit; ``size``: the store's size, or
+    the size a new store will have), then remove it. Raises OSError.
+
+    HDF5 does not survive a failed metadata write (a store can be left unreadable), so metadata updates of an
+    existing store (its run record) are made only after this check (docs/reliability.md)."""
+    p = Path(path)
+    if size is None:
+        size = p.stat().st_size if p.exists() else 0
+    probe = p.with_name(f".{p.name}.probe-{os.getpid()}")
+    fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    try:
+        os.write(fd, b"\0" * nbytes)
+        os.pwrite(fd, b"\0", size + nbytes)
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+        probe.unlink(missing_ok=True)

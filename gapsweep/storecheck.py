@@ -1,0 +1,111 @@
+"""Validation of a store on open (``docs/reliability.md``, schema in ``docs/store.md``).
+
+Two kinds of problems:
+
+* *structural* (a dataset missing, a wrong dtype or shape, tables of different lengths, not HDF5 at all): the
+  store cannot be used; :func:`check` raises :class:`~gapsweep.store.StoreError` with one line naming the file
+  and the problem.
+* *row-level* (an unknown status code; a ``done`` row of a method that stores a histogram without one, or
+  without a finite mean gap): such rows are reported by :func:`check` and re-run by ``--resume``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gapsweep.tasks import STATUS
+
+__all__ = ["Report", "check", "incomplete_rows"]
+
+# Methods whose rows carry a gap histogram (theory rows have none).
+HIST_METHODS = (b"gfmd", b"sde", b"fokker_planck")
+
+
+@dataclass
+class Report:
+    """What :func:`check` found: task count and the indices of rows that must be re-run, with reasons."""
+
+    n_tasks: int
+    unknown_status: list[int] = field(default_factory=list)
+    done_incomplete: list[int] = field(default_factory=list)
+
+    @property
+    def rerun(self) -> list[int]:
+        return sorted(set(self.unknown_status) | set(self.done_incomplete))
+
+    def lines(self) -> list[str]:
+        out = []
+        if self.unknown_status:
+            out.append(f"{len(self.unknown_status)} row(s) with an unknown status code (rows "
+                       f"{self.unknown_status[:5]}{' ...' if len(self.unknown_status) > 5 else ''}): re-run by "
+                       "--resume")
+        if self.done_incomplete:
+            out.append(f"{len(self.done_incomplete)} 'done' row(s) without a complete result (rows "
+                       f"{self.done_incomplete[:5]}{' ...' if len(self.done_incomplete) > 5 else ''}): re-run "
+                       "by --resume")
+        return out
+
+
+def _fail(path: Any, what: str) -> None:
+    from gapsweep.store import StoreError
+
+    raise StoreError(f"store {path}: {what}")
+
+
+def check(f: Any, path: str | Path) -> Report:
+    """Validate an open store ``f`` (h5py.File); raise StoreError on a structural problem."""
+    from gapsweep.store import FORMAT, RESULT_DTYPE, TASK_DTYPE
+
+    if f.attrs.get("format") != FORMAT:
+        _fail(path, f"not a gapsweep store (format attribute {f.attrs.get('format')!r})")
+    for name in ("spec_text", "spec_sha256"):
+        if name not in f.attrs:
+            _fail(path, f"attribute {name!r} missing (damaged or partial store)")
+    for name in ("tasks", "results", "histograms/edges", "histograms/density"):
+        if name not in f:
+            _fail(path, f"dataset /{name} missing (damaged or partial store)")
+    t, r, e, d = f["tasks"], f["results"], f["histograms/edges"], f["histograms/density"]
+    if t.dtype != TASK_DTYPE:
+        _fail(path, f"/tasks has dtype {t.dtype}, expected the gapsweep task table")
+    if r.dtype != RESULT_DTYPE:
+        _fail(path, f"/results has dtype {r.dtype}, expected the gapsweep results table")
+    if e.dtype.kind != "f" or d.dtype.kind != "f" or e.ndim != 2 or d.ndim != 2:
+        _fail(path, "/histograms/edges or /density is not a 2-d float array")
+    n = t.shape[0]
+    lens = {"tasks": n, "results": r.shape[0], "histograms/edges": e.shape[0], "histograms/density": d.shape[0]}
+    if len(set(lens.values())) != 1:
+        _fail(path, "tables of different lengths (" + ", ".join(f"{k} {v}" for k, v in lens.items())
+              + "): damaged or partial store")
+    if e.shape[1] != d.shape[1] + 1:
+        _fail(path, f"histogram edges ({e.shape[1]}) and density ({d.shape[1]}) columns do not match")
+    rep = Report(n)
+    if not n:
+        return rep
+    try:
+        status = r.fields("status")[...]
+        mean_gap = r.fields("mean_gap")[...]
+        methods = t.fields("method")[...]
+        dens = d[...]
+    except (OSError, ValueError) as exc:
+        _fail(path, f"cannot read the tables ({exc}): damaged store")
+    known = np.isin(status, list(STATUS.values()))
+    rep.unknown_status = np.flatnonzero(~known).tolist()
+    done = status == STATUS["done"]
+    needs_hist = np.isin(methods, HIST_METHODS)
+    hist_ok = np.all(np.isfinite(dens), axis=1) & np.any(dens > 0, axis=1)
+    bad = done & (~np.isfinite(mean_gap) | (needs_hist & ~hist_ok))
+    rep.done_incomplete = np.flatnonzero(bad).tolist()
+    return rep
+
+
+def incomplete_rows(f: Any, path: str | Path) -> list[int]:
+    """Rows that ``--resume`` must (re)run: pending, unknown status, or done without a complete result."""
+    rep = check(f, path)
+    if not rep.n_tasks:
+        return []
+    status = f["results"].fields("status")[...]
+    return sorted(set(np.flatnonzero(status == STATUS["pending"]).tolist()) | set(rep.rerun))

@@ -1,0 +1,193 @@
+"""Bad inputs (docs/reliability.md, "Bad inputs"): each gets a clear one-line error naming the field (or file) and
+the allowed values, a non-zero exit, and nothing written or changed."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from .conftest import HIST_JOB, THEORY_JOB, gs, one_line_error
+
+BASE = THEORY_JOB.read_text()
+
+
+def _edit(old: str, new: str) -> str:
+    assert old in BASE
+    return BASE.replace(old, new)
+
+
+# (case id, spec text, words the message must contain)
+SPECS = [
+    ("grid-1e8-points", _edit('sigma0 = {min = 1e-4, max = 1.0, num = 6, scale = "log"}\nseeds = [0, 1]',
+                              'sigma0 = {min = 1e-4, max = 1.0, num = 10000, scale = "log"}\n'
+                              'seeds = {start = 0, count = 10000}'), ["grid", "GAPSWEEP_MAX_TASKS", "400,000,000"]),
+    ("extra-typo-theory", BASE + "\n[methods.theory.extra]\nzetta = 2.0\n", ["methods.theory.extra.zetta", "zeta"]),
+    ("extra-fixed-key", BASE + "\n[methods.theory.extra]\nsigma0 = 2.0\n", ["methods.theory.extra.sigma0"]),
+    ("extra-table-value", BASE + "\n[methods.theory.extra]\nzeta = [1, 2]\n", ["methods.theory.extra.zeta"]),
+    ("range-infinite", _edit("[methods.theory]", "[histogram]\nrange = [-inf, inf]\n\n[methods.theory]"),
+     ["histogram.range", "finite"]),
+    ("range-reversed", _edit("[methods.theory]", "[histogram]\nrange = [1.0, 0.0]\n\n[methods.theory]"),
+     ["histogram.range"]),
+    ("range-nan", _edit("[methods.theory]", "[histogram]\nrange = [nan, 1.0]\n\n[methods.theory]"),
+     ["histogram.range"]),
+    ("not-toml", "this is [not toml", ["not valid TOML"]),
+    ("missing-grid", "[job]\nname = 'x'\n[methods.theory]\n", ["grid"]),
+    ("unknown-top-key", BASE + "\n[gird]\nx = 1\n", ["gird", "unknown key"]),
+    ("hurst-out-of-range", _edit("hurst = [0.3, 0.8]", "hurst = [0.3, 1.5]"), ["grid.hurst[1]", "< 1"]),
+    ("rho-negative", _edit("rho = [2e-3, 1e-3]", "rho = [2e-3, -1e-3]"), ["grid.rho[1]", "> 0"]),
+    ("seeds-duplicate", _edit("seeds = [0, 1]", "seeds = [1, 1]"), ["grid.seeds", "distinct"]),
+    ("seed-negative", _edit("seeds = [0, 1]", "seeds = [0, -1]"), ["grid.seeds[1]", ">= 0"]),
+    ("n-below-nyquist", _edit("n = 64", "n = 16"), ["methods.theory.n", "Nyquist"]),
+    ("sigma0-num-0", _edit("num = 6", "num = 0"), ["grid.sigma0.num", ">= 1"]),
+    ("job-name-chars", _edit('name = "test-theory"', 'name = "a b/c"'), ["job.name"]),
+    ("sde-samples-0", BASE + "\n[methods.sde]\nsamples = 0\n", ["methods.sde.samples", ">= 1"]),
+    ("two-norms", _edit("rms_slope = 1.0", "rms_slope = 1.0\nrms_height = 0.1"), ["surface", "exactly one"]),
+    ("no-methods", _edit('[methods.theory]\nforms = ["paper", "continuum", "discrete"]\nn = 64', "[methods]"),
+     ["methods", "at least one"]),
+    ("wrong-type", _edit("gamma0 = 1e-3", 'gamma0 = "small"'), ["material.gamma0", "number"]),
+    ("lambda-s-too-big", _edit("lambda_s = 0.04", "lambda_s = 0.5"), ["surface.lambda_s"]),
+]
+
+
+# `run` validates exactly as `plan` does (same loader); it is exercised on these, `plan` on all.
+RUN_TOO = ("grid-1e8-points", "extra-typo-theory", "range-infinite", "not-toml", "n-below-nyquist")
+
+
+SPEC_CASES = [("plan", *c) for c in SPECS] + [("run", *c) for c in SPECS if c[0] in RUN_TOO]
+
+
+@pytest.mark.parametrize("command,case,text,needles", SPEC_CASES, ids=[f"{c[0]}-{c[1]}" for c in SPEC_CASES])
+def test_bad_spec(tmp_path, case, text, needles, command):
+    job = tmp_path / "job.toml"
+    job.write_text(text)
+    out = tmp_path / "s.h5"
+    args = ["run", job, "--store", out, "--mpi", "off"] if command == "run" else ["plan", job]
+    p = gs(*args, timeout=60)
+    err = one_line_error(p, *needles)
+    assert p.returncode == 2, err
+    assert str(job) in err  # the message names the file
+    assert not out.exists() and not Path(str(out) + ".lease").exists()
+
+
+def test_bad_spec_non_utf8(tmp_path):
+    job = tmp_path / "latin1.toml"
+    job.write_bytes(BASE.replace("tests: field theory", "caf\xe9").encode("latin-1"))
+    p = gs("plan", job)
+    one_line_error(p, str(job), "UTF-8")
+
+
+def test_bad_spec_missing_file(tmp_path):
+    p = gs("plan", tmp_path / "nope.toml")
+    one_line_error(p, "nope.toml", "no such file")
+
+
+def test_task_cap_env(tmp_path):
+    """The cap is documented and can be raised; a bad value of the variable is named."""
+    p = gs("plan", THEORY_JOB, GAPSWEEP_MAX_TASKS="10")
+    one_line_error(p, "48", "GAPSWEEP_MAX_TASKS")
+    p = gs("plan", THEORY_JOB, GAPSWEEP_MAX_TASKS="ten")
+    one_line_error(p, "GAPSWEEP_MAX_TASKS", "positive integer")
+    assert gs("plan", THEORY_JOB, GAPSWEEP_MAX_TASKS="48").returncode == 0
+
+
+ARGS = [
+    ("plan-ranks-0", ["plan", THEORY_JOB, "--ranks", "0"], ["--ranks", ">= 1"]),
+    ("plan-ranks-negative", ["plan", THEORY_JOB, "--ranks", "-3"], ["--ranks"]),
+    ("resume-and-overwrite", ["run", THEORY_JOB, "--store", "{out}", "--resume", "--overwrite", "--mpi", "off"],
+     ["--resume", "--overwrite"]),
+    ("shard-out-of-range", ["run", THEORY_JOB, "--store", "{out}", "--shard", "3/2", "--mpi", "off"], ["--shard"]),
+    ("shard-not-a-fraction", ["run", THEORY_JOB, "--store", "{out}", "--shard", "abc", "--mpi", "off"], ["--shard"]),
+    ("shard-slurm-outside-slurm", ["run", THEORY_JOB, "--store", "{out}", "--shard", "slurm", "--mpi", "off"],
+     ["SLURM_ARRAY_TASK_ID"]),
+    ("task-timeout-negative", ["run", THEORY_JOB, "--store", "{out}", "--task-timeout", "-1", "--mpi", "off"],
+     ["--task-timeout"]),
+    ("task-timeout-zero", ["run", THEORY_JOB, "--store", "{out}", "--task-timeout", "0", "--mpi", "off"],
+     ["--task-timeout"]),
+    ("writer-unknown", ["run", THEORY_JOB, "--store", "{out}", "--writer", "nfs"], ["--writer"]),
+    ("status-missing-store", ["status", "{out}"], ["no such file"]),
+    ("merge-out-is-shard", ["merge", "{ref}", "--out", "{ref}", "--overwrite"], ["also a shard"]),
+    ("merge-out-exists", ["merge", "{ref}", "--out", "{ref2}"], ["exists", "--overwrite"]),
+]
+
+
+@pytest.mark.parametrize("case,args,needles", ARGS, ids=[c[0] for c in ARGS])
+def test_bad_arguments(tmp_path, refs, case, args, needles):
+    out = tmp_path / "s.h5"
+    ref2 = tmp_path / "copy.h5"
+    ref2.write_bytes(refs["theory"].read_bytes())
+    subst = {"{out}": str(out), "{ref}": str(refs["theory"]), "{ref2}": str(ref2)}
+    before = refs["theory"].read_bytes()
+    p = gs(*[subst.get(str(a), a) for a in args], timeout=60)
+    assert p.returncode != 0
+    if "usage:" in p.stderr:  # argparse: a usage line and the error, exit 2
+        assert p.returncode == 2 and "Traceback" not in p.stderr
+        assert all(n in p.stderr for n in needles), p.stderr
+    else:
+        one_line_error(p, *needles)
+    assert not out.exists()
+    assert refs["theory"].read_bytes() == before and ref2.read_bytes() == before
+
+
+def test_merge_different_jobs(tmp_path, refs):
+    p = gs("merge", refs["theory"], refs["hist"], "--out", tmp_path / "m.h5")
+    one_line_error(p, "different job specs")
+    assert not (tmp_path / "m.h5").exists()
+
+
+def test_mpi_off_under_launcher(tmp_path):
+    """A process that says --mpi off while a launcher reports several ranks is refused (it would run the whole
+    job as one of several writers); simulated with the launcher's environment variable."""
+    out = tmp_path / "s.h5"
+    p = gs("run", THEORY_JOB, "--store", out, "--mpi", "off", OMPI_COMM_WORLD_SIZE="2")
+    one_line_error(p, "--mpi off", "2 ranks")
+    assert not out.exists()
+
+
+def test_comment_only_edit_resumes(tmp_path, refs):
+    """Resume is keyed by the parsed spec: comments and formatting do not block it."""
+    out = tmp_path / "s.h5"
+    p = gs("run", THEORY_JOB, "--store", out, "--mpi", "off", "--progress", "none",
+           GAPSWEEP_TEST_WRITE_ERROR="20")
+    assert p.returncode == 1
+    edited = tmp_path / "edited.toml"
+    edited.write_text("# a new comment\n" + BASE.replace("rho = [2e-3, 1e-3]", "rho   =   [ 2.0e-3 , 0.001 ]  # ok"))
+    p = gs("run", edited, "--store", out, "--resume", "--mpi", "off", "--progress", "none")
+    assert p.returncode == 0, p.stderr
+    from gapsweep import store
+
+    assert store.diff(out, refs["theory"]) == []
+
+
+def test_every_task_failed_exits_nonzero(tmp_path):
+    out = tmp_path / "s.h5"
+    p = gs("run", HIST_JOB, "--store", out, "--mpi", "off", "--progress", "none",
+           GAPSWEEP_TEST_FAIL="0.001,0.01,0.1")
+    assert p.returncode == 3, p.stderr
+    assert "every task" in p.stderr and "Traceback" not in p.stderr
+
+
+def test_nonfinite_theory_result_is_failed(tmp_path, monkeypatch):
+    """A theory function returning NaN gives a failed row, never a done one (in-process: the NaN is injected)."""
+    from gapsweep import runner, store, theory
+
+    monkeypatch.setattr(theory, "mean_gap", lambda *a, **k: float("nan"))
+    out = tmp_path / "s.h5"
+    s = runner.run(THEORY_JOB, out, progress="none", mpi="off")
+    assert s["failed"] == s["tasks"] and s["done"] == 0
+    df = store.read(out)
+    assert set(df.status) == {"failed"}
+    assert all("non-finite result" in m for m in df.message)
+
+
+
+def test_plan_refuses_what_will_not_fit(tmp_path):
+    """A GFMD grid of 65536^2 needs ~1 TB per rank: plan says so and refuses (exit 1). (`run` is not tried: it does not
+    refuse on this rough upper bound and would start allocating.)"""
+    job = tmp_path / "big.toml"
+    job.write_text(BASE.replace('[methods.theory]\nforms = ["paper", "continuum", "discrete"]\nn = 64',
+                                "[methods.gfmd]\nn = 65536\nseeds = [0]\nhurst = [0.3]\nrho = [2e-3]\n"
+                                "sigma0 = [1e-2]"))
+    p = gs("plan", job)
+    one_line_error(p, "per rank", "more than this machine")
+    assert p.returncode == 1

@@ -1,0 +1,137 @@
+"""Signals and time limits (docs/reliability.md): SIGINT/SIGTERM end a run cleanly with exit 130/143, the run
+recorded as interrupted with its counts, the lease released; a resume reaches the uninterrupted result. A stop
+file does the same under MPI. A task over the time limit is a failed row and the sweep goes on."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import time
+
+import pytest
+
+from gapsweep import lease, store
+
+from .conftest import (
+    JOBS,
+    WRITERS,
+    assert_done_kept,
+    assert_only_done_pending,
+    done_rows,
+    env,
+    finish,
+    gs,
+    gs_popen,
+    mpi_cmd,
+    needs_mpi,
+    resume_to_ref,
+    wait_done,
+)
+
+
+def _last_run(path):
+    return json.loads(store.read_attrs(path)["runs"])[-1]
+
+
+@pytest.mark.parametrize("sig,code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+@pytest.mark.parametrize("job", ["theory", "hist"])
+def test_signal_serial(tmp_path, refs, sig, code, job):
+    path = tmp_path / "s.h5"
+    p = gs_popen("run", JOBS[job], "--store", path, "--mpi", "off", "--progress", "log",
+                 GAPSWEEP_TEST_DELAY="0.05")
+    wait_done(path, 4, p)
+    seen = done_rows(path)
+    p.send_signal(sig)
+    rc, _, err = finish(p)
+    assert rc == code, err
+    assert "Traceback" not in err and "recorded as interrupted" in err
+    assert_only_done_pending(path)
+    assert_done_kept(seen, path)
+    run = _last_run(path)
+    assert run["interrupted"] == signal.Signals(sig).name and run["counts"]["done"] >= 4
+    assert "interrupted by" in gs("status", path).stdout
+    assert lease.read(path) is None  # released: no --break-lease needed
+    p = gs("run", JOBS[job], "--store", path, "--resume", "--mpi", "off", "--progress", "none")
+    assert p.returncode == 0, p.stderr
+    assert store.diff(path, refs[job]) == []
+
+
+@needs_mpi
+@pytest.mark.parametrize("writer", WRITERS)
+@pytest.mark.parametrize("how", ["sigterm-rank0", "stop-file"])
+def test_stop_mpi(tmp_path, refs, writer, how):
+    """Under mpiexec: SIGTERM to rank 0 or a <store>.stop file (what the Slurm scripts create) drains the farm;
+    every rank exits 143, the store is closed and the run recorded as interrupted; no hang."""
+    path, pids = tmp_path / "s.h5", tmp_path / "pids"
+    pids.mkdir()
+    p = subprocess.Popen(mpi_cmd(2, "run", JOBS["theory"], "--store", path, "--writer", writer, "--progress",
+                                 "none"), env=env(GAPSWEEP_TEST_DELAY="0.05", GAPSWEEP_TEST_PIDDIR=str(pids)),
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        wait_done(path, 4, p)
+        seen = done_rows(path)
+        if how == "stop-file":
+            (tmp_path / "s.h5.stop").touch()
+        else:
+            import os
+
+            os.kill(int((pids / "rank0.pid").read_text()), signal.SIGTERM)
+        t0 = time.monotonic()
+        rc, _, err = finish(p, timeout=60)
+        assert time.monotonic() - t0 < 30
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+    assert rc == 143, err
+    assert_only_done_pending(path)
+    assert_done_kept(seen, path)
+    assert _last_run(path)["interrupted"] == "SIGTERM"
+    assert lease.read(path) is None
+    resume_to_ref(path, refs["theory"], JOBS["theory"])
+    assert not (tmp_path / "s.h5.stop").exists()  # consumed by the resumed run
+
+
+def test_task_timeout_serial(tmp_path):
+    """Every task sleeps 5 s; with --task-timeout 0.3 each is recorded as failed (timeout) and the sweep goes on;
+    all failed -> exit 3."""
+    path = tmp_path / "s.h5"
+    t0 = time.monotonic()
+    p = gs("run", JOBS["hist"], "--store", path, "--mpi", "off", "--progress", "none", "--task-timeout", "0.3",
+           GAPSWEEP_TEST_DELAY="5")
+    assert time.monotonic() - t0 < 40
+    assert p.returncode == 3, p.stderr
+    df = store.read(path)
+    assert set(df.status) == {"failed"}
+    assert all(m.startswith("timeout: task exceeded its time limit of 0.3 s") for m in df.message)
+
+
+@needs_mpi
+def test_task_timeout_mpi_rank0_thread(tmp_path):
+    """Under MPI with rank 0 working in a thread: its tasks time out too (asynchronous exception)."""
+    path = tmp_path / "s.h5"
+    p = subprocess.run(mpi_cmd(2, "run", JOBS["hist"], "--store", path, "--progress", "none", "--task-timeout",
+                               "0.3", "--coordinator-works", "yes", "--writer", "rank0"),
+                       env=env(GAPSWEEP_TEST_DELAY="3"), capture_output=True, text=True, timeout=120)
+    assert p.returncode == 3, p.stderr
+    df = store.read(path)
+    assert set(df.status) == {"failed"} and set(df["rank"]) == {0, 1}
+    assert all(m.startswith("timeout:") for m in df.message)
+
+
+def test_stop_file_serial(tmp_path, refs):
+    path = tmp_path / "s.h5"
+    p = gs_popen("run", JOBS["theory"], "--store", path, "--mpi", "off", "--progress", "none",
+                 GAPSWEEP_TEST_DELAY="0.05")
+    wait_done(path, 4, p)
+    seen = done_rows(path)
+    (tmp_path / "s.h5.stop").touch()
+    rc, _, err = finish(p)
+    assert rc == 143, err
+    assert_only_done_pending(path)
+    assert_done_kept(seen, path)
+    assert _last_run(path)["interrupted"] == "SIGTERM"
+    assert lease.read(path) is None
+    resume_to_ref(path, refs["theory"], JOBS["theory"])
+    assert not (tmp_path / "s.h5.stop").exists()
