@@ -186,11 +186,15 @@ def verdicts(cmp: pd.DataFrame, dist: pd.DataFrame) -> list[dict[str, str]]:
     claim = "Agreement improves with pressure"
     ev, signs = [], []
     if len(v):
-        for (h, r), g in v.groupby(["hurst", "rho"]):
+        # One curve per surface family (job) and (H, rho): the fig-2, fig-4/5 and fig-6 surfaces share some
+        # (H, rho) but not their h_rms/rho, so pooling them would mix two curves into one trend.
+        keys = ["job", "hurst", "rho"] if "job" in v else ["hurst", "rho"]
+        for key, g in v.groupby(keys):
+            job, h, r = key if len(keys) == 3 else ("", *key)
             rs = _spearman(g["sigma0_reduced"], g["rel_err"].abs())
             if np.isfinite(rs) and g["rel_err"].abs().max() > 0.01:
                 signs.append(rs < 0)
-                ev.append(f"H={h:g}, rho/L={r:g}: Spearman(sigma0, |rel err|) = {rs:+.2f}")
+                ev.append(f"{job + ': ' if job else ''}H={h:g}, rho/L={r:g}: Spearman(sigma0, |rel err|) = {rs:+.2f}")
         m4 = v[_near(v["sigma0_reduced"], 0.01, 0.02) & _near(v["rho"], 2e-3)]
         m5 = v[_near(v["sigma0_reduced"], 0.1, 0.02) & _near(v["rho"], 2e-3)]
         common = sorted(set(m4["hurst"].round(9)) & set(m5["hurst"].round(9)))
