@@ -124,6 +124,18 @@ def test_batched_resume_finishes_partial_store(tmp_path, monkeypatch) -> None:
     assert store.diff(part, ref, rtol=1e-10, atol=1e-12) == []
 
 
+def test_gpu_job_variants_match_the_figure_jobs() -> None:
+    """jobs/gpu/fig*.toml are the figure jobs with GFMD on the GPU and nothing else changed."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1] / "jobs"
+    for j in ("fig2", "fig3", "fig4_5", "fig6"):
+        a, b = spec.load(root / f"{j}.toml"), spec.load(root / "gpu" / f"{j}.toml")
+        assert b.methods["gfmd"].pop("backend") == "cupy" and a.methods["gfmd"].pop("backend") == "auto"
+        assert (a.name, a.grid, a.surface, a.material, a.histogram, a.methods) == \
+            (b.name, b.grid, b.surface, b.material, b.histogram, b.methods)
+
+
 def test_gpu_policy() -> None:
     assert [gpus.assign(r, 1) for r in range(3)] == [0, None, None]  # default: one rank per GPU
     assert [gpus.assign(r, 1, per_gpu=2) for r in range(3)] == [0, 0, None]  # two ranks share it
