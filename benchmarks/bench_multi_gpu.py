@@ -71,7 +71,7 @@ def main() -> int:
     p.add_argument("--jobs", nargs="+", default=["fig6", "fig4_5", "fig2", "fig3", "sde"])
     p.add_argument("--devices", default=None, help="comma list of GPU ids to cycle through (default 0..G-1)")
     p.add_argument("--ranks", type=int, default=os.cpu_count() or 1, help="MPI ranks per node, split over shards")
-    p.add_argument("--ranks-per-gpu", type=int, default=4)
+    p.add_argument("--ranks-per-gpu", type=int, default=2)
     p.add_argument("--reference", default=None, help="folder of reference stores <job>.h5 (compare_stores)")
     a = p.parse_args()
     out = Path(a.out)
