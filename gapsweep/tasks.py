@@ -707,13 +707,19 @@ def run_task(t: Task, ctx: Context, prev: Any = None) -> tuple[TaskResult, Any]:
 def run_unit(tasks: list[Task], unit: Unit, ctx: Context, todo: set[int] | None = None,
              ) -> Iterator[tuple[int, TaskResult]]:
     """Run a unit's tasks in order, yielding ``(task index, result)`` for those in ``todo`` (all if None).
-    A chain runs from its start up to its last wanted task, so warm starts are the same as in a full run."""
+    A chain runs from its start up to its last wanted task, so warm starts are the same as in a full run; a set
+    runs only its wanted tasks; a batch unit runs through :func:`gapsweep.batching.run_batch`."""
+    if unit.kind == "batch":
+        from gapsweep import batching  # late: batching builds on this module
+
+        yield from batching.run_batch(tasks, unit, ctx, set(unit.tasks) if todo is None else todo)
+        return
     want = [i for i in unit.tasks if todo is None or i in todo]
     if not want:
         return
-    last = unit.tasks.index(want[-1])
+    run = unit.tasks[: unit.tasks.index(want[-1]) + 1] if unit.kind == "chain" else want
     state = None
-    for i in unit.tasks[: last + 1]:
+    for i in run:
         res, state = run_task(tasks[i], ctx, state)
         if todo is None or i in todo:
             yield i, res

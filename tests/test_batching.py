@@ -194,3 +194,12 @@ def test_two_ranks_one_mocked_gpu(tmp_path, per_gpu, works, expect) -> None:
     sde = r["t"]["method"] == b"sde"
     assert set(r["r"]["rank"][sde]) <= {k for k, g in enumerate(expect) if g is not None}
     assert (r["r"]["status"][sde] != tasks.STATUS["pending"]).all()
+
+
+def test_run_unit_runs_every_kind_once() -> None:
+    """tasks.run_unit (the library entry) runs chains, sets and batch units; every task yields one row."""
+    ts, us = _units(JOB.replace("n = [32, 64]\ntol", "n = [32]\ntol"), "all")
+    assert {u.kind for u in us} >= {"batch", "set"}
+    ctx = tasks.Context()
+    seen = [i for u in us for i, res in tasks.run_unit(ts, u, ctx) if res.status == "done"]
+    assert sorted(seen) == list(range(len(ts)))
