@@ -68,6 +68,11 @@ def _parser() -> argparse.ArgumentParser:
                    help="take over the store's lease from a run that is gone (killed, or on a lost node)")
     s.add_argument("--task-timeout", type=float, default=None, metavar="SECONDS",
                    help="record a task running longer than this as failed (timeout) and go on")
+    s.add_argument("--batch", choices=("auto", "off", "all"), default="auto",
+                   help="GFMD chains solved side by side on GPU ranks: auto (backend cupy, n <= 1024), off, or "
+                        "all (CPU backends too)")
+    s.add_argument("--ranks-per-gpu", type=int, default=1, metavar="K",
+                   help="ranks of a node that share one GPU (default 1: ranks beyond the GPU count work CPU units)")
 
     s = sub.add_parser("status", help="summarise a running or finished store")
     s.add_argument("store", help="HDF5 store written by `gapsweep run`")
@@ -174,7 +179,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         s = runner.run(args.job, args.store, resume=args.resume, overwrite=args.overwrite,
                        shard=runner.parse_shard(args.shard), writer=args.writer, progress=args.progress,
                        coordinator_works=args.coordinator_works, mpi=args.mpi, break_lease=args.break_lease,
-                       task_timeout=args.task_timeout)
+                       task_timeout=args.task_timeout, batch=args.batch, ranks_per_gpu=args.ranks_per_gpu)
         if s["rank"] == 0 and args.progress != "none":
             print(f"{s['store']}: {s['mode']}, {s['todo']} of {s['tasks']} tasks run: {s['done']} done, "
                   f"{s['failed']} failed, {s['not_converged']} not converged")

@@ -13,7 +13,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-__all__ = ["git_commit", "now", "store_attrs", "versions"]
+__all__ = ["git_commit", "now", "run_extras", "sde_engine", "store_attrs", "versions"]
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +38,7 @@ def versions() -> dict[str, str]:
         from gapsweep import __version__
 
         out["gapsweep"] = f"{__version__} (source tree)"
+    out["cupy"] = _cupy_version()
     try:
         import h5py
 
@@ -90,3 +91,32 @@ def store_attrs(spec: Any, *, shard: str = "", extra: dict[str, Any] | None = No
     }
     a.update(extra or {})
     return a
+
+
+def _cupy_version() -> str:
+    """Version of the installed cupy wheel (``cupy-cudaXXx`` or a source build), from package metadata."""
+    for name in ("cupy", "cupy-cuda13x", "cupy-cuda12x", "cupy-cuda11x"):
+        try:
+            return f"{metadata.version(name)} ({name})"
+        except metadata.PackageNotFoundError:
+            continue
+    return "not installed"
+
+
+def sde_engine(scheme: str = "split") -> str:
+    """The engine that runs SDE ensembles on a CUDA device in this process: ``"cuda"`` (gapsweep/_sde_cuda.py:
+    cupy, NVRTC, fast math) or ``"warp"`` (``GAPSWEEP_SDE_ENGINE=warp``, no cupy, or another scheme). Both draw
+    the same Philox numbers; float32 results differ by fast-math rounding (docs/benchmarks.md, issue 14)."""
+    from gapsweep import _sde_cuda
+
+    return "cuda" if _sde_cuda.enabled("cuda", scheme) else "warp"
+
+
+def run_extras(spec: Any, *, gpu_ranks: list, batch: str, batch_units: int) -> dict[str, Any]:
+    """Run-record entries about the hardware path: the GPU of each rank (None: CPU only), the GFMD batch mode
+    and count of batch units, and for a job with SDE on CUDA the SDE engine (``sde_engine``)."""
+    out: dict[str, Any] = {"gpus": list(gpu_ranks), "gfmd_batch": batch, "batch_units": int(batch_units)}
+    o = spec.methods.get("sde")
+    if o is not None and o.get("device") == "cuda":
+        out["sde_engine"] = sde_engine(str(o.get("extra", {}).get("scheme", "split")))
+    return out

@@ -32,7 +32,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from gapsweep import budget, lease, limits, provenance, storecheck
+from gapsweep import batching, budget, gpus, lease, limits, provenance, storecheck
 from gapsweep import spec as specmod
 from gapsweep.limits import Interrupted, TaskTimeout
 from gapsweep.store import Store, StoreError, StoreWriteError, open_read
@@ -120,15 +120,17 @@ def _comm(mpi: str) -> Any:
     return comm if comm.size > 1 else None
 
 
-def _select(spec: specmod.JobSpec, shard: tuple[int, int] | None) -> tuple[list[Task], list[Unit]]:
-    """Tasks of the job (or of one shard) in canonical order and their units (indices into that list)."""
+def _select(spec: specmod.JobSpec, shard: tuple[int, int] | None, batch: str = "auto",
+            ) -> tuple[list[Task], list[Unit]]:
+    """Tasks of the job (or of one shard) in canonical order and their units (indices into that list); GFMD
+    chains that batch on a GPU rank are grouped into batch units (gapsweep.batching) before sharding."""
     tasks_all = expand(spec)
-    units = make_units(tasks_all)
+    units = batching.batch_units(tasks_all, make_units(tasks_all), mode=batch)
     if shard is not None:
         units = shard_units(units, *shard)
     sel = sorted({i for u in units for i in u.tasks})
     remap = {old: new for new, old in enumerate(sel)}
-    return [tasks_all[i] for i in sel], [Unit(tuple(remap[i] for i in u.tasks), u.cost, u.gpu) for u in units]
+    return [tasks_all[i] for i in sel], [u.remap(remap) for u in units]
 
 
 def _load(job: str | Path | specmod.JobSpec) -> specmod.JobSpec:
@@ -277,42 +279,22 @@ class Progress:
             log.info(self.line())
 
 
-def _gpu_index(comm: Any) -> int | None:
-    """The GPU of this rank (node-local rank if < number of visible GPUs) or None."""
-    vis = os.environ.get("CUDA_VISIBLE_DEVICES")
-    if vis is not None:
-        n = len([x for x in vis.split(",") if x.strip() and x.strip() != "-1"])
-    else:
-        import shutil
-        import subprocess
-
-        if not shutil.which("nvidia-smi"):
-            return None
-        try:
-            out = subprocess.run(["nvidia-smi", "-L"], capture_output=True, text=True, timeout=20).stdout
-        except (OSError, subprocess.SubprocessError):
-            return None
-        n = sum(1 for line in out.splitlines() if line.startswith("GPU "))
-    local = 0
-    if comm is not None:
-        from mpi4py import MPI
-
-        local = comm.Split_type(MPI.COMM_TYPE_SHARED).rank
-    return local if local < n else None
-
-
 def _run_unit(tasks: list[Task], unit: Unit, ctx: Context, todo: set[int], limit: float | None,
               stop: limits.Stop | None) -> Iterator[tuple[int, TaskResult]]:
     """Run a unit's tasks in order, yielding ``(task index, result)`` for those in ``todo``; a chain runs from
     its start up to its last wanted task, so warm starts are the same as in a full run. ``limit``: per-task
     wall-time limit [s] (an overrunning task is a failed row, ``timeout: ...``). In flag mode (MPI) a stop
     request ends the unit after the current task."""
+    if unit.kind == "batch":  # GFMD chains run side by side, one batched solve per chain step
+        yield from batching.run_batch(tasks, unit, ctx, todo, limit, stop)
+        return
     want = [i for i in unit.tasks if i in todo]
     if not want:
         return
-    last = unit.tasks.index(want[-1])
+    # a chain runs from its start (warm starts as in a full run); a set of independent tasks only what is wanted
+    run = unit.tasks[: unit.tasks.index(want[-1]) + 1] if unit.kind == "chain" else want
     state = None
-    for i in unit.tasks[: last + 1]:
+    for i in run:
         res, state = run_task(tasks[i], ctx, state) if not limit else _run_limited(tasks[i], ctx, state, limit)
         if i in todo:
             yield i, res
@@ -335,12 +317,14 @@ def _run_limited(t: Task, ctx: Context, state: Any, limit: float) -> tuple[TaskR
 def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = False, overwrite: bool = False,
         shard: tuple[int, int] | None = None, writer: str = "auto", progress: str = "auto",
         coordinator_works: str = "auto", mpi: str = "auto", break_lease: bool = False,
-        task_timeout: float | None = None) -> dict[str, Any]:
+        task_timeout: float | None = None, batch: str = "auto", ranks_per_gpu: int = 1) -> dict[str, Any]:
     """Run a job into a store (serially or as an MPI task farm). Returns a summary dict on every rank.
 
     ``writer``: auto | mpio | rank0 (env ``GAPSWEEP_WRITER`` overrides auto); ``progress``: auto | bar | log |
     none; ``coordinator_works``: auto (rank 0 works when P <= 4) | yes | no; ``mpi``: auto | on | off;
-    ``break_lease``: take over the lease of a run that is gone; ``task_timeout``: per-task wall-time limit [s].
+    ``break_lease``: take over the lease of a run that is gone; ``task_timeout``: per-task wall-time limit [s];
+    ``batch``: auto (GFMD chains batched on GPU ranks where that pays, gapsweep.batching) | off | all (also CPU
+    backends: for tests and comparisons); ``ranks_per_gpu``: ranks sharing one GPU (gapsweep.gpus).
 
     Raises :class:`RunError` when the run cannot start or a write fails (rows finished before stay done),
     :class:`~gapsweep.limits.Interrupted` after a clean stop on SIGINT/SIGTERM or a ``<store>.stop`` file (the
@@ -350,12 +334,15 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
                          "--overwrite discards them")
     if task_timeout is not None and not (isinstance(task_timeout, (int, float)) and 0 < task_timeout < 1e9):
         raise ValueError(f"--task-timeout: expected seconds > 0, got {task_timeout!r}")
+    if batch not in batching.MODES:
+        raise ValueError(f"--batch: expected one of {', '.join(batching.MODES)}, got {batch!r}")
+    gpus.assign(None, 0, ranks_per_gpu)  # validates ranks_per_gpu
     spec = _load(job)
     comm = _comm(mpi)
     rank, size = (comm.rank, comm.size) if comm is not None else (0, 1)
     if os.environ.get("GAPSWEEP_TEST_PIDDIR"):  # test hook: lets a test kill -9 one particular rank
         Path(os.environ["GAPSWEEP_TEST_PIDDIR"], f"rank{rank}.pid").write_text(str(os.getpid()))
-    tasks, units = _select(spec, shard)
+    tasks, units = _select(spec, shard, batch)
     path = _store_path(store, shard)
     shard_text = f"{shard[0]}/{shard[1]}" if shard else ""
 
@@ -381,7 +368,7 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
         raise decision
     try:
         return _execute(spec, comm, rank, size, tasks, units, path, shard_text, decision, writer, progress,
-                        coordinator_works, task_timeout, held)
+                        coordinator_works, task_timeout, held, (batch, ranks_per_gpu))
     finally:
         if held is not None:
             held.release()
@@ -393,7 +380,8 @@ def _stop_file(path: Path) -> Path:
 
 def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list[Task], units: list[Unit],
              path: Path, shard_text: str, decision: tuple, writer: str, progress: str, coordinator_works: str,
-             task_timeout: float | None, held: lease.Lease | None) -> dict[str, Any]:
+             task_timeout: float | None, held: lease.Lease | None, gpu_opts: tuple[str, int] = ("auto", 1),
+             ) -> dict[str, Any]:
     mode, todo_list, run_id = decision
     summary: dict[str, Any] = {"store": str(path), "tasks": len(tasks), "todo": len(todo_list), "mode": mode,
                                "mpi_size": size, "rank": rank, **dict.fromkeys(STATUS, 0)}
@@ -424,12 +412,18 @@ def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list
         # Static attributes and the run record come from rank 0 so that every rank writes identical values.
         hosts = sorted(set(comm.allgather(socket.gethostname()))) if comm is not None else [socket.gethostname()]
         attrs = provenance.store_attrs(spec, shard=shard_text) if rank == 0 else None
+        # rank 0 works (in a thread, beside coordinating) when asked, or by default with few ranks
+        works = comm is None or coordinator_works == "yes" or (coordinator_works == "auto" and size <= 4)
+        need_gpu = any(u.gpu for u in units)
+        gpu = gpus.rank_gpu(comm, works, gpu_opts[1]) if need_gpu else None
+        gpu_ranks = comm.allgather(gpu) if comm is not None else [gpu]
         record = {"started": provenance.now(), "finished": None, "mpi_size": size, "hosts": hosts,
-                  "writer": wmode, "mode": mode, "todo": len(todo_list), "run_id": run_id}
+                  "writer": wmode, "mode": mode, "todo": len(todo_list), "run_id": run_id,
+                  **(provenance.run_extras(spec, gpu_ranks=gpu_ranks, batch=gpu_opts[0],
+                                           batch_units=sum(u.kind == "batch" for u in units)) if rank == 0 else {})}
         if comm is not None:
             attrs, record = comm.bcast((attrs, record), root=0)
-        need_gpu = any(u.gpu for u in units)
-        ctx = Context(rank=rank, gpu=_gpu_index(comm) if need_gpu else None)
+        ctx = Context(rank=rank, gpu=gpu)
         ctx.fields_dir = _fields_dir(path)  # kept GFMD fields, if the spec asks (gapsweep.dataset)
         todo = set(todo_list)
         work = [k for k, u in enumerate(units) if any(i in todo for i in u.tasks)]
@@ -451,15 +445,8 @@ def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list
                     if stop.requested():  # the stop file (a signal raises by itself)
                         raise Interrupted(stop.signum)
         elif rank == 0:
-            works = coordinator_works == "yes" or (coordinator_works == "auto" and size <= 4)
-            gpus = comm.gather(ctx.gpu, root=0)
-            if (not works and coordinator_works != "no" and gpus[0] is not None
-                    and any(units[k].gpu for k in work) and all(g is None for g in gpus[1:])):
-                # One GPU per node and it is rank 0's: rank 0 must work, or GPU units would find no taker.
-                works = True
-            _coordinate(comm, tasks, units, work, todo, ctx, st, prog, works, wmode, gpus, task_timeout, stop)
+            _coordinate(comm, tasks, units, work, todo, ctx, st, prog, works, wmode, gpu_ranks, task_timeout, stop)
         else:
-            comm.gather(ctx.gpu, root=0)
             _work(comm, tasks, units, todo, ctx, st, wmode, task_timeout, stop)
         prog.close()
         counts = dict(prog.count)
@@ -591,7 +578,7 @@ def _abort(comm: Any, rank: int, wmode: str, held: lease.Lease | None, e: BaseEx
 
 
 def _coordinate(comm: Any, tasks: list[Task], units: list[Unit], work: list[int], todo: set[int], ctx: Context,
-                st: Store | None, prog: Progress, works: bool, wmode: str, gpus: list[int | None],
+                st: Store | None, prog: Progress, works: bool, wmode: str, gpu_of: list[int | None],
                 limit: float | None, stop: limits.Stop) -> None:
     """Rank 0: hand out units largest-first to workers, optionally work on the smallest ones in a thread,
     write rows sent by workers (rank0 writer) and track progress. A stop request (signal, stop file, a
@@ -601,7 +588,7 @@ def _coordinate(comm: Any, tasks: list[Task], units: list[Unit], work: list[int]
     q = deque(work)  # unit indices, largest first
     lock = threading.Lock()
     # GPU units wait for a GPU rank only if some rank that works has one; otherwise any rank takes them.
-    any_gpu = any(g is not None for r, g in enumerate(gpus) if r > 0 or works)
+    any_gpu = any(g is not None for r, g in enumerate(gpu_of) if r > 0 or works)
 
     def take(from_tail: bool, gpu_ok: bool) -> int | None:
         with lock:
@@ -617,7 +604,7 @@ def _coordinate(comm: Any, tasks: list[Task], units: list[Unit], work: list[int]
 
     def local_worker() -> None:
         try:
-            while (k := take(True, gpus[0] is not None)) is not None:
+            while (k := take(True, gpu_of[0] is not None)) is not None:
                 for item in _run_unit(tasks, units[k], ctx, todo, limit, stop):
                     results.put(item)
         except BaseException as e:  # surfaced on the main thread, which aborts the job
@@ -661,7 +648,7 @@ def _coordinate(comm: Any, tasks: list[Task], units: list[Unit], work: list[int]
                     stop.signum = msg
                 next_check = 0.0
             elif tag == TAG_READY:
-                k = take(False, gpus[src] is not None)
+                k = take(False, gpu_of[src] is not None)
                 comm.send(k, dest=src, tag=TAG_WORK)
                 if k is None:
                     active.discard(src)

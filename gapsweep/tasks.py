@@ -7,9 +7,10 @@ This is the only module that knows the solvers' signatures (``gapsweep.theory``,
 * A :class:`Task` is one (method, hurst, rho, sigma0, seed, n) point with the spec's fixed parameters; its id is
   the first 16 hex digits of the SHA-256 of its canonical JSON (parameters that change the result, never the
   position in the grid), so resume and merge are keyed by content.
-* A :class:`Unit` is what a worker runs in one go: a single task, or a GFMD pressure chain (same surface,
-  sigma0 in decreasing or increasing order) where each solve warm-starts from the previous solution. A chain is
-  always run from its start on one rank, so its results do not depend on the rank count or on resume.
+* A :class:`Unit` is what a worker runs in one go: a single task, a GFMD pressure chain (same surface,
+  sigma0 in decreasing or increasing order) where each solve warm-starts from the previous solution, a set of
+  discrete-theory tasks of one surface (its spectrum computed once), or a batch of chains (gapsweep.batching).
+  A chain is always run from its start on one rank, so its results do not depend on the rank count or on resume.
 * Adding a method: a ``_expand_<method>`` generator, a ``_run_<method>`` function and a cost model (a few lines).
 """
 
@@ -103,11 +104,20 @@ class TaskResult:
 
 @dataclass(frozen=True)
 class Unit:
-    """Indices of tasks run in order by one worker (a GFMD chain or a single task) and its cost estimate [s]."""
+    """Indices of tasks run by one worker and its cost estimate [s]. ``kind``: "single", "chain" (run in order
+    from its start, warm starts), "set" (independent tasks sharing a surface: only the wanted ones run) or
+    "batch" (``chains``: GFMD chains run side by side, gapsweep.batching; ``tasks`` is their concatenation)."""
 
     tasks: tuple[int, ...]
     cost: float
     gpu: bool = False
+    kind: str = "single"
+    chains: tuple[tuple[int, ...], ...] = ()
+
+    def remap(self, new: dict[int, int]) -> Unit:
+        """The unit with task indices mapped through ``new`` (old index -> new index)."""
+        return Unit(tuple(new[i] for i in self.tasks), self.cost, self.gpu, self.kind,
+                    tuple(tuple(new[i] for i in c) for c in self.chains))
 
 
 def _task_id(payload: dict[str, Any]) -> str:
@@ -236,18 +246,34 @@ def needs_gpu(t: Task) -> bool:
     return t.opt("device") == "cuda" or (t.method == "gfmd" and t.opt("backend") == "cupy")
 
 
+def _surface_set(t: Task) -> str:
+    """Key of the discrete-theory tasks that share one surface (its spectrum is computed once per set), or ""."""
+    if t.method != "theory" or "discrete" not in t.opt("forms") or not t.n:
+        return ""
+    return _task_id({"hurst": t.hurst, "seed": t.seed, "n": t.n, "surface": t.surface_params()})
+
+
 def make_units(tasks: list[Task]) -> list[Unit]:
-    """Group chained tasks (same ``chain`` key) in their expansion order; others are single-task units.
-    Units are sorted largest cost first (ties by first task id), the order a coordinator hands them out."""
+    """Group chained tasks (same ``chain`` key) in their expansion order, and discrete-theory tasks of one
+    surface into a set; others are single-task units. Units are sorted largest cost first (ties by first task
+    id), the order a coordinator hands them out."""
     chains: OrderedDict[str, list[int]] = OrderedDict()
+    sets: OrderedDict[str, list[int]] = OrderedDict()
     units: list[Unit] = []
     for i, t in enumerate(tasks):
         if t.chain:
             chains.setdefault(t.chain, []).append(i)
+        elif key := _surface_set(t):
+            sets.setdefault(key, []).append(i)
         else:
             units.append(Unit((i,), estimate_cost(t), needs_gpu(t)))
-    for idx in chains.values():
-        units.append(Unit(tuple(idx), sum(estimate_cost(tasks[i]) for i in idx), any(needs_gpu(tasks[i]) for i in idx)))
+    for kind, groups in (("chain", chains), ("set", sets)):
+        for idx in groups.values():
+            # a set pays its surface's spectrum once (the first task's estimate), each further task ~1 ms
+            cost = (sum(estimate_cost(tasks[i]) for i in idx) if kind == "chain"
+                    else estimate_cost(tasks[idx[0]]) + 1e-3 * (len(idx) - 1))
+            units.append(Unit(tuple(idx), cost, any(needs_gpu(tasks[i]) for i in idx),
+                              kind if len(idx) > 1 else "single"))
     units.sort(key=lambda u: (-u.cost, tasks[u.tasks[0]].task_id))
     return units
 
@@ -282,6 +308,7 @@ class Context:
         self.fields_dir: Path | None = None  # where GFMD tasks keep their fields (set by the runner)
         self._surfaces: OrderedDict[tuple, np.ndarray] = OrderedDict()
         self._rms: dict[tuple, tuple[float, float]] = {}  # (h_rms, g_rms) of the cached surfaces
+        self._spectra: dict[tuple, Any] = {}  # discrete spectra of the cached surfaces (theory, M4)
         self._max = max_surfaces
         self._delay = float(os.environ.get("GAPSWEEP_TEST_DELAY", "0") or 0)
         fail = os.environ.get("GAPSWEEP_TEST_FAIL", "")
@@ -299,7 +326,9 @@ class Context:
             h.setflags(write=False)
             self._surfaces[key] = h
             while len(self._surfaces) > self._max:
-                self._rms.pop(self._surfaces.popitem(last=False)[0], None)
+                old = self._surfaces.popitem(last=False)[0]
+                self._rms.pop(old, None)
+                self._spectra.pop(old, None)
         else:
             self._surfaces.move_to_end(key)
         return h
@@ -314,6 +343,18 @@ class Context:
         if key not in self._rms:
             self._rms[key] = (surface.rms_height(h), surface.rms_slope(h, sp["length"]))
         return self._rms[key]
+
+    def spectrum(self, t: Task, n: int) -> Any:
+        """Discrete spectrum (``theory.spectrum.from_heights``) of :meth:`surface`, computed once per cached
+        surface: the discrete theory of every pressure of one surface shares it (M4)."""
+        from gapsweep.theory import spectrum
+
+        sp = t.surface_params()
+        h = self.surface(t, n)
+        key = self._key(t, n, sp)
+        if key not in self._spectra:
+            self._spectra[key] = spectrum.from_heights(h, sp["length"], lambda_l=sp["lambda_l"])
+        return self._spectra[key]
 
     @staticmethod
     def _key(t: Task, n: int, sp: dict[str, Any]) -> tuple:
@@ -340,13 +381,42 @@ def _extra(t: Task) -> dict[str, Any]:
     return {k[6:]: v for k, v in t.options if k.startswith("extra.")}
 
 
-def _hist(t: Task, samples: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+def _hist(t: Task, samples: Any) -> tuple[np.ndarray, np.ndarray, int]:
+    """Histogram ``(edges, density, count)`` of the finite samples over the job's bins and range (``"auto"``:
+    the samples' min..max). A cupy array is binned on its GPU with the same edges (only the counts come back)."""
+    from gapsweep.gfmd._ops import _is_cupy
+
+    if _is_cupy(samples):
+        return _hist_device(t, samples)
     finite = samples[np.isfinite(samples)]
     rng = t.opt("range")
     r = None if rng == "auto" else tuple(rng)
     if r is None and finite.size and finite.min() == finite.max():
         r = (finite.min() - 0.5, finite.max() + 0.5)
     dens, edges = np.histogram(finite, bins=t.opt("bins"), range=r)
+    total = dens.sum()
+    width = np.diff(edges)
+    density = dens / (total * width) if total else np.zeros_like(width)
+    return edges, density, int(total)
+
+
+def _hist_device(t: Task, samples: Any) -> tuple[np.ndarray, np.ndarray, int]:
+    """:func:`_hist` of a cupy array: numpy's edges for the range, counts on the GPU (bin ``k`` holds
+    ``edges[k] <= x < edges[k+1]``, the last bin closed, as numpy's)."""
+    import cupy
+
+    finite = samples[cupy.isfinite(samples)]
+    rng = t.opt("range")
+    if rng != "auto":
+        r = (float(rng[0]), float(rng[1]))
+    elif finite.size:
+        lo, hi = float(finite.min()), float(finite.max())
+        r = (lo - 0.5, hi + 0.5) if lo == hi else (lo, hi)
+    else:
+        r = (0.0, 1.0)  # numpy's default range for no data
+    edges = np.histogram_bin_edges(np.empty(0), bins=t.opt("bins"), range=r)
+    counts, _ = cupy.histogram(finite, bins=cupy.asarray(edges))
+    dens = cupy.asnumpy(counts)
     total = dens.sum()
     width = np.diff(edges)
     density = dens / (total * width) if total else np.zeros_like(width)
@@ -363,10 +433,9 @@ def _run_theory(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
     v: dict[str, float] = {"h_rms": h_rms, "g_rms": g_rms}
     for form in t.opt("forms"):
         if form == "discrete":
-            h = ctx.surface(t, t.n)
-            v["mean_gap_discrete"] = float(theory.mean_gap_discrete(
-                t.sigma0, h, rho=t.rho, gamma0=t.opt("gamma0"), lambda_l=sp["lambda_l"], length=sp["length"],
-                e_star=t.opt("e_star")))
+            # theory.mean_gap_discrete(sigma0, h, ...) with the surface's spectrum computed once per surface
+            v["mean_gap_discrete"] = float(theory.field.mean_gap_spectrum(
+                t.sigma0, ctx.spectrum(t, t.n), rho=t.rho, gamma0=t.opt("gamma0"), e_star=t.opt("e_star")))
         else:
             v[f"mean_gap_{form}"] = float(theory.mean_gap(t.sigma0, form=form, **kw))
     v["mean_gap"] = v[f"mean_gap_{t.opt('forms')[0]}"]
@@ -391,33 +460,70 @@ def _keep_fields(t: Task, ctx: Context, res: Any, h: np.ndarray, gap: np.ndarray
     dataset.write_fields(ctx.fields_dir, t.task_id, {k: arrays[k] for k in want}, length=length, attrs=attrs)
 
 
+def use_gpu(t: Task, ctx: Context) -> None:
+    """Make this rank's GPU current for a GFMD task with ``backend = "cupy"`` (clear error without cupy)."""
+    if t.opt("backend") == "cupy":
+        from gapsweep._extras import require
+
+        cupy = require("cupy", 'GFMD on the GPU (backend = "cupy")')
+        cupy.cuda.Device(ctx.gpu or 0).use()  # this rank's GPU (one GPU per rank on a node)
+
+
+def gfmd_host_fields(t: Task, ctx: Context) -> bool | tuple[str, ...]:
+    """Fields a GFMD task needs on the host: all when it keeps fields (gapsweep.dataset), else none -- the
+    store's statistics and histogram of the gap are computed where the gap lives (on the GPU for cupy)."""
+    if t.opt("keep_fields") and getattr(ctx, "fields_dir", None) is not None:
+        from gapsweep import dataset
+
+        if dataset.field_selected(json.loads(t.opt("keep_fields")), hurst=t.hurst, rho=t.rho, sigma0=t.sigma0,
+                                  seed=t.seed, n=t.n):
+            return True
+    return False
+
+
 def _run_gfmd(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
     from gapsweep import gfmd
 
     h = ctx.surface(t, t.n)
     sp = t.surface_params()
-    if t.opt("backend") == "cupy":
-        from gapsweep._extras import require
-
-        cupy = require("cupy", 'GFMD on the GPU (backend = "cupy")')
-
-        cupy.cuda.Device(ctx.gpu or 0).use()  # this rank's GPU (one GPU per rank on a node)
+    use_gpu(t, ctx)
     res = gfmd.solve(h, sigma0=t.sigma0, gamma0=t.opt("gamma0"), rho=t.rho, e_star=t.opt("e_star"),
                      length=sp["length"], tol=t.opt("tol"), method=t.opt("method"), backend=t.opt("backend"),
-                     max_iter=t.opt("max_iter"), initial=prev if t.opt("warm_start") else None, **_extra(t))
-    gap = np.asarray(res.gap, dtype=float)
+                     max_iter=t.opt("max_iter"), initial=prev if t.opt("warm_start") else None,
+                     host=gfmd_host_fields(t, ctx), **_extra(t))
+    return gfmd_row(t, ctx, res)
+
+
+def gfmd_row(t: Task, ctx: Context, res: Any) -> tuple[TaskResult, Any]:
+    """Store row of a GFMD result and the warm start it gives the next task of its chain (the converged
+    result, else None). The gap's statistics and histogram are taken where the gap lives (numpy or cupy)."""
+    from gapsweep.gfmd._ops import _is_cupy
+
+    gap = res.gap
+    xp = np
+    if _is_cupy(gap):
+        import cupy as xp
+    else:
+        gap = np.asarray(gap, dtype=float)
     h_rms, g_rms = ctx.surface_rms(t, t.n)
     if t.opt("keep_fields") and getattr(ctx, "fields_dir", None) is not None:
-        _keep_fields(t, ctx, res, h, gap, sp["length"])
+        sp = t.surface_params()
+        _keep_fields(t, ctx, res, ctx.surface(t, t.n), np.asarray(_host(gap), dtype=float), sp["length"])
     v = {"mean_gap": float(res.mean_gap), "h_rms": h_rms, "g_rms": g_rms,
          "residual": float(res.residual), "load_error": float(getattr(res, "load_error", math.nan)),
-         "iterations": int(res.iterations), "gap_std": float(np.std(gap)), "gap_min": float(np.min(gap)),
-         "gap_max": float(np.max(gap))}
+         "iterations": int(res.iterations), "gap_std": float(xp.std(gap)), "gap_min": float(xp.min(gap)),
+         "gap_max": float(xp.max(gap))}
     ok = bool(res.converged) and math.isfinite(v["mean_gap"])
     status = "done" if ok else "not_converged"
     msg = "" if ok else f"gfmd: {getattr(res, 'status', 'not converged')} (residual {v['residual']:.3g})"
-    state = res if ok else None  # warm start from the converged solution only
+    # warm start from the converged solution only; only its displacement is kept (the other fields are dropped
+    # with the result once the row is made)
+    state = res.displacement if ok else None
     return TaskResult(status, msg, v, _hist(t, gap)), state
+
+
+def _host(a: Any) -> np.ndarray:
+    return a.get() if hasattr(a, "get") and not isinstance(a, np.ndarray) else np.asarray(a)
 
 
 def _run_sde(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
@@ -601,13 +707,19 @@ def run_task(t: Task, ctx: Context, prev: Any = None) -> tuple[TaskResult, Any]:
 def run_unit(tasks: list[Task], unit: Unit, ctx: Context, todo: set[int] | None = None,
              ) -> Iterator[tuple[int, TaskResult]]:
     """Run a unit's tasks in order, yielding ``(task index, result)`` for those in ``todo`` (all if None).
-    A chain runs from its start up to its last wanted task, so warm starts are the same as in a full run."""
+    A chain runs from its start up to its last wanted task, so warm starts are the same as in a full run; a set
+    runs only its wanted tasks; a batch unit runs through :func:`gapsweep.batching.run_batch`."""
+    if unit.kind == "batch":
+        from gapsweep import batching  # late: batching builds on this module
+
+        yield from batching.run_batch(tasks, unit, ctx, set(unit.tasks) if todo is None else todo)
+        return
     want = [i for i in unit.tasks if todo is None or i in todo]
     if not want:
         return
-    last = unit.tasks.index(want[-1])
+    run = unit.tasks[: unit.tasks.index(want[-1]) + 1] if unit.kind == "chain" else want
     state = None
-    for i in unit.tasks[: last + 1]:
+    for i in run:
         res, state = run_task(tasks[i], ctx, state)
         if todo is None or i in todo:
             yield i, res

@@ -59,11 +59,14 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
         x0 = Hq * ((sigma0 / rho) / (k + sigma0 / rho))  # linear response of M4: h~ / (1 + eta zeta)
     else:
         u0 = initial.displacement if isinstance(initial, GFMDResult) else initial
-        u0 = fft.to_host(u0) if _is_cupy(u0) else np.asarray(u0, dtype=np.float64)
-        if u0.ndim != 2 or u0.shape[0] != u0.shape[1] or not np.all(np.isfinite(u0)):
+        # a field already on this GPU stays there (a warm-started pressure chain copies nothing)
+        u0 = (u0 if xp is not np and u0.shape[0] == n else fft.to_host(u0)) if _is_cupy(u0) else \
+            np.asarray(u0, dtype=np.float64)
+        uxp = xp if _is_cupy(u0) else np
+        if u0.ndim != 2 or u0.shape[0] != u0.shape[1] or not bool(uxp.all(uxp.isfinite(u0))):
             raise ValueError("initial must be a GFMDResult or a finite square displacement field")
         if u0.shape[0] == n:
-            x0 = xp.array(fft.rfft2(xp.asarray(u0)) * (1.0 / (n * n)))
+            x0 = xp.array(fft.rfft2(xp.asarray(u0, dtype=xp.float64)) * (1.0 / (n * n)))
         else:
             x0 = xp.asarray(_transfer_modes(u0, n))
     x0 = xp.array(x0, dtype=xp.complex128)

@@ -95,8 +95,11 @@ def solve_batch(problems: Sequence[Problem], *, e_star: float = 1.0, length: flo
         if rng is not None and rng < length / shape[0]:
             from gapsweep.gfmd import UnderResolvedWarning
 
-            warnings.warn(f"problems[{i}]: rho/dx = {rng * shape[0] / length:.3g} < 1: the interaction range is "
-                          "under-resolved (refine n)", UnderResolvedWarning, stacklevel=2)
+            dx = length / shape[0]
+            # the one-by-one solver's text after the problem's index (the sweep stores it in that row)
+            warnings.warn(f"problems[{i}]: rho/dx = {rng / dx:.3g} < 1 (rho={rng:g}, dx={dx:g}): the interaction "
+                          "range is under-resolved; the solver still converges but the mean gap carries a "
+                          "discretisation error (refine n)", UnderResolvedWarning, stacklevel=2)
         laws.append(law)
         loads.append(law.check_load(p.sigma0))
         grids.append(int(shape[0]))
@@ -132,8 +135,14 @@ def _initial_field(initial: Any, i: int) -> np.ndarray | None:
     if initial is None:
         return None
     u0 = initial.displacement if isinstance(initial, GFMDResult) else initial
-    u0 = u0.get() if _is_cupy(u0) else np.asarray(u0, dtype=np.float64)
-    if u0.ndim != 2 or u0.shape[0] != u0.shape[1] or not np.all(np.isfinite(u0)):
+    if _is_cupy(u0):  # stays on its GPU (validated there); moved to the host only for a change of grid
+        import cupy
+
+        ok = u0.ndim == 2 and u0.shape[0] == u0.shape[1] and bool(cupy.all(cupy.isfinite(u0)))
+    else:
+        u0 = np.asarray(u0, dtype=np.float64)
+        ok = u0.ndim == 2 and u0.shape[0] == u0.shape[1] and bool(np.all(np.isfinite(u0)))
+    if not ok:
         raise ValueError(f"problems[{i}].initial must be a GFMDResult or a finite square displacement field")
     return u0
 
@@ -384,8 +393,10 @@ def _softmax_batch(heights: list, laws: list, sigma0s: list[float], starts: list
     for j, u0 in enumerate(starts):  # warm starts, as in the one-by-one solver
         if u0 is None:
             continue
+        if _is_cupy(u0) and (xp is np or u0.shape[0] != n):
+            u0 = u0.get()
         if u0.shape[0] == n:
-            X[j] = ops.rfft2(xp.asarray(u0)[None])[0] * (1.0 / (n * n))
+            X[j] = ops.rfft2(xp.asarray(u0, dtype=xp.float64)[None])[0] * (1.0 / (n * n))
         else:
             from gapsweep.gfmd import _transfer_modes
 

@@ -1,0 +1,211 @@
+"""Batched GFMD in a sweep: pressure chains run side by side, one batched solve per chain step (docs/running.md,
+"Batched GFMD").
+
+Which units batch (``mode``, ``gapsweep run --batch``):
+
+* ``"auto"`` (default): GFMD chains (and single GFMD tasks) with ``backend = "cupy"`` -- GPU units, so they run
+  on GPU ranks -- where batching was measured to pay (docs/benchmarks.md, issue 14: 1.27x at N = 1024, slower
+  at N >= 2048): ``n <= BATCH_MAX_N``, the exponential law, method "cg"/"auto", no ``extra`` solver options.
+* ``"all"``: the same chains with any backend (a CPU backend runs the batch with numpy: CI tests this path).
+* ``"off"``: none; every chain runs one solve at a time.
+
+Chains with the same grid size and common solver options (tol, max_iter, backend, e_star, length) are grouped in
+expansion order, at most ``BATCH_CHAINS`` per batch unit. The grouping is made before sharding and does not
+depend on the rank count. A batch unit runs step ``k`` of all its chains as one :func:`gapsweep.gfmd.solve_batch`
+call, each problem warm-started from step ``k - 1`` of its own chain exactly as the one-by-one chain does
+(converged solutions only); a chain stops after its last wanted task (resume). The batched solver does the
+one-by-one CG step for step, so rows agree with the unbatched sweep to round-off (tests/test_batching.py).
+Only what the store needs leaves the GPU: statistics and the histogram of the gap are computed there
+(gapsweep.tasks.gfmd_row), and each result is dropped once its row is made.
+
+Per-task behaviour is that of :func:`gapsweep.tasks.run_task`: an injected failure, an exception or a
+non-finite result gives a failed row; a solver warning goes into its own row's message; a step that raises as a
+whole is re-run one task at a time (so one bad input fails only its own row). ``wall_time`` of a batched row is
+its share of the step's wall time; a ``--task-timeout`` bounds each step.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import time
+import warnings
+from collections.abc import Iterator
+from typing import Any
+
+from gapsweep.tasks import (
+    Context,
+    Task,
+    TaskResult,
+    Unit,
+    _non_finite,
+    estimate_cost,
+    gfmd_host_fields,
+    gfmd_row,
+    run_task,
+    use_gpu,
+)
+
+__all__ = ["BATCH_CHAINS", "BATCH_MAX_N", "MODES", "batch_units", "run_batch"]
+
+log = logging.getLogger("gapsweep.batching")
+
+MODES = ("auto", "off", "all")
+BATCH_MAX_N = 1024  # largest grid where a batch beat one-by-one solves on the GPU (issue 14 benchmark)
+BATCH_CHAINS = 32  # chains per batch unit (32 problems of N = 1024 need ~3.7 GB on the GPU)
+_BATCH_GAIN = 1.27  # measured batch speed-up at N = 1024 (cost model only)
+
+
+def _batchable(t: Task, mode: str) -> bool:
+    if mode == "off" or t.method != "gfmd" or t.n > BATCH_MAX_N:
+        return False
+    if t.opt("method") not in ("auto", "cg") or t.opt("interaction", "exponential") != "exponential":
+        return False
+    if any(k.startswith("extra.") for k, _ in t.options):
+        return False
+    return mode == "all" or t.opt("backend") == "cupy"
+
+
+def _key(t: Task) -> tuple:
+    """Options common to every problem of one solve_batch call."""
+    sp = t.surface_params()
+    return (t.n, t.opt("backend"), t.opt("tol"), t.opt("max_iter"), t.opt("e_star"), sp["length"])
+
+
+def batch_units(tasks: list[Task], units: list[Unit], mode: str = "auto", chains: int = BATCH_CHAINS) -> list[Unit]:
+    """``units`` with the batchable GFMD chains (and single GFMD tasks) grouped into batch units of at most
+    ``chains`` chains; sorted largest cost first as :func:`gapsweep.tasks.make_units` does."""
+    if mode not in MODES:
+        raise ValueError(f"batch mode must be one of {', '.join(MODES)}, got {mode!r}")
+    groups: dict[tuple, list[Unit]] = {}
+    out: list[Unit] = []
+    for u in units:
+        t = tasks[u.tasks[0]]
+        if u.kind in ("chain", "single") and _batchable(t, mode):
+            groups.setdefault(_key(t), []).append(u)
+        else:
+            out.append(u)
+    for members in groups.values():
+        members.sort(key=lambda u: u.tasks[0])  # expansion order: deterministic, independent of the costs
+        for s in range(0, len(members), chains):
+            part = members[s:s + chains]
+            if len(part) == 1:
+                out.append(part[0])
+                continue
+            cost = sum(estimate_cost(tasks[i]) for u in part for i in u.tasks) / _BATCH_GAIN
+            out.append(Unit(tuple(i for u in part for i in u.tasks), cost, any(u.gpu for u in part), "batch",
+                            tuple(u.tasks for u in part)))
+    out.sort(key=lambda u: (-u.cost, tasks[u.tasks[0]].task_id))
+    return out
+
+
+_PROBLEM = re.compile(r"^problems\[(\d+)\]: ")
+
+
+def run_batch(tasks: list[Task], unit: Unit, ctx: Context, todo: set[int], limit: float | None = None,
+              stop: Any = None) -> Iterator[tuple[int, TaskResult]]:
+    """Run a batch unit: yields ``(task index, result)`` for the tasks in ``todo``, step by step."""
+    from gapsweep import gfmd, limits
+
+    # each chain runs from its start to its last wanted task (the warm starts of a full run)
+    runs = []
+    for c in unit.chains:
+        want = [k for k, i in enumerate(c) if i in todo]
+        if want:
+            runs.append(c[: want[-1] + 1])
+    if not runs:
+        return
+    first = tasks[runs[0][0]]
+    use_gpu(first, ctx)
+    backend = "cupy" if first.opt("backend") == "cupy" else "numpy"
+    heights: dict[int, Any] = {}  # chain -> its surface (on the GPU for cupy, moved there once per chain)
+    state: dict[int, Any] = {}
+    for step in range(max(len(c) for c in runs)):
+        live = [(j, c[step]) for j, c in enumerate(runs) if step < len(c)]
+        rows: dict[int, TaskResult] = {}
+        probs, who = [], []
+        for j, i in live:
+            t = tasks[i]
+            if t.sigma0 in ctx._fail:  # test hook, as in run_task
+                rows[i] = TaskResult("failed", f"RuntimeError: injected failure (GAPSWEEP_TEST_FAIL) at "
+                                     f"sigma0={t.sigma0!r}", {"wall_time": 0.0, "rank": ctx.rank})
+                state[j] = None
+                continue
+            if j not in heights:
+                h = ctx.surface(t, t.n)
+                if backend == "cupy":
+                    import cupy
+
+                    h = cupy.asarray(h)
+                heights[j] = h
+            probs.append(gfmd.BatchProblem(heights=heights[j], sigma0=t.sigma0, gamma0=t.opt("gamma0"), rho=t.rho,
+                                           initial=state.get(j) if t.opt("warm_start") else None))
+            who.append((j, i))
+        if probs:
+            rows.update(_solve_step(tasks, probs, who, ctx, backend, limit, state, limits))
+        for _, i in live:
+            if i in todo:
+                yield i, rows[i]
+        if stop is not None and stop.mode == "flag" and stop.requested():
+            return
+
+
+def _solve_step(tasks: list[Task], probs: list, who: list[tuple[int, int]], ctx: Context, backend: str,
+                limit: float | None, state: dict[int, Any], limits: Any) -> dict[int, TaskResult]:
+    """One chain step of a batch: rows of its tasks, and the next warm starts in ``state``."""
+    from gapsweep import gfmd
+
+    t0 = tasks[who[0][1]]
+    sp = t0.surface_params()
+    start = time.perf_counter()
+    if ctx._delay:
+        time.sleep(ctx._delay * len(probs))
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            kw = dict(e_star=t0.opt("e_star"), length=sp["length"], tol=t0.opt("tol"), backend=backend,
+                      max_iter=t0.opt("max_iter"), host=False)
+            if any(gfmd_host_fields(tasks[i], ctx) is True for _, i in who):
+                kw["host"] = True
+            if limit:
+                with limits.deadline(limit):
+                    results = gfmd.solve_batch(probs, **kw)
+            else:
+                results = gfmd.solve_batch(probs, **kw)
+    except limits.TaskTimeout:
+        msg = f"timeout: task exceeded its time limit of {limit:g} s"
+        out = {}
+        for j, i in who:
+            out[i] = TaskResult("failed", msg, {"wall_time": limit, "rank": ctx.rank})
+            state[j] = None
+        return out
+    except Exception as e:  # e.g. one bad input: one task at a time, so that only its row fails
+        log.info("batch step failed as a whole (%s: %s): its tasks run one by one", type(e).__name__, e)
+        out = {}
+        for j, i in who:
+            out[i], state[j] = run_task(tasks[i], ctx, state.get(j))
+        return out
+    share = (time.perf_counter() - start) / len(probs)
+    notes: dict[int, str] = {}
+    for w in caught:
+        m = _PROBLEM.match(str(w.message))
+        for k in ([int(m.group(1))] if m else range(len(probs))):
+            notes.setdefault(k, f"warning: {w.category.__name__}: {_PROBLEM.sub('', str(w.message))}")
+    out = {}
+    for k, ((j, i), r) in enumerate(zip(who, results)):
+        t = tasks[i]
+        t1 = time.perf_counter()
+        try:
+            res, nxt = gfmd_row(t, ctx, r)
+            if k in notes and not res.message:
+                res.message = notes[k]
+            bad = _non_finite(res) if res.status == "done" else []
+            if bad:  # never store a NaN as success
+                res.status, res.message, nxt = "failed", f"non-finite result: {', '.join(bad)}", None
+        except Exception as e:
+            res, nxt = TaskResult("failed", f"{type(e).__name__}: {e}"), None
+        res.values["wall_time"] = share + time.perf_counter() - t1
+        res.values["rank"] = ctx.rank
+        out[i] = res
+        state[j] = nxt
+    return out
