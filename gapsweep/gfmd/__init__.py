@@ -60,7 +60,7 @@ import numpy as np
 # _make_ops looks up _have_numba here (tests monkeypatch gfmd._have_numba); benchmarks use gfmd._Problem, _make_ops.
 from gapsweep import _checks as chk
 from gapsweep.fft import BACKENDS
-from gapsweep.gfmd import _softmax
+from gapsweep.gfmd import _constrained, _softmax
 from gapsweep.gfmd._cuda import _CupyOps
 from gapsweep.gfmd._ops import _have_numba, _is_cupy, _NumbaOps, _Ops
 from gapsweep.gfmd._result import GFMDResult
@@ -106,6 +106,7 @@ def _transfer_modes(u: np.ndarray, n: int) -> np.ndarray:
 # load_control of a law -> (minimiser, its methods). A new law reuses one of these; no branch per law.
 _MINIMISERS: dict[str, tuple[Any, tuple[str, ...]]] = {
     "softmax": (_softmax.minimise, _softmax.METHODS),
+    "multiplier": (_constrained.minimise, _constrained.METHODS),
 }
 
 
@@ -154,7 +155,12 @@ def solve(
     law = resolve(interaction, gamma0=gamma0, rho=rho)
     sigma0 = law.check_load(sigma0)
     e_star = chk.positive(e_star, "e_star")
-    length = chk.positive(length, "length")
+    if isinstance(length, (tuple, list, np.ndarray)):
+        if len(length) != 2:
+            raise ValueError(f"length must be a number or a pair (Lx, Ly), got {length!r}")
+        length = (chk.positive(length[0], "length[0]"), chk.positive(length[1], "length[1]"))
+    else:
+        length = chk.positive(length, "length")
     tol = chk.positive(tol, "tol")
     if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
         raise ValueError(f"max_iter must be an integer >= 1, got {max_iter!r}")

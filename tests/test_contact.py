@@ -1,0 +1,69 @@
+"""Hard-wall and adhesive contact (docs/gfmd.md): analytic solutions, limits, quantities. CPU, small grids."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from gapsweep.gfmd import solve
+from gapsweep.surface import self_affine
+
+
+def wavy(n: int, amplitude: float = 0.01, lam: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """``h = amplitude cos(2 pi x / lam)`` on an ``n x 2`` grid (a 1-D wave extruded along y), and x."""
+    x = np.arange(n) * (lam / n)
+    return np.repeat((amplitude * np.cos(2 * np.pi * x / lam))[:, None], 2, axis=1), x
+
+
+def westergaard(x: np.ndarray, pbar: float, amplitude: float, e_star: float = 1.0, lam: float = 1.0):
+    """Westergaard (1939; Johnson, Contact Mechanics, eq. 13.11-13.12): contact half-width ``a`` with
+    ``pbar = p* sin^2(pi a/lam)``, ``p* = pi E* amplitude / lam``, and the pressure
+    ``p(x) = 2 pbar cos(pi x/lam) sqrt(sin^2(pi a/lam) - sin^2(pi x/lam)) / sin^2(pi a/lam)`` for ``|x| < a``."""
+    pstar = math.pi * e_star * amplitude / lam
+    s2 = pbar / pstar
+    a = lam / math.pi * math.asin(math.sqrt(s2))
+    xx = np.where(x > lam / 2, x - lam, x)
+    inside = np.abs(xx) < a
+    root = np.sqrt(np.clip(s2 - np.sin(np.pi * xx / lam) ** 2, 0.0, None))
+    return a, np.where(inside, 2 * pbar * np.cos(np.pi * xx / lam) * root / s2, 0.0)
+
+
+@pytest.mark.parametrize("frac", [0.3, 0.7])
+@pytest.mark.parametrize("n", [128, 512, 2048])
+def test_hard_wall_westergaard(n: int, frac: float) -> None:
+    """Contact width within 2 pixels (1 per edge) and the pressure profile within 0.05/sqrt(n) (rms, in units
+    of the mean pressure) of Westergaard's solution: both tolerances shrink with n (measured errors:
+    0.06-1.3 pixels, 1e-4 to 2e-3)."""
+    amp = 0.01
+    h, x = wavy(n, amp)
+    pbar = frac * math.pi * amp
+    r = solve(h, sigma0=pbar, interaction="hard_wall", length=(1.0, 2.0 / n), tol=1e-10, backend="numpy")
+    assert r.converged and r.status == "converged" and r.residual <= 1e-10 and r.load_error <= 1e-10
+    a, p_exact = westergaard(x, pbar, amp)
+    assert abs(r.contact_area - 2 * a) <= 2.0 / n
+    p = r.pressure[:, 0]
+    np.testing.assert_array_equal(r.pressure[:, 0], r.pressure[:, 1])
+    assert np.sqrt(np.mean((p - p_exact) ** 2)) / pbar <= 0.05 / math.sqrt(n)
+    # the contact atom of the gap distribution is the contact area
+    edges, dens, atom = r.gap_histogram(20)
+    assert atom == pytest.approx(r.contact_area)
+    assert np.sum(dens * np.diff(edges)) == pytest.approx(1 - atom)
+    assert np.all(r.gap >= -1e-10 * amp)
+
+
+def test_hard_wall_fields_consistent() -> None:
+    """Force balance p = p_el from the returned fields, p >= 0, <p> = sigma0, gap zero on contact, energy."""
+    h = self_affine(64, 0.8, lambda_l=0.25, lambda_s=1 / 16, seed=3)
+    s0 = 1e-2
+    r = solve(h, sigma0=s0, interaction="hard_wall", tol=1e-9, backend="numpy")
+    assert r.converged and r.interaction == "hard_wall"
+    assert np.all(r.pressure >= 0) and r.pressure.mean() == pytest.approx(s0, rel=1e-12)
+    q = 2 * np.pi * np.hypot(np.fft.fftfreq(64, 1 / 64)[:, None], np.fft.fftfreq(64, 1 / 64)[None, :])
+    p_el = np.fft.ifft2(0.5 * q * np.fft.fft2(r.displacement)).real
+    np.testing.assert_allclose(p_el, r.pressure - s0, atol=1e-10 * s0)
+    assert np.all(r.gap[r.pressure > 0] == 0.0) and np.all(r.gap[r.pressure == 0] >= -1e-9 * h.std())
+    # elastic energy per area = (1/2) <u p_el>
+    assert r.elastic_energy == pytest.approx(0.5 * np.mean(r.displacement * p_el), rel=1e-10)
+    assert r.contact_area == pytest.approx(np.mean(r.pressure > 0))
