@@ -67,3 +67,54 @@ def test_hard_wall_fields_consistent() -> None:
     # elastic energy per area = (1/2) <u p_el>
     assert r.elastic_energy == pytest.approx(0.5 * np.mean(r.displacement * p_el), rel=1e-10)
     assert r.contact_area == pytest.approx(np.mean(r.pressure > 0))
+
+
+def johnson_curve(alpha: float):
+    """Johnson (Int. J. Solids Struct. 32, 423, 1995), adhesive wavy surface in the JKR limit: with
+    ``psi = pi a / lam``, ``pbar / p* = sin^2 psi - alpha sqrt(tan psi)``, ``alpha^2 = 2 lam w / (pi^2 E* D^2)``
+    (Westergaard's pressure plus the periodic flat-punch term whose stress intensity factor meets Griffith's
+    ``K^2 = 2 E* w``). Returns ``(f, psi_c, psi_top)``: the curve and the ends of its stable (rising) branch;
+    ``f(psi_c)`` is the pull-off pressure under load control."""
+    from scipy.optimize import brentq
+
+    def f(psi: float) -> float:
+        return math.sin(psi) ** 2 - alpha * math.sqrt(math.tan(psi))
+
+    def fp(psi: float) -> float:
+        return math.sin(2 * psi) - alpha / (2 * math.sqrt(math.tan(psi)) * math.cos(psi) ** 2)
+
+    ps = np.linspace(1e-4, 1.5, 20001)
+    v = np.array([fp(p) for p in ps])
+    i, j = int(np.argmax(v > 0)), len(v) - 1 - int(np.argmax(v[::-1] > 0))
+    return f, brentq(fp, ps[i - 1], ps[i]), brentq(fp, ps[j], ps[j + 1])
+
+
+@pytest.mark.parametrize(("n", "tol_px"), [(1024, 16), pytest.param(4096, 8, marks=pytest.mark.slow)])
+def test_adhesive_wavy_surface_johnson(n: int, tol_px: float) -> None:
+    """Exponential cohesive law with range rho = 4 dx on a wave of amplitude D = 0.05 lam (Tabor-like parameter
+    0.17 D/rho = 2.2 at n = 1024, 8.8 at 4096): along a load path from compression to pull-off the contact
+    width follows Johnson's JKR-limit curve within ``tol_px`` pixels (measured: 11 at n = 1024, 4.5 at 4096:
+    the tolerance in units of lam shrinks as 16/n, 2/n) and the path detaches within one load step of Johnson's
+    pull-off pressure -0.0959 p*."""
+    from scipy.optimize import brentq
+
+    from gapsweep.gfmd import solve_path
+
+    lam, amp, alpha = 1.0, 0.05, 0.3
+    pstar = math.pi * amp / lam
+    w = alpha**2 * math.pi**2 * amp**2 / (2 * lam)
+    f, psi_c, psi_top = johnson_curve(alpha)
+    h, _ = wavy(n, amp, lam)
+    fracs = np.round(np.arange(0.30, -0.125, -0.02), 4)
+    path = solve_path(h, fracs * pstar, interaction="adhesive", work=w, rho=4 * lam / n, length=(lam, 2 * lam / n),
+                      tol=1e-8, backend="numpy", max_iter=20000)
+    assert path.stopped == "detached"
+    solved = [r for r in path.results if r.status == "converged"]
+    assert len(solved) == len(path.results) - 1
+    pull_off = f(psi_c)
+    last, first_off = solved[-1].sigma0 / pstar, path.results[-1].sigma0 / pstar
+    assert first_off < pull_off < last
+    assert path.jumps == [len(path.results) - 1]  # the only jump is the pull-off
+    for r in solved:
+        psi = brentq(lambda s, fr=r.sigma0 / pstar: f(s) - fr, psi_c, psi_top)
+        assert abs(r.contact_area - 2 * psi / math.pi) <= tol_px / n, (r.sigma0 / pstar, r.contact_area)

@@ -60,18 +60,20 @@ import numpy as np
 # _make_ops looks up _have_numba here (tests monkeypatch gfmd._have_numba); benchmarks use gfmd._Problem, _make_ops.
 from gapsweep import _checks as chk
 from gapsweep.fft import BACKENDS
-from gapsweep.gfmd import _constrained, _softmax
+from gapsweep.gfmd import _constrained, _smooth, _softmax
 from gapsweep.gfmd._cuda import _CupyOps
 from gapsweep.gfmd._ops import _have_numba, _is_cupy, _NumbaOps, _Ops
+from gapsweep.gfmd._path import LoadPath, solve_path
 from gapsweep.gfmd._result import GFMDResult
 from gapsweep.gfmd._solvers import _half_q, _Problem  # noqa: F401 - used by benchmarks (gfmd._Problem)
 from gapsweep.gfmd.interactions import INTERACTIONS, Interaction, resolve
 
-__all__ = ["INTERACTIONS", "METHODS", "GFMDResult", "Interaction", "UnderResolvedWarning", "solve"]
+__all__ = ["INTERACTIONS", "METHODS", "GFMDResult", "Interaction", "LoadPath", "UnderResolvedWarning", "solve",
+           "solve_path"]
 
 METHODS = _softmax.METHODS  # methods of the exponential law (the job-spec validator uses this list)
 DEFAULT_METHOD = _softmax.DEFAULT_METHOD
-STATUSES = ("converged", "max_iter", "non_finite", "stalled")
+STATUSES = ("converged", "max_iter", "non_finite", "stalled", "detached")
 
 
 class UnderResolvedWarning(UserWarning):
@@ -107,6 +109,7 @@ def _transfer_modes(u: np.ndarray, n: int) -> np.ndarray:
 _MINIMISERS: dict[str, tuple[Any, tuple[str, ...]]] = {
     "softmax": (_softmax.minimise, _softmax.METHODS),
     "multiplier": (_constrained.minimise, _constrained.METHODS),
+    "variable": (_smooth.minimise, _smooth.METHODS),
 }
 
 
@@ -117,6 +120,7 @@ def solve(
     interaction: str | Interaction = "exponential",
     gamma0: float | None = None,
     rho: float | None = None,
+    work: float | None = None,
     e_star: float = 1.0,
     length: float = 1.0,
     tol: float = 1e-6,
@@ -152,7 +156,7 @@ def solve(
         raise ValueError(f"heights must be a square 2-D array (n x n), got shape {shape}")
     if min(shape) < 2:
         raise ValueError(f"heights must be at least 2 x 2, got shape {shape}")
-    law = resolve(interaction, gamma0=gamma0, rho=rho)
+    law = resolve(interaction, gamma0=gamma0, rho=rho, work=work)
     sigma0 = law.check_load(sigma0)
     e_star = chk.positive(e_star, "e_star")
     if isinstance(length, (tuple, list, np.ndarray)):
