@@ -57,10 +57,11 @@ def contactmechanics_hard_wall(h: np.ndarray, sigma0: float):
 
 @pytest.mark.parametrize(("hurst", "sigma0"), CASES)
 @pytest.mark.parametrize("peer", [tamaas_hard_wall, contactmechanics_hard_wall], ids=["tamaas", "contactmechanics"])
-def test_hard_wall_agrees_with_peer(peer, hurst: float, sigma0: float) -> None:
+@pytest.mark.parametrize("method", ["pcg", "pk"])
+def test_hard_wall_agrees_with_peer(peer, hurst: float, sigma0: float, method: str) -> None:
     h = surface(hurst)
     theirs = peer(h, sigma0)
-    r = solve(h, sigma0=sigma0, interaction="hard_wall", tol=1e-11, backend="numpy")
+    r = solve(h, sigma0=sigma0, interaction="hard_wall", tol=1e-11, method=method, backend="numpy")
     assert r.converged
     ours = (r.mean_gap, r.contact_area, r.elastic_energy)
     np.testing.assert_allclose(ours, theirs, rtol=1e-6)
