@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from gapsweep.gfmd._constrained_ops import make_ops
 from gapsweep.gfmd._grid import Grid
 from gapsweep.gfmd._ops import _is_cupy
 from gapsweep.gfmd._result import GFMDResult
@@ -83,6 +84,9 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
     status = "max_iter"
     fft_pairs = 1
     t = xp.zeros(grid.shape)
+    g = xp.empty(grid.shape)
+    gs = xp.empty(grid.shape)
+    ops = make_ops(xp)
     delta, gz_old = 0.0, 1.0
     precondition = method != "pk"
     stiff = (0.5 * e_star) * grid.q  # M = K^-1 = E* q/2, the Fourier preconditioner
@@ -90,12 +94,10 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
     with np.errstate(all="ignore"):
         u = compliance(p)
         while True:
-            S = p > 0
-            n_s = int(xp.count_nonzero(S))
-            g = u - h
-            g -= float(xp.sum(xp.where(S, g, 0.0))) / max(n_s, 1)
-            rms, overlap = _violation(g, S, n_s, xp)
-            res = max(rms, overlap) / g_ref
+            n_s, s_us = ops.contact_sum(u, h, p)
+            ns = max(n_s, 1)
+            sg2, gmin_free = ops.gap(u, h, s_us / ns, p, g, gs)
+            res = max(math.sqrt(sg2 / ns), max(0.0, -gmin_free)) / g_ref
             history.append(res)
             if not math.isfinite(res):
                 status = "non_finite"
@@ -107,43 +109,33 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
                 status = "max_iter"
                 break
             it += 1
-            gs = xp.where(S, g, 0.0)
             if precondition:  # z = P_S M P_S g, kept load-neutral (zero mean on S)
                 z = grid.inv(grid.fwd(gs) * stiff)
-                z = xp.where(S, z - float(xp.sum(xp.where(S, z, 0.0))) / max(n_s, 1), 0.0)
                 fft_pairs += 1
+                z_sum, gz = ops.zstats(z, gs, p)
+                zbar = z_sum / ns
             else:
-                z = gs
-            gz = float(xp.sum(gs * z))
-            t = xp.where(S, z + (delta * gz / gz_old) * t, 0.0)
+                z, zbar, gz = gs, 0.0, sg2
+            ops.direction(t, z, zbar, delta * gz / gz_old, p)
             gz_old = gz
-            r_raw = compliance(t)
+            r = compliance(t)
             fft_pairs += 1
-            r = r_raw - float(xp.sum(xp.where(S, r_raw, 0.0))) / max(n_s, 1)
-            rt = float(xp.sum(xp.where(S, r * t, 0.0)))
+            r_sum, rt, t_sum, gt = ops.rstats(r, t, gs, p)
+            rt -= (r_sum / ns) * t_sum  # <(r - rbar_S) t>_S
             if not rt > 0:
                 status = "stalled" if math.isfinite(rt) else "non_finite"
                 break
-            tau = float(xp.sum(gs * t)) / rt
-            trial = p - tau * t
-            clipped = bool(xp.any(trial < 0))
-            p = xp.maximum(trial, 0.0)
-            overlap_set = (p == 0) & (g < 0)
-            if bool(xp.any(overlap_set)):
-                delta = 0.0
-                p = xp.where(overlap_set, p - tau * g, p)
-                clipped = True
-            else:
-                delta = 1.0
-            scale = sigma0 / float(p.mean())
-            p *= scale
-            since_fresh += 1
-            if clipped or since_fresh >= _REFRESH:  # K p afresh; else K is linear: u = scale (u - tau K t)
+            tau = gt / rt
+            clipped, n_overlap, p_sum = ops.update(p, t, g, tau)
+            delta = 0.0 if n_overlap else 1.0
+            follow = not (clipped or n_overlap) and since_fresh < _REFRESH
+            ops.rescale(p, u, r, sigma0 * grid.size / p_sum, tau, follow)
+            if follow:  # K is linear: u = scale (u - tau K t)
+                since_fresh += 1
+            else:  # K p afresh after the projection changed p
                 u = compliance(p)
                 fft_pairs += 1
                 since_fresh = 0
-            else:
-                u = scale * (u - tau * r_raw)
         # The returned fields and their residual (issue 9: decided on what is returned).
         u = compliance(p)
         fft_pairs += 2
