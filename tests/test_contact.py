@@ -205,8 +205,24 @@ def test_bad_law_input() -> None:
         solve(h, sigma0=1.0, interaction="hard_wall", method="cg")
     with pytest.raises(ValueError, match="length must be a number or a pair"):
         solve(h, sigma0=1.0, interaction="hard_wall", length=(1.0, 2.0, 3.0))
-    with pytest.raises(ValueError, match="square"):
-        solve(np.zeros((8, 6)), sigma0=1.0, gamma0=1e-3, rho=0.1)
+    with pytest.raises(ValueError, match="rectangular grid"):
+        solve(np.zeros((8, 6)), sigma0=1.0, gamma0=1e-3, rho=0.1, method="fire")
+
+
+def test_exponential_on_rectangular_grid() -> None:
+    """A rectangular grid runs the exponential law on the generic smooth minimiser: a wave extruded along y
+    gives the square grid's (softmax minimiser's) answer whatever ny."""
+    n = 64
+    h, _ = wavy(n, 0.01)
+    sq = np.repeat(h[:, :1], n, axis=1)
+    kw = dict(sigma0=1e-2, gamma0=1e-3, rho=0.004, tol=1e-10, backend="numpy")
+    a = solve(sq, **kw)
+    b = solve(h, length=(1.0, 2.0 / n), **kw)
+    assert a.converged and b.converged and a.method == "cg" and b.method == "lbfgs"
+    assert abs(a.mean_gap - b.mean_gap) <= 1e-9 * a.mean_gap
+    np.testing.assert_allclose(b.pressure[:, 0], a.pressure[:, 0], rtol=1e-7)
+    assert a.contact_area == pytest.approx(b.contact_area)
+    assert a.elastic_energy == pytest.approx(b.elastic_energy, rel=1e-8)
 
 
 def _cupy_or_skip():

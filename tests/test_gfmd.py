@@ -222,8 +222,8 @@ def test_mean_of_heights_only_shifts_gap() -> None:
 @pytest.mark.parametrize(
     ("kwargs", "exc", "match"),
     [
-        (dict(heights=np.zeros((4, 5))), ValueError, "square"),
-        (dict(heights=np.zeros(16)), ValueError, "square"),
+        (dict(heights=np.zeros((4, 5)), method="cg"), ValueError, "rectangular grid"),
+        (dict(heights=np.zeros(16)), ValueError, "2-D"),
         (dict(heights=np.full((8, 8), np.nan)), ValueError, "NaN"),
         (dict(heights=np.full((8, 8), 1.0 + 1j)), TypeError, "real"),
         (dict(sigma0=0.0), ValueError, "sigma0"),

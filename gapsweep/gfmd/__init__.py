@@ -134,15 +134,20 @@ def solve(
     """Equilibrium gap of an elastic half-space on the rigid surface ``heights`` at mean pressure ``sigma0``.
 
     ``interaction``: a law's name or an :class:`Interaction` object (docs/gfmd.md): "exponential" (default;
-    needs ``gamma0``, an energy per area, and ``rho``, a length). For the exponential law the reduced energy of
-    M3 (module docstring) is minimised until ``residual <= tol`` and ``load_error <= tol``. ``heights``: real
-    square ``n x n`` array (numpy, or cupy for the GPU), units of ``length``. ``sigma0``, ``gamma0/rho`` and
-    ``e_star`` are pressures in one unit. ``method``: "auto" (= "cg"), "cg", "lbfgs" or "fire". ``backend``:
-    "auto" (cupy for a cupy array, else pyfftw when installed, else numpy), "numpy", "pyfftw" or "cupy".
-    ``max_iter``: force evaluations allowed. ``initial``: an earlier result or a displacement field (any grid
-    size: shared Fourier modes are carried over) to start from; default is the linear response of M4.
-    ``threads``: FFTW threads. ``host=False`` leaves the fields of a cupy run on the GPU (skips three n x n
-    device-to-host copies). Warns (UnderResolvedWarning) when ``rho < length/n`` (M7).
+    needs ``gamma0``, an energy per area, and ``rho``, a length), "hard_wall", or "adhesive" (``work``, the
+    work of adhesion per area, and ``rho``, its range). For the exponential law the reduced energy of M3
+    (module docstring) is minimised until ``residual <= tol`` and ``load_error <= tol``; the other laws'
+    convergence measures are in docs/gfmd.md. ``heights``: real ``nx x ny`` array (numpy, or cupy for the
+    GPU), units of ``length`` (a number, or ``(Lx, Ly)``); the exponential law's own minimiser needs a square
+    grid, other grids run on the generic smooth one. ``sigma0``, ``gamma0/rho`` and ``e_star`` are pressures in
+    one unit. ``method``: "auto", or "cg" (default), "lbfgs", "fire" (exponential); "pcg" (default), "pk"
+    (hard wall); "lbfgs" (adhesive). ``backend``: "auto" (cupy for a cupy array, else pyfftw when installed,
+    else numpy), "numpy", "pyfftw" or "cupy". ``max_iter``: force evaluations (hard wall: iterations) allowed.
+    ``initial``: an earlier result or a field to start from (exponential: a displacement on any grid size,
+    shared Fourier modes carried over; hard wall: a pressure; adhesive: ``(displacement, mean gap)``); default
+    for the exponential law is the linear response of M4. ``threads``: FFTW threads. ``host=False`` leaves the
+    fields of a cupy run on the GPU (skips three device-to-host copies). Warns (UnderResolvedWarning) when
+    ``rho < length/n`` (M7, exponential law).
     """
     t_start = time.perf_counter()
     if not _is_cupy(heights):
@@ -153,7 +158,7 @@ def solve(
             raise TypeError(f"heights must be a real array, got dtype {heights.dtype}")
     shape = heights.shape
     if len(shape) != 2:
-        raise ValueError(f"heights must be a square 2-D array (n x n), got shape {shape}")
+        raise ValueError(f"heights must be a 2-D array (nx x ny), got shape {shape}")
     if min(shape) < 2:
         raise ValueError(f"heights must be at least 2 x 2, got shape {shape}")
     law = resolve(interaction, gamma0=gamma0, rho=rho, work=work)

@@ -27,12 +27,19 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
     from gapsweep.gfmd import UnderResolvedWarning, _make_ops, _transfer_modes  # late: tests patch gfmd
 
     shape = heights.shape
-    if len(shape) != 2 or shape[0] != shape[1]:
-        raise ValueError(f"heights must be a square 2-D array (n x n) for interaction {law.name!r}, got shape {shape}")
-    if isinstance(length, tuple):
-        if length[0] != length[1]:
-            raise ValueError(f"interaction {law.name!r} needs a square box, got length={length}")
-        length = length[0]
+    lx, ly = length if isinstance(length, tuple) else (length, length)
+    if shape[0] != shape[1] or lx != ly:
+        # The fused softmax kernels are written for square grids; the same law on a rectangular grid runs on the
+        # generic smooth minimiser (the mean gap as an unknown, L-BFGS), to the same residual definition.
+        if method not in ("auto", "lbfgs"):
+            raise ValueError(f"interaction {law.name!r} on a rectangular grid {shape} / box {length} takes method "
+                             f"'auto' or 'lbfgs' (the generic smooth minimiser); got {method!r}")
+        from gapsweep.gfmd import _smooth
+
+        return _smooth.minimise(heights, law, sigma0=sigma0, e_star=e_star, length=length, tol=tol, method="lbfgs",
+                                backend=backend, max_iter=max_iter, initial=initial, threads=threads, host=host,
+                                t_start=t_start)
+    length = lx
     n = int(shape[0])
     rho, gamma0 = law.rho, law.gamma0
     on_gpu = _is_cupy(heights)
