@@ -220,6 +220,7 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
         elastic = grid.elastic_energy(U, e_star)
         area = float(xp.count_nonzero(law.contact(gap, p))) / grid.size
         g0 = float(gap.mean())
+        e_int = float(xp.mean(law.energy(gap, xp)))
     fields_ok = math.isfinite(residual) and bool(xp.all(xp.isfinite(gap))) and bool(xp.all(xp.isfinite(p)))
     if not fields_ok:
         status = "non_finite"
@@ -236,5 +237,5 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
         backend=grid.backend, status=status, sigma0=sigma0, rho=getattr(law, "rho", math.nan), e_star=e_star,
         length=length, tol=tol, history=history, interaction=law.name, params=law.params(), contact_area=area,
         elastic_energy=elastic, contact_criterion=law.contact_criterion,
-        diagnostics={"pressure_scale": p_ref, "interaction_energy": float(xp.mean(law.energy(gap, xp)))},
+        diagnostics={"pressure_scale": p_ref, "interaction_energy": e_int},
     )
