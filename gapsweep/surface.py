@@ -24,10 +24,12 @@ from typing import Literal
 import numpy as np
 
 from gapsweep import _checks as chk
+from gapsweep.topography import load  # height maps from files (docs/gfmd.md, "Surfaces from data")
 
 __all__ = [
     "continuum_rms_height",
     "fourier_coefficients",
+    "load",
     "mode_set",
     "rms_height",
     "rms_slope",

@@ -60,19 +60,20 @@ import numpy as np
 # _make_ops looks up _have_numba here (tests monkeypatch gfmd._have_numba); benchmarks use gfmd._Problem, _make_ops.
 from gapsweep import _checks as chk
 from gapsweep.fft import BACKENDS
-from gapsweep.gfmd import _softmax
+from gapsweep.gfmd import _constrained, _smooth, _softmax
 from gapsweep.gfmd._cuda import _CupyOps
 from gapsweep.gfmd._ops import _have_numba, _is_cupy, _NumbaOps, _Ops
+from gapsweep.gfmd._path import LoadPath, solve_path
 from gapsweep.gfmd._result import GFMDResult
 from gapsweep.gfmd._solvers import _half_q, _Problem  # noqa: F401 - used by benchmarks (gfmd._Problem)
 from gapsweep.gfmd.interactions import INTERACTIONS, Interaction, resolve
 
-__all__ = ["INTERACTIONS", "METHODS", "BatchProblem", "GFMDResult", "Interaction", "UnderResolvedWarning", "solve",
-           "solve_batch"]
+__all__ = ["INTERACTIONS", "METHODS", "BatchProblem", "GFMDResult", "Interaction", "LoadPath",
+           "UnderResolvedWarning", "solve", "solve_batch", "solve_path"]
 
 METHODS = _softmax.METHODS  # methods of the exponential law (the job-spec validator uses this list)
 DEFAULT_METHOD = _softmax.DEFAULT_METHOD
-STATUSES = ("converged", "max_iter", "non_finite", "stalled")
+STATUSES = ("converged", "max_iter", "non_finite", "stalled", "detached")
 
 
 class UnderResolvedWarning(UserWarning):
@@ -107,6 +108,8 @@ def _transfer_modes(u: np.ndarray, n: int) -> np.ndarray:
 # load_control of a law -> (minimiser, its methods). A new law reuses one of these; no branch per law.
 _MINIMISERS: dict[str, tuple[Any, tuple[str, ...]]] = {
     "softmax": (_softmax.minimise, _softmax.METHODS),
+    "multiplier": (_constrained.minimise, _constrained.METHODS),
+    "variable": (_smooth.minimise, _smooth.METHODS),
 }
 
 
@@ -117,6 +120,7 @@ def solve(
     interaction: str | Interaction = "exponential",
     gamma0: float | None = None,
     rho: float | None = None,
+    work: float | None = None,
     e_star: float = 1.0,
     length: float = 1.0,
     tol: float = 1e-6,
@@ -130,16 +134,20 @@ def solve(
     """Equilibrium gap of an elastic half-space on the rigid surface ``heights`` at mean pressure ``sigma0``.
 
     ``interaction``: a law's name or an :class:`Interaction` object (docs/gfmd.md): "exponential" (default;
-    needs ``gamma0``, an energy per area, and ``rho``, a length). For the exponential law the reduced energy of
-    M3 (module docstring) is minimised until ``residual <= tol`` and ``load_error <= tol``. ``heights``: real
-    square ``n x n`` array (numpy, or cupy for the GPU), units of ``length``. ``sigma0``, ``gamma0/rho`` and
-    ``e_star`` are pressures in one unit. ``method``: "auto" (= "cg"), "cg", "lbfgs" or "fire". ``backend``:
-    "auto" (cupy for a cupy array, else pyfftw when installed, else numpy), "numpy", "pyfftw" or "cupy".
-    ``max_iter``: force evaluations allowed. ``initial``: an earlier result or a displacement field (any grid
-    size: shared Fourier modes are carried over) to start from; default is the linear response of M4.
-    ``threads``: FFTW threads. ``host``: which fields of a cupy run come to the host (pinned,
-    asynchronous copies): True (all), False (none: they stay on the GPU) or names such as ``("gap",)``.
-    Warns (UnderResolvedWarning) when ``rho < length/n`` (M7).
+    needs ``gamma0``, an energy per area, and ``rho``, a length), "hard_wall", or "adhesive" (``work``, the
+    work of adhesion per area, and ``rho``, its range). For the exponential law the reduced energy of M3
+    (module docstring) is minimised until ``residual <= tol`` and ``load_error <= tol``; the other laws'
+    convergence measures are in docs/gfmd.md. ``heights``: real ``nx x ny`` array (numpy, or cupy for the
+    GPU), units of ``length`` (a number, or ``(Lx, Ly)``); the exponential law's own minimiser needs a square
+    grid, other grids run on the generic smooth one. ``sigma0``, ``gamma0/rho`` and ``e_star`` are pressures in
+    one unit. ``method``: "auto", or "cg" (default), "lbfgs", "fire" (exponential); "pcg" (default), "pk"
+    (hard wall); "lbfgs" (adhesive). ``backend``: "auto" (cupy for a cupy array, else pyfftw when installed,
+    else numpy), "numpy", "pyfftw" or "cupy". ``max_iter``: force evaluations (hard wall: iterations) allowed.
+    ``initial``: an earlier result or a field to start from (exponential: a displacement on any grid size,
+    shared Fourier modes carried over; hard wall: a pressure; adhesive: ``(displacement, mean gap)``); default
+    for the exponential law is the linear response of M4. ``threads``: FFTW threads. ``host``: which fields of
+    a cupy run come to the host (pinned, asynchronous copies): True (all), False (none: they stay on the GPU) or
+    names such as ``("gap",)``. Warns (UnderResolvedWarning) when ``rho < length/n`` (M7, exponential law).
     """
     t_start = time.perf_counter()
     if not _is_cupy(heights):
@@ -150,13 +158,18 @@ def solve(
             raise TypeError(f"heights must be a real array, got dtype {heights.dtype}")
     shape = heights.shape
     if len(shape) != 2:
-        raise ValueError(f"heights must be a square 2-D array (n x n), got shape {shape}")
+        raise ValueError(f"heights must be a 2-D array (nx x ny), got shape {shape}")
     if min(shape) < 2:
         raise ValueError(f"heights must be at least 2 x 2, got shape {shape}")
-    law = resolve(interaction, gamma0=gamma0, rho=rho)
+    law = resolve(interaction, gamma0=gamma0, rho=rho, work=work)
     sigma0 = law.check_load(sigma0)
     e_star = chk.positive(e_star, "e_star")
-    length = chk.positive(length, "length")
+    if isinstance(length, (tuple, list, np.ndarray)):
+        if len(length) != 2:
+            raise ValueError(f"length must be a number or a pair (Lx, Ly), got {length!r}")
+        length = (chk.positive(length[0], "length[0]"), chk.positive(length[1], "length[1]"))
+    else:
+        length = chk.positive(length, "length")
     tol = chk.positive(tol, "tol")
     if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
         raise ValueError(f"max_iter must be an integer >= 1, got {max_iter!r}")

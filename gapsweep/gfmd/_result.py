@@ -28,14 +28,33 @@ def host_fields(host: Any) -> tuple[str, ...]:
     return tuple(k for k in FIELDS if k in names)
 
 
+def _namespace(a: Any) -> Any:
+    if _is_cupy(a):
+        import cupy
+
+        return cupy
+    return np
+
+
+def _host(a: Any) -> np.ndarray:
+    return a.get() if _is_cupy(a) else np.asarray(a)
+
+
 @dataclass
 class GFMDResult:
-    """Equilibrium of one GFMD run. Fields are numpy arrays on the host (``n x n``), lengths in units of
-    ``length``, pressures in the units of ``sigma0``.
+    """Equilibrium of one GFMD run. Fields are numpy arrays on the host (``nx x ny``; cupy arrays for
+    ``host=False`` GPU runs), lengths in units of ``length``, pressures in the units of ``sigma0``.
 
     ``iterations``: force evaluations (= rfft2/irfft2 pairs). ``status``: "converged", "max_iter",
     "non_finite" (a non-finite value appeared; the fields are those of the last finite state) or "stalled"
-    (round-off floor: no descent direction left above ``tol``).
+    (round-off floor: no descent direction left above ``tol``, or the residual recomputed from the returned
+    fields is above ``tol``). ``residual``: the convergence measure of the law's minimiser evaluated on the
+    returned fields (docs/gfmd.md, "Convergence"); ``converged`` iff it and ``load_error`` are ``<= tol``.
+
+    Quantities (docs/gfmd.md, "Quantities"): ``contact_area`` (fraction of the nominal area, by the law's
+    ``contact_criterion``), ``elastic_energy`` (stored elastic energy per nominal area,
+    ``(E*/4) sum_q q |u~(q)|^2``, pressure x length), ``interaction`` (the law's name) with its ``params``,
+    ``diagnostics`` (the minimiser's further convergence measures, e.g. complementarity for the hard wall).
     """
 
     mean_gap: float
@@ -54,13 +73,58 @@ class GFMDResult:
     rho: float = math.nan
     gamma0: float = math.nan
     e_star: float = math.nan
-    length: float = 1.0
+    length: float | tuple[float, float] = 1.0
     tol: float = math.nan
     history: list[float] = field(default_factory=list, repr=False)
+    interaction: str = "exponential"
+    params: dict[str, float] = field(default_factory=dict)
+    contact_area: float = math.nan
+    elastic_energy: float = math.nan
+    contact_criterion: str = ""
+    diagnostics: dict[str, float] = field(default_factory=dict)
 
     @property
     def n(self) -> int:
+        """Grid points along x (axis 0); see :attr:`shape` for rectangular grids."""
         return int(self.gap.shape[0])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.gap.shape[0]), int(self.gap.shape[1]))
+
+    def contact_atom(self) -> float:
+        """Fraction of the grid at exactly ``g = 0`` (hard-wall contact; 0 for smooth laws)."""
+        xp = _namespace(self.gap)
+        return float(xp.count_nonzero(self.gap == 0.0)) / self.gap.size
+
+    def gap_histogram(self, bins: Any = 100, range: tuple[float, float] | None = None
+                      ) -> tuple[np.ndarray, np.ndarray, float]:
+        """``(edges, density, atom)`` of the gap (M5): ``atom`` is the fraction at exactly ``g = 0`` (the hard
+        wall's contact), ``density`` the histogram of the other points, normalised to integrate to
+        ``1 - atom`` over the bins (so atom + density together integrate to 1)."""
+        xp = _namespace(self.gap)
+        free = self.gap[self.gap != 0.0]
+        atom = 1.0 - free.size / self.gap.size
+        if free.size == 0:
+            edges = np.linspace(0.0, 1.0, (bins if isinstance(bins, int) else 1) + 1)
+            return edges, np.zeros(edges.size - 1), atom
+        counts, edges = xp.histogram(free, bins=bins, range=range)
+        dens = counts / (self.gap.size * xp.diff(edges))
+        return _host(edges), _host(dens), atom
+
+    def pressure_histogram(self, bins: Any = 100, range: tuple[float, float] | None = None
+                           ) -> tuple[np.ndarray, np.ndarray, float]:
+        """``(edges, density, atom)`` of the local pressure: ``atom`` is the fraction at exactly ``p = 0`` (the
+        hard wall's free surface), ``density`` the histogram of the other points normalised to ``1 - atom``."""
+        xp = _namespace(self.pressure)
+        loaded = self.pressure[self.pressure != 0.0]
+        atom = 1.0 - loaded.size / self.pressure.size
+        if loaded.size == 0:
+            edges = np.linspace(0.0, 1.0, (bins if isinstance(bins, int) else 1) + 1)
+            return edges, np.zeros(edges.size - 1), atom
+        counts, edges = xp.histogram(loaded, bins=bins, range=range)
+        dens = counts / (self.pressure.size * xp.diff(edges))
+        return _host(edges), _host(dens), atom
 
     def histogram(self, bins: Any = 100, range: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Gap histogram ``(edges, density)`` over the grid (M5); the density integrates to 1 over the bins.

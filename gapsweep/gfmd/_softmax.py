@@ -28,8 +28,19 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
     from gapsweep.gfmd import UnderResolvedWarning, _make_ops, _transfer_modes  # late: tests patch gfmd
 
     shape = heights.shape
-    if len(shape) != 2 or shape[0] != shape[1]:
-        raise ValueError(f"heights must be a square 2-D array (n x n) for interaction {law.name!r}, got shape {shape}")
+    lx, ly = length if isinstance(length, tuple) else (length, length)
+    if shape[0] != shape[1] or lx != ly:
+        # The fused softmax kernels are written for square grids; the same law on a rectangular grid runs on the
+        # generic smooth minimiser (the mean gap as an unknown, L-BFGS), to the same residual definition.
+        if method not in ("auto", "lbfgs"):
+            raise ValueError(f"interaction {law.name!r} on a rectangular grid {shape} / box {length} takes method "
+                             f"'auto' or 'lbfgs' (the generic smooth minimiser); got {method!r}")
+        from gapsweep.gfmd import _smooth
+
+        return _smooth.minimise(heights, law, sigma0=sigma0, e_star=e_star, length=length, tol=tol, method="lbfgs",
+                                backend=backend, max_iter=max_iter, initial=initial, threads=threads, host=host,
+                                t_start=t_start)
+    length = lx
     n = int(shape[0])
     rho, gamma0 = law.rho, law.gamma0
     on_gpu = _is_cupy(heights)
@@ -88,12 +99,20 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
         g0 = law.mean_gap(lse, sigma0)
         p = e * (sigma0 * n * n / S) if S > 0 else e * math.nan
         gap = (g0 - h_shift) - rho * w  # g = g0 + u - h with the caller's h (mean included)
+        # Residual of the returned fields (issue 9: the running value drifts from it at the round-off floor):
+        # rms(p_el - (p - <p>)) / sigma0 by Parseval, one more forward FFT of u and of p.
+        U = xp.array(fft.rfft2(u)) * (1.0 / (n * n))
+        P = xp.array(fft.rfft2(p)) * (1.0 / (n * n))
+        F = pb.k * U - P
+        F[0, 0] = 0.0
+        residual = math.sqrt(max(pb.ops.dot(F, F), 0.0)) / sigma0
+        elastic = 0.5 * pb.ops.dot(U, pb.k * U)  # (E*/4) sum_q q |u~|^2 per area
+        area = float(xp.count_nonzero(law.contact(gap + h_shift, p))) / (n * n)
     load_error = abs(float(p.mean()) / sigma0 - 1.0)
-    residual = history[-1] if history else math.inf
     fields_ok = math.isfinite(g0) and bool(xp.all(xp.isfinite(gap))) and bool(xp.all(xp.isfinite(p)))
     if not fields_ok:
         status = "non_finite"
-    converged = status == "converged" and load_error <= tol and fields_ok
+    converged = status == "converged" and residual <= tol and load_error <= tol and fields_ok
     if status == "converged" and not converged:
         status = "stalled"
     fields = dict(zip(FIELDS, (gap, p, u)))
@@ -120,4 +139,10 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
         length=length,
         tol=tol,
         history=history,
+        interaction=law.name,
+        params=law.params(),
+        contact_area=area,
+        elastic_energy=elastic,
+        contact_criterion=law.contact_criterion,
+        diagnostics={"running_residual": history[-1] if history else math.inf},
     )

@@ -8,14 +8,18 @@ from __future__ import annotations
 
 from typing import Any
 
+from gapsweep.gfmd.interactions.adhesive import Adhesive
 from gapsweep.gfmd.interactions.base import Interaction, SmoothInteraction
 from gapsweep.gfmd.interactions.exponential import Exponential
+from gapsweep.gfmd.interactions.hard_wall import HardWall
 
-__all__ = ["INTERACTIONS", "Exponential", "Interaction", "SmoothInteraction", "resolve"]
+__all__ = ["INTERACTIONS", "Adhesive", "Exponential", "HardWall", "Interaction", "SmoothInteraction", "resolve"]
 
 #: name -> (class, names of the keyword parameters solve() passes to it)
 INTERACTIONS: dict[str, tuple[type[Interaction], tuple[str, ...]]] = {
     "exponential": (Exponential, ("gamma0", "rho")),
+    "hard_wall": (HardWall, ()),
+    "adhesive": (Adhesive, ("work", "rho")),
 }
 
 

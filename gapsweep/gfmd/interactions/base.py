@@ -64,6 +64,11 @@ class Interaction(abc.ABC):
             raise ValueError(f"sigma0 must be finite for interaction {self.name!r} (tensile loads allowed), got {s}")
         return s
 
+    def pressure_scale(self, sigma0: float) -> float:
+        """Pressure that the force residual and load error are measured in: ``|sigma0|`` by default; laws that
+        allow zero or tensile loads add their own scale (e.g. the maximum tensile stress)."""
+        return abs(sigma0)
+
     @abc.abstractmethod
     def curvature(self, sigma0: float) -> float:
         """Scalar estimate ``c >= 0`` of ``phi''`` for the preconditioner ``M(q) = E* q/2 + c`` (pressure/length)."""

@@ -1,0 +1,202 @@
+"""Hard-wall contact benchmarks (issue 12): gapsweep against tamaas and ContactMechanics side by side in one run,
+one core; and the GPU timing. Writes ``<name>.md`` and ``<name>.json`` to --out (rows appended as they finish).
+
+    OMP_NUM_THREADS=1 python benchmarks/bench_contact.py cpu --out OUT [--n 2048] [--hurst 0.3 0.8]
+        [--sigma0 1e-3 1e-2 1e-1] [--tol 1e-8] [--peers tamaas contactmechanics]
+    python benchmarks/bench_contact.py gpu --out OUT [--n 4096] [--sigma0 1e-2]      (cupy on an NVIDIA GPU)
+
+Surfaces: the figure-2/3 surfaces of docs/model.md M6 (L = 1, E* = 1, lambda_l = 0.25, lambda_s = 2.5e-3,
+rms slope 1, seed 1; H = 0.3 and 0.8). Stopping rule: every code is asked for the same tolerance ``tol`` in its
+own measure (gapsweep: gap left in the contact and overlap outside it, over h_rms; tamaas: its
+PolonskyKeerRey error; ContactMechanics: pentol = tol h_rms, forcetol = tol sigma0); then every code's fields are
+scored by gapsweep's measure (``resid``) and the three codes' mean gap, contact area and elastic energy are
+compared, so the accuracy reached is visible next to the time; the row ``pcg@peer_resid`` times gapsweep again
+with ``tol`` = the smallest residual a peer reached (equal accuracy). Times are CPU seconds of this process
+(``time.process_time``, one thread: OMP_NUM_THREADS=1, GAPSWEEP_FFT_THREADS=1) and wall seconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import ctypes
+import json
+import math
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from gapsweep import gfmd
+from gapsweep.surface import self_affine
+
+
+def surf(n: int, hurst: float, seed: int = 1) -> np.ndarray:
+    return self_affine(n, hurst, lambda_l=0.25, lambda_s=2.5e-3, rms_slope=1.0, seed=seed)
+
+
+def score(h: np.ndarray, u: np.ndarray, p: np.ndarray) -> dict:
+    """gapsweep's hard-wall measures of any code's fields (u up to a constant, p >= 0 pressures)."""
+    hc = h - h.mean()
+    h_rms = float(np.sqrt(np.mean(hc**2)))
+    S = p > 0
+    g = u - hc
+    g = g - g[S].mean()
+    resid = max(float(np.sqrt(np.mean(g[S] ** 2))), max(0.0, -float(g[~S].min())) if (~S).any() else 0.0) / h_rms
+    gap = np.where(S, 0.0, g)
+    return {"mean_gap": float(gap.mean()), "area": float(S.mean()),
+            "energy": 0.5 * float(np.mean((u - u.mean()) * (p - p.mean()))), "resid": resid}
+
+
+@contextlib.contextmanager
+def quiet_fd1():
+    """tamaas prints its iteration table on the C-level stdout."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    with open(os.devnull, "w") as null:
+        os.dup2(null.fileno(), 1)
+        try:
+            yield
+        finally:
+            sys.stdout.flush()
+            ctypes.CDLL(None).fflush(None)  # the C library's buffer, before fd 1 comes back
+            os.dup2(saved, 1)
+            os.close(saved)
+
+
+def run_gapsweep(h, s0, tol, method):
+    t, w = time.process_time(), time.perf_counter()
+    r = gfmd.solve(h, sigma0=s0, interaction="hard_wall", tol=tol, method=method, backend="auto")
+    cpu, wall = time.process_time() - t, time.perf_counter() - w
+    return {**score(h, r.displacement, r.pressure), "iters": r.iterations, "cpu_s": cpu, "wall_s": wall,
+            "ok": r.converged}
+
+
+def run_tamaas(h, s0, tol):
+    import tamaas
+
+    n = h.shape[0]
+    m = tamaas.ModelFactory.createModel(tamaas.model_type.basic_2d, [1.0, 1.0], [n, n])
+    m.E, m.nu = 1.0, 0.0
+    t, w = time.process_time(), time.perf_counter()
+    with quiet_fd1():
+        solver = tamaas.PolonskyKeerRey(m, h.copy(), tol)
+        solver.max_iter = 100000
+        solver.solve(s0)
+    cpu, wall = time.process_time() - t, time.perf_counter() - w
+    u, p = np.array(m.displacement), np.array(m.traction)
+    return {**score(h, u, p), "iters": -1, "cpu_s": cpu, "wall_s": wall, "ok": True}
+
+
+def run_contactmechanics(h, s0, tol):
+    from ContactMechanics import PeriodicFFTElasticHalfSpace
+    from ContactMechanics.Systems import NonSmoothContactSystem
+    from SurfaceTopography import Topography
+
+    n = h.shape[0]
+    system = NonSmoothContactSystem(PeriodicFFTElasticHalfSpace((n, n), 1.0, physical_sizes=(1.0, 1.0)),
+                                    Topography(h, (1.0, 1.0)))
+    t, w = time.process_time(), time.perf_counter()
+    res = system.minimize_proxy(external_force=s0, pentol=tol * float(h.std()), forcetol=tol * s0 / n**2,
+                                maxiter=100000)
+    cpu, wall = time.process_time() - t, time.perf_counter() - w
+    return {**score(h, res.x, res.jac * n * n), "iters": int(res.nit), "cpu_s": cpu, "wall_s": wall,
+            "ok": bool(res.success)}
+
+
+def write(out: Path, name: str, rows: list[dict], header: str) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    meta = {"host": platform.node(), "python": platform.python_version(), "cpus": os.cpu_count(),
+            "command": " ".join(sys.argv)}
+    (out / f"{name}.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
+    keys = list(rows[0]) if rows else []
+    lines = [header, "", f"`{meta['command']}`", "", "| " + " | ".join(keys) + " |", "|" + " --- |" * len(keys)]
+    for r in rows:
+        lines.append("| " + " | ".join(f"{v:.4g}" if isinstance(v, float) else str(v) for v in r.values()) + " |")
+    (out / f"{name}.md").write_text("\n".join(lines) + "\n")
+
+
+def cmd_cpu(a) -> None:
+    peers = {"tamaas": run_tamaas, "contactmechanics": run_contactmechanics}
+    rows = []
+    for hurst in a.hurst:
+        h = surf(a.n, hurst)
+        gfmd.solve(h[:64, :64].copy(), sigma0=1e-2, interaction="hard_wall")  # compile kernels
+        gfmd.solve(h, sigma0=a.sigma0[0], interaction="hard_wall", tol=1e-2)  # FFT plans (wisdom)
+        for s0 in a.sigma0:
+            res = {m: run_gapsweep(h, s0, a.tol, m) for m in a.methods}
+            for name in a.peers:
+                try:
+                    res[name] = peers[name](h, s0, a.tol)
+                except ImportError as exc:
+                    print(f"{name}: not installed ({exc})", flush=True)
+            peer_resid = [res[k]["resid"] for k in a.peers if k in res]
+            if peer_resid:  # the peers stop tighter in gapsweep's measure: also time gapsweep at their accuracy
+                res[f"{a.methods[0]}@peer_resid"] = run_gapsweep(h, s0, min(peer_resid), a.methods[0])
+            ref = res[a.methods[0]]
+            for code, r in res.items():
+                row = {"H": hurst, "sigma0": s0, "n": a.n, "tol": a.tol, "code": code, **r,
+                       "gap_rel_diff": abs(r["mean_gap"] - ref["mean_gap"]) / ref["mean_gap"],
+                       "energy_rel_diff": abs(r["energy"] - ref["energy"]) / ref["energy"],
+                       "cpu_ratio_vs_gapsweep": r["cpu_s"] / ref["cpu_s"]}
+                rows.append(row)
+                print({k: (f"{v:.4g}" if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
+            write(a.out, "contact_cpu", rows, "### Hard wall, one core: gapsweep vs tamaas vs ContactMechanics")
+
+
+def cmd_gpu(a) -> None:
+    import cupy
+
+    name = cupy.cuda.runtime.getDeviceProperties(0)["name"].decode()
+    rows = []
+    for n in a.n:
+        h_host = surf(n, 0.3)
+        h = cupy.asarray(h_host)
+        for s0 in a.sigma0:
+            kw = dict(sigma0=s0, interaction="hard_wall", tol=a.tol, host=False)
+            gfmd.solve(h, **kw)  # warm-up: plans, kernels
+            best, r = math.inf, None
+            for _ in range(a.repeat):
+                cupy.cuda.Device().synchronize()
+                t = time.perf_counter()
+                r = gfmd.solve(h, **kw)
+                cupy.cuda.Device().synchronize()
+                best = min(best, time.perf_counter() - t)
+            cpu = gfmd.solve(h_host, sigma0=s0, interaction="hard_wall", tol=a.tol) if n <= a.check_n else None
+            rows.append({"gpu": name, "n": n, "sigma0": s0, "tol": a.tol, "iters": r.iterations,
+                         "converged": r.converged, "best_s_fields_on_gpu": best, "area": r.contact_area,
+                         "mean_gap": r.mean_gap,
+                         "cpu_gap_rel_diff": (abs(cpu.mean_gap - r.mean_gap) / cpu.mean_gap) if cpu else math.nan})
+            print(rows[-1], flush=True)
+    write(a.out, "contact_gpu", rows, f"### Hard wall on the GPU ({name}), fields left on the GPU")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    c = sub.add_parser("cpu")
+    c.add_argument("--out", type=Path, required=True)
+    c.add_argument("--n", type=int, default=2048)
+    c.add_argument("--hurst", type=float, nargs="+", default=[0.3, 0.8])
+    c.add_argument("--sigma0", type=float, nargs="+", default=[1e-3, 1e-2, 1e-1])
+    c.add_argument("--tol", type=float, default=1e-8)
+    c.add_argument("--methods", nargs="+", default=["pcg", "pk"])
+    c.add_argument("--peers", nargs="*", default=["tamaas", "contactmechanics"])
+    g = sub.add_parser("gpu")
+    g.add_argument("--out", type=Path, required=True)
+    g.add_argument("--n", type=int, nargs="+", default=[4096])
+    g.add_argument("--sigma0", type=float, nargs="+", default=[1e-2])
+    g.add_argument("--tol", type=float, default=1e-8)
+    g.add_argument("--repeat", type=int, default=3)
+    g.add_argument("--check-n", type=int, default=0, help="also solve on the CPU up to this n and compare")
+    a = ap.parse_args()
+    {"cpu": cmd_cpu, "gpu": cmd_gpu}[a.cmd](a)
+
+
+if __name__ == "__main__":
+    main()

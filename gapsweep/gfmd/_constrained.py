@@ -1,0 +1,189 @@
+"""The "multiplier" minimiser: hard-wall contact at fixed mean pressure (docs/gfmd.md, "Hard wall").
+
+Minimises the complementary energy ``(1/2) <p K p> - <p h>`` over pressures ``p >= 0`` with ``<p> = sigma0``,
+``K`` the half-space compliance ``u~ = p~ / (E* q/2)`` (q != 0). Its gradient is the gap up to a constant; the
+mean gap ``g0`` is the multiplier of the load constraint. Algorithm: Polonsky & Keer (Wear 231, 206, 1999),
+constrained conjugate gradients on the contact set ``S = {p > 0}`` with the load restored by scaling; written
+once for numpy and cupy arrays. Methods: "pk", the plain algorithm (as tamaas' PolonskyKeerRey and
+ContactMechanics' constrained_conjugate_gradients); "pcg" (default), the same iteration with gapsweep's Fourier
+preconditioner: the search direction is built from ``z = P_S M P_S g`` with ``M = K^-1 = E* q/2`` (exact
+when everything is in contact; the FFT-based preconditioner of Vollebregt, J. Comput. Phys. 257, 333, 2014, in
+its simplest form). Cost per iteration: ``K t`` (one FFT pair), ``M g`` ("pcg", one more), and ``K p`` afresh
+only when the projection clipped something (else ``u`` follows linearly).
+
+Convergence (decided on the returned fields, one more FFT pair): force balance ``u = K p`` and ``p = 0`` on the
+free surface hold by construction, so the residual is the constraint's violation in units of ``h_rms``:
+
+    residual = max( rms_S(g), max(0, -min_free(g)) ) / h_rms,     g0 = -<u - h>_S,
+
+i.e. the gap left in the contact and the overlap outside it; ``load_error = |<p> - sigma0| / sigma0``. The
+diagnostics add ``complementarity = <p |g|> / (sigma0 h_rms)``. The returned gap is exactly 0 on ``S`` (the
+contact atom of the gap distribution); its remaining error is what ``residual`` reports. The gap does not
+depend on ``<h>`` (the body follows the surface at fixed load); ``mean_gap = <g>``."""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from gapsweep.gfmd._constrained_ops import make_ops
+from gapsweep.gfmd._grid import Grid
+from gapsweep.gfmd._ops import _is_cupy
+from gapsweep.gfmd._result import GFMDResult, host_fields
+from gapsweep.gfmd.interactions.base import Interaction
+
+METHODS = ("pk", "pcg")
+DEFAULT_METHOD = "pcg"  # fewer iterations and less time: benchmarks/bench_contact.py (docs/benchmarks.md)
+_REFRESH = 25  # iterations between fresh K p when the update was unclipped (bounds the drift of u)
+log = logging.getLogger("gapsweep.gfmd")
+
+
+def _violation(g: Any, S: Any, n_s: int, xp: Any) -> tuple[float, float]:
+    """``(rms of g on S, max overlap -min(g) off S)`` (lengths)."""
+    rms = math.sqrt(float(xp.sum(xp.where(S, g * g, 0.0))) / max(n_s, 1))
+    off = xp.where(S, xp.inf, g)
+    overlap = max(0.0, -float(off.min())) if n_s < g.size else 0.0
+    return rms, overlap
+
+
+def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, length: Any, tol: float,
+             method: str, backend: str, max_iter: int, initial: Any, threads: int | None, host: Any,
+             t_start: float) -> GFMDResult:
+    """Hard wall ``law`` on the periodic grid ``heights`` (inputs validated by ``gfmd.solve``)."""
+    method = DEFAULT_METHOD if method == "auto" else method
+    grid = Grid(heights.shape, length, backend, threads, _is_cupy(heights))
+    xp = grid.xp
+    h = grid.asarray(heights)
+    if not bool(xp.all(xp.isfinite(h))):
+        raise ValueError("heights contain NaN or inf")
+    h_shift = float(h.mean())
+    h = h - h_shift
+    h_rms = math.sqrt(float(xp.mean(h * h)))
+    g_ref = h_rms if h_rms > 0 else min(grid.lx / grid.shape[0], grid.ly / grid.shape[1])
+    with np.errstate(divide="ignore"):
+        kinv = 1.0 / ((0.5 * e_star) * grid.q)
+    kinv[0, 0] = 0.0
+
+    def compliance(a: Any) -> Any:  # u = K a, <u> = 0
+        return grid.inv(grid.fwd(a) * kinv)
+
+    if initial is None:
+        p = xp.full(grid.shape, sigma0)
+    else:
+        p0 = initial.pressure if isinstance(initial, GFMDResult) else initial
+        p = xp.maximum(xp.asarray(p0, dtype=xp.float64), 0.0)
+        if p.shape != grid.shape or not bool(xp.all(xp.isfinite(p))) or not float(p.sum()) > 0:
+            raise ValueError(f"initial must be a GFMDResult or a finite pressure field of shape {grid.shape} "
+                             "with a positive sum")
+        p *= sigma0 / float(p.mean())
+    history: list[float] = []
+    status = "max_iter"
+    fft_pairs = 1
+    t = xp.zeros(grid.shape)
+    g = xp.empty(grid.shape)
+    gs = xp.empty(grid.shape)
+    ops = make_ops(xp)
+    delta, gz_old = 0.0, 1.0
+    precondition = method != "pk"
+    stiff = (0.5 * e_star) * grid.q  # M = K^-1 = E* q/2, the Fourier preconditioner
+    it = since_fresh = 0
+    with np.errstate(all="ignore"):
+        u = compliance(p)
+        while True:
+            n_s, s_us = ops.contact_sum(u, h, p)
+            ns = max(n_s, 1)
+            sg2, gmin_free = ops.gap(u, h, s_us / ns, p, g, gs)
+            res = max(math.sqrt(sg2 / ns), max(0.0, -gmin_free)) / g_ref
+            history.append(res)
+            if not math.isfinite(res):
+                status = "non_finite"
+                break
+            if res <= tol:
+                status = "converged"
+                break
+            if it >= max_iter:
+                status = "max_iter"
+                break
+            it += 1
+            if precondition:  # z = P_S M P_S g, kept load-neutral (zero mean on S)
+                z = grid.inv(grid.fwd(gs) * stiff)
+                fft_pairs += 1
+                z_sum, gz = ops.zstats(z, gs, p)
+                zbar = z_sum / ns
+            else:
+                z, zbar, gz = gs, 0.0, sg2
+            ops.direction(t, z, zbar, delta * gz / gz_old, p)
+            gz_old = gz
+            r = compliance(t)
+            fft_pairs += 1
+            r_sum, rt, t_sum, gt = ops.rstats(r, t, gs, p)
+            rt -= (r_sum / ns) * t_sum  # <(r - rbar_S) t>_S
+            if not rt > 0:
+                status = "stalled" if math.isfinite(rt) else "non_finite"
+                break
+            tau = gt / rt
+            clipped, n_overlap, p_sum = ops.update(p, t, g, tau)
+            delta = 0.0 if n_overlap else 1.0
+            follow = not (clipped or n_overlap) and since_fresh < _REFRESH
+            ops.rescale(p, u, r, sigma0 * grid.size / p_sum, tau, follow)
+            if follow:  # K is linear: u = scale (u - tau K t)
+                since_fresh += 1
+            else:  # K p afresh after the projection changed p
+                u = compliance(p)
+                fft_pairs += 1
+                since_fresh = 0
+        # The returned fields and their residual (issue 9: decided on what is returned).
+        u = compliance(p)
+        fft_pairs += 2
+        S = p > 0
+        n_s = int(xp.count_nonzero(S))
+        g0 = -float(xp.sum(xp.where(S, u - h, 0.0))) / max(n_s, 1)
+        g = g0 + u - h
+        rms, overlap = _violation(g, S, n_s, xp)
+        residual = max(rms, overlap) / g_ref
+        complementarity = float(xp.mean(p * xp.abs(g))) / (sigma0 * g_ref)
+        load_error = abs(float(p.mean()) / sigma0 - 1.0)
+        elastic = grid.elastic_energy(grid.fwd(u), e_star)
+        gap = xp.where(S, 0.0, g)  # the contact atom exactly at g = 0
+    fields_ok = math.isfinite(residual) and bool(xp.all(xp.isfinite(p))) and bool(xp.all(xp.isfinite(u)))
+    if not fields_ok:
+        status = "non_finite"
+    converged = fields_ok and residual <= tol and load_error <= tol
+    if status == "converged" and not converged:
+        status = "stalled"
+    area = n_s / grid.size
+    log.debug("hard wall: %s after %d iterations, residual %.3g, area %.4g", status, it, residual, area)
+    fields = {"gap": gap, "pressure": p, "displacement": u}
+    fields.update(grid.to_host_many({k: fields[k] for k in host_fields(host)}))  # only those asked for
+    gap, p, u = fields["gap"], fields["pressure"], fields["displacement"]
+    grid.synchronize()
+    return GFMDResult(
+        mean_gap=float(gap.mean()),
+        gap=gap,
+        pressure=p,
+        displacement=u,
+        iterations=it,
+        converged=converged,
+        residual=residual,
+        load_error=load_error,
+        wall_time=time.perf_counter() - t_start,
+        method=method,
+        backend=grid.backend,
+        status=status,
+        sigma0=sigma0,
+        e_star=e_star,
+        length=length,
+        tol=tol,
+        history=history,
+        interaction=law.name,
+        params=law.params(),
+        contact_area=area,
+        elastic_energy=elastic,
+        contact_criterion=law.contact_criterion,
+        diagnostics={"complementarity": complementarity, "gap_rms_in_contact": rms / g_ref,
+                     "overlap": overlap / g_ref, "h_rms": h_rms, "fft_pairs": fft_pairs},
+    )

@@ -1,0 +1,227 @@
+"""Array passes of the hard-wall minimiser (gapsweep.gfmd._constrained): :class:`_PKOps` for any array
+namespace (numpy, cupy) and the fused numba CPU variant :class:`_PKNumba` (one pass per operation, no
+temporaries). The contact set is ``S = {p > 0}`` throughout."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+_NUMBA: Any = None
+
+
+class _PKOps:
+    """Passes written once for an array namespace ``xp``."""
+
+    def __init__(self, xp: Any) -> None:
+        self.xp = xp
+
+    def contact_sum(self, u, h, p) -> tuple[int, float]:
+        """``(|S|, sum_S (u - h))``."""
+        xp = self.xp
+        S = p > 0
+        return int(xp.count_nonzero(S)), float(xp.sum(xp.where(S, u - h, 0.0)))
+
+    def gap(self, u, h, gbar: float, p, g, gs) -> tuple[float, float]:
+        """``g = u - h - gbar``, ``gs = g`` on S else 0; returns ``(sum_S g^2, min over the free surface of g)``
+        (``inf`` when everything is in contact)."""
+        xp = self.xp
+        S = p > 0
+        xp.subtract(u, h, out=g)
+        g -= gbar
+        gs[...] = xp.where(S, g, 0.0)
+        free = xp.where(S, xp.inf, g)
+        return float(xp.sum(gs * gs)), float(free.min())
+
+    def zstats(self, z, gs, p) -> tuple[float, float]:
+        """``(sum_S z, sum gs z)``."""
+        xp = self.xp
+        return float(xp.sum(xp.where(p > 0, z, 0.0))), float(xp.sum(gs * z))
+
+    def direction(self, t, z, zbar: float, c: float, p) -> None:
+        """``t = (z - zbar) + c t`` on S, 0 elsewhere."""
+        xp = self.xp
+        t[...] = xp.where(p > 0, (z - zbar) + c * t, 0.0)
+
+    def rstats(self, r, t, gs, p) -> tuple[float, float, float, float]:
+        """``(sum_S r, sum_S r t, sum_S t, sum gs t)``."""
+        xp = self.xp
+        S = p > 0
+        rs = xp.where(S, r, 0.0)
+        return (float(xp.sum(rs)), float(xp.sum(rs * t)), float(xp.sum(xp.where(S, t, 0.0))),
+                float(xp.sum(gs * t)))
+
+    def update(self, p, t, g, tau: float) -> tuple[bool, int, float]:
+        """``p = max(p - tau t, 0)``, then ``p = -tau g`` where ``p = 0`` and ``g < 0`` (overlap re-enters);
+        returns ``(anything clipped, overlap count, sum p)``."""
+        xp = self.xp
+        trial = p - tau * t
+        clipped = bool(xp.any(trial < 0))
+        xp.maximum(trial, 0.0, out=p)
+        ov = (p == 0) & (g < 0)
+        n_ov = int(xp.count_nonzero(ov))
+        if n_ov:
+            p[...] = xp.where(ov, -tau * g, p)
+        return clipped, n_ov, float(p.sum())
+
+    def rescale(self, p, u, r, scale: float, tau: float, follow: bool) -> None:
+        """``p *= scale``; with ``follow``: ``u = scale (u - tau r)`` (K is linear)."""
+        p *= scale
+        if follow:
+            u -= tau * r
+            u *= scale
+
+
+def _have_numba() -> bool:
+    try:
+        import numba  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _kernels() -> Any:
+    global _NUMBA
+    if _NUMBA is not None:
+        return _NUMBA
+    import numba
+
+    jit = numba.njit(cache=True, fastmath=False, nogil=True)
+
+    @jit
+    def contact_sum(u, h, p):
+        n = 0
+        s = 0.0
+        uf, hf, pf = u.ravel(), h.ravel(), p.ravel()
+        for i in range(pf.size):
+            if pf[i] > 0:
+                n += 1
+                s += uf[i] - hf[i]
+        return n, s
+
+    @jit
+    def gap(u, h, gbar, p, g, gs):
+        s = 0.0
+        mn = np.inf
+        uf, hf, pf, gf, gsf = u.ravel(), h.ravel(), p.ravel(), g.ravel(), gs.ravel()
+        for i in range(pf.size):
+            v = uf[i] - hf[i] - gbar
+            gf[i] = v
+            if pf[i] > 0:
+                gsf[i] = v
+                s += v * v
+            else:
+                gsf[i] = 0.0
+                if v < mn:
+                    mn = v
+        return s, mn
+
+    @jit
+    def zstats(z, gs, p):
+        s1 = 0.0
+        s2 = 0.0
+        zf, gsf, pf = z.ravel(), gs.ravel(), p.ravel()
+        for i in range(pf.size):
+            if pf[i] > 0:
+                s1 += zf[i]
+                s2 += gsf[i] * zf[i]
+        return s1, s2
+
+    @jit
+    def direction(t, z, zbar, c, p):
+        tf, zf, pf = t.ravel(), z.ravel(), p.ravel()
+        for i in range(pf.size):
+            tf[i] = (zf[i] - zbar) + c * tf[i] if pf[i] > 0 else 0.0
+
+    @jit
+    def rstats(r, t, gs, p):
+        a = 0.0
+        b = 0.0
+        c = 0.0
+        d = 0.0
+        rf, tf, gsf, pf = r.ravel(), t.ravel(), gs.ravel(), p.ravel()
+        for i in range(pf.size):
+            if pf[i] > 0:
+                a += rf[i]
+                b += rf[i] * tf[i]
+                c += tf[i]
+                d += gsf[i] * tf[i]
+        return a, b, c, d
+
+    @jit
+    def update(p, t, g, tau):
+        clipped = False
+        n_ov = 0
+        s = 0.0
+        pf, tf, gf = p.ravel(), t.ravel(), g.ravel()
+        for i in range(pf.size):
+            v = pf[i] - tau * tf[i]
+            if v < 0:
+                clipped = True
+                v = 0.0
+            if v == 0.0 and gf[i] < 0:
+                n_ov += 1
+                v = -tau * gf[i]
+            pf[i] = v
+            s += v
+        return clipped, n_ov, s
+
+    @jit
+    def rescale(p, u, r, scale, tau, follow):
+        pf, uf, rf = p.ravel(), u.ravel(), r.ravel()
+        for i in range(pf.size):
+            pf[i] *= scale
+            if follow:
+                uf[i] = scale * (uf[i] - tau * rf[i])
+
+    class K:
+        pass
+
+    for f in (contact_sum, gap, zstats, direction, rstats, update, rescale):
+        setattr(K, f.__name__, staticmethod(f))
+    _NUMBA = K
+    return K
+
+
+class _PKNumba(_PKOps):
+    """Fused numba passes (serial), same results as :class:`_PKOps` up to summation order."""
+
+    def __init__(self, xp: Any) -> None:
+        super().__init__(xp)
+        self.K = _kernels()
+
+    def contact_sum(self, u, h, p):
+        n, s = self.K.contact_sum(u, h, p)
+        return int(n), float(s)
+
+    def gap(self, u, h, gbar, p, g, gs):
+        s, mn = self.K.gap(u, h, float(gbar), p, g, gs)
+        return float(s), float(mn)
+
+    def zstats(self, z, gs, p):
+        a, b = self.K.zstats(z, gs, p)
+        return float(a), float(b)
+
+    def direction(self, t, z, zbar, c, p):
+        self.K.direction(t, z, float(zbar), float(c), p)
+
+    def rstats(self, r, t, gs, p):
+        a, b, c, d = self.K.rstats(r, t, gs, p)
+        return float(a), float(b), float(c), float(d)
+
+    def update(self, p, t, g, tau):
+        clipped, n_ov, s = self.K.update(p, t, g, float(tau))
+        return bool(clipped), int(n_ov), float(s)
+
+    def rescale(self, p, u, r, scale, tau, follow):
+        self.K.rescale(p, u, r, float(scale), float(tau), bool(follow))
+
+
+def make_ops(xp: Any) -> _PKOps:
+    """Numba passes on the CPU when numba is installed (unless ``GAPSWEEP_GENERIC_KERNELS=1``), else generic."""
+    import os
+
+    if xp is np and _have_numba() and os.environ.get("GAPSWEEP_GENERIC_KERNELS") != "1":
+        return _PKNumba(xp)
+    return _PKOps(xp)

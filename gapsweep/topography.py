@@ -1,0 +1,198 @@
+"""Measured height maps (docs/gfmd.md, "Surfaces from data"): :func:`load` reads a topography from a file into a
+:class:`Topography` (heights, box size, unit), converts units and detrends; ``gapsweep.surface.load`` is this
+function.
+
+Formats: ``.npy`` (one 2-D array), ``.npz`` (the array named ``key``, default the only one), plain text grids
+(``.txt``, ``.dat``, ``.asc``, ``.csv``: one row per line, ``#`` comments, comma or whitespace separated) and,
+with the optional extra ``topography`` (``pip install gapsweep[topography]``), every format that
+SurfaceTopography reads (``format="surfacetopography"``, chosen automatically for other extensions). Axis 0 of
+the array is x, axis 1 is y (as everywhere in gapsweep).
+
+Units: heights and lateral sizes share ``unit`` unless ``height_unit`` is given; ``to_unit`` converts both (names
+in :data:`UNITS`, metres). The box is ``length = (Lx, Ly)`` or ``pixel_size * (nx, ny)``. Detrending: "mean"
+(subtract the mean: only ``h - <h>`` matters for contact at fixed load), "plane" (least-squares plane
+``a + b x + c y``; for measured maps with a tilt) or "none". Periodicity: GFMD treats every map as periodic;
+for a non-periodic map :meth:`Topography.padded` embeds it in a twice larger box filled at the lowest height,
+so that the periodic images never touch each other's contact (free boundaries up to the images' long-range
+elastic coupling, which falls as the box grows)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["UNITS", "Topography", "detrend", "load"]
+
+#: unit name -> metres
+UNITS: dict[str, float] = {"m": 1.0, "mm": 1e-3, "um": 1e-6, "nm": 1e-9, "A": 1e-10, "pm": 1e-12}
+_ALIASES = {"\u00b5m": "um", "\u03bcm": "um", "\u00c5": "A", "\u212b": "A"}  # micro/mu signs, Angstrom signs
+_TEXT = (".txt", ".dat", ".asc", ".csv", ".xyz_grid")
+DETRENDS = ("none", "mean", "plane")
+
+
+@dataclass
+class Topography:
+    """A height map: ``heights[ix, iy]`` (float64, ``unit``) on a box ``length = (Lx, Ly)`` (``unit``)."""
+
+    heights: np.ndarray
+    length: tuple[float, float]
+    unit: str | None = None
+    periodic: bool = True
+    source: str = ""
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.heights.shape[0]), int(self.heights.shape[1]))
+
+    @property
+    def pixel_size(self) -> tuple[float, float]:
+        return (self.length[0] / self.shape[0], self.length[1] / self.shape[1])
+
+    def padded(self, factor: int = 2) -> Topography:
+        """The map embedded at the origin of a ``factor`` times larger periodic box, the rest filled with the
+        lowest height (never in contact before the map itself is flattened): the non-periodic option."""
+        if isinstance(factor, bool) or not isinstance(factor, int) or factor < 2:
+            raise ValueError(f"factor must be an integer >= 2, got {factor!r}")
+        nx, ny = self.shape
+        out = np.full((factor * nx, factor * ny), float(self.heights.min()))
+        out[:nx, :ny] = self.heights
+        return Topography(out, (factor * self.length[0], factor * self.length[1]), self.unit, True,
+                          f"{self.source} (zero-padded x{factor})")
+
+
+def detrend(heights: np.ndarray, mode: str = "mean", length: tuple[float, float] = (1.0, 1.0)) -> np.ndarray:
+    """``heights`` minus its mean ("mean"), its least-squares plane ("plane"), or unchanged ("none")."""
+    if mode not in DETRENDS:
+        raise ValueError(f"detrend must be one of {', '.join(map(repr, DETRENDS))}; got {mode!r}")
+    h = np.asarray(heights, dtype=np.float64)
+    if mode == "none":
+        return h.copy()
+    if mode == "mean":
+        return h - h.mean()
+    nx, ny = h.shape
+    x = (np.arange(nx) - (nx - 1) / 2) * (length[0] / nx)
+    y = (np.arange(ny) - (ny - 1) / 2) * (length[1] / ny)
+    # x and y centred on the grid are orthogonal to 1 and to each other: the fit separates.
+    bx = float(np.einsum("i,ij->", x, h)) / (ny * float(x @ x)) if nx > 1 else 0.0
+    by = float(np.einsum("j,ij->", y, h)) / (nx * float(y @ y)) if ny > 1 else 0.0
+    return h - h.mean() - bx * x[:, None] - by * y[None, :]
+
+
+def _pair(v: Any, name: str) -> tuple[float, float]:
+    vals = tuple(v) if isinstance(v, (tuple, list, np.ndarray)) else (v, v)
+    if len(vals) != 2:
+        raise ValueError(f"{name} must be a number or a pair (x, y), got {v!r}")
+    out = []
+    for x in vals:
+        if isinstance(x, bool) or not isinstance(x, (int, float, np.integer, np.floating)) or not (
+                math.isfinite(float(x)) and float(x) > 0):
+            raise ValueError(f"{name} must be finite and > 0, got {v!r}")
+        out.append(float(x))
+    return out[0], out[1]
+
+
+def _canonical(name: str | None) -> str | None:
+    return _ALIASES.get(name, name) if isinstance(name, str) else name
+
+
+def _unit(name: str | None, what: str) -> float:
+    name = _canonical(name)
+    if name is None:
+        return 1.0
+    if name not in UNITS:
+        raise ValueError(f"{what} must be one of {', '.join(UNITS)}; got {name!r}")
+    return UNITS[name]
+
+
+def _read_text(path: Path, delimiter: str | None) -> np.ndarray:
+    if delimiter is None:
+        delimiter = "," if path.suffix.lower() == ".csv" else None
+    try:
+        return np.loadtxt(path, delimiter=delimiter, comments="#", ndmin=2, dtype=np.float64)
+    except ValueError as exc:
+        raise ValueError(f"{path}: not a grid of numbers ({exc})") from exc
+
+
+def _read_surfacetopography(path: Path) -> tuple[np.ndarray, tuple[float, float] | None, str | None, bool]:
+    try:
+        from SurfaceTopography import read_topography
+    except ImportError as exc:
+        raise ImportError(f"reading {path.suffix or path.name!r} files needs SurfaceTopography: "
+                          "pip install 'gapsweep[topography]'") from exc
+    topo = read_topography(str(path))
+    if topo.dim != 2:
+        raise ValueError(f"{path}: a 2-D height map is needed, the file holds a {topo.dim}-D topography")
+    sizes = getattr(topo, "physical_sizes", None)
+    return (np.asarray(topo.heights(), dtype=np.float64), tuple(sizes) if sizes is not None else None,
+            getattr(topo, "unit", None), bool(getattr(topo, "is_periodic", False)))
+
+
+def load(path: str | Path, *, length: Any = None, pixel_size: Any = None, unit: str | None = None,
+         height_unit: str | None = None, to_unit: str | None = None, detrend: str = "mean",
+         periodic: bool | None = None, format: str | None = None, key: str | None = None,
+         delimiter: str | None = None) -> Topography:
+    """Read a height map (module docstring for formats, units, detrending) into a :class:`Topography`.
+
+    ``length`` (Lx, Ly) or ``pixel_size`` (dx, dy), one of them unless the file states the size
+    (SurfaceTopography formats); a number stands for both directions. ``unit``: the file's lateral unit and,
+    unless ``height_unit`` is given, its height unit; ``to_unit``: the unit of the result (default ``unit``).
+    ``periodic``: the file's own flag where it has one, else True. Raises ValueError naming the problem for a
+    missing file, a map that is not 2-D (at least 2 x 2), non-finite heights, or inconsistent sizes."""
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"no such height map: {p}")
+    fmt = format or ("npy" if p.suffix.lower() == ".npy" else "npz" if p.suffix.lower() == ".npz"
+                     else "text" if p.suffix.lower() in _TEXT else "surfacetopography")
+    file_size = file_unit = None
+    file_periodic = None
+    if fmt == "npy":
+        h = np.load(p, allow_pickle=False)
+    elif fmt == "npz":
+        with np.load(p, allow_pickle=False) as z:
+            names = list(z.keys())
+            if key is None and len(names) != 1:
+                raise ValueError(f"{p}: holds {names}; pass key= to choose the height map")
+            h = z[key if key is not None else names[0]]
+    elif fmt == "text":
+        h = _read_text(p, delimiter)
+    elif fmt == "surfacetopography":
+        h, file_size, file_unit, file_periodic = _read_surfacetopography(p)
+    else:
+        raise ValueError(f"format must be 'npy', 'npz', 'text' or 'surfacetopography'; got {format!r}")
+    h = np.asarray(h)
+    if h.ndim != 2 or min(h.shape) < 2:
+        raise ValueError(f"{p}: a 2-D height map of at least 2 x 2 points is needed, got shape {h.shape}")
+    if not np.issubdtype(h.dtype, np.number) or np.iscomplexobj(h):
+        raise ValueError(f"{p}: heights must be real numbers, got dtype {h.dtype}")
+    h = h.astype(np.float64)
+    if not np.all(np.isfinite(h)):
+        raise ValueError(f"{p}: {int(np.sum(~np.isfinite(h)))} heights are NaN or inf (missing data): fill or "
+                         "crop them first")
+    if unit is None and file_unit is not None:
+        unit = file_unit
+    unit, height_unit, to_unit = _canonical(unit), _canonical(height_unit), _canonical(to_unit)
+    if length is not None and pixel_size is not None:
+        raise ValueError("give length or pixel_size, not both")
+    if length is not None:
+        box = _pair(length, "length")
+    elif pixel_size is not None:
+        d = _pair(pixel_size, "pixel_size")
+        box = (d[0] * h.shape[0], d[1] * h.shape[1])
+    elif file_size is not None:
+        box = _pair(file_size, "the file's physical size")
+    else:
+        raise ValueError(f"{p}: the file does not state its size: give length= or pixel_size=")
+    lateral = _unit(unit, "unit")
+    vertical = _unit(height_unit if height_unit is not None else unit, "height_unit")
+    target = _unit(to_unit if to_unit is not None else unit, "to_unit")
+    if to_unit is not None and unit is None:
+        raise ValueError("to_unit needs the file's unit: give unit=")
+    h = h * (vertical / target)
+    box = (box[0] * lateral / target, box[1] * lateral / target)
+    h = globals()["detrend"](h, detrend, box)
+    is_periodic = periodic if periodic is not None else (file_periodic if file_periodic is not None else True)
+    return Topography(h, box, to_unit if to_unit is not None else unit, bool(is_periodic), str(p))
