@@ -126,6 +126,10 @@ def fig_contact(points: pd.DataFrame, persson: pd.DataFrame, *, job: str, note: 
                 (axes[2], "elastic_energy", "elastic energy per area $U_{el}/A_0$", None, "c")):
             y = p[col].to_numpy(float)
             ax.errorbar(x, y, yerr=np.nan_to_num(p[f"{col}_sem"].to_numpy(float)), **figures.GFMD)
+            jump = (p["flags"].to_numpy(int) & 1) > 0
+            if jump.any():  # load-path jumps (adhesion) marked, not hidden
+                ax.plot(x[jump], y[jump], ls="none", marker="x", ms=8, color="tab:red",
+                        label="jump along the load path")
             if tcol and len(th):
                 ax.plot(th["sigma0"].to_numpy(float) / p["e_star"].iloc[0], th[tcol].to_numpy(float), **PERSSON)
             _xscale(ax, x)

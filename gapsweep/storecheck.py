@@ -106,6 +106,9 @@ def check(f: Any, path: str | Path) -> Report:
     done = status == STATUS["done"]
     needs_hist = np.isin(methods, HIST_METHODS)
     hist_ok = np.all(np.isfinite(dens), axis=1) & np.any(dens > 0, axis=1)
+    if "contact_atom" in r.dtype.names:  # hard wall in full contact: every point is in the atom at g = 0
+        atom = r.fields("contact_atom")[...]
+        hist_ok |= np.all(np.isfinite(dens), axis=1) & (atom >= 1.0)
     bad = done & (~np.isfinite(mean_gap) | (needs_hist & ~hist_ok))
     rep.done_incomplete = np.flatnonzero(bad).tolist()
     return rep
