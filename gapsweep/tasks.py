@@ -381,7 +381,8 @@ class Context:
 
     @staticmethod
     def _key(t: Task, n: int, sp: dict[str, Any]) -> tuple:
-        return (t.hurst, t.seed, n, tuple(sorted(sp.items())))
+        # list values (a file surface's [x, y] pixel size or length) as tuples: the key must be hashable
+        return (t.hurst, t.seed, n, tuple(sorted((k, tuple(v) if isinstance(v, list) else v) for k, v in sp.items())))
 
 
 def _moments(t: Task, ctx: Context) -> tuple[float, float]:
