@@ -299,3 +299,17 @@ def test_merge_of_file_surface_shards(tmp_path):
     counts = store.merge(shards, out)
     assert counts["done"] == 10
     assert store.read_attrs(out)["spec_dir"] == str(JOB.parent.resolve())
+
+
+def test_file_surface_with_a_pair_size_runs(tmp_path):
+    """A box given as a pair: the task's surface cache key must stay hashable (lists as tuples)."""
+    rng = np.random.default_rng(3)
+    np.save(tmp_path / "m.npy", rng.normal(size=(32, 32)))
+    js = spec.loads('[job]\nname = "x"\n[grid]\nsigma0 = [0.05, 0.1]\n[surface]\nkind = "file"\npath = "m.npy"\n'
+                    'length = [16.0, 16.0]\n[interaction]\nkind = "hard_wall"\n[methods.gfmd]\nbackend = "numpy"\n',
+                    base=tmp_path)
+    ts = tasks.expand(js)
+    units = tasks.make_units(ts)
+    out = [r for u in units for _, r in tasks.run_unit(ts, u, tasks.Context())]
+    assert [r.status for r in out] == ["done", "done"], [r.message for r in out]
+    assert all(0 < r.values["contact_area"] < 1 for r in out)
