@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from analysis import aggregate, compare, figures
+from analysis import aggregate, compare, contact, figures
 
 __all__ = ["AGREE", "MATCH_L1", "build", "load", "main", "paper_matches", "plan_figures", "provenance", "quick_jobs",
            "verdicts"]
@@ -91,9 +91,36 @@ def load(store_paths: Sequence[str | Path]) -> tuple[pd.DataFrame, dict[Any, tup
         df["store"] = str(p)
         prov.append(provenance(p))
         df["job"] = str(prov[-1].get("job_name", ""))
+        df["interaction"] = _law(prov[-1].get("spec_text", ""))
         frames.append(df)
         hists.update(h)
     return pd.concat(frames, ignore_index=True), hists, prov
+
+
+def _law(spec_text: Any) -> str:
+    """The interaction law a store's job spec names (``[interaction] kind``; "exponential" when absent)."""
+    import tomllib
+
+    try:
+        raw = tomllib.loads(spec_text) if isinstance(spec_text, str) else {}
+    except ValueError:
+        return "exponential"
+    kind = raw.get("interaction", {}).get("kind", "exponential") if isinstance(raw.get("interaction"), dict) else None
+    return kind if isinstance(kind, str) else "exponential"
+
+
+def load_pressure(store_paths: Sequence[str | Path]) -> dict[str, tuple]:
+    """Pressure histograms ``{task_id: (edges, density, atom)}`` of the stores (task ids prefixed as in
+    :func:`load` when there are several; empty for format-1 stores)."""
+    from gapsweep import store
+
+    if isinstance(store_paths, (str, Path)):
+        store_paths = [store_paths]
+    out: dict[str, tuple] = {}
+    for i, p in enumerate(store_paths):
+        h = store.read_pressure_histograms(p)
+        out.update({f"{i}:{t}": v for t, v in h.items()} if len(store_paths) > 1 else h)
+    return out
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -573,19 +600,27 @@ def plan_figures(agg: pd.DataFrame, hagg: Mapping[tuple, Any], points: pd.DataFr
 
 
 def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
-          prov: Sequence[Mapping[str, Any]] = (), *, title: str = "gapsweep report") -> Path:
+          prov: Sequence[Mapping[str, Any]] = (), *, title: str = "gapsweep report",
+          phists: Mapping[Any, tuple] | None = None) -> Path:
     """Write the report and every figure and table into ``out_dir`` from a store frame and its histograms
     (module docstring); returns the path of ``report.md``. ``figures.csv`` lists every figure with the number
-    of data points in its emptiest panel."""
+    of data points in its emptiest panel. Jobs with a contact law (hard wall, adhesion: an ``interaction``
+    column) go to the contact section (:mod:`analysis.contact`, with ``phists`` the pressure histograms); the
+    field-theory figures and tables take the others."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if "job" not in df:
         df = df.assign(job="")
     status = aggregate.status_counts(df)
+    in_contact = contact.is_contact(df)
+    cdf, df = df[in_contact], df[~in_contact]
+    cpoints, cpersson = contact.tables(cdf)
+    csummary = contact.summary(cpersson)
     agg = aggregate.aggregate_mean_gap(df)
     cmp = compare.theory_vs_gfmd(agg)
     points, summary = compare.agreement_regions(cmp)
-    hagg = aggregate.aggregate_histograms(df, hists)
+    hagg = aggregate.aggregate_histograms(df, {k: v for k, v in hists.items() if k in set(df["task_id"])}
+                                          if len(cdf) else hists)
     # Calibrate C2 only where the store has SDE / FP runs to compare with.
     where = sorted({(k[1], k[2], k[3], k[6]) for k in hagg if k[0] in ("sde", "fokker_planck")})
     calib, models = compare.calibrate_c2(hagg, keys=where) if where else (pd.DataFrame(), {})
@@ -594,10 +629,16 @@ def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
                         ("agreement_summary", summary), ("hist_distances", dist), ("calibration", calib),
                         ("histograms", _hist_long({**hagg, **models}))):
         frame.to_csv(out / f"{name}.csv", index=False)
+    if len(cdf):
+        for name, frame in (("contact", cpoints), ("contact_vs_persson", cpersson),
+                            ("contact_vs_persson_summary", csummary)):
+            frame.to_csv(out / f"{name}.csv", index=False)
 
     quick = quick_jobs(df, prov)
     matches = paper_matches(df, agg, hagg, quick)
     plan = plan_figures(agg, {**hagg, **models}, points, matches, quick)
+    if len(cdf):
+        plan = contact.plan(cdf, hists, phists or {}, cpoints, cpersson, quick) + plan
     omitted = plan[MAX_FIGURES:]
     made: list[dict[str, Any]] = []
     for name, cap, make in plan[:MAX_FIGURES]:
@@ -632,6 +673,8 @@ def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
     if omitted:
         md += [f"_{len(omitted)} more figures were not drawn (at most {MAX_FIGURES}): "
                + ", ".join(n for n, _, _ in omitted) + "._", ""]
+    if len(cdf):
+        md += _contact_section(cpoints, cpersson, csummary)
     md += ["## Theory against GFMD", "",
            "rel err = (theory - GFMD)/|GFMD|; red err = (theory - GFMD)/h_rms; uncertainties are standard errors over "
            "seeds (n/a with one seed). Full table: `theory_vs_gfmd.csv`.", ""]
@@ -666,6 +709,32 @@ def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
                                                 *_verdict_section(ver, matches)[2:]]) + "\n")
     log.debug("report: %d figures into %s", len(made), out)
     return path
+
+
+def _contact_section(points: pd.DataFrame, persson: pd.DataFrame, summ: pd.DataFrame) -> list[str]:
+    """Markdown of the contact section (hard wall, adhesion): the GFMD quantities and Persson side by side."""
+    md = ["## Contact: hard wall and adhesion", "",
+          "GFMD per pressure (mean over the done rows of each pressure; `count` rows, `not_done` others): contact "
+          "area (fraction of the nominal area, by the law's criterion, docs/gfmd.md), elastic energy per area, mean "
+          "gap, the hard wall's contact atom at g = 0 (apart from the gap histogram) and the free-surface atom at "
+          "p = 0. `flags`: 1 a jump along the load path, 2 detached beyond pull-off (adhesion; docs/store.md). "
+          "Full table: `contact.csv`.", ""]
+    md.append(_md_table(points, ["job", "interaction", "rho", "n", "sigma0", "count", "not_done", "flags",
+                                 "contact_area", "elastic_energy", "mean_gap", "contact_atom", "pressure_atom"],
+                        60))
+    if len(persson):
+        md += ["### GFMD and Persson's theory side by side", "",
+               "Persson's theory (gapsweep.theory.persson, docs/theory.md) with the surface's own spectrum: contact "
+               "area (the job's `persson_variant`) and mean interfacial separation (`persson_gamma`), against the "
+               "hard-wall GFMD contact area and mean gap. dev = (Persson - GFMD)/GFMD; gap_dev_h_rms = (Persson - "
+               "GFMD)/h_rms. Full table: `contact_vs_persson.csv`.", "",
+               _md_table(persson, ["job", "sigma0", "sigma0_reduced", "gfmd_area", "persson_area", "area_dev",
+                                   "gfmd_mean_gap", "persson_separation", "gap_dev", "gap_dev_h_rms"], 60),
+               "Deviations (largest and median |dev| per job and quantity):", "", _md_table(summ)]
+    else:
+        md += ["_No Persson theory rows in the contact jobs (add `[methods.theory] forms = [\"persson\"]` to a "
+               "hard-wall job)._", ""]
+    return md
 
 
 def _paper_verdicts(cmp: pd.DataFrame, dist: pd.DataFrame, matches: Mapping[str, Mapping[str, Any]]
@@ -722,7 +791,8 @@ def main(store_paths: Sequence[str | Path] | str | Path, out_dir: str | Path, *,
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
-        build(df, hists, tmp, prov)
+        build(df, hists, tmp, prov, phists=load_pressure(store_paths if not isinstance(store_paths, (str, Path))
+                                                         else [store_paths]))
         if out.exists():
             shutil.rmtree(out)
         os.replace(tmp, out)

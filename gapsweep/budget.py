@@ -20,7 +20,7 @@ def store_bytes(n_tasks: int, bins: int, spec_text_len: int = 0) -> int:
     creation (docs/store.md), plus attributes and HDF5 metadata [bytes]."""
     from gapsweep.store import RESULT_DTYPE, TASK_DTYPE
 
-    per_row = TASK_DTYPE.itemsize + RESULT_DTYPE.itemsize + (2 * bins + 1) * 8
+    per_row = TASK_DTYPE.itemsize + RESULT_DTYPE.itemsize + 2 * (2 * bins + 1) * 8  # gap + pressure histograms
     return int(n_tasks * per_row + 2 * spec_text_len + 64 * 1024)
 
 

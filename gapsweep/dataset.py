@@ -46,8 +46,9 @@ __all__ = [
 
 DIMS = ("hurst", "rho", "sigma0", "seed")
 COORD_META = {
-    "hurst": {"long_name": "Hurst exponent H of the surface spectrum", "units": "1"},
-    "rho": {"long_name": "range rho of the exponential repulsion", "units": "1", "reference_unit": "L"},
+    "hurst": {"long_name": "Hurst exponent H of the surface spectrum (0: a surface from a file)", "units": "1"},
+    "rho": {"long_name": "range rho of the interaction (exponential repulsion, adhesion; 0: hard wall)",
+            "units": "1", "reference_unit": "L"},
     "sigma0": {"long_name": "applied mean pressure sigma0", "units": "1", "reference_unit": "E*"},
     "seed": {"long_name": "seed of the random surface (and of the SDE noise)", "units": "1"},
 }
@@ -63,8 +64,21 @@ VARIABLES: dict[str, dict[str, tuple[str, str, dict[str, str]]]] = {
         "iterations": ("gfmd_iterations", "GFMD iterations (force evaluations)", {"units": "1"}),
         "gap_std": ("gfmd_gap_std", "standard deviation of the gap field", _LEN),
         "gap_min": ("gfmd_gap_min", "smallest gap of the gap field", _LEN),
+        "contact_area": ("gfmd_contact_area", "real contact area, fraction of the nominal area (by the law's "
+                         "contact criterion, docs/gfmd.md)", {"units": "1"}),
+        "elastic_energy": ("gfmd_elastic_energy", "stored elastic energy per nominal area (E*/4) sum q |u~(q)|^2",
+                           {"units": "1", "reference_unit": "E* L"}),
+        "contact_atom": ("gfmd_contact_atom", "fraction of the surface at exactly g = 0 (hard-wall contact atom, "
+                         "apart from the gap histogram)", {"units": "1"}),
+        "pressure_atom": ("gfmd_pressure_atom", "fraction of the surface at exactly p = 0 (hard wall: free "
+                          "surface)", {"units": "1"}),
+        "flags": ("gfmd_flags", "load-path flags: 1 jump from the previous step, 2 detached (adhesion)",
+                  {"units": "1"}),
     },
     "theory": {
+        "mean_gap_persson": ("persson_mean_gap", "mean interfacial separation, Persson's theory (hard wall)", _LEN),
+        "contact_area": ("persson_contact_area", "real contact area fraction, Persson's theory (hard wall)",
+                         {"units": "1"}),
         "mean_gap_paper": ("theory_paper", "mean gap g0, field theory, the paper's closed form", _LEN),
         "mean_gap_continuum": ("theory_continuum", "mean gap g0, field theory, exact continuum prefactor", _LEN),
         "mean_gap_discrete": ("theory_discrete", "mean gap g0, field theory, sum over the modes of the surface",
@@ -81,7 +95,8 @@ VARIABLES: dict[str, dict[str, tuple[str, str, dict[str, str]]]] = {
     },
 }
 # Results that never depend on the seed (docs/model.md M4): no seed dimension.
-SEED_FREE = {"theory": ("mean_gap_paper", "mean_gap_continuum"), "fokker_planck": ("mean_gap", "gap_std")}
+SEED_FREE = {"theory": ("mean_gap_paper", "mean_gap_continuum", "mean_gap_persson", "contact_area"),
+             "fokker_planck": ("mean_gap", "gap_std")}
 STATUS_FLAGS = {"pending": 0, "done": 1, "failed": 2, "not_converged": 3}
 FIELD_NAMES = ("gap", "pressure", "displacement", "height")
 FIELD_META = {
@@ -141,7 +156,7 @@ def from_frame(df: Any, *, n: int | None = None, c2: float | None = None, attrs:
             if col not in sub:
                 continue
             vals = pd.to_numeric(sub[col], errors="coerce").to_numpy(float)
-            if col == "iterations":
+            if col in ("iterations", "flags"):
                 vals = np.where(vals < 0, np.nan, vals)
             if not np.isfinite(vals[done]).any():
                 continue

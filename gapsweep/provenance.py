@@ -89,6 +89,8 @@ def store_attrs(spec: Any, *, shard: str = "", extra: dict[str, Any] | None = No
         "created": now(),
         "runs": "[]",
     }
+    if getattr(spec, "surface", {}).get("kind") == "file" and getattr(spec, "base_dir", ""):
+        a["spec_dir"] = spec.base_dir  # where the height map's path is relative to (merge re-reads the spec)
     a.update(extra or {})
     return a
 

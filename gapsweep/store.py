@@ -8,6 +8,12 @@ written independently, in any order, by any rank; under ``driver="mpio"`` the cr
 * ``/results``        compound ``(n_tasks,)``: status (int8, see ``STATUS``), message, the float results of
   ``tasks.FLOAT_RESULTS`` (NaN where not computed) and the integer results ``tasks.INT_RESULTS`` (-1).
 * ``/histograms/edges`` ``(n_tasks, bins + 1)``, ``/histograms/density`` ``(n_tasks, bins)`` (NaN if none).
+* ``/histograms/pressure_edges``, ``/histograms/pressure_density`` (format 2): the local pressure's histogram of
+  GFMD rows (its atom at ``p = 0`` in the ``pressure_atom`` column).
+
+Format 1 stores (before the issue-12 columns contact_area, elastic_energy, contact_atom, pressure_atom,
+mean_gap_persson, flags and the pressure histograms) still open, read (missing columns as NaN, ``flags`` -1),
+resume (the new columns are not written into them), merge and diff.
 * file attributes: format, spec text and hash, job name, shard, provenance (versions, git commit), runs.
 
 The default (earliest) HDF5 file format is used on purpose: it has no "file open for write" superblock flag,
@@ -47,11 +53,12 @@ __all__ = [
     "read",
     "read_attrs",
     "read_histograms",
+    "read_pressure_histograms",
     "status",
 ]
 
 FORMAT = "gapsweep-store"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 MESSAGE_LEN = 240
 STATUS_NAMES = {v: k for k, v in STATUS.items()}
 
@@ -65,6 +72,11 @@ RESULT_DTYPE = np.dtype(
     + [(k, "f8") for k in FLOAT_RESULTS]
     + [(k, "i8") for k in INT_RESULTS]
 )
+# The results table of format 1 (stores written before the issue-12 columns); such stores still open and read.
+NEW_IN_V2 = ("contact_area", "elastic_energy", "contact_atom", "pressure_atom", "mean_gap_persson", "flags")
+RESULT_DTYPE_V1 = np.dtype([(k, RESULT_DTYPE.fields[k][0]) for k in RESULT_DTYPE.names if k not in NEW_IN_V2])
+RESULT_DTYPES = (RESULT_DTYPE, RESULT_DTYPE_V1)
+PRESSURE_HIST = ("histograms/pressure_edges", "histograms/pressure_density")
 # Columns that differ between two runs of the same job by nature (compare stores without them).
 VOLATILE = ("wall_time", "rank")
 
@@ -147,25 +159,42 @@ def task_rows(tasks: Sequence[Task]) -> np.ndarray:
     rows = np.zeros(len(tasks), dtype=TASK_DTYPE)
     for i, t in enumerate(tasks):
         rows[i] = (t.task_id.encode(), t.method.encode(), t.chain.encode(), t.hurst, t.rho, t.sigma0, t.seed, t.n,
-                   t.opt("surface.lambda_l"), t.opt("surface.lambda_s"), t.opt("surface.length"), t.opt("gamma0"),
+                   _nan_or(t.opt("surface.lambda_l")), _nan_or(t.opt("surface.lambda_s")), t.opt("surface.length"),
+                   _nan_or(t.opt("gamma0")),
                    t.opt("e_star"), _nan_or(t.opt("c1")), _nan_or(t.opt("c2")))
     return rows
 
 
-def empty_results(n: int) -> np.ndarray:
-    r = np.zeros(n, dtype=RESULT_DTYPE)
+def empty_results(n: int, dtype: np.dtype = RESULT_DTYPE) -> np.ndarray:
+    r = np.zeros(n, dtype=dtype)
     for k in FLOAT_RESULTS:
-        r[k] = np.nan
+        if k in dtype.names:
+            r[k] = np.nan
     for k in INT_RESULTS:
-        r[k] = -1
+        if k in dtype.names:
+            r[k] = -1
     return r
 
 
-def result_row(res: TaskResult) -> np.ndarray:
-    row = empty_results(1)
+def upgrade_results(r: np.ndarray) -> np.ndarray:
+    """Results rows of any format as rows of the current one (copied by column name; new columns NaN / -1)."""
+    if r.dtype == RESULT_DTYPE:
+        return r
+    out = empty_results(r.shape[0])
+    for k in r.dtype.names:
+        if k in RESULT_DTYPE.names:
+            out[k] = r[k]
+    return out
+
+
+def result_row(res: TaskResult, dtype: np.dtype = RESULT_DTYPE) -> np.ndarray:
+    """The results row of ``res`` in the table ``dtype`` (a format-1 store drops the columns it lacks)."""
+    row = empty_results(1, dtype)
     row["status"] = STATUS[res.status]
     row["message"] = res.message.encode("utf-8", "replace")[:MESSAGE_LEN]
     for k, v in res.values.items():
+        if k not in dtype.names:
+            continue
         if k in FLOAT_RESULTS:
             row[k] = float(v)
         elif k in INT_RESULTS:
@@ -190,6 +219,10 @@ class Store:
         self._res = f["results"]
         self._edges = f["histograms/edges"]
         self._density = f["histograms/density"]
+        # format 2: the pressure histograms (absent in format-1 stores, whose rows then keep the old columns)
+        self._pedges = f[PRESSURE_HIST[0]] if PRESSURE_HIST[0] in f else None
+        self._pdensity = f[PRESSURE_HIST[1]] if PRESSURE_HIST[1] in f else None
+        self._rdtype = self._res.dtype
         self.parallel = comm is not None
         self.n_tasks = self._res.shape[0]
         self.bins = self._density.shape[1]
@@ -218,6 +251,8 @@ class Store:
             g = f.create_group("histograms")
             g.create_dataset("edges", shape=(n, bins + 1), dtype="f8", fillvalue=np.nan, dcpl=_early())
             g.create_dataset("density", shape=(n, bins), dtype="f8", fillvalue=np.nan, dcpl=_early())
+            g.create_dataset("pressure_edges", shape=(n, bins + 1), dtype="f8", fillvalue=np.nan, dcpl=_early())
+            g.create_dataset("pressure_density", shape=(n, bins), dtype="f8", fillvalue=np.nan, dcpl=_early())
             if comm is None or comm.rank == 0:
                 if n:
                     dt[...] = task_rows(tasks)
@@ -263,6 +298,8 @@ class Store:
         :class:`StoreWriteError`."""
         if res.hist is not None and (len(res.hist[1]) != self.bins or len(res.hist[0]) != self.bins + 1):
             raise StoreError(f"histogram of task {i} has {len(res.hist[1])} bins, the store has {self.bins}")
+        if res.phist is not None and (len(res.phist[1]) != self.bins or len(res.phist[0]) != self.bins + 1):
+            raise StoreError(f"pressure histogram of task {i} has {len(res.phist[1])} bins, the store has {self.bins}")
         with _quiet_dealloc():
             self._write(i, res, flush)
 
@@ -272,10 +309,13 @@ class Store:
                 edges, density, _ = res.hist
                 self._edges[i] = edges
                 self._density[i] = density
-                if flush and not self.parallel:
-                    self.f.flush()
+            if res.phist is not None and self._pedges is not None:
+                self._pedges[i] = res.phist[0]
+                self._pdensity[i] = res.phist[1]
+            if flush and not self.parallel and (res.hist is not None or res.phist is not None):
+                self.f.flush()
             self._inject()
-            self._res[i] = result_row(res)[0]
+            self._res[i] = result_row(res, self._rdtype)[0]
             if flush and not self.parallel:
                 self.f.flush()
         except (OSError, RuntimeError) as e:
@@ -378,9 +418,28 @@ def read(path: str | Path):
         cols[k] = [x.decode() for x in t[k]] if TASK_DTYPE[k].kind == "S" else t[k]
     cols["status"] = [STATUS_NAMES.get(int(s), "unknown") for s in r["status"]]
     cols["message"] = [x.decode("utf-8", "replace") for x in r["message"]]
-    for k in FLOAT_RESULTS + INT_RESULTS:
-        cols[k] = r[k]
+    for k in FLOAT_RESULTS + INT_RESULTS:  # a format-1 store lacks the newer columns: NaN (floats), -1 (flags)
+        cols[k] = r[k] if k in r.dtype.names else np.full(len(r), np.nan if k in FLOAT_RESULTS else -1)
     return pd.DataFrame(cols)
+
+
+def read_pressure_histograms(path: str | Path, task_ids: Iterable[str] | None = None,
+                             ) -> dict[str, tuple[np.ndarray, np.ndarray, float]]:
+    """``{task_id: (edges, density, atom)}`` of the local pressure for GFMD rows that have one (format-2
+    stores): ``atom`` is the fraction at exactly ``p = 0`` (hard wall: the free surface), ``density`` that of the
+    other points, integrating to ``1 - atom``. Empty for format-1 stores."""
+    with open_read(path) as f:
+        if PRESSURE_HIST[0] not in f or not f["tasks"].shape[0]:
+            return {}
+        ids = [x.decode() for x in f["tasks"].fields("task_id")[...]]
+        atom = f["results"].fields("pressure_atom")[...]
+        e_all, d_all = f[PRESSURE_HIST[0]][...], f[PRESSURE_HIST[1]][...]
+    want = set(task_ids) if task_ids is not None else None
+    out = {}
+    for i, tid in enumerate(ids):
+        if (want is None or tid in want) and np.all(np.isfinite(e_all[i])):
+            out[tid] = (e_all[i], d_all[i], float(atom[i]))
+    return out
 
 
 def read_histograms(path: str | Path, task_ids: Iterable[str] | None = None,
@@ -464,11 +523,17 @@ def diff(a: str | Path, b: str | Path, *, ignore: Sequence[str] = VOLATILE) -> l
                 out.append(f"tasks.{k} differs")
         ra, rb = fa["results"][...], fb["results"][...]
         for k in RESULT_DTYPE.names:
-            if k not in ignore and not _same(ra[k], rb[k]):
+            if k in ignore:
+                continue
+            if (k in ra.dtype.names) != (k in rb.dtype.names):
+                out.append(f"results.{k} only in {'the first' if k in ra.dtype.names else 'the second'} store "
+                           "(format 1 vs 2)")
+            elif k in ra.dtype.names and not _same(ra[k], rb[k]):
                 rows = np.flatnonzero(~_eq(ra[k], rb[k]))
                 out.append(f"results.{k} differs in {rows.size} rows (first: {rows[:5].tolist()})")
-        for k in ("edges", "density"):
-            if not _same(fa["histograms"][k][...], fb["histograms"][k][...]):
+        for k in ("edges", "density", "pressure_edges", "pressure_density"):
+            if k in fa["histograms"] and k in fb["histograms"] and not _same(fa["histograms"][k][...],
+                                                                              fb["histograms"][k][...]):
                 out.append(f"histograms.{k} differs")
     return out
 
@@ -494,7 +559,7 @@ CONFLICT_CHOICES = ("error", "first", "last")
 
 def _row_equal(x: np.ndarray, y: np.ndarray, ex: np.ndarray, ey: np.ndarray, dx: np.ndarray,
                dy: np.ndarray) -> bool:
-    for k in RESULT_DTYPE.names:
+    for k in x.dtype.names:
         if k not in VOLATILE and not _same(np.asarray(x[k]), np.asarray(y[k])):
             return False
     return _same(ex, ey) and _same(dx, dy)
@@ -528,7 +593,7 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
     shas = {m["spec_sha256"] for m in metas}
     if len(shas) != 1:
         raise StoreError(f"merge: shards come from different job specs ({len(shas)} spec hashes)")
-    js = specmod.loads(metas[0]["spec_text"])
+    js = specmod.loads(metas[0]["spec_text"], base=metas[0].get("spec_dir") or None)
     tasks = tasksmod.expand(js)
     index = {t.task_id: i for i, t in enumerate(tasks)}
     runs = []
@@ -541,6 +606,8 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
     results = empty_results(len(tasks))
     edges = np.full((len(tasks), bins + 1), np.nan)
     dens = np.full((len(tasks), bins), np.nan)
+    pedges = np.full((len(tasks), bins + 1), np.nan)
+    pdens = np.full((len(tasks), bins), np.nan)
     source = [""] * len(tasks)
     conflicts: list[str] = []
     for s in shards:
@@ -551,8 +618,12 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
             if f["histograms/density"].shape[1] != bins:
                 raise StoreError(f"merge: {s} has {f['histograms/density'].shape[1]} histogram bins, the job {bins}")
             ids = [x.decode() for x in f["tasks"].fields("task_id")[...]]
-            r = f["results"][...]
+            r = upgrade_results(f["results"][...])  # a format-1 shard: by column name
             e, d = f["histograms/edges"][...], f["histograms/density"][...]
+            if PRESSURE_HIST[0] in f:
+                pe, pd_ = f[PRESSURE_HIST[0]][...], f[PRESSURE_HIST[1]][...]
+            else:
+                pe, pd_ = np.full(e.shape, np.nan), np.full(d.shape, np.nan)
         bad = set(rep.rerun)
         for j, tid in enumerate(ids):
             if tid not in index:
@@ -572,6 +643,7 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
                     continue
             results[i] = r[j]
             edges[i], dens[i] = e[j], d[j]
+            pedges[i], pdens[i] = pe[j], pd_[j]
             source[i] = str(s)
     if conflicts and on_conflict == "error":
         raise StoreError(f"merge: {len(conflicts)} conflicting row(s), e.g. {conflicts[0]}; pass "
@@ -586,6 +658,8 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
                 if len(tasks):
                     st.f["histograms/edges"][...] = edges
                     st.f["histograms/density"][...] = dens
+                    st.f[PRESSURE_HIST[0]][...] = pedges
+                    st.f[PRESSURE_HIST[1]][...] = pdens
                     st.f["results"][...] = results
                 st.f.attrs["finished"] = provenance.now()
             finally:

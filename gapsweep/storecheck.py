@@ -58,7 +58,7 @@ def _fail(path: Any, what: str) -> None:
 
 def check(f: Any, path: str | Path) -> Report:
     """Validate an open store ``f`` (h5py.File); raise StoreError on a structural problem."""
-    from gapsweep.store import FORMAT, RESULT_DTYPE, TASK_DTYPE
+    from gapsweep.store import FORMAT, PRESSURE_HIST, RESULT_DTYPES, TASK_DTYPE
 
     if f.attrs.get("format") != FORMAT:
         _fail(path, f"not a gapsweep store (format attribute {f.attrs.get('format')!r})")
@@ -71,12 +71,21 @@ def check(f: Any, path: str | Path) -> Report:
     t, r, e, d = f["tasks"], f["results"], f["histograms/edges"], f["histograms/density"]
     if t.dtype != TASK_DTYPE:
         _fail(path, f"/tasks has dtype {t.dtype}, expected the gapsweep task table")
-    if r.dtype != RESULT_DTYPE:
+    if r.dtype not in RESULT_DTYPES:  # format 2, or format 1 (before the issue-12 columns)
         _fail(path, f"/results has dtype {r.dtype}, expected the gapsweep results table")
     if e.dtype.kind != "f" or d.dtype.kind != "f" or e.ndim != 2 or d.ndim != 2:
         _fail(path, "/histograms/edges or /density is not a 2-d float array")
     n = t.shape[0]
     lens = {"tasks": n, "results": r.shape[0], "histograms/edges": e.shape[0], "histograms/density": d.shape[0]}
+    has_p = [name in f for name in PRESSURE_HIST]
+    if any(has_p) and not all(has_p):
+        _fail(path, f"only one of /{PRESSURE_HIST[0]}, /{PRESSURE_HIST[1]} present (damaged or partial store)")
+    if all(has_p):  # format 2: the pressure histograms match the gap histograms' shape
+        pe, pdn = f[PRESSURE_HIST[0]], f[PRESSURE_HIST[1]]
+        if pe.dtype.kind != "f" or pdn.dtype.kind != "f" or pe.shape != e.shape or pdn.shape != d.shape:
+            _fail(path, "/histograms/pressure_edges or /pressure_density does not match the gap histograms' shape")
+    elif r.dtype.names is not None and "contact_area" in r.dtype.names:
+        _fail(path, f"dataset /{PRESSURE_HIST[0]} missing (damaged or partial store)")
     if len(set(lens.values())) != 1:
         _fail(path, "tables of different lengths (" + ", ".join(f"{k} {v}" for k, v in lens.items())
               + "): damaged or partial store")
@@ -97,6 +106,9 @@ def check(f: Any, path: str | Path) -> Report:
     done = status == STATUS["done"]
     needs_hist = np.isin(methods, HIST_METHODS)
     hist_ok = np.all(np.isfinite(dens), axis=1) & np.any(dens > 0, axis=1)
+    if "contact_atom" in r.dtype.names:  # hard wall in full contact: every point is in the atom at g = 0
+        atom = r.fields("contact_atom")[...]
+        hist_ok |= np.all(np.isfinite(dens), axis=1) & (atom >= 1.0)
     bad = done & (~np.isfinite(mean_gap) | (needs_hist & ~hist_ok))
     rep.done_incomplete = np.flatnonzero(bad).tolist()
     return rep

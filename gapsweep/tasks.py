@@ -54,8 +54,16 @@ STATUS = {"pending": 0, "done": 1, "failed": 2, "not_converged": 3}
 FLOAT_RESULTS = (
     "mean_gap", "mean_gap_paper", "mean_gap_continuum", "mean_gap_discrete", "h_rms", "g_rms",
     "residual", "load_error", "wall_time", "gap_std", "gap_min", "gap_max",
+    # issue 12 (store format 2): quantities of every law, Persson's theory (docs/store.md)
+    "contact_area", "elastic_energy", "contact_atom", "pressure_atom", "mean_gap_persson",
 )
-INT_RESULTS = ("iterations", "count", "rank")
+INT_RESULTS = ("iterations", "count", "rank", "flags")
+# Bits of the ``flags`` column (GFMD rows; 0 = none, -1 = not a GFMD row): a jump along the load path (adhesion:
+# the mean gap moved by more than JUMP_FACTOR times the secant prediction of the chain's two previous steps) and
+# detachment (adhesion beyond pull-off: no equilibrium in contact, the row is not_converged). docs/store.md.
+FLAG_JUMP = 1
+FLAG_DETACHED = 2
+JUMP_FACTOR = 3.0
 # SDE tasks with more realisations than this are binned on the device (gapsweep.sde.gap_histogram_counts) instead
 # of copying every sample to the host (10^8 samples = 800 MB); each store bin is split into SDE_SUB_BINS equal
 # sub-bins there, from which the moments are computed (see _sde_binned).
@@ -78,8 +86,14 @@ class Task:
     chain: str = ""
 
     def surface_params(self) -> dict[str, Any]:
-        """The ``surface.*`` options without their prefix: keyword arguments of ``surface.self_affine``."""
+        """The ``surface.*`` options without their prefix: keyword arguments of ``surface.self_affine`` (for a
+        file surface, ``kind = "file"`` and the loading options of gapsweep.spec)."""
         return {k[8:]: v for k, v in self.options if k.startswith("surface.")}
+
+    @property
+    def law(self) -> str:
+        """The interaction law (docs/gfmd.md): "exponential" unless the job names another."""
+        return self.opt("interaction", "exponential")
 
     def opt(self, key: str, default: Any = None) -> Any:
         for k, v in self.options:
@@ -100,6 +114,7 @@ class TaskResult:
     message: str = ""
     values: dict[str, float] = field(default_factory=dict)
     hist: tuple[np.ndarray, np.ndarray, int] | None = None  # (edges, density, count)
+    phist: tuple[np.ndarray, np.ndarray] | None = None  # pressure histogram (edges, density), GFMD rows
 
 
 @dataclass(frozen=True)
@@ -148,6 +163,9 @@ def _common(spec: JobSpec, m: str, with_hist: bool) -> dict[str, Any]:
     o = {k: v for k, v in spec.methods[m].items() if k not in ("hurst", "rho", "sigma0", "seeds", "n", "extra")}
     o.update({f"surface.{k}": v for k, v in spec.surface.items()})
     o.update(spec.material)
+    if spec.interaction:  # only beyond the default exponential law: older task ids stay as they were
+        o["interaction"] = spec.interaction["kind"]
+        o.update({k: v for k, v in spec.interaction.items() if k != "kind"})
     for k, v in spec.methods[m].get("extra", {}).items():
         o[f"extra.{k}"] = v
     if with_hist:
@@ -163,7 +181,7 @@ def _expand_theory(spec: JobSpec) -> Iterator[Task]:
     discrete = "discrete" in o["forms"]
     # Without the discrete form the theory needs no surface (unless h_rms comes from the surface): one task per
     # (hurst, rho, sigma0), seed 0.
-    seeded = discrete or (o["h_rms"] == "surface" and spec.surface["amplitudes"] == "gaussian")
+    seeded = discrete or (o.get("h_rms") == "surface" and spec.surface.get("amplitudes") == "gaussian")
     seeds = ax["seeds"] if seeded else [0]
     ns = spec.methods["theory"].get("n", [0])
     for h in ax["hurst"]:
@@ -322,7 +340,12 @@ class Context:
         key = self._key(t, n, sp)
         h = self._surfaces.get(key)
         if h is None:
-            h = surface.self_affine(n, t.hurst, seed=t.seed, **sp)
+            if sp.get("kind") == "file":
+                from gapsweep import spec as specmod
+
+                h = specmod.file_surface_heights(sp)
+            else:
+                h = surface.self_affine(n, t.hurst, seed=t.seed, **sp)
             h.setflags(write=False)
             self._surfaces[key] = h
             while len(self._surfaces) > self._max:
@@ -358,7 +381,8 @@ class Context:
 
     @staticmethod
     def _key(t: Task, n: int, sp: dict[str, Any]) -> tuple:
-        return (t.hurst, t.seed, n, tuple(sorted(sp.items())))
+        # list values (a file surface's [x, y] pixel size or length) as tuples: the key must be hashable
+        return (t.hurst, t.seed, n, tuple(sorted((k, tuple(v) if isinstance(v, list) else v) for k, v in sp.items())))
 
 
 def _moments(t: Task, ctx: Context) -> tuple[float, float]:
@@ -381,11 +405,18 @@ def _extra(t: Task) -> dict[str, Any]:
     return {k[6:]: v for k, v in t.options if k.startswith("extra.")}
 
 
-def _hist(t: Task, samples: Any) -> tuple[np.ndarray, np.ndarray, int]:
+def _hist(t: Task, samples: Any, exclude_zero: bool = False) -> tuple[np.ndarray, np.ndarray, int]:
     """Histogram ``(edges, density, count)`` of the finite samples over the job's bins and range (``"auto"``:
-    the samples' min..max). A cupy array is binned on its GPU with the same edges (only the counts come back)."""
+    the samples' min..max). A cupy array is binned on its GPU with the same edges (only the counts come back).
+    ``exclude_zero`` (hard wall): the points at exactly 0 (the contact atom, stored apart) are left out and the
+    density of the others integrates to their fraction ``1 - atom``."""
     from gapsweep.gfmd._ops import _is_cupy
 
+    if exclude_zero:
+        size = samples.size
+        samples = samples[samples != 0.0]
+        edges, dens, count = _hist(t, samples)
+        return edges, dens * (count / size if size else 0.0), count
     if _is_cupy(samples):
         return _hist_device(t, samples)
     finite = samples[np.isfinite(samples)]
@@ -423,9 +454,42 @@ def _hist_device(t: Task, samples: Any) -> tuple[np.ndarray, np.ndarray, int]:
     return edges, density, int(total)
 
 
+def _run_persson(t: Task, ctx: Context) -> dict[str, float]:
+    """Persson's hard-wall theory (gapsweep.theory.persson, docs/theory.md): contact area (``persson_variant``)
+    and mean interfacial separation (``persson_gamma``) at ``sigma0``, from the self-affine spectrum's parameters
+    or, for a file surface, from the map's own spectrum (``heights=``)."""
+    from gapsweep import surface
+    from gapsweep.theory import persson
+
+    sp = t.surface_params()
+    kw: dict[str, Any] = {"e_star": t.opt("e_star"), "length": sp["length"]}
+    if sp.get("kind") == "file":
+        h = ctx.surface(t, 0)
+        kw["heights"] = h
+        h_rms, g_rms = surface.rms_height(h), surface.rms_slope(h, sp["length"])
+    else:
+        kw.update(hurst=t.hurst, lambda_l=sp["lambda_l"], lambda_s=sp["lambda_s"])
+        for k in ("rms_slope", "rms_height", "c0"):
+            if k in sp:
+                kw[k] = sp[k]
+        h_rms, g_rms = math.nan, sp.get("rms_slope", math.nan)  # continuum values of the spectrum (M2)
+        if "rms_height" in sp:
+            h_rms = sp["rms_height"]
+        elif "rms_slope" in sp:
+            h_rms = surface.continuum_rms_height(t.hurst, lambda_l=sp["lambda_l"], lambda_s=sp["lambda_s"],
+                                                 rms_slope=sp["rms_slope"])
+    area = float(persson.contact_area(t.sigma0, variant=t.opt("persson_variant"), **kw))
+    sep = float(persson.mean_separation(t.sigma0, gamma=t.opt("persson_gamma"), **kw))
+    return {"h_rms": h_rms, "g_rms": g_rms, "mean_gap_persson": sep, "contact_area": area}
+
+
 def _run_theory(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
     from gapsweep import theory
 
+    if t.opt("forms") == ["persson"]:
+        v = _run_persson(t, ctx)
+        v["mean_gap"] = v["mean_gap_persson"]
+        return TaskResult("done", "", v), None
     h_rms, g_rms = _moments(t, ctx)
     sp = t.surface_params()
     kw = dict(hurst=t.hurst, h_rms=h_rms, rho=t.rho, gamma0=t.opt("gamma0"), lambda_l=sp["lambda_l"],
@@ -456,7 +520,9 @@ def _keep_fields(t: Task, ctx: Context, res: Any, h: np.ndarray, gap: np.ndarray
     arrays["pressure"] = np.asarray(getattr(res, "pressure", None) if getattr(res, "pressure", None) is not None
                                     else t.opt("gamma0") / t.rho * np.exp(-gap / t.rho), dtype=float)
     attrs = {"method": t.method, "hurst": t.hurst, "rho": t.rho, "sigma0": t.sigma0, "seed": t.seed, "n": t.n,
-             "gamma0": t.opt("gamma0"), "e_star": t.opt("e_star"), "mean_gap": g0, "residual": float(res.residual)}
+             "e_star": t.opt("e_star"), "mean_gap": g0, "residual": float(res.residual), "interaction": t.law}
+    if t.opt("gamma0") is not None:
+        attrs["gamma0"] = t.opt("gamma0")
     dataset.write_fields(ctx.fields_dir, t.task_id, {k: arrays[k] for k in want}, length=length, attrs=attrs)
 
 
@@ -487,16 +553,30 @@ def _run_gfmd(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
     h = ctx.surface(t, t.n)
     sp = t.surface_params()
     use_gpu(t, ctx)
-    res = gfmd.solve(h, sigma0=t.sigma0, gamma0=t.opt("gamma0"), rho=t.rho, e_star=t.opt("e_star"),
+    res = gfmd.solve(h, sigma0=t.sigma0, **law_params(t), e_star=t.opt("e_star"),
                      length=sp["length"], tol=t.opt("tol"), method=t.opt("method"), backend=t.opt("backend"),
                      max_iter=t.opt("max_iter"), initial=prev if t.opt("warm_start") else None,
                      host=gfmd_host_fields(t, ctx), **_extra(t))
-    return gfmd_row(t, ctx, res)
+    return gfmd_row(t, ctx, res, prev)
 
 
-def gfmd_row(t: Task, ctx: Context, res: Any) -> tuple[TaskResult, Any]:
+def law_params(t: Task) -> dict[str, Any]:
+    """``interaction=`` and the law's keywords of gfmd.solve for a task (docs/gfmd.md): the exponential law
+    takes gamma0 and rho, the hard wall nothing, the adhesive law the work of adhesion and rho."""
+    law = t.law
+    if law == "exponential":
+        return {"gamma0": t.opt("gamma0"), "rho": t.rho}
+    if law == "hard_wall":
+        return {"interaction": "hard_wall"}
+    return {"interaction": law, "work": t.opt("work"), "rho": t.rho}
+
+
+def gfmd_row(t: Task, ctx: Context, res: Any, prev: Any = None) -> tuple[TaskResult, Any]:
     """Store row of a GFMD result and the warm start it gives the next task of its chain (the converged
-    result, else None). The gap's statistics and histogram are taken where the gap lives (numpy or cupy)."""
+    result, else None). The gap's statistics and histogram are taken where the gap lives (numpy or cupy).
+    Every law stores contact_area, elastic_energy, the pressure histogram and its atom at p = 0; the hard wall
+    its contact atom at g = 0 apart from the gap histogram; ``prev`` (the previous step's result, non-exponential
+    laws) marks jumps along the load path in ``flags``."""
     from gapsweep.gfmd._ops import _is_cupy
 
     gap = res.gap
@@ -512,14 +592,84 @@ def gfmd_row(t: Task, ctx: Context, res: Any) -> tuple[TaskResult, Any]:
     v = {"mean_gap": float(res.mean_gap), "h_rms": h_rms, "g_rms": g_rms,
          "residual": float(res.residual), "load_error": float(getattr(res, "load_error", math.nan)),
          "iterations": int(res.iterations), "gap_std": float(xp.std(gap)), "gap_min": float(xp.min(gap)),
-         "gap_max": float(xp.max(gap))}
+         "gap_max": float(xp.max(gap)), "contact_area": float(getattr(res, "contact_area", math.nan)),
+         "elastic_energy": float(getattr(res, "elastic_energy", math.nan)), "flags": 0}
     ok = bool(res.converged) and math.isfinite(v["mean_gap"])
     status = "done" if ok else "not_converged"
     msg = "" if ok else f"gfmd: {getattr(res, 'status', 'not converged')} (residual {v['residual']:.3g})"
-    # warm start from the converged solution only; only its displacement is kept (the other fields are dropped
-    # with the result once the row is made)
-    state = res.displacement if ok else None
-    return TaskResult(status, msg, v, _hist(t, gap)), state
+    if not (math.isfinite(v["contact_area"]) and math.isfinite(v["elastic_energy"])):
+        _fill_quantities(t, res, v, gap, xp)
+    hard = t.law == "hard_wall"
+    if hard:  # the contact atom at g = 0 is stored apart; the histogram is that of the free points
+        v["contact_atom"] = float(res.contact_atom())
+    phist = None
+    if getattr(res, "pressure", None) is not None:
+        phist, v["pressure_atom"] = _pressure_hist(t, res.pressure, xp)
+    if getattr(res, "status", "") == "detached":
+        v["flags"] |= FLAG_DETACHED
+        msg = (f"gfmd: detached at sigma0 = {t.sigma0:g} (beyond pull-off: no equilibrium in contact; "
+               "later, more tensile loads of the chain cannot be in contact either)")
+    # Jumps only where the energy is not convex (adhesion), by gfmd.solve_path's secant criterion: the mean gap
+    # moves by more than JUMP_FACTOR times what the secant dg0/dsigma0 of the two previous steps predicts (a
+    # branch that ends: snap-off, snap-in). Steps must be fine enough for the secant to hold on a smooth branch;
+    # the first two steps of a chain have no secant and are not judged (docs/store.md "flags").
+    if t.law == "adhesive" and prev is not None and hasattr(prev, "contact_area") and ok:
+        before = getattr(prev, "_prev_step", None)
+        dg = abs(v["mean_gap"] - float(prev.mean_gap))
+        predicted = math.inf
+        if before is not None and before[0] != float(prev.sigma0):
+            predicted = abs((float(prev.mean_gap) - before[1]) / (float(prev.sigma0) - before[0])
+                            * (t.sigma0 - float(prev.sigma0)))
+        if dg > JUMP_FACTOR * predicted:
+            v["flags"] |= FLAG_JUMP
+            msg = (f"jump along the load path: contact area {float(prev.contact_area):.4g} -> "
+                   f"{v['contact_area']:.4g}, mean gap {float(prev.mean_gap):.4g} -> {v['mean_gap']:.4g} "
+                   f"from sigma0 = {float(prev.sigma0):g}")
+    if t.law != "exponential" and ok:
+        res._prev_step = (float(prev.sigma0), float(prev.mean_gap)) if hasattr(prev, "mean_gap") else None
+    # warm start from the converged solution only. Exponential law: only its displacement is kept (the other
+    # fields are dropped with the result once the row is made); the other laws start from the whole result
+    # (hard wall: its pressure; adhesive: displacement and mean gap) and it marks jumps.
+    state = (res.displacement if t.law == "exponential" else res) if ok else None
+    return TaskResult(status, msg, v, _hist(t, gap, exclude_zero=hard), phist), state
+
+
+def _fill_quantities(t: Task, res: Any, v: dict[str, float], gap: Any, xp: Any) -> None:
+    """contact_area and elastic_energy of a result that lacks them (the batched exponential minimiser): the law's
+    contact criterion on the gap, and ``(E*/4) sum_q q |u~(q)|^2`` with ``u~ = FFT(u)/N^2`` (docs/gfmd.md)."""
+    from gapsweep.gfmd.interactions import resolve
+
+    if not math.isfinite(v["contact_area"]):
+        law = resolve(t.law, **{k: x for k, x in law_params(t).items() if k != "interaction"})
+        v["contact_area"] = float(xp.count_nonzero(law.contact(gap, res.pressure))) / gap.size
+    u = getattr(res, "displacement", None)
+    if not math.isfinite(v["elastic_energy"]) and u is not None:
+        nx, ny = u.shape
+        length = t.opt("surface.length")
+        qx = 2 * np.pi * np.fft.fftfreq(nx, d=length / nx)
+        qy = 2 * np.pi * np.fft.fftfreq(ny, d=length / ny)
+        q = xp.asarray(np.hypot(qx[:, None], qy[None, :]))
+        uq = xp.fft.fft2(u) / (nx * ny)
+        v["elastic_energy"] = float(0.25 * t.opt("e_star") * xp.sum(q * xp.abs(uq) ** 2))
+
+
+def _pressure_hist(t: Task, p: Any, xp: Any) -> tuple[tuple[np.ndarray, np.ndarray], float]:
+    """Pressure histogram ``(edges, density)`` over the store's bin count, range the loaded points' min..max,
+    and the atom at exactly ``p = 0`` (the hard wall's free surface): the density of the other points integrates
+    to ``1 - atom`` (docs/store.md)."""
+    size = p.size
+    loaded = p[p != 0.0]
+    atom = 1.0 - loaded.size / size
+    bins = t.opt("bins")
+    if loaded.size == 0:
+        return (np.linspace(0.0, 1.0, bins + 1), np.zeros(bins)), atom
+    lo, hi = float(xp.min(loaded)), float(xp.max(loaded))
+    if lo == hi:
+        lo, hi = lo - 0.5 * abs(lo or 1.0), hi + 0.5 * abs(hi or 1.0)
+    edges = np.linspace(lo, hi, bins + 1)
+    counts, _ = xp.histogram(loaded, bins=xp.asarray(edges) if xp is not np else edges)
+    counts = _host(counts)
+    return (edges, counts / (size * np.diff(edges))), atom
 
 
 def _host(a: Any) -> np.ndarray:
@@ -641,7 +791,7 @@ _EXTRA_TARGET = {
     "theory": ("gapsweep.theory", "mean_gap", ("sigma0", "form", "hurst", "h_rms", "rho", "gamma0", "lambda_l",
                                                "lambda_s", "e_star")),
     "gfmd": ("gapsweep.gfmd", "solve", ("heights", "sigma0", "gamma0", "rho", "e_star", "length", "tol", "method",
-                                        "backend", "max_iter", "initial")),
+                                        "backend", "max_iter", "initial", "interaction", "work")),
     "sde": ("gapsweep.sde", "gap_samples", ("sigma0", "hurst", "h_rms", "rho", "gamma0", "lambda_l", "lambda_s",
                                             "e_star", "c1", "c2", "dzeta", "zeta_end", "n", "seed", "device",
                                             "dtype", "bins")),
