@@ -16,6 +16,8 @@ import numpy as np
 _SRC = Path(__file__).with_name("sde_kernels.cu")
 _BLOCK = 256
 _SHARED_SLOTS = 12_000  # a per-block histogram in shared memory up to 48 KB
+# Extra slots after the bins in a histogram count array: below, above, non-finite (both engines).
+N_EXTRA = 3
 
 
 def enabled(device: str, scheme: str) -> bool:
@@ -34,6 +36,21 @@ def enabled(device: str, scheme: str) -> bool:
 
 def _device_index(device: str) -> int:
     return int(device.split(":", 1)[1]) if ":" in device else 0
+
+
+def device_name(device: str) -> str:
+    """``"cuda:N"`` for ``"cuda"`` (cupy's current device) or ``"cuda:N"``, checked against cupy's device count
+    (ValueError naming the device when absent)."""
+    import cupy
+
+    try:
+        count = cupy.cuda.runtime.getDeviceCount()
+        index = int(device.split(":", 1)[1]) if ":" in device else cupy.cuda.runtime.getDevice()
+    except Exception as exc:  # no driver / no device: cupy raises its CUDA runtime error
+        raise ValueError(f"device {device!r} is not available ({exc})") from None
+    if not 0 <= index < count:
+        raise ValueError(f"device {device!r} is not available ({count} CUDA device(s))")
+    return f"cuda:{index}"
 
 
 @functools.cache
@@ -77,18 +94,19 @@ class Engine:
     def histogram_state(self, y_edges: np.ndarray) -> tuple:
         with self.dev:
             nb = y_edges.size - 1
-            return self.cp.asarray(y_edges.astype(self.np_real)), self.cp.zeros(nb + 3, dtype=self.cp.uint64)
+            counts = self.cp.zeros(nb + N_EXTRA, dtype=self.cp.uint64)
+            return self.cp.asarray(y_edges.astype(self.np_real)), counts
 
     def histogram(self, first: int, k0: int, k1: int, m: int, edges: Any, lo: float, inv_w: float,
                   is_uniform: int, counts: Any) -> None:
         """Add the binned final ``y`` of ``m`` realisations to ``counts`` (nb bins, below, above, non-finite)."""
         nb = int(edges.size - 1)
-        shared = nb + 3 <= _SHARED_SLOTS
+        shared = nb + N_EXTRA <= _SHARED_SLOTS
         with self.dev:
             fn = self.mod.get_function("sde_histogram_" + self.suffix)
             fn(((m + _BLOCK - 1) // _BLOCK,), (_BLOCK,),
                (*self._common(first, k0, k1, m), edges, np.int32(nb), self.np_real(lo), self.np_real(inv_w),
-                np.int32(is_uniform), np.int32(shared), counts), shared_mem=4 * (nb + 3) if shared else 0)
+                np.int32(is_uniform), np.int32(shared), counts), shared_mem=4 * (nb + N_EXTRA) if shared else 0)
 
     def to_host(self, a: Any) -> np.ndarray:
         with self.dev:

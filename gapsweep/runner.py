@@ -593,6 +593,14 @@ def _coordinate(comm: Any, tasks: list[Task], units: list[Unit], work: list[int]
     def take(from_tail: bool, gpu_ok: bool) -> int | None:
         with lock:
             order = range(len(q) - 1, -1, -1) if from_tail else range(len(q))
+            if gpu_ok and any_gpu:
+                # a GPU rank takes GPU units first: only GPU ranks can run them, so they are the critical path;
+                # it helps with the CPU units once none is left
+                for j in order:
+                    if units[q[j]].gpu:
+                        k = q[j]
+                        del q[j]
+                        return k
             for j in order:
                 if not units[q[j]].gpu or gpu_ok or not any_gpu:
                     k = q[j]

@@ -68,16 +68,23 @@ def _dtype(dtype: str | type | np.dtype) -> str:
     return name
 
 
-def _devices(device: str | Sequence[str]) -> list[str]:
-    """Validate warp device names ("cpu", "cuda", "cuda:N"; or a list of them)."""
+def _devices(device: str | Sequence[str], scheme: str = "split") -> list[str]:
+    """Validate device names ("cpu", "cuda", "cuda:N"; or a list of them) as "cpu" / "cuda:N". CUDA devices
+    that the CUDA engine runs (gapsweep._sde_cuda) are checked with cupy, so warp is needed only where a warp
+    kernel runs (the CPU, or ``GAPSWEEP_SDE_ENGINE=warp``, or another scheme)."""
+    from gapsweep import _sde_cuda
+
     names = [device] if isinstance(device, str) else list(device)
     if not names:
         raise ValueError("device must be a warp device name or a non-empty list of them")
-    wp = _warp()
-    out = []
     for d in names:
         if not isinstance(d, str) or not (d == "cpu" or d == "cuda" or d.startswith("cuda:")):
             raise ValueError(f"unknown device {d!r}: use 'cpu', 'cuda' or 'cuda:N'")
+    if all(_sde_cuda.enabled(d, scheme) for d in names):
+        return [_sde_cuda.device_name(d) for d in names]
+    wp = _warp()
+    out = []
+    for d in names:
         try:
             out.append(str(wp.get_device(d)))
         except Exception as exc:  # warp raises RuntimeError/ValueError for absent devices
@@ -317,7 +324,7 @@ def _job(sigma0: float, *, n: int, seed: int, device: str | Sequence[str], dtype
     first = chk.count(first, "first", minimum=0)
     dtype = _dtype(dtype)
     k0, k1 = _seed_key(seed)
-    devices = _devices(device)
+    devices = _devices(device, scheme)
     plan = plan_steps(sigma0, **plan_kw)
     batch = chk.count(batch, "batch") if batch is not None else _default_batch(devices[0])
     return _Job(plan, n, first, k0, k1, devices, dtype, scheme, batch)
@@ -497,7 +504,7 @@ def gap_histogram_counts(sigma0: float, *, hurst: float, h_rms: float, rho: floa
         edges = np.asarray(bins, dtype=np.float64)
         if edges.ndim != 1 or edges.size < 2 or not np.all(np.isfinite(edges)) or np.any(np.diff(edges) <= 0):
             raise ValueError("bins must be a positive count or a 1-D array of >= 2 finite increasing edges")
-    from gapsweep._sde_kernels import N_EXTRA
+    from gapsweep._sde_cuda import N_EXTRA
 
     nb = edges.size - 1
     # bin in the y = g - g0 frame: the shift is exact in float64 on the host

@@ -327,6 +327,7 @@ class Context:
         self._surfaces: OrderedDict[tuple, np.ndarray] = OrderedDict()
         self._rms: dict[tuple, tuple[float, float]] = {}  # (h_rms, g_rms) of the cached surfaces
         self._spectra: dict[tuple, Any] = {}  # discrete spectra of the cached surfaces (theory, M4)
+        self._on_gpu: dict[tuple, Any] = {}  # GPU copies of the cached surfaces (GFMD with backend = "cupy")
         self._max = max_surfaces
         self._delay = float(os.environ.get("GAPSWEEP_TEST_DELAY", "0") or 0)
         fail = os.environ.get("GAPSWEEP_TEST_FAIL", "")
@@ -352,6 +353,7 @@ class Context:
                 old = self._surfaces.popitem(last=False)[0]
                 self._rms.pop(old, None)
                 self._spectra.pop(old, None)
+                self._on_gpu.pop(old, None)
         else:
             self._surfaces.move_to_end(key)
         return h
@@ -378,6 +380,20 @@ class Context:
         if key not in self._spectra:
             self._spectra[key] = spectrum.from_heights(h, sp["length"], lambda_l=sp["lambda_l"])
         return self._spectra[key]
+
+    def surface_on_gpu(self, t: Task, n: int) -> Any:
+        """:meth:`surface` as a cupy array on the current GPU, copied there once per cached surface (a pressure
+        chain solved one task at a time then copies its surface to the GPU once, not once per task)."""
+        import cupy
+
+        h = self.surface(t, n)  # caches (and evicts) the host surface and, with it, its GPU copy
+        key = self._key(t, n, t.surface_params())
+        dev = cupy.cuda.Device().id
+        cached = self._on_gpu.get(key)
+        if cached is None or cached[0] != dev:
+            cached = (dev, cupy.asarray(h))
+            self._on_gpu[key] = cached
+        return cached[1]
 
     @staticmethod
     def _key(t: Task, n: int, sp: dict[str, Any]) -> tuple:
@@ -550,9 +566,9 @@ def gfmd_host_fields(t: Task, ctx: Context) -> bool | tuple[str, ...]:
 def _run_gfmd(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
     from gapsweep import gfmd
 
-    h = ctx.surface(t, t.n)
     sp = t.surface_params()
     use_gpu(t, ctx)
+    h = ctx.surface_on_gpu(t, t.n) if t.opt("backend") == "cupy" else ctx.surface(t, t.n)
     res = gfmd.solve(h, sigma0=t.sigma0, **law_params(t), e_star=t.opt("e_star"),
                      length=sp["length"], tol=t.opt("tol"), method=t.opt("method"), backend=t.opt("backend"),
                      max_iter=t.opt("max_iter"), initial=prev if t.opt("warm_start") else None,

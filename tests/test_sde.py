@@ -242,3 +242,23 @@ def test_philox_known_answers():
     got = out.numpy().reshape(-1, 4)
     for row, (_c, _k, want) in zip(got, PHILOX_KAT, strict=True):
         assert [hex(int(x)) for x in row] == [hex(x) for x in want]
+
+
+def test_cuda_engine_devices_need_no_warp(monkeypatch):
+    """Devices that the CUDA engine runs are validated without warp (a GPU node needs no warp for the figure
+    jobs); CPU devices, or CUDA with the warp engine, still go through warp."""
+    from gapsweep import _sde_cuda
+
+    def no_warp():
+        raise AssertionError("warp imported")
+
+    monkeypatch.setattr(sde, "_warp", no_warp)
+    monkeypatch.setattr(_sde_cuda, "enabled", lambda d, scheme: d.startswith("cuda") and scheme == "split")
+    monkeypatch.setattr(_sde_cuda, "device_name", lambda d: "cuda:0" if d == "cuda" else d)
+    assert sde._devices("cuda") == ["cuda:0"]
+    assert sde._devices(["cuda:0", "cuda:1"]) == ["cuda:0", "cuda:1"]
+    with pytest.raises(ValueError, match="unknown device"):
+        sde._devices("gpu")
+    for device, scheme in (("cpu", "split"), ("cuda", "euler")):
+        with pytest.raises(AssertionError, match="warp imported"):
+            sde._devices(device, scheme)
