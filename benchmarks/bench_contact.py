@@ -2,7 +2,8 @@
 one core; and the GPU timing. Writes ``<name>.md`` and ``<name>.json`` to --out (rows appended as they finish).
 
     OMP_NUM_THREADS=1 python benchmarks/bench_contact.py cpu --out OUT [--n 2048] [--hurst 0.3 0.8]
-        [--sigma0 1e-3 1e-2 1e-1] [--tol 1e-8] [--peers tamaas contactmechanics]
+        [--sigma0 1e-3 1e-2 1e-1] [--tol 1e-8] [--methods pcg mpcg pk] [--peers tamaas contactmechanics]
+        [--alone]     (gapsweep's methods only, no peer solve: --alone is --peers with no names)
     python benchmarks/bench_contact.py gpu --out OUT [--n 4096] [--sigma0 1e-2]      (cupy on an NVIDIA GPU)
 
 Surfaces: the figure-2/3 surfaces of docs/model.md M6 (L = 1, E* = 1, lambda_l = 0.25, lambda_s = 2.5e-3,
@@ -73,8 +74,10 @@ def run_gapsweep(h, s0, tol, method):
     t, w = time.process_time(), time.perf_counter()
     r = gfmd.solve(h, sigma0=s0, interaction="hard_wall", tol=tol, method=method, backend="auto")
     cpu, wall = time.process_time() - t, time.perf_counter() - w
-    return {**score(h, r.displacement, r.pressure), "iters": r.iterations, "cpu_s": cpu, "wall_s": wall,
-            "ok": r.converged}
+    # iters: fine-grid iterations; "mpcg" adds its coarse levels' iterations (finest first) in coarse_iters
+    return {**score(h, r.displacement, r.pressure), "iters": r.iterations,
+            "coarse_iters": "+".join(map(str, r.diagnostics.get("coarse_iterations", []))) or "-",
+            "cpu_s": cpu, "wall_s": wall, "ok": r.converged}
 
 
 def run_tamaas(h, s0, tol):
@@ -90,7 +93,7 @@ def run_tamaas(h, s0, tol):
         solver.solve(s0)
     cpu, wall = time.process_time() - t, time.perf_counter() - w
     u, p = np.array(m.displacement), np.array(m.traction)
-    return {**score(h, u, p), "iters": -1, "cpu_s": cpu, "wall_s": wall, "ok": True}
+    return {**score(h, u, p), "iters": -1, "coarse_iters": "-", "cpu_s": cpu, "wall_s": wall, "ok": True}
 
 
 def run_contactmechanics(h, s0, tol):
@@ -105,8 +108,8 @@ def run_contactmechanics(h, s0, tol):
     res = system.minimize_proxy(external_force=s0, pentol=tol * float(h.std()), forcetol=tol * s0 / n**2,
                                 maxiter=100000)
     cpu, wall = time.process_time() - t, time.perf_counter() - w
-    return {**score(h, res.x, res.jac * n * n), "iters": int(res.nit), "cpu_s": cpu, "wall_s": wall,
-            "ok": bool(res.success)}
+    return {**score(h, res.x, res.jac * n * n), "iters": int(res.nit), "coarse_iters": "-", "cpu_s": cpu,
+            "wall_s": wall, "ok": bool(res.success)}
 
 
 def write(out: Path, name: str, rows: list[dict], header: str) -> None:
@@ -122,6 +125,8 @@ def write(out: Path, name: str, rows: list[dict], header: str) -> None:
 
 
 def cmd_cpu(a) -> None:
+    if a.alone:
+        a.peers = []
     peers = {"tamaas": run_tamaas, "contactmechanics": run_contactmechanics}
     rows = []
     for hurst in a.hurst:
@@ -146,7 +151,7 @@ def cmd_cpu(a) -> None:
                        "cpu_ratio_vs_gapsweep": r["cpu_s"] / ref["cpu_s"]}
                 rows.append(row)
                 print({k: (f"{v:.4g}" if isinstance(v, float) else v) for k, v in row.items()}, flush=True)
-            write(a.out, "contact_cpu", rows, "### Hard wall, one core: gapsweep vs tamaas vs ContactMechanics")
+            write(a.out, a.name, rows, "### Hard wall, one core: gapsweep vs tamaas vs ContactMechanics")
 
 
 def cmd_gpu(a) -> None:
@@ -185,8 +190,10 @@ def main() -> None:
     c.add_argument("--hurst", type=float, nargs="+", default=[0.3, 0.8])
     c.add_argument("--sigma0", type=float, nargs="+", default=[1e-3, 1e-2, 1e-1])
     c.add_argument("--tol", type=float, default=1e-8)
-    c.add_argument("--methods", nargs="+", default=["pcg", "pk"])
+    c.add_argument("--methods", nargs="+", default=["pcg", "pk"], help="gapsweep methods; the first is the reference")
     c.add_argument("--peers", nargs="*", default=["tamaas", "contactmechanics"])
+    c.add_argument("--alone", action="store_true", help="gapsweep only (no peer solves)")
+    c.add_argument("--name", default="contact_cpu", help="output file stem")
     g = sub.add_parser("gpu")
     g.add_argument("--out", type=Path, required=True)
     g.add_argument("--n", type=int, nargs="+", default=[4096])

@@ -140,9 +140,10 @@ def solve(
     convergence measures are in docs/gfmd.md. ``heights``: real ``nx x ny`` array (numpy, or cupy for the
     GPU), units of ``length`` (a number, or ``(Lx, Ly)``); the exponential law's own minimiser needs a square
     grid, other grids run on the generic smooth one. ``sigma0``, ``gamma0/rho`` and ``e_star`` are pressures in
-    one unit. ``method``: "auto", or "cg" (default), "lbfgs", "fire" (exponential); "pcg" (default), "pk"
-    (hard wall); "lbfgs" (adhesive). ``backend``: "auto" (cupy for a cupy array, else pyfftw when installed,
-    else numpy), "numpy", "pyfftw" or "cupy". ``max_iter``: force evaluations (hard wall: iterations) allowed.
+    one unit. ``method``: "auto", or "cg" (default), "lbfgs", "fire" (exponential); "mpcg" (default on the CPU;
+    coarse-to-fine start), "pcg" (default on the GPU), "pk" (hard wall); "lbfgs" (adhesive). ``backend``: "auto"
+    (cupy for a cupy array, else pyfftw when installed, else numpy), "numpy", "pyfftw" or "cupy". ``max_iter``:
+    force evaluations (hard wall: iterations) allowed.
     ``initial``: an earlier result or a field to start from (exponential: a displacement on any grid size,
     shared Fourier modes carried over; hard wall: a pressure; adhesive: ``(displacement, mean gap)``); default
     for the exponential law is the linear response of M4. ``threads``: FFTW threads. ``host``: which fields of

@@ -4,12 +4,13 @@ Minimises the complementary energy ``(1/2) <p K p> - <p h>`` over pressures ``p 
 ``K`` the half-space compliance ``u~ = p~ / (E* q/2)`` (q != 0). Its gradient is the gap up to a constant; the
 mean gap ``g0`` is the multiplier of the load constraint. Algorithm: Polonsky & Keer (Wear 231, 206, 1999),
 constrained conjugate gradients on the contact set ``S = {p > 0}`` with the load restored by scaling; written
-once for numpy and cupy arrays. Methods: "pk", the plain algorithm (as tamaas' PolonskyKeerRey and
-ContactMechanics' constrained_conjugate_gradients); "pcg" (default), the same iteration with gapsweep's Fourier
-preconditioner: the search direction is built from ``z = P_S M P_S g`` with ``M = K^-1 = E* q/2`` (exact
-when everything is in contact; the FFT-based preconditioner of Vollebregt, J. Comput. Phys. 257, 333, 2014, in
-its simplest form). Cost per iteration: ``K t`` (one FFT pair), ``M g`` ("pcg", one more), and ``K p`` afresh
-only when the projection clipped something (else ``u`` follows linearly).
+once for numpy and cupy arrays. Methods: "pk", the plain algorithm (as tamaas' PolonskyKeerRey and ContactMechanics'
+constrained_conjugate_gradients); "pcg" (default on the GPU), the same iteration with gapsweep's Fourier
+preconditioner: the search direction is built from ``z = P_S M P_S g`` with ``M = K^-1 = E* q/2`` (exact when
+everything is in contact; the FFT-based preconditioner of Vollebregt, J. Comput. Phys. 257, 333, 2014, in its
+simplest form); "mpcg" (default on the CPU), "pcg" started from the coarse-to-fine pressure of :func:`_coarse_start`
+(the coarsened surface solved to ``_COARSE_TOL``, recursively). Cost per iteration: ``K t`` (one FFT pair), ``M g``
+("pcg", one more), and ``K p`` afresh only when the projection clipped something (else ``u`` follows linearly).
 
 Convergence (decided on the returned fields, one more FFT pair): force balance ``u = K p`` and ``p = 0`` on the
 free surface hold by construction, so the residual is the constraint's violation in units of ``h_rms``:
@@ -36,8 +37,13 @@ from gapsweep.gfmd._ops import _is_cupy
 from gapsweep.gfmd._result import GFMDResult, host_fields
 from gapsweep.gfmd.interactions.base import Interaction
 
-METHODS = ("pk", "pcg")
-DEFAULT_METHOD = "pcg"  # fewer iterations and less time: benchmarks/bench_contact.py (docs/benchmarks.md)
+METHODS = ("pk", "pcg", "mpcg")
+# "auto": the least CPU time on the benchmark cases (benchmarks/bench_contact.py, docs/benchmarks.md); on the GPU
+# "pcg" stays the default until "mpcg" is timed there (its coarse levels are latency-bound on a GPU).
+DEFAULT_METHOD = "mpcg"
+DEFAULT_METHOD_GPU = "pcg"
+_COARSEST = 128  # "mpcg": smallest grid side of a coarse level
+_COARSE_TOL = 1e-2  # "mpcg": tolerance of the coarse levels (a start only; the fine level decides convergence)
 _REFRESH = 25  # iterations between fresh K p when the update was unclipped (bounds the drift of u)
 log = logging.getLogger("gapsweep.gfmd")
 
@@ -50,12 +56,37 @@ def _violation(g: Any, S: Any, n_s: int, xp: Any) -> tuple[float, float]:
     return rms, overlap
 
 
+def coarsen(h: Any, xp: Any) -> Any:
+    """``h`` on the ``nx/2 x ny/2`` grid of the same box: its Fourier modes below the coarse Nyquist kept."""
+    nx, ny = h.shape
+    cx, cy = nx // 2, ny // 2
+    hh = xp.fft.rfft2(h) * (1.0 / (nx * ny))
+    hc = xp.zeros((cx, cy // 2 + 1), dtype=hh.dtype)
+    kx, ky = cx // 2, cy // 2  # coarse Nyquist row/column left at zero (keeps the field real)
+    hc[:kx, :ky] = hh[:kx, :ky]
+    hc[cx - kx + 1:, :ky] = hh[nx - kx + 1:, :ky]
+    return xp.fft.irfft2(hc, s=(cx, cy)) * float(cx * cy)
+
+
+def _coarse_start(h: Any, law: Interaction, sigma0: float, e_star: float, length: Any, threads: int | None,
+                  backend: str, xp: Any) -> tuple[Any, list[int]]:
+    """"mpcg": the pressure of the hard-wall problem on the coarsened surface (recursively, to
+    ``_COARSE_TOL``), each coarse pixel's pressure copied to its 2 x 2 fine pixels; and the coarse levels'
+    iteration counts (coarsest last)."""
+    r = minimise(coarsen(h, xp), law, sigma0=sigma0, e_star=e_star, length=length, tol=_COARSE_TOL,
+                 method="mpcg", backend=backend, max_iter=2000, initial=None, threads=threads, host=False,
+                 t_start=time.perf_counter())
+    p = xp.repeat(xp.repeat(r.pressure, 2, axis=0), 2, axis=1)
+    return p, [r.iterations, *r.diagnostics.get("coarse_iterations", [])]
+
+
 def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, length: Any, tol: float,
              method: str, backend: str, max_iter: int, initial: Any, threads: int | None, host: Any,
              t_start: float) -> GFMDResult:
     """Hard wall ``law`` on the periodic grid ``heights`` (inputs validated by ``gfmd.solve``)."""
-    method = DEFAULT_METHOD if method == "auto" else method
     grid = Grid(heights.shape, length, backend, threads, _is_cupy(heights))
+    if method == "auto":
+        method = DEFAULT_METHOD_GPU if grid.backend == "cupy" else DEFAULT_METHOD
     xp = grid.xp
     h = grid.asarray(heights)
     if not bool(xp.all(xp.isfinite(h))):
@@ -67,11 +98,17 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
     with np.errstate(divide="ignore"):
         kinv = 1.0 / ((0.5 * e_star) * grid.q)
     kinv[0, 0] = 0.0
+    kinv = grid.multiplier(kinv)
 
-    def compliance(a: Any) -> Any:  # u = K a, <u> = 0
-        return grid.inv(grid.fwd(a) * kinv)
+    def compliance(a: Any, out: Any = None) -> Any:  # u = K a, <u> = 0
+        return grid.convolve(a, kinv, out)
 
-    if initial is None:
+    coarse_its: list[int] = []
+    if initial is None and method == "mpcg" and min(grid.shape) >= 2 * _COARSEST \
+            and grid.shape[0] % 2 == 0 and grid.shape[1] % 2 == 0:
+        p, coarse_its = _coarse_start(h, law, sigma0, e_star, length, threads, backend, xp)
+        p *= sigma0 / float(p.mean())
+    elif initial is None:
         p = xp.full(grid.shape, sigma0)
     else:
         p0 = initial.pressure if isinstance(initial, GFMDResult) else initial
@@ -89,7 +126,9 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
     ops = make_ops(xp)
     delta, gz_old = 0.0, 1.0
     precondition = method != "pk"
-    stiff = (0.5 * e_star) * grid.q  # M = K^-1 = E* q/2, the Fourier preconditioner
+    stiff = grid.multiplier((0.5 * e_star) * grid.q)  # M = K^-1 = E* q/2, the Fourier preconditioner
+    z = xp.empty(grid.shape) if precondition else None
+    r = xp.empty(grid.shape)
     it = since_fresh = 0
     with np.errstate(all="ignore"):
         u = compliance(p)
@@ -110,7 +149,7 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
                 break
             it += 1
             if precondition:  # z = P_S M P_S g, kept load-neutral (zero mean on S)
-                z = grid.inv(grid.fwd(gs) * stiff)
+                z = grid.convolve(gs, stiff, z)
                 fft_pairs += 1
                 z_sum, gz = ops.zstats(z, gs, p)
                 zbar = z_sum / ns
@@ -118,7 +157,7 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
                 z, zbar, gz = gs, 0.0, sg2
             ops.direction(t, z, zbar, delta * gz / gz_old, p)
             gz_old = gz
-            r = compliance(t)
+            r = compliance(t, r)
             fft_pairs += 1
             r_sum, rt, t_sum, gt = ops.rstats(r, t, gs, p)
             rt -= (r_sum / ns) * t_sum  # <(r - rbar_S) t>_S
@@ -133,7 +172,7 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
             if follow:  # K is linear: u = scale (u - tau K t)
                 since_fresh += 1
             else:  # K p afresh after the projection changed p
-                u = compliance(p)
+                u = compliance(p, u)
                 fft_pairs += 1
                 since_fresh = 0
         # The returned fields and their residual (issue 9: decided on what is returned).
@@ -185,5 +224,6 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
         elastic_energy=elastic,
         contact_criterion=law.contact_criterion,
         diagnostics={"complementarity": complementarity, "gap_rms_in_contact": rms / g_ref,
-                     "overlap": overlap / g_ref, "h_rms": h_rms, "fft_pairs": fft_pairs},
+                     "overlap": overlap / g_ref, "h_rms": h_rms, "fft_pairs": fft_pairs,
+                     "coarse_iterations": coarse_its},
     )

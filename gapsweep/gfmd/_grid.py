@@ -71,6 +71,20 @@ class Grid:
             return self.xp.array(self._fft.irfft2(a))
         return self.xp.fft.irfft2(a, s=self.shape) * float(self.size)
 
+    def multiplier(self, m: Any) -> Any:
+        """The Fourier multiplier ``m`` (on the coefficients ``a~``) prepared for :meth:`convolve`."""
+        return m * (1.0 / self.size) if self._fft is not None else m
+
+    def convolve(self, a: Any, m: Any, out: Any = None) -> Any:
+        """The real field of ``m a~`` for ``m`` from :meth:`multiplier`, into ``out`` (or a new array)."""
+        if self._fft is not None:
+            return self._fft.convolve(a, m, out)
+        r = self.inv(self.fwd(a) * m)
+        if out is None:
+            return r
+        self.xp.copyto(out, r)
+        return out
+
     def dot(self, a: Any, b: Any) -> float:
         """``<A B>`` (grid mean of the product of the two real fields) by Parseval."""
         return float(self.xp.sum(self._w * (a.real * b.real + a.imag * b.imag)))
