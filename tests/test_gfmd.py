@@ -131,6 +131,7 @@ def test_backends_agree(tmp_path, monkeypatch) -> None:
     assert list(tmp_path.glob("fftw_wisdom_t1.pkl"))  # wisdom cached on disk
 
 
+@pytest.mark.gpu
 def test_cupy_backend_agrees() -> None:
     if "cupy" not in gfft.available_backends():
         pytest.skip("no GPU / cupy")
