@@ -3,11 +3,14 @@
 
 Which units batch (``mode``, ``gapsweep run --batch``):
 
-* ``"auto"`` (default): GFMD chains (and single GFMD tasks) with ``backend = "cupy"`` -- GPU units, so they run
-  on GPU ranks -- where batching was measured to pay (docs/benchmarks.md, issue 14: 1.27x at N = 1024, slower
-  at N >= 2048): ``n <= BATCH_MAX_N``, the exponential law, method "cg"/"auto", no ``extra`` solver options.
+* ``"off"`` (default): none; every chain runs one solve at a time. In the sweep this was measured faster than
+  ``"auto"`` on an H200 (figure jobs 2 and 3, 16 ranks, 8 on the GPU with MPS: 13.1 s and 7.2 s against 32.7 s
+  and 33.5 s, equal stores; docs/benchmarks.md): one batch unit holds up to 32 chains on one rank while the
+  other GPU ranks idle, although the batched solver alone beats one-by-one solves at N = 1024 (1.27x).
+* ``"auto"``: GFMD chains (and single GFMD tasks) with ``backend = "cupy"`` -- GPU units, so they run on GPU
+  ranks -- where the batched solver alone was measured to pay: ``n <= BATCH_MAX_N``, the exponential law, method
+  "cg"/"auto", no ``extra`` solver options.
 * ``"all"``: the same chains with any backend (a CPU backend runs the batch with numpy: CI tests this path).
-* ``"off"``: none; every chain runs one solve at a time.
 
 Chains with the same grid size and common solver options (tol, max_iter, backend, e_star, length) are grouped in
 expansion order, at most ``BATCH_CHAINS`` per batch unit. The grouping is made before sharding and does not
@@ -72,7 +75,7 @@ def _key(t: Task) -> tuple:
     return (t.n, t.opt("backend"), t.opt("tol"), t.opt("max_iter"), t.opt("e_star"), sp["length"])
 
 
-def batch_units(tasks: list[Task], units: list[Unit], mode: str = "auto", chains: int = BATCH_CHAINS) -> list[Unit]:
+def batch_units(tasks: list[Task], units: list[Unit], mode: str = "off", chains: int = BATCH_CHAINS) -> list[Unit]:
     """``units`` with the batchable GFMD chains (and single GFMD tasks) grouped into batch units of at most
     ``chains`` chains; sorted largest cost first as :func:`gapsweep.tasks.make_units` does."""
     if mode not in MODES:

@@ -68,9 +68,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="take over the store's lease from a run that is gone (killed, or on a lost node)")
     s.add_argument("--task-timeout", type=float, default=None, metavar="SECONDS",
                    help="record a task running longer than this as failed (timeout) and go on")
-    s.add_argument("--batch", choices=("auto", "off", "all"), default="auto",
-                   help="GFMD chains solved side by side on GPU ranks: auto (backend cupy, n <= 1024), off, or "
-                        "all (CPU backends too)")
+    s.add_argument("--batch", choices=("auto", "off", "all"), default="off",
+                   help="GFMD chains solved side by side: off (default: one solve at a time, measured faster in "
+                        "the sweep, docs/benchmarks.md), auto (GPU chains with n <= 1024) or all (CPU backends too)")
     s.add_argument("--ranks-per-gpu", type=int, default=1, metavar="K",
                    help="ranks of a node that share one GPU (default 1: ranks beyond the GPU count work CPU units)")
 

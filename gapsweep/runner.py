@@ -120,7 +120,7 @@ def _comm(mpi: str) -> Any:
     return comm if comm.size > 1 else None
 
 
-def _select(spec: specmod.JobSpec, shard: tuple[int, int] | None, batch: str = "auto",
+def _select(spec: specmod.JobSpec, shard: tuple[int, int] | None, batch: str = "off",
             ) -> tuple[list[Task], list[Unit]]:
     """Tasks of the job (or of one shard) in canonical order and their units (indices into that list); GFMD
     chains that batch on a GPU rank are grouped into batch units (gapsweep.batching) before sharding."""
@@ -317,14 +317,15 @@ def _run_limited(t: Task, ctx: Context, state: Any, limit: float) -> tuple[TaskR
 def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = False, overwrite: bool = False,
         shard: tuple[int, int] | None = None, writer: str = "auto", progress: str = "auto",
         coordinator_works: str = "auto", mpi: str = "auto", break_lease: bool = False,
-        task_timeout: float | None = None, batch: str = "auto", ranks_per_gpu: int = 1) -> dict[str, Any]:
+        task_timeout: float | None = None, batch: str = "off", ranks_per_gpu: int = 1) -> dict[str, Any]:
     """Run a job into a store (serially or as an MPI task farm). Returns a summary dict on every rank.
 
     ``writer``: auto | mpio | rank0 (env ``GAPSWEEP_WRITER`` overrides auto); ``progress``: auto | bar | log |
     none; ``coordinator_works``: auto (rank 0 works when P <= 4) | yes | no; ``mpi``: auto | on | off;
     ``break_lease``: take over the lease of a run that is gone; ``task_timeout``: per-task wall-time limit [s];
-    ``batch``: auto (GFMD chains batched on GPU ranks where that pays, gapsweep.batching) | off | all (also CPU
-    backends: for tests and comparisons); ``ranks_per_gpu``: ranks sharing one GPU (gapsweep.gpus).
+    ``batch``: off (default: one solve at a time, faster in the sweep) | auto (GFMD chains batched on GPU ranks,
+    gapsweep.batching) | all (also CPU backends: for tests and comparisons); ``ranks_per_gpu``: ranks sharing
+    one GPU (gapsweep.gpus).
 
     Raises :class:`RunError` when the run cannot start or a write fails (rows finished before stay done),
     :class:`~gapsweep.limits.Interrupted` after a clean stop on SIGINT/SIGTERM or a ``<store>.stop`` file (the
