@@ -28,6 +28,19 @@ def _half_q(xp: Any, n: int, length: float):
 
 
 # ------------------------------------------------------------------------------------------------ solver
+def _next_trial(alpha: float, dphi: float, curv: float, lo: float, dlo: float, hi: float, dhi: float) -> float:
+    """Next step length of the line search on phi'(alpha) = 0 (M3): the Newton step from ``alpha`` with the
+    curvature ``curv``, else the secant of the bracket ``[lo, hi]`` (slopes ``dlo``, ``dhi``; expansion to
+    ``4 alpha`` while ``hi`` is infinite), else its midpoint. Shared by the one-by-one and the batched solver, so
+    both take the same trials."""
+    new = alpha - dphi / curv if curv > 0 else math.inf
+    if not (lo < new < hi):
+        new = lo - dlo * (hi - lo) / (dhi - dlo) if math.isfinite(hi) else 4.0 * alpha
+        if not (lo < new < hi):
+            new = 0.5 * (lo + hi)
+    return new
+
+
 class _Problem:
     """State shared by the methods: surface, operators and the current point ``(X, W, e, G)``.
 
@@ -106,13 +119,7 @@ class _Problem:
                 hi, dhi = alpha, dphi
             if hi - lo <= 1e-13 * hi:
                 break
-            curv = b + (s0 / rho) * (s2 / S - (s1 / S) ** 2)
-            new = alpha - dphi / curv if curv > 0 else math.inf
-            if not (lo < new < hi):
-                new = lo - dlo * (hi - lo) / (dhi - dlo) if math.isfinite(hi) else 4.0 * alpha
-                if not (lo < new < hi):
-                    new = 0.5 * (lo + hi)
-            alpha = new
+            alpha = _next_trial(alpha, dphi, b + (s0 / rho) * (s2 / S - (s1 / S) ** 2), lo, dlo, hi, dhi)
         if lo <= 0.0:
             return 0.0, 0.0, 0.0, False
         # Round-off or out of trials: take the last point known to lie downhill of the line minimum.

@@ -36,7 +36,7 @@ from gapsweep import _checks as chk
 from gapsweep.fft import BACKENDS, available_backends, get_backend
 from gapsweep.gfmd._ops import _is_cupy
 from gapsweep.gfmd._result import FIELDS, GFMDResult, host_fields
-from gapsweep.gfmd._solvers import _half_q
+from gapsweep.gfmd._solvers import _half_q, _next_trial
 from gapsweep.gfmd.interactions import Interaction, resolve
 
 __all__ = ["Problem", "solve_batch"]
@@ -355,13 +355,7 @@ def _line_search(phi0p: float, a: float, b: float, s0: float, rho: float, S: flo
             hi, dhi = alpha, dphi
         if hi - lo <= 1e-13 * hi:
             break
-        curv = b + (s0 / rho) * (s2 / S - (s1 / S) ** 2)
-        new = alpha - dphi / curv if curv > 0 else math.inf
-        if not (lo < new < hi):
-            new = lo - dlo * (hi - lo) / (dhi - dlo) if math.isfinite(hi) else 4.0 * alpha
-            if not (lo < new < hi):
-                new = 0.5 * (lo + hi)
-        alpha = new
+        alpha = _next_trial(alpha, dphi, b + (s0 / rho) * (s2 / S - (s1 / S) ** 2), lo, dlo, hi, dhi)
     if lo <= 0.0:
         return 0.0, False, False
     return lo, True, False  # round-off or out of trials: the last point known to lie downhill
