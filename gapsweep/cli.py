@@ -119,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     _setup_logging(args.verbose, args.quiet)
     code = _main(args)
-    from gapsweep import store
+    from gapsweep.sweep import store
 
     if store.io_failed():  # HDF5 may crash in its exit handlers after a failed write: leave without them
         sys.stdout.flush()
@@ -129,9 +129,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(args: argparse.Namespace) -> int:
-    from gapsweep._extras import MissingExtraError
-    from gapsweep.limits import Interrupted
-    from gapsweep.spec import SpecError
+    from gapsweep.core.extras import MissingExtraError
+    from gapsweep.sweep.limits import Interrupted
+    from gapsweep.sweep.spec import SpecError
 
     try:
         rc = _dispatch(args)
@@ -167,14 +167,14 @@ def _main(args: argparse.Namespace) -> int:
 
 def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "plan":
-        from gapsweep import runner
+        from gapsweep.sweep import runner
 
         if args.ranks < 1:
             raise ValueError(f"--ranks: expected an integer >= 1, got {args.ranks}")
         print(runner.plan(args.job, runner.parse_shard(args.shard), args.ranks, store=args.store))
         return 0
     if args.command == "run":
-        from gapsweep import runner
+        from gapsweep.sweep import runner
 
         s = runner.run(args.job, args.store, resume=args.resume, overwrite=args.overwrite,
                        shard=runner.parse_shard(args.shard), writer=args.writer, progress=args.progress,
@@ -190,14 +190,14 @@ def _dispatch(args: argparse.Namespace) -> int:
             return 3
         return 0
     if args.command == "status":
-        from gapsweep import store
+        from gapsweep.sweep import store
 
         print(store.status(args.store))
         return 0
     if args.command == "merge":
-        from gapsweep import store
+        from gapsweep.sweep import merge
 
-        counts = store.merge(args.shards, args.out, overwrite=args.overwrite, on_conflict=args.on_conflict,
+        counts = merge.merge(args.shards, args.out, overwrite=args.overwrite, on_conflict=args.on_conflict,
                              break_lease=args.break_lease)
         print(f"merged {len(args.shards)} shard(s) into {args.out}: "
               + ", ".join(f"{v} {k}" for k, v in counts.items()))
@@ -211,7 +211,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         print(f"report: {report_main(args.store, args.out, overwrite=args.overwrite)}")
         return 0
     if args.command == "export":
-        from gapsweep import dataset
+        from gapsweep.sweep import dataset
 
         print(f"netCDF4: {dataset.export_netcdf(args.store, args.out, overwrite=args.overwrite)}")
         return 0

@@ -16,7 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from gapsweep import surface, theory
+from gapsweep import theory
+from gapsweep.surfaces import synthetic as surface
 
 log = logging.getLogger(__name__)
 
@@ -73,7 +74,8 @@ def fig2_theory(out_dir: str | Path = "out") -> str:
 def run(job: str | Path, out_dir: str | Path = "out") -> dict[str, Any]:
     """Run the demo job into ``out_dir/demo.h5`` (finishing what is missing; a store of an older demo spec is
     replaced) and draw its figures. Returns ``{"store", "status", "table", "figures"}`` (text for the CLI)."""
-    from gapsweep import runner, store
+    from gapsweep.sweep import api as store
+    from gapsweep.sweep import runner
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -215,7 +215,8 @@ def test_sde_device_histogram_path_matches_host_path(tmp_path, monkeypatch):
     densities and counts are identical on the same edges (float64 kernel: no edge rounding ambiguity), the mean
     is within w/2 and the Sheppard-corrected std within w/2 + w/sqrt(12) (w = sub-bin width), min/max are
     sub-bin bounds; samples outside a given range are reported; "auto" uses the SDE's default range."""
-    from gapsweep import sde, tasks
+    from gapsweep import sde
+    from gapsweep.sweep.methods import sde as sde_method
 
     h_rms = surface.continuum_rms_height(0.3, lambda_l=0.25, lambda_s=0.0625, rms_slope=1.0)
     plan = sde.plan_steps(1e-2, hurst=0.3, h_rms=h_rms, rho=2e-2, gamma0=1e-3, lambda_l=0.25, lambda_s=0.0625,
@@ -231,7 +232,7 @@ def test_sde_device_histogram_path_matches_host_path(tmp_path, monkeypatch):
     monkeypatch.setattr(sde, "gap_histogram_counts", spy)
 
     def run(rng, binned):
-        monkeypatch.setattr(tasks, "SDE_HOST_SAMPLES_MAX", 1000 if binned else 2**22)
+        monkeypatch.setattr(sde_method, "SDE_HOST_SAMPLES_MAX", 1000 if binned else 2**22)
         job = tmp_path / f"j{len(list(tmp_path.iterdir()))}.toml"
         job.write_text(_SDE_BINNED_JOB.format(range=rng))
         path = job.with_suffix(".h5")
@@ -247,7 +248,7 @@ def test_sde_device_histogram_path_matches_host_path(tmp_path, monkeypatch):
     assert exact.status == binned.status == "done" and binned.message == ""
     assert c_x == c_b == 20000
     assert np.array_equal(e_x, e_b) and np.array_equal(d_x, d_b)
-    w = (hi - lo) / (32 * tasks.SDE_SUB_BINS)
+    w = (hi - lo) / (32 * sde_method.SDE_SUB_BINS)
     assert abs(binned.mean_gap - exact.mean_gap) <= w / 2
     assert abs(binned.gap_std - exact.gap_std) <= w / 2 + w / 12**0.5
     assert binned.gap_min <= exact.gap_min < binned.gap_min + w * (1 + 1e-9)
@@ -256,7 +257,7 @@ def test_sde_device_histogram_path_matches_host_path(tmp_path, monkeypatch):
     # sharper, independent: the same samples binned by numpy on the sub-edges give the row's binned moments
     g = sde.gap_samples(1e-2, hurst=0.3, h_rms=h_rms, rho=2e-2, gamma0=1e-3, lambda_l=0.25, lambda_s=0.0625,
                         dzeta=0.05, n=20000, seed=3, dtype="float64")
-    sub = np.linspace(lo, hi, 32 * tasks.SDE_SUB_BINS + 1)
+    sub = np.linspace(lo, hi, 32 * sde_method.SDE_SUB_BINS + 1)
     n_sub = np.histogram(g, sub)[0]
     centres = 0.5 * (sub[:-1] + sub[1:])
     mean = n_sub @ centres / n_sub.sum()
@@ -280,6 +281,6 @@ def test_sde_device_histogram_path_matches_host_path(tmp_path, monkeypatch):
     auto, (e_a, _, c_a) = run('"auto"', True)
     assert np.allclose(e_a[[0, -1]], [g0 - 6 * sd, g0 + 6 * sd], rtol=0, atol=1e-12)
     assert auto.message == "" and c_a == 20000
-    w_a = 12 * sd / (32 * tasks.SDE_SUB_BINS)
+    w_a = 12 * sd / (32 * sde_method.SDE_SUB_BINS)
     assert abs(auto.mean_gap - exact.mean_gap) <= w_a / 2
     assert abs(auto.gap_std - exact.gap_std) <= w_a / 2 + w_a / 12**0.5

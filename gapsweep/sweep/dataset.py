@@ -30,7 +30,10 @@ from typing import Any
 
 import numpy as np
 
-from gapsweep._extras import require
+from gapsweep.core.extras import require
+from gapsweep.sweep import methods as registry
+from gapsweep.sweep.fields import FIELD_META, FIELD_NAMES, field_selected, fields_dir, write_fields  # noqa: F401 - names of 0.1
+from gapsweep.sweep.schema import FLOAT_RESULTS, STATUS
 
 __all__ = [
     "FIELD_NAMES",
@@ -53,58 +56,16 @@ COORD_META = {
     "seed": {"long_name": "seed of the random surface (and of the SDE noise)", "units": "1"},
 }
 _LEN = {"units": "1", "reference_unit": "L"}
-# store column -> (variable, long_name, unit attributes); one table per method.
-VARIABLES: dict[str, dict[str, tuple[str, str, dict[str, str]]]] = {
-    "gfmd": {
-        "mean_gap": ("gfmd_mean_gap", "mean gap g0 by GFMD", _LEN),
-        "h_rms": ("gfmd_h_rms", "rms height of the simulated surface", _LEN),
-        "g_rms": ("gfmd_g_rms", "rms gradient of the simulated surface", {"units": "1"}),
-        "residual": ("gfmd_residual", "GFMD residual rms(p_el - (p - <p>))/sigma0", {"units": "1"}),
-        "load_error": ("gfmd_load_error", "GFMD load error |<p> - sigma0|/sigma0", {"units": "1"}),
-        "iterations": ("gfmd_iterations", "GFMD iterations (force evaluations)", {"units": "1"}),
-        "gap_std": ("gfmd_gap_std", "standard deviation of the gap field", _LEN),
-        "gap_min": ("gfmd_gap_min", "smallest gap of the gap field", _LEN),
-        "contact_area": ("gfmd_contact_area", "real contact area, fraction of the nominal area (by the law's "
-                         "contact criterion, docs/gfmd.md)", {"units": "1"}),
-        "elastic_energy": ("gfmd_elastic_energy", "stored elastic energy per nominal area (E*/4) sum q |u~(q)|^2",
-                           {"units": "1", "reference_unit": "E* L"}),
-        "contact_atom": ("gfmd_contact_atom", "fraction of the surface at exactly g = 0 (hard-wall contact atom, "
-                         "apart from the gap histogram)", {"units": "1"}),
-        "pressure_atom": ("gfmd_pressure_atom", "fraction of the surface at exactly p = 0 (hard wall: free "
-                          "surface)", {"units": "1"}),
-        "flags": ("gfmd_flags", "load-path flags: 1 jump from the previous step, 2 detached (adhesion)",
-                  {"units": "1"}),
-    },
-    "theory": {
-        "mean_gap_persson": ("persson_mean_gap", "mean interfacial separation, Persson's theory (hard wall)", _LEN),
-        "contact_area": ("persson_contact_area", "real contact area fraction, Persson's theory (hard wall)",
-                         {"units": "1"}),
-        "mean_gap_paper": ("theory_paper", "mean gap g0, field theory, the paper's closed form", _LEN),
-        "mean_gap_continuum": ("theory_continuum", "mean gap g0, field theory, exact continuum prefactor", _LEN),
-        "mean_gap_discrete": ("theory_discrete", "mean gap g0, field theory, sum over the modes of the surface",
-                              _LEN),
-        "h_rms": ("theory_h_rms", "rms height used by the field theory", _LEN),
-    },
-    "sde": {
-        "mean_gap": ("sde_mean_gap", "mean gap of the SDE ensemble", _LEN),
-        "gap_std": ("sde_gap_std", "standard deviation of the SDE gap distribution", _LEN),
-    },
-    "fokker_planck": {
-        "mean_gap": ("fokker_planck_mean_gap", "mean gap of the Fokker-Planck density", _LEN),
-        "gap_std": ("fokker_planck_gap_std", "standard deviation of the Fokker-Planck gap density", _LEN),
-    },
-}
-# Results that never depend on the seed (docs/model.md M4): no seed dimension.
-SEED_FREE = {"theory": ("mean_gap_paper", "mean_gap_continuum", "mean_gap_persson", "contact_area"),
-             "fokker_planck": ("mean_gap", "gap_std")}
-STATUS_FLAGS = {"pending": 0, "done": 1, "failed": 2, "not_converged": 3}
-FIELD_NAMES = ("gap", "pressure", "displacement", "height")
-FIELD_META = {
-    "gap": ("local gap g(r) = g0 + u(r) - h(r)", _LEN),
-    "pressure": ("local pressure p(r) = (gamma0/rho) exp(-g/rho)", {"units": "1", "reference_unit": "E*"}),
-    "displacement": ("elastic displacement u(r), zero mean", _LEN),
-    "height": ("surface height h(r), zero mean", _LEN),
-}
+
+
+def _variables() -> dict[str, tuple[dict[str, tuple[str, str, dict[str, str]]], tuple[str, ...], str | None]]:
+    """Per method: store column -> (variable, long_name, unit attributes), the seed-free columns and the option
+    of which one value is kept (the method plug-ins declare them, gapsweep.sweep.methods)."""
+    return {name: (m.variables, m.seed_free, m.select) for name, m in registry.all_methods().items()}
+
+
+STATUS_FLAGS = dict(STATUS)
+
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -142,14 +103,12 @@ def from_frame(df: Any, *, n: int | None = None, c2: float | None = None, attrs:
     index = {k: {v: i for i, v in enumerate(c)} for k, c in coords.items()}
     ds_attrs: dict[str, Any] = {}
     data: dict[str, Any] = {}
-    for method, cols in VARIABLES.items():
+    for method, (cols, seed_free, select) in _variables().items():
         sub = df[df["method"].astype(str) == method]
         if sub.empty:
             continue
-        if method in ("gfmd", "theory") and "n" in sub:
-            sub = _pick(sub, "n", n, "n", method, ds_attrs)
-        if method in ("sde", "fokker_planck") and "c2" in sub:
-            sub = _pick(sub, "c2", c2, "c2", method, ds_attrs)
+        if select is not None and select in sub:
+            sub = _pick(sub, select, {"n": n, "c2": c2}.get(select), select, method, ds_attrs)
         idx = tuple(np.array([index[k][v] for v in sub[k]], dtype=int) for k in DIMS)
         done = (sub["status"].astype(str) == "done").to_numpy()
         for col, (name, long_name, units) in cols.items():
@@ -163,7 +122,7 @@ def from_frame(df: Any, *, n: int | None = None, c2: float | None = None, attrs:
             a = np.full(shape, np.nan)
             a[tuple(i[done] for i in idx)] = vals[done]
             meta = {"long_name": long_name, **units}
-            if col in SEED_FREE.get(method, ()):
+            if col in seed_free:
                 data[name] = (DIMS[:3], _collapse_seed(a, name), {**meta, "comment": "seed-independent: "
                               "no seed dimension, broadcasts over every seed"})
             else:
@@ -197,7 +156,8 @@ def _collapse_seed(a: np.ndarray, name: str) -> np.ndarray:
 
 
 def _provenance(path: str | Path) -> dict[str, Any]:
-    from gapsweep import __version__, store
+    from gapsweep import __version__
+    from gapsweep.sweep import store
 
     a = store.read_attrs(path)
     keep = ("format", "format_version", "job_name", "spec_sha256", "shard", "gapsweep_version", "git_commit",
@@ -216,7 +176,7 @@ def to_dataset(path: str | Path, *, n: int | None = None, c2: float | None = Non
     """Open the store at ``path`` as an ``xarray.Dataset`` (module docstring). ``n`` picks the GFMD (and discrete
     theory) grid and ``c2`` the SDE / Fokker-Planck fudge factor when a store holds several (default: the
     finest grid, the smallest C2); the choices are recorded in the attributes."""
-    from gapsweep import store
+    from gapsweep.sweep import store
 
     _xr()
     return from_frame(store.read(path), n=n, c2=c2, attrs=_provenance(path))
@@ -252,8 +212,7 @@ def diff(a: str | Path, b: str | Path, *, rtol: float = 0.0, atol: float = 0.0,
     Parameters and statuses must match exactly; float results and histograms within
     ``|x - y| <= atol + rtol |y|`` (NaN equals NaN), integer results exactly. ``ignore`` lists result columns
     left out (wall time and rank by default). With ``rtol = atol = 0`` this is a bit-for-bit comparison."""
-    from gapsweep import store
-    from gapsweep.tasks import FLOAT_RESULTS
+    from gapsweep.sweep import store
 
     if not (rtol >= 0 and atol >= 0 and math.isfinite(rtol) and math.isfinite(atol)):
         raise ValueError(f"rtol and atol must be finite and >= 0, got rtol={rtol!r}, atol={atol!r}")
@@ -308,65 +267,9 @@ def _close(x: np.ndarray, y: np.ndarray, rtol: float, atol: float) -> np.ndarray
 # kept fields
 
 
-def fields_dir(store_path: str | Path) -> Path:
-    """The folder of a store's kept fields: ``<store>.fields`` beside it."""
-    p = Path(store_path)
-    return p.with_name(p.name + ".fields")
-
-
-def field_selected(opts: Mapping[str, Any] | None, *, hurst: float, rho: float, sigma0: float, seed: int,
-                   n: int) -> list[str]:
-    """The fields to keep for one GFMD task under the job's ``keep_fields`` option ([] for none)."""
-    if not opts:
-        return []
-    for key, v in (("hurst", hurst), ("rho", rho), ("sigma0", sigma0), ("seeds", seed), ("n", n)):
-        want = opts.get(key)
-        if want is not None and not any(math.isclose(float(v), float(w), rel_tol=1e-9) for w in want):
-            return []
-    return list(opts.get("fields", ()))
-
-
-def write_fields(directory: str | Path, task_id: str, arrays: Mapping[str, np.ndarray], *, length: float,
-                 attrs: Mapping[str, Any]) -> Path:
-    """Write one task's fields as ``directory/<task_id>.nc``: netCDF4 (HDF5 with dimension scales), float64 on
-    ``(x, y)`` cell centres, chunked and gzip-compressed; written under a temporary name and renamed."""
-    import h5py
-
-    d = Path(directory)
-    d.mkdir(parents=True, exist_ok=True)
-    final = d / f"{task_id}.nc"
-    tmp = d / f".{task_id}.{os.getpid()}.tmp"
-    n = next(iter(arrays.values())).shape[0]
-    x = (np.arange(n) + 0.5) * (length / n)
-    chunk = (min(n, 256), min(n, 256))
-    try:
-        with h5py.File(tmp, "w", track_order=True) as f:
-            for name in ("x", "y"):
-                ds = f.create_dataset(name, data=x)
-                ds.make_scale(name)
-                ds.attrs.update({"long_name": f"{name} position of the cell centre", "units": "1",
-                                 "reference_unit": "L"})
-            for name, a in arrays.items():
-                long_name, units = FIELD_META[name]
-                ds = f.create_dataset(name, data=np.asarray(a, dtype=np.float64), chunks=chunk, compression="gzip",
-                                      compression_opts=4, shuffle=True)
-                ds.dims[0].attach_scale(f["x"])
-                ds.dims[1].attach_scale(f["y"])
-                ds.attrs.update({"long_name": long_name, **units})
-            f.attrs.update({"Conventions": "CF-1.10", "title": f"gapsweep kept fields of task {task_id}",
-                            "task_id": task_id})
-            for k, v in attrs.items():
-                f.attrs[k] = v if isinstance(v, (int, float, str, np.integer, np.floating)) else json.dumps(v)
-        os.replace(tmp, final)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return final
-
-
 def _field_files(store_path: str | Path) -> dict[str, Path]:
     """Kept-field files of a store and, for a merged store, of the shards it was merged from."""
-    from gapsweep import store
+    from gapsweep.sweep import store
 
     dirs = [fields_dir(store_path)]
     try:

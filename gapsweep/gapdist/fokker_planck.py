@@ -42,9 +42,9 @@ import numpy as np
 from scipy.linalg.lapack import dgtsv as _gtsv
 from scipy.special import ndtr
 
-from gapsweep import _checks as chk
 from gapsweep import theory
-from gapsweep.sde import _check_common, _interval_integrals
+from gapsweep.core import checks as chk
+from gapsweep.gapdist.sde import _check_common, _interval_integrals
 
 __all__ = ["FPResult", "solve"]
 

@@ -35,9 +35,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from gapsweep import _checks as chk
 from gapsweep import theory
-from gapsweep._extras import require
+from gapsweep.core import checks as chk
+from gapsweep.core.extras import require
 
 log = logging.getLogger(__name__)
 
@@ -72,7 +72,7 @@ def _devices(device: str | Sequence[str], scheme: str = "split") -> list[str]:
     """Validate device names ("cpu", "cuda", "cuda:N"; or a list of them) as "cpu" / "cuda:N". CUDA devices
     that the CUDA engine runs (gapsweep._sde_cuda) are checked with cupy, so warp is needed only where a warp
     kernel runs (the CPU, or ``GAPSWEEP_SDE_ENGINE=warp``, or another scheme)."""
-    from gapsweep import _sde_cuda
+    from gapsweep.gapdist import _sde_cuda
 
     names = [device] if isinstance(device, str) else list(device)
     if not names:
@@ -310,7 +310,7 @@ class _Job:
     def kernels(self):
         """``(warp, real type, kernels of the scheme)`` for the job's arithmetic."""
         wp = _warp()
-        from gapsweep._sde_kernels import kernels
+        from gapsweep.gapdist._sde_kernels import kernels
 
         allk = kernels(self.dtype)
         return wp, allk["real"], allk[self.scheme]
@@ -404,7 +404,7 @@ def gap_samples(sigma0: float, *, hurst: float, h_rms: float, rho: float, gamma0
 
 def _cuda_engine(job: _Job, device: str):
     """The CUDA engine (:mod:`gapsweep._sde_cuda`) for ``device`` when it runs this job, else None."""
-    from gapsweep import _sde_cuda
+    from gapsweep.gapdist import _sde_cuda
 
     if not _sde_cuda.enabled(device, job.scheme):
         return None
@@ -504,7 +504,7 @@ def gap_histogram_counts(sigma0: float, *, hurst: float, h_rms: float, rho: floa
         edges = np.asarray(bins, dtype=np.float64)
         if edges.ndim != 1 or edges.size < 2 or not np.all(np.isfinite(edges)) or np.any(np.diff(edges) <= 0):
             raise ValueError("bins must be a positive count or a 1-D array of >= 2 finite increasing edges")
-    from gapsweep._sde_cuda import N_EXTRA
+    from gapsweep.gapdist._sde_cuda import N_EXTRA
 
     nb = edges.size - 1
     # bin in the y = g - g0 frame: the shift is exact in float64 on the host

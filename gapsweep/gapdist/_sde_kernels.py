@@ -45,7 +45,7 @@ LOG1P_POLY = (1.0, -0.4999985098838806, 0.3332909941673279, -0.24947820603847504
               -0.15251556038856506, 0.10533368587493896, -0.05643612518906593, 0.019649622961878777,
               -0.0032141131814569235)
 
-from gapsweep._sde_cuda import N_EXTRA  # noqa: E402, F401  histogram slots after the bins (below, above, non-finite)
+from gapsweep.gapdist._sde_cuda import N_EXTRA  # noqa: E402, F401  histogram slots after the bins (below, above, non-finite)
 
 
 @wp.func

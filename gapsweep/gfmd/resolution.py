@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from gapsweep import _checks as chk
+from gapsweep.core import checks as chk
 
 __all__ = ["GridChoice", "choose_grid", "predicted_gap_error", "predicted_hist_l1"]
 

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from gapsweep._extras import require
+from gapsweep.core.extras import require
 
 log = logging.getLogger(__name__)
 

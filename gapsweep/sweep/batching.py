@@ -19,9 +19,9 @@ call, each problem warm-started from step ``k - 1`` of its own chain exactly as 
 (converged solutions only); a chain stops after its last wanted task (resume). The batched solver does the
 one-by-one CG step for step, so rows agree with the unbatched sweep to round-off (tests/test_batching.py).
 Only what the store needs leaves the GPU: statistics and the histogram of the gap are computed there
-(gapsweep.tasks.gfmd_row), and each result is dropped once its row is made.
+(gapsweep.sweep.tasks.gfmd_row), and each result is dropped once its row is made.
 
-Per-task behaviour is that of :func:`gapsweep.tasks.run_task`: an injected failure, an exception or a
+Per-task behaviour is that of :func:`gapsweep.sweep.tasks.run_task`: an injected failure, an exception or a
 non-finite result gives a failed row; a solver warning goes into its own row's message; a step that raises as a
 whole is re-run one task at a time (so one bad input fails only its own row). ``wall_time`` of a batched row is
 its share of the step's wall time; a ``--task-timeout`` bounds each step.
@@ -36,20 +36,18 @@ import warnings
 from collections.abc import Iterator
 from typing import Any
 
-from gapsweep.tasks import (
-    Context,
-    Task,
-    TaskResult,
-    Unit,
-    _non_finite,
-    estimate_cost,
-    gfmd_host_fields,
-    gfmd_row,
-    run_task,
-    use_gpu,
-)
+from gapsweep.sweep import methods as registry
+from gapsweep.sweep.context import Context, use_gpu
+from gapsweep.sweep.execute import run_task
+from gapsweep.sweep.methods.base import non_finite as _non_finite
+from gapsweep.sweep.methods.gfmd import gfmd_host_fields, gfmd_row
+from gapsweep.sweep.schema import Task, TaskResult, Unit
 
 __all__ = ["BATCH_CHAINS", "BATCH_MAX_N", "MODES", "batch_units", "run_batch"]
+
+
+def _cost(t: Task) -> float:
+    return registry.get(t.method).cost(t)
 
 log = logging.getLogger("gapsweep.batching")
 
@@ -77,7 +75,7 @@ def _key(t: Task) -> tuple:
 
 def batch_units(tasks: list[Task], units: list[Unit], mode: str = "off", chains: int = BATCH_CHAINS) -> list[Unit]:
     """``units`` with the batchable GFMD chains (and single GFMD tasks) grouped into batch units of at most
-    ``chains`` chains; sorted largest cost first as :func:`gapsweep.tasks.make_units` does."""
+    ``chains`` chains; sorted largest cost first as :func:`gapsweep.sweep.tasks.make_units` does."""
     if mode not in MODES:
         raise ValueError(f"batch mode must be one of {', '.join(MODES)}, got {mode!r}")
     groups: dict[tuple, list[Unit]] = {}
@@ -95,7 +93,7 @@ def batch_units(tasks: list[Task], units: list[Unit], mode: str = "off", chains:
             if len(part) == 1:
                 out.append(part[0])
                 continue
-            cost = sum(estimate_cost(tasks[i]) for u in part for i in u.tasks) / _BATCH_GAIN
+            cost = sum(_cost(tasks[i]) for u in part for i in u.tasks) / _BATCH_GAIN
             out.append(Unit(tuple(i for u in part for i in u.tasks), cost, any(u.gpu for u in part), "batch",
                             tuple(u.tasks for u in part)))
     out.sort(key=lambda u: (-u.cost, tasks[u.tasks[0]].task_id))
@@ -108,7 +106,8 @@ _PROBLEM = re.compile(r"^problems\[(\d+)\]: ")
 def run_batch(tasks: list[Task], unit: Unit, ctx: Context, todo: set[int], limit: float | None = None,
               stop: Any = None) -> Iterator[tuple[int, TaskResult]]:
     """Run a batch unit: yields ``(task index, result)`` for the tasks in ``todo``, step by step."""
-    from gapsweep import gfmd, limits
+    from gapsweep import gfmd
+    from gapsweep.sweep import limits
 
     # each chain runs from its start to its last wanted task (the warm starts of a full run)
     runs = []

@@ -23,8 +23,8 @@ from typing import Literal
 
 import numpy as np
 
-from gapsweep import _checks as chk
-from gapsweep.topography import load  # height maps from files (docs/gfmd.md, "Surfaces from data")
+from gapsweep.core import checks as chk
+from gapsweep.surfaces.topography import load  # height maps from files (docs/gfmd.md, "Surfaces from data")
 
 __all__ = [
     "continuum_rms_height",

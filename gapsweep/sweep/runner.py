@@ -32,23 +32,17 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from gapsweep import batching, budget, gpus, lease, limits, provenance, storecheck
-from gapsweep import spec as specmod
-from gapsweep.limits import Interrupted, TaskTimeout
-from gapsweep.store import Store, StoreError, StoreWriteError, open_read
-from gapsweep.store import io_failed as store_io_failed
-from gapsweep.tasks import (
-    STATUS,
-    Context,
-    Task,
-    TaskResult,
-    Unit,
-    check_extra,
-    expand,
-    make_units,
-    run_task,
-    shard_units,
-)
+from gapsweep.sweep import batching, budget, gpus, lease, limits, provenance, storecheck
+from gapsweep.sweep import spec as specmod
+from gapsweep.sweep.context import Context
+from gapsweep.sweep.execute import run_task
+from gapsweep.sweep.fields import fields_dir
+from gapsweep.sweep.limits import Interrupted, TaskTimeout
+from gapsweep.sweep.schema import STATUS, Task, TaskResult, Unit
+from gapsweep.sweep.spec import check_extra
+from gapsweep.sweep.store import Store, StoreError, StoreWriteError, open_read
+from gapsweep.sweep.store import io_failed as store_io_failed
+from gapsweep.sweep.tasks import estimate_cost, expand, make_units, shard_units
 
 __all__ = ["Interrupted", "RunError", "parse_shard", "plan", "run"]
 
@@ -161,7 +155,6 @@ def plan(job: str | Path | specmod.JobSpec, shard: tuple[int, int] | None = None
     for u in units:
         for i in u.tasks:
             by.setdefault(tasks[i].method, [])
-    from gapsweep.tasks import estimate_cost
 
     for t in tasks:
         by[t.method].append(estimate_cost(t))
@@ -699,6 +692,5 @@ def _work(comm: Any, tasks: list[Task], units: list[Unit], todo: set[int], ctx: 
 
 
 def _fields_dir(store: str | Path) -> Path:
-    from gapsweep.dataset import fields_dir
 
     return fields_dir(store)

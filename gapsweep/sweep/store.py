@@ -37,7 +37,27 @@ from typing import Any
 import h5py
 import numpy as np
 
-from gapsweep.tasks import FLOAT_RESULTS, INT_RESULTS, STATUS, Task, TaskResult
+from gapsweep.sweep import lease, storecheck
+from gapsweep.sweep.schema import (  # noqa: F401 - the store's layout, re-exported as in version 0.1
+    FLOAT_RESULTS,
+    FORMAT,
+    FORMAT_VERSION,
+    INT_RESULTS,
+    MESSAGE_LEN,
+    NEW_IN_V2,
+    PRESSURE_HIST,
+    RESULT_DTYPE,
+    RESULT_DTYPE_V1,
+    RESULT_DTYPES,
+    STATUS,
+    STATUS_NAMES,
+    TASK_DTYPE,
+    VOLATILE,
+    StoreError,
+    StoreWriteError,
+    Task,
+    TaskResult,
+)
 
 log = logging.getLogger("gapsweep.store")
 
@@ -48,7 +68,6 @@ __all__ = [
     "StoreWriteError",
     "diff",
     "io_failed",
-    "merge",
     "open_read",
     "read",
     "read_attrs",
@@ -56,38 +75,6 @@ __all__ = [
     "read_pressure_histograms",
     "status",
 ]
-
-FORMAT = "gapsweep-store"
-FORMAT_VERSION = 2
-MESSAGE_LEN = 240
-STATUS_NAMES = {v: k for k, v in STATUS.items()}
-
-TASK_DTYPE = np.dtype([
-    ("task_id", "S16"), ("method", "S16"), ("chain", "S16"), ("hurst", "f8"), ("rho", "f8"), ("sigma0", "f8"),
-    ("seed", "i8"), ("n", "i8"), ("lambda_l", "f8"), ("lambda_s", "f8"), ("length", "f8"), ("gamma0", "f8"),
-    ("e_star", "f8"), ("c1", "f8"), ("c2", "f8"),
-])
-RESULT_DTYPE = np.dtype(
-    [("status", "i1"), ("message", f"S{MESSAGE_LEN}")]
-    + [(k, "f8") for k in FLOAT_RESULTS]
-    + [(k, "i8") for k in INT_RESULTS]
-)
-# The results table of format 1 (stores written before the issue-12 columns); such stores still open and read.
-NEW_IN_V2 = ("contact_area", "elastic_energy", "contact_atom", "pressure_atom", "mean_gap_persson", "flags")
-RESULT_DTYPE_V1 = np.dtype([(k, RESULT_DTYPE.fields[k][0]) for k in RESULT_DTYPE.names if k not in NEW_IN_V2])
-RESULT_DTYPES = (RESULT_DTYPE, RESULT_DTYPE_V1)
-PRESSURE_HIST = ("histograms/pressure_edges", "histograms/pressure_density")
-# Columns that differ between two runs of the same job by nature (compare stores without them).
-VOLATILE = ("wall_time", "rank")
-
-
-class StoreError(RuntimeError):
-    """A store cannot be used as asked (wrong spec, wrong format, conflicting merge)."""
-
-
-class StoreWriteError(StoreError):
-    """Writing to a store failed (full disk, file-size limit, I/O error); rows written before are intact."""
-
 
 # Set when an HDF5 write or close failed in this process: the library may then crash while tearing down at
 # interpreter exit (seen with ENOSPC / EFBIG), so the CLI ends such a process with os._exit after its message.
@@ -272,8 +259,6 @@ class Store:
 
     @classmethod
     def open(cls, path: str | Path, *, comm: Any = None) -> Store:
-        from gapsweep import storecheck
-
         try:
             f = h5py.File(path, "r+", driver="mpio", comm=comm) if comm is not None else h5py.File(path, "r+")
         except OSError as e:
@@ -366,8 +351,6 @@ def open_read(path: str | Path, *, check: bool = True):
     """Open a store read-only without taking HDF5's file lock (it may be running). With ``check`` the
     structure is validated (:mod:`gapsweep.storecheck`): a damaged store raises :class:`StoreError` naming the
     file and the problem."""
-    from gapsweep import storecheck
-
     p = Path(path)
     if not p.is_file():
         raise FileNotFoundError(f"store {str(p)!r}: no such file")
@@ -464,8 +447,6 @@ def read_histograms(path: str | Path, task_ids: Iterable[str] | None = None,
 
 def status(path: str | Path) -> str:
     """A short text summary of a running or finished store (counts per method and status, runs, failures)."""
-    from gapsweep import lease, storecheck
-
     attrs = read_attrs(path)
     df = read(path)
     with open_read(path, check=False) as f:
@@ -546,169 +527,3 @@ def _eq(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 def _same(x: np.ndarray, y: np.ndarray) -> bool:
     return x.shape == y.shape and bool(np.all(_eq(x, y)))
-
-
-# ---------------------------------------------------------------------------------------------------------
-# merge
-
-
-# Which of two finished rows of one task a merge keeps: a better status always wins (failed never beats done).
-_RANK = {STATUS["pending"]: 0, STATUS["failed"]: 1, STATUS["not_converged"]: 2, STATUS["done"]: 3}
-CONFLICT_CHOICES = ("error", "first", "last")
-
-
-def _row_equal(x: np.ndarray, y: np.ndarray, ex: np.ndarray, ey: np.ndarray, dx: np.ndarray,
-               dy: np.ndarray) -> bool:
-    for k in x.dtype.names:
-        if k not in VOLATILE and not _same(np.asarray(x[k]), np.asarray(y[k])):
-            return False
-    return _same(ex, ey) and _same(dx, dy)
-
-
-def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = False,
-          on_conflict: str = "error", break_lease: bool = False) -> dict[str, int]:
-    """Merge shard stores of one job into ``out`` (rows in the job's canonical task order, keyed by task id).
-
-    All shards must carry the same spec (hash). When a task has a finished row in several shards, the better
-    status wins (done > not_converged > failed; a failed row never replaces a done one). Rows of equal status
-    and different content (wall time and rank aside) are a conflict: ``on_conflict="error"`` (default) refuses
-    the merge naming the task, ``"first"`` / ``"last"`` keep the row of the first / last shard named. Rows
-    that a check finds incomplete (unknown status, done without result) count as pending. The merged store
-    lists every task of the job (missing ones stay pending); it is written under a temporary name and renamed
-    into place, holding ``out``'s lease. Returns counts per status (and ``conflicts`` resolved)."""
-    from gapsweep import lease, provenance, storecheck
-    from gapsweep import spec as specmod
-    from gapsweep import tasks as tasksmod
-
-    if not shards:
-        raise StoreError("merge: no shard stores given")
-    if on_conflict not in CONFLICT_CHOICES:
-        raise ValueError(f"merge: on_conflict must be one of {', '.join(CONFLICT_CHOICES)}, got {on_conflict!r}")
-    outp = Path(out)
-    if any(Path(x).resolve() == outp.resolve() for x in shards):
-        raise StoreError(f"merge: the output {outp} is also a shard; choose another --out")
-    if outp.exists() and not overwrite:
-        raise StoreError(f"merge: {outp} exists (pass --overwrite to replace it)")
-    metas = [read_attrs(s) for s in shards]
-    shas = {m["spec_sha256"] for m in metas}
-    if len(shas) != 1:
-        raise StoreError(f"merge: shards come from different job specs ({len(shas)} spec hashes)")
-    js = specmod.loads(metas[0]["spec_text"], base=metas[0].get("spec_dir") or None)
-    tasks = tasksmod.expand(js)
-    index = {t.task_id: i for i, t in enumerate(tasks)}
-    runs = []
-    for m in metas:
-        runs.extend(json.loads(m.get("runs", "[]")))
-    attrs = provenance.store_attrs(js, shard="", extra={"merged_from": json.dumps([str(s) for s in shards]),
-                                                        "runs": json.dumps(runs)})
-    attrs["spec_sha256"] = metas[0]["spec_sha256"]
-    bins = js.histogram["bins"]
-    results = empty_results(len(tasks))
-    edges = np.full((len(tasks), bins + 1), np.nan)
-    dens = np.full((len(tasks), bins), np.nan)
-    pedges = np.full((len(tasks), bins + 1), np.nan)
-    pdens = np.full((len(tasks), bins), np.nan)
-    source = [""] * len(tasks)
-    conflicts: list[str] = []
-    for s in shards:
-        with open_read(s) as f:
-            rep = storecheck.check(f, s)
-            if f["tasks"].shape[0] == 0:
-                continue
-            if f["histograms/density"].shape[1] != bins:
-                raise StoreError(f"merge: {s} has {f['histograms/density'].shape[1]} histogram bins, the job {bins}")
-            ids = [x.decode() for x in f["tasks"].fields("task_id")[...]]
-            r = upgrade_results(f["results"][...])  # a format-1 shard: by column name
-            e, d = f["histograms/edges"][...], f["histograms/density"][...]
-            if PRESSURE_HIST[0] in f:
-                pe, pd_ = f[PRESSURE_HIST[0]][...], f[PRESSURE_HIST[1]][...]
-            else:
-                pe, pd_ = np.full(e.shape, np.nan), np.full(d.shape, np.nan)
-        bad = set(rep.rerun)
-        for j, tid in enumerate(ids):
-            if tid not in index:
-                raise StoreError(f"merge: task {tid} of {s} is not in the job")
-            if j in bad or r["status"][j] == STATUS["pending"]:
-                continue
-            i = index[tid]
-            new, old = _RANK[int(r["status"][j])], _RANK[int(results["status"][i])]
-            if new < old:
-                continue
-            if new == old:
-                if _row_equal(results[i], r[j], edges[i], e[j], dens[i], d[j]):
-                    continue
-                conflicts.append(f"task {tid}: {source[i]} and {s} both have a {STATUS_NAMES[int(r['status'][j])]!r} "
-                                 "row with different results")
-                if on_conflict != "last":
-                    continue
-            results[i] = r[j]
-            edges[i], dens[i] = e[j], d[j]
-            pedges[i], pdens[i] = pe[j], pd_[j]
-            source[i] = str(s)
-    if conflicts and on_conflict == "error":
-        raise StoreError(f"merge: {len(conflicts)} conflicting row(s), e.g. {conflicts[0]}; pass "
-                         "--on-conflict first|last to choose, nothing was written")
-    for c in conflicts:
-        log.warning("merge: %s (kept the %s)", c, on_conflict)
-    with lease.acquire(outp, break_lease=break_lease, purpose="merge"):
-        tmp = outp.with_name(f".{outp.name}.tmp-{os.getpid()}")
-        try:
-            st = Store.create(tmp, tasks, attrs, bins)
-            try:
-                if len(tasks):
-                    st.f["histograms/edges"][...] = edges
-                    st.f["histograms/density"][...] = dens
-                    st.f[PRESSURE_HIST[0]][...] = pedges
-                    st.f[PRESSURE_HIST[1]][...] = pdens
-                    st.f["results"][...] = results
-                st.f.attrs["finished"] = provenance.now()
-            finally:
-                st.close()
-            os.replace(tmp, outp)
-        except BaseException:
-            tmp.unlink(missing_ok=True)
-            raise
-    counts = {name: int(np.sum(results["status"] == code)) for name, code in STATUS.items()}
-    counts["conflicts"] = len(conflicts)
-    return counts
-
-
-# ---------------------------------------------------------------------------------------------------------
-# standard data views (gapsweep.dataset): xarray, netCDF4, a tolerant diff, kept fields
-
-__all__ += ["export_netcdf", "open_fields", "to_dataset"]
-_exact_diff = diff
-
-
-def diff(a: str | Path, b: str | Path, *, rtol: float = 0.0, atol: float = 0.0,
-         ignore: Sequence[str] = VOLATILE) -> list[str]:
-    """Differences in content between two stores (empty list: equal). With ``rtol = atol = 0`` (default) bit
-    for bit, as before; otherwise float results and histograms may differ by ``atol + rtol |b|`` (e.g. a merge of
-    shards that summed in another order), see :func:`gapsweep.dataset.diff`."""
-    if rtol == 0 and atol == 0:
-        return _exact_diff(a, b, ignore=ignore)
-    from gapsweep import dataset
-
-    return dataset.diff(a, b, rtol=rtol, atol=atol, ignore=ignore)
-
-
-def to_dataset(path: str | Path, *, n: int | None = None, c2: float | None = None):
-    """The store at ``path`` as an ``xarray.Dataset`` (CF attributes, provenance), see
-    :func:`gapsweep.dataset.to_dataset`."""
-    from gapsweep import dataset
-
-    return dataset.to_dataset(path, n=n, c2=c2)
-
-
-def export_netcdf(path: str | Path, out: str | Path, *, overwrite: bool = False) -> Path:
-    """Write the store as netCDF4 (``gapsweep export``): :func:`gapsweep.dataset.export_netcdf`."""
-    from gapsweep import dataset
-
-    return dataset.export_netcdf(path, out, overwrite=overwrite)
-
-
-def open_fields(path: str | Path, task_ids: Iterable[str] | None = None) -> dict:
-    """Kept fields of chosen GFMD tasks as xarray Datasets: :func:`gapsweep.dataset.open_fields`."""
-    from gapsweep import dataset
-
-    return dataset.open_fields(path, task_ids)

@@ -7,7 +7,8 @@ import os
 import shutil
 from pathlib import Path
 
-from gapsweep.tasks import SDE_HOST_SAMPLES_MAX, Task
+from gapsweep.sweep import methods as registry
+from gapsweep.sweep.schema import RESULT_DTYPE, TASK_DTYPE, Task
 
 __all__ = ["BASE_MEMORY", "TASK_LIST_BYTES", "disk_free", "memory_total", "peak_memory", "store_bytes"]
 
@@ -18,21 +19,13 @@ TASK_LIST_BYTES = 1600  # one expanded Task with its options, on every rank (mea
 def store_bytes(n_tasks: int, bins: int, spec_text_len: int = 0) -> int:
     """Size of a store of ``n_tasks`` rows and ``bins`` histogram bins: all datasets are allocated at
     creation (docs/store.md), plus attributes and HDF5 metadata [bytes]."""
-    from gapsweep.store import RESULT_DTYPE, TASK_DTYPE
-
     per_row = TASK_DTYPE.itemsize + RESULT_DTYPE.itemsize + 2 * (2 * bins + 1) * 8  # gap + pressure histograms
     return int(n_tasks * per_row + 2 * spec_text_len + 64 * 1024)
 
 
 def task_memory(t: Task) -> float:
-    """Peak working memory of one task [bytes] (arrays of the solver; order-of-magnitude model)."""
-    if t.method == "gfmd":
-        return 8.0 * t.n * t.n * 28  # 4 cached surfaces + solver vectors + complex FFT buffers
-    if t.method == "theory":
-        return 8.0 * t.n * t.n * 10 if t.n else 1e6
-    if t.method == "sde":
-        return 8.0 * min(int(t.opt("samples")), SDE_HOST_SAMPLES_MAX) * 8
-    return 100e6  # fokker_planck: a graded grid of at most max_cells cells and its time steps
+    """Peak working memory of one task [bytes] (the method plug-in's order-of-magnitude model)."""
+    return registry.get(t.method).memory(t)
 
 
 def peak_memory(tasks: list[Task]) -> float:

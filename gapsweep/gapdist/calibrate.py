@@ -28,8 +28,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
-from gapsweep import _checks as chk
-from gapsweep import fokker_planck
+from gapsweep.core import checks as chk
+from gapsweep.gapdist import fokker_planck
 
 __all__ = ["CalibrationResult", "distance", "fit"]
 

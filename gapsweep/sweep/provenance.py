@@ -55,7 +55,7 @@ def git_commit() -> str:
     where that is set (a copy of the tree without ``.git``, e.g. on a compute node), or ``unknown``."""
     if os.environ.get("GAPSWEEP_GIT_COMMIT"):
         return os.environ["GAPSWEEP_GIT_COMMIT"]
-    root = Path(__file__).resolve().parent.parent
+    root = Path(__file__).resolve().parents[2]
     try:
         p = subprocess.run(["git", "-C", str(root), "rev-parse", "--verify", "HEAD"], capture_output=True,
                            text=True, timeout=10)
@@ -74,7 +74,7 @@ def git_commit() -> str:
 def store_attrs(spec: Any, *, shard: str = "", extra: dict[str, Any] | None = None) -> dict[str, Any]:
     """Static file attributes of a new store (the same on every rank)."""
     from gapsweep import __version__
-    from gapsweep.store import FORMAT, FORMAT_VERSION
+    from gapsweep.sweep.schema import FORMAT, FORMAT_VERSION
 
     a: dict[str, Any] = {
         "format": FORMAT,
@@ -106,19 +106,18 @@ def _cupy_version() -> str:
 
 
 def sde_engine(scheme: str = "split") -> str:
-    """The engine that runs SDE ensembles on a CUDA device in this process: ``"cuda"`` (gapsweep/_sde_cuda.py:
-    cupy, NVRTC, fast math) or ``"warp"`` (``GAPSWEEP_SDE_ENGINE=warp``, no cupy, or another scheme). Both draw
-    the same Philox numbers; float32 results differ by fast-math rounding (docs/benchmarks.md, issue 14)."""
-    from gapsweep import _sde_cuda
+    """The engine of SDE ensembles on a CUDA device in this process (gapsweep.sweep.methods.sde.sde_engine)."""
+    from gapsweep.sweep.methods.sde import sde_engine as engine
 
-    return "cuda" if _sde_cuda.enabled("cuda", scheme) else "warp"
+    return engine(scheme)
 
 
 def run_extras(spec: Any, *, gpu_ranks: list, batch: str, batch_units: int) -> dict[str, Any]:
     """Run-record entries about the hardware path: the GPU of each rank (None: CPU only), the GFMD batch mode
     and count of batch units, and for a job with SDE on CUDA the SDE engine (``sde_engine``)."""
+    from gapsweep.sweep import methods as registry
+
     out: dict[str, Any] = {"gpus": list(gpu_ranks), "gfmd_batch": batch, "batch_units": int(batch_units)}
-    o = spec.methods.get("sde")
-    if o is not None and o.get("device") == "cuda":
-        out["sde_engine"] = sde_engine(str(o.get("extra", {}).get("scheme", "split")))
+    for name, options in spec.methods.items():
+        out.update(registry.get(name).provenance(options))
     return out

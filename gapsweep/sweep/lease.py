@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from gapsweep import provenance
+from gapsweep.sweep import provenance
 
 __all__ = ["Lease", "LeaseError", "acquire", "lease_path", "read"]
 

@@ -17,12 +17,11 @@ from typing import Any
 
 import numpy as np
 
-from gapsweep.tasks import STATUS
+from gapsweep.sweep import methods as registry
+from gapsweep.sweep.schema import FORMAT, PRESSURE_HIST, RESULT_DTYPES, STATUS, TASK_DTYPE, StoreError
 
 __all__ = ["Report", "check", "incomplete_rows"]
 
-# Methods whose rows carry a gap histogram (theory rows have none).
-HIST_METHODS = (b"gfmd", b"sde", b"fokker_planck")
 
 
 @dataclass
@@ -51,15 +50,11 @@ class Report:
 
 
 def _fail(path: Any, what: str) -> None:
-    from gapsweep.store import StoreError
-
     raise StoreError(f"store {path}: {what}")
 
 
 def check(f: Any, path: str | Path) -> Report:
     """Validate an open store ``f`` (h5py.File); raise StoreError on a structural problem."""
-    from gapsweep.store import FORMAT, PRESSURE_HIST, RESULT_DTYPES, TASK_DTYPE
-
     if f.attrs.get("format") != FORMAT:
         _fail(path, f"not a gapsweep store (format attribute {f.attrs.get('format')!r})")
     for name in ("spec_text", "spec_sha256"):
@@ -104,7 +99,9 @@ def check(f: Any, path: str | Path) -> Report:
     known = np.isin(status, list(STATUS.values()))
     rep.unknown_status = np.flatnonzero(~known).tolist()
     done = status == STATUS["done"]
-    needs_hist = np.isin(methods, HIST_METHODS)
+    # methods whose rows carry a gap histogram (the plug-in says; theory rows have none)
+    hist_methods = [m.name.encode() for m in registry.all_methods().values() if m.histogram]
+    needs_hist = np.isin(methods, hist_methods)
     hist_ok = np.all(np.isfinite(dens), axis=1) & np.any(dens > 0, axis=1)
     if "contact_atom" in r.dtype.names:  # hard wall in full contact: every point is in the atom at g = 0
         atom = r.fields("contact_atom")[...]

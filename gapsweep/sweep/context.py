@@ -1,0 +1,188 @@
+"""Per-rank execution context of the sweep: the surface cache shared by the tasks of a rank, the rms values and
+spectra of the cached surfaces, the rank's GPU, and the helpers every method uses to turn samples into a
+store row (histograms, the moments fed to theory/SDE/FP).
+
+Physics is only called here (surfaces, spectra); no method is named.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections import OrderedDict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gapsweep.sweep.schema import Task
+
+__all__ = ["Context", "extra", "hist", "host", "moments", "use_gpu"]
+
+
+class Context:
+    """Per-rank state: surface cache (one surface per (hurst, seed, n) and surface parameters), the GPU this
+    rank may use, and test hooks (``GAPSWEEP_TEST_DELAY`` seconds per task, ``GAPSWEEP_TEST_FAIL`` a comma list
+    of sigma0 values whose tasks raise)."""
+
+    def __init__(self, rank: int = 0, gpu: int | None = None, max_surfaces: int = 4) -> None:
+        self.rank = rank
+        self.gpu = gpu
+        self.fields_dir: Path | None = None  # where GFMD tasks keep their fields (set by the runner)
+        self._surfaces: OrderedDict[tuple, np.ndarray] = OrderedDict()
+        self._rms: dict[tuple, tuple[float, float]] = {}  # (h_rms, g_rms) of the cached surfaces
+        self._spectra: dict[tuple, Any] = {}  # discrete spectra of the cached surfaces (theory, M4)
+        self._on_gpu: dict[tuple, Any] = {}  # GPU copies of the cached surfaces (GFMD with backend = "cupy")
+        self._max = max_surfaces
+        self._delay = float(os.environ.get("GAPSWEEP_TEST_DELAY", "0") or 0)
+        fail = os.environ.get("GAPSWEEP_TEST_FAIL", "")
+        self._fail = {float(x) for x in fail.split(",") if x.strip()}
+
+    def surface(self, t: Task, n: int) -> np.ndarray:
+        """The surface of ``t`` on an ``n x n`` grid, generated once per rank (M2)."""
+        from gapsweep.surfaces import synthetic as surface
+
+        sp = t.surface_params()
+        key = self._key(t, n, sp)
+        h = self._surfaces.get(key)
+        if h is None:
+            if sp.get("kind") == "file":
+                from gapsweep.sweep.filesurface import file_surface_heights
+
+                h = file_surface_heights(sp)
+            else:
+                h = surface.self_affine(n, t.hurst, seed=t.seed, **sp)
+            h.setflags(write=False)
+            self._surfaces[key] = h
+            while len(self._surfaces) > self._max:
+                old = self._surfaces.popitem(last=False)[0]
+                self._rms.pop(old, None)
+                self._spectra.pop(old, None)
+                self._on_gpu.pop(old, None)
+        else:
+            self._surfaces.move_to_end(key)
+        return h
+
+    def surface_rms(self, t: Task, n: int) -> tuple[float, float]:
+        """``(h_rms, g_rms)`` of :meth:`surface` (M2), computed once per cached surface (``g_rms`` costs an FFT)."""
+        from gapsweep.surfaces import synthetic as surface
+
+        sp = t.surface_params()
+        h = self.surface(t, n)
+        key = self._key(t, n, sp)
+        if key not in self._rms:
+            self._rms[key] = (surface.rms_height(h), surface.rms_slope(h, sp["length"]))
+        return self._rms[key]
+
+    def spectrum(self, t: Task, n: int) -> Any:
+        """Discrete spectrum (``theory.spectrum.from_heights``) of :meth:`surface`, computed once per cached
+        surface: the discrete theory of every pressure of one surface shares it (M4)."""
+        from gapsweep.theory import spectrum
+
+        sp = t.surface_params()
+        h = self.surface(t, n)
+        key = self._key(t, n, sp)
+        if key not in self._spectra:
+            self._spectra[key] = spectrum.from_heights(h, sp["length"], lambda_l=sp["lambda_l"])
+        return self._spectra[key]
+
+    def surface_on_gpu(self, t: Task, n: int) -> Any:
+        """:meth:`surface` as a cupy array on the current GPU, copied there once per cached surface (a pressure
+        chain solved one task at a time then copies its surface to the GPU once, not once per task)."""
+        import cupy
+
+        h = self.surface(t, n)  # caches (and evicts) the host surface and, with it, its GPU copy
+        key = self._key(t, n, t.surface_params())
+        dev = cupy.cuda.Device().id
+        cached = self._on_gpu.get(key)
+        if cached is None or cached[0] != dev:
+            cached = (dev, cupy.asarray(h))
+            self._on_gpu[key] = cached
+        return cached[1]
+
+    @staticmethod
+    def _key(t: Task, n: int, sp: dict[str, Any]) -> tuple:
+        # list values (a file surface's [x, y] pixel size or length) as tuples: the key must be hashable
+        return (t.hurst, t.seed, n, tuple(sorted((k, tuple(v) if isinstance(v, list) else v) for k, v in sp.items())))
+
+
+def moments(t: Task, ctx: Context) -> tuple[float, float]:
+    """(h_rms, g_rms) fed to theory/SDE/FP: continuum values of the spectrum, or those of the discrete surface
+    on the smallest grid that carries lambda_s (M2: the mode set does not depend on the grid)."""
+    from gapsweep.surfaces import synthetic as surface
+
+    sp = t.surface_params()
+    if t.opt("h_rms") == "continuum":
+        if "rms_height" in sp:
+            return sp["rms_height"], math.nan
+        g = sp["rms_slope"]
+        return surface.continuum_rms_height(t.hurst, lambda_l=sp["lambda_l"], lambda_s=sp["lambda_s"],
+                                            rms_slope=g), g
+    n = 2 * int(math.floor(sp["length"] / sp["lambda_s"] * (1 + 1e-9))) + 2
+    return ctx.surface_rms(t, n)
+
+
+def extra(t: Task) -> dict[str, Any]:
+    return {k[6:]: v for k, v in t.options if k.startswith("extra.")}
+
+
+def hist(t: Task, samples: Any, exclude_zero: bool = False) -> tuple[np.ndarray, np.ndarray, int]:
+    """Histogram ``(edges, density, count)`` of the finite samples over the job's bins and range (``"auto"``:
+    the samples' min..max). A cupy array is binned on its GPU with the same edges (only the counts come back).
+    ``exclude_zero`` (hard wall): the points at exactly 0 (the contact atom, stored apart) are left out and the
+    density of the others integrates to their fraction ``1 - atom``."""
+    from gapsweep.gfmd._ops import _is_cupy
+
+    if exclude_zero:
+        size = samples.size
+        samples = samples[samples != 0.0]
+        edges, dens, count = hist(t, samples)
+        return edges, dens * (count / size if size else 0.0), count
+    if _is_cupy(samples):
+        return hist_device(t, samples)
+    finite = samples[np.isfinite(samples)]
+    rng = t.opt("range")
+    r = None if rng == "auto" else tuple(rng)
+    if r is None and finite.size and finite.min() == finite.max():
+        r = (finite.min() - 0.5, finite.max() + 0.5)
+    dens, edges = np.histogram(finite, bins=t.opt("bins"), range=r)
+    total = dens.sum()
+    width = np.diff(edges)
+    density = dens / (total * width) if total else np.zeros_like(width)
+    return edges, density, int(total)
+
+
+def hist_device(t: Task, samples: Any) -> tuple[np.ndarray, np.ndarray, int]:
+    """:func:`_hist` of a cupy array: numpy's edges for the range, counts on the GPU (bin ``k`` holds
+    ``edges[k] <= x < edges[k+1]``, the last bin closed, as numpy's)."""
+    import cupy
+
+    finite = samples[cupy.isfinite(samples)]
+    rng = t.opt("range")
+    if rng != "auto":
+        r = (float(rng[0]), float(rng[1]))
+    elif finite.size:
+        lo, hi = float(finite.min()), float(finite.max())
+        r = (lo - 0.5, hi + 0.5) if lo == hi else (lo, hi)
+    else:
+        r = (0.0, 1.0)  # numpy's default range for no data
+    edges = np.histogram_bin_edges(np.empty(0), bins=t.opt("bins"), range=r)
+    counts, _ = cupy.histogram(finite, bins=cupy.asarray(edges))
+    dens = cupy.asnumpy(counts)
+    total = dens.sum()
+    width = np.diff(edges)
+    density = dens / (total * width) if total else np.zeros_like(width)
+    return edges, density, int(total)
+
+
+def host(a: Any) -> np.ndarray:
+    return a.get() if hasattr(a, "get") and not isinstance(a, np.ndarray) else np.asarray(a)
+
+
+def use_gpu(t: Task, ctx: Context) -> None:
+    """Make this rank's GPU current for a GFMD task with ``backend = "cupy"`` (clear error without cupy)."""
+    if t.opt("backend") == "cupy":
+        from gapsweep.core.extras import require
+
+        cupy = require("cupy", 'GFMD on the GPU (backend = "cupy")')
+        cupy.cuda.Device(ctx.gpu or 0).use()  # this rank's GPU (one GPU per rank on a node)

@@ -1,0 +1,46 @@
+"""Running one task: the method plug-in's ``run`` inside the guarantees every store row needs.
+
+:func:`run_task` never raises: an exception becomes a ``failed`` row with its message, a solver warning goes into
+the row's message, a non-finite mean gap of a ``done`` row turns it into ``failed`` (never a NaN stored as
+success), and every row gets its wall time and rank. Test hooks (``GAPSWEEP_TEST_DELAY``,
+``GAPSWEEP_TEST_FAIL``) live in :class:`gapsweep.sweep.context.Context`.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from typing import Any
+
+from gapsweep.sweep import methods as registry
+from gapsweep.sweep.context import Context
+from gapsweep.sweep.methods.base import non_finite
+from gapsweep.sweep.schema import Task, TaskResult
+
+__all__ = ["run_task"]
+
+
+def run_task(t: Task, ctx: Context, prev: Any = None) -> tuple[TaskResult, Any]:
+    """Run one task; never raises: an exception becomes status ``failed`` with the message.
+    Returns the result and the warm-start state for the next task of a chain (or None)."""
+    t0 = time.perf_counter()
+    try:
+        if ctx._delay:
+            time.sleep(ctx._delay)
+        if t.sigma0 in ctx._fail:
+            raise RuntimeError(f"injected failure (GAPSWEEP_TEST_FAIL) at sigma0={t.sigma0!r}")
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            res, state = registry.get(t.method).run(t, ctx, prev)
+        if caught and not res.message:  # solver warnings (e.g. under-resolved rho) go into the row's message
+            w = caught[0]
+            res.message = f"warning: {w.category.__name__}: {w.message}"
+        bad = non_finite(res) if res.status == "done" else []
+        if bad:  # never store a NaN as success
+            res.status, res.message = "failed", f"non-finite result: {', '.join(bad)}"
+            state = None
+    except Exception as e:  # the sweep goes on; the row records what happened
+        res, state = TaskResult("failed", f"{type(e).__name__}: {e}"), None
+    res.values["wall_time"] = time.perf_counter() - t0
+    res.values["rank"] = ctx.rank
+    return res, state

@@ -1,0 +1,85 @@
+"""Kept fields of GFMD tasks (``[methods.gfmd] keep_fields``, docs/jobs.md): which tasks keep which fields, and
+the writer of one task's fields file ``<store>.fields/<task_id>.nc`` (netCDF4 through h5py, written under a
+temporary name and renamed, so a crash never leaves a half-written file). Reading them back with xarray:
+gapsweep.sweep.dataset.open_fields.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gapsweep.sweep.schema import FIELD_NAMES
+
+__all__ = ["FIELD_META", "FIELD_NAMES", "field_selected", "fields_dir", "write_fields"]
+
+_LEN = {"units": "1", "reference_unit": "L"}  # lengths in units of the spec's L
+# field -> (long_name, unit attributes)
+FIELD_META = {
+    "gap": ("local gap g(r) = g0 + u(r) - h(r)", _LEN),
+    "pressure": ("local pressure p(r) = (gamma0/rho) exp(-g/rho)", {"units": "1", "reference_unit": "E*"}),
+    "displacement": ("elastic displacement u(r), zero mean", _LEN),
+    "height": ("surface height h(r), zero mean", _LEN),
+}
+
+
+def fields_dir(store_path: str | Path) -> Path:
+    """The folder of a store's kept fields: ``<store>.fields`` beside it."""
+    p = Path(store_path)
+    return p.with_name(p.name + ".fields")
+
+
+def field_selected(opts: Mapping[str, Any] | None, *, hurst: float, rho: float, sigma0: float, seed: int,
+                   n: int) -> list[str]:
+    """The fields to keep for one GFMD task under the job's ``keep_fields`` option ([] for none)."""
+    if not opts:
+        return []
+    for key, v in (("hurst", hurst), ("rho", rho), ("sigma0", sigma0), ("seeds", seed), ("n", n)):
+        want = opts.get(key)
+        if want is not None and not any(math.isclose(float(v), float(w), rel_tol=1e-9) for w in want):
+            return []
+    return list(opts.get("fields", ()))
+
+
+def write_fields(directory: str | Path, task_id: str, arrays: Mapping[str, np.ndarray], *, length: float,
+                 attrs: Mapping[str, Any]) -> Path:
+    """Write one task's fields as ``directory/<task_id>.nc``: netCDF4 (HDF5 with dimension scales), float64 on
+    ``(x, y)`` cell centres, chunked and gzip-compressed; written under a temporary name and renamed."""
+    import h5py
+
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    final = d / f"{task_id}.nc"
+    tmp = d / f".{task_id}.{os.getpid()}.tmp"
+    n = next(iter(arrays.values())).shape[0]
+    x = (np.arange(n) + 0.5) * (length / n)
+    chunk = (min(n, 256), min(n, 256))
+    try:
+        with h5py.File(tmp, "w", track_order=True) as f:
+            for name in ("x", "y"):
+                ds = f.create_dataset(name, data=x)
+                ds.make_scale(name)
+                ds.attrs.update({"long_name": f"{name} position of the cell centre", "units": "1",
+                                 "reference_unit": "L"})
+            for name, a in arrays.items():
+                long_name, units = FIELD_META[name]
+                ds = f.create_dataset(name, data=np.asarray(a, dtype=np.float64), chunks=chunk, compression="gzip",
+                                      compression_opts=4, shuffle=True)
+                ds.dims[0].attach_scale(f["x"])
+                ds.dims[1].attach_scale(f["y"])
+                ds.attrs.update({"long_name": long_name, **units})
+            f.attrs.update({"Conventions": "CF-1.10", "title": f"gapsweep kept fields of task {task_id}",
+                            "task_id": task_id})
+            for k, v in attrs.items():
+                f.attrs[k] = v if isinstance(v, (int, float, str, np.integer, np.floating)) else json.dumps(v)
+        os.replace(tmp, final)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return final

@@ -1,0 +1,106 @@
+"""Height maps from files as job surfaces (``[surface] kind = "file"``, docs/jobs.md): validation of the
+keys, loading once at validation, and the content key by which tasks find the map again.
+
+The map's SHA-256 enters the task ids (a changed file changes them), its path does not (a moved job still
+resumes). Loading itself is physics-side (gapsweep.surfaces.topography); this module only checks the spec's
+keys and keeps the path of each validated map for the tasks of this process.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+from pathlib import Path
+from typing import Any
+
+from gapsweep.surfaces import topography
+from gapsweep.sweep import readers as rd
+from gapsweep.sweep.schema import SpecError
+
+__all__ = ["FILE_KEYS", "file_surface", "file_surface_heights", "load_file_surface"]
+
+
+FILE_KEYS = ("kind", "path", "format", "key", "delimiter", "unit", "height_unit", "to_unit", "length",
+              "pixel_size", "detrend")
+
+
+def _pair_or_num(key: str, v: Any) -> float | list[float]:
+    if isinstance(v, list):
+        if len(v) != 2:
+            raise SpecError(f"{key}: expected a number or a pair [x, y] of numbers > 0, got {v!r}")
+        return [rd.number(f"{key}[{i}]", x, gt=0.0) for i, x in enumerate(v)]
+    return rd.number(key, v, gt=0.0)
+
+
+def file_surface(s: dict, base: str | Path | None) -> tuple[dict[str, Any], int]:
+    """``[surface] kind = "file"``: validate the keys and load the map now (gapsweep.surface.load), so that a
+    missing or unreadable file fails before anything runs. Returns the canonical surface table (with the file's
+    SHA-256, so a changed file changes the task ids, and its box ``length``) and the map's nx."""
+    rd.known("surface", s, FILE_KEYS)
+    if "path" not in s:
+        raise SpecError("surface.path: missing; the height map file, relative to the job spec")
+    path = rd.string("surface.path", s["path"])
+    full = Path(base if base is not None else ".") / path
+    if not full.is_file():
+        raise SpecError(f"surface.path: no such height map {str(full)!r} (paths are relative to the job spec)")
+    out: dict[str, Any] = {"kind": "file", "path": path}
+    if "format" in s:
+        out["format"] = rd.string("surface.format", s["format"], ("npy", "npz", "text", "surfacetopography"))
+    for k in ("key", "delimiter"):
+        if k in s:
+            out[k] = rd.string(f"surface.{k}", s[k])
+    units = (*topography.UNITS, *topography._ALIASES)
+    for k in ("unit", "height_unit", "to_unit"):
+        if k in s:
+            out[k] = rd.string(f"surface.{k}", s[k], units)
+    if "length" in s and "pixel_size" in s:
+        raise SpecError("surface: give length or pixel_size, not both")
+    for k in ("length", "pixel_size"):
+        if k in s:
+            out[f"file_{k}"] = _pair_or_num(f"surface.{k}", s[k])
+    out["detrend"] = rd.string("surface.detrend", s.get("detrend", "mean"), topography.DETRENDS)
+    try:
+        topo = load_file_surface(out, full)
+        digest = hashlib.sha256(full.read_bytes()).hexdigest()
+    except SpecError:
+        raise
+    except (OSError, ValueError, ImportError) as e:
+        raise SpecError(f"surface.path: {path!r} does not load as a height map: {e}") from None
+    nx, ny = topo.shape
+    if nx != ny or not math.isclose(topo.length[0], topo.length[1], rel_tol=1e-12):
+        raise SpecError(f"surface.path: {path!r} is {nx} x {ny} with box {topo.length}; the sweep takes square "
+                        "maps on square boxes (gapsweep.gfmd.solve itself takes rectangular ones)")
+    out["sha256"] = digest
+    out["length"] = float(topo.length[0])
+    _FILES[digest] = str(full.resolve())
+    return out, nx
+
+
+# SHA-256 of a validated file surface -> its absolute path, filled when a spec is loaded in this process (every
+# rank loads the spec itself), so that tasks find the map by content without the path entering their ids.
+_FILES: dict[str, str] = {}
+
+
+def file_surface_heights(surface: dict[str, Any]):
+    """Heights of a file surface (the ``surface.*`` options of a task) as loaded and detrended at validation;
+    the file must still have the SHA-256 the spec recorded (a changed file would change the results)."""
+    path = _FILES.get(surface["sha256"])
+    if path is None or not Path(path).is_file():
+        raise SpecError(f"surface.path: the height map {surface['path']!r} (sha256 {surface['sha256'][:12]}...) "
+                        "was not loaded with the job spec in this process")
+    if hashlib.sha256(Path(path).read_bytes()).hexdigest() != surface["sha256"]:
+        raise SpecError(f"surface.path: {path!r} changed since the job spec was validated (sha256 differs)")
+    return load_file_surface(surface, path).heights
+
+
+def load_file_surface(surface: dict[str, Any], full: str | Path):
+    """The :class:`gapsweep.topography.Topography` of a validated file-surface table (``full``: its path)."""
+    kw: dict[str, Any] = {k: surface[k] for k in ("format", "key", "delimiter", "unit", "height_unit", "to_unit")
+                          if k in surface}
+    for k in ("length", "pixel_size"):
+        if f"file_{k}" in surface:
+            kw[k] = surface[f"file_{k}"]
+    if "length" not in kw and "pixel_size" not in kw and surface.get("format") != "surfacetopography" \
+            and Path(full).suffix.lower() in (".npy", ".npz", *topography._TEXT):
+        raise SpecError("surface.length: missing; give length or pixel_size (the file does not state its size)")
+    return topography.load(full, detrend=surface.get("detrend", "mean"), **kw)

@@ -1,0 +1,141 @@
+"""Merging shard stores of one job into one store (``gapsweep merge``, docs/running.md "Slurm").
+
+Rows are keyed by task id; the job's canonical task list is expanded again from the spec the shards carry.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from gapsweep.sweep import lease, provenance, storecheck
+from gapsweep.sweep import spec as specmod
+from gapsweep.sweep import tasks as tasksmod
+from gapsweep.sweep.schema import PRESSURE_HIST, STATUS, STATUS_NAMES, VOLATILE, StoreError
+from gapsweep.sweep.store import Store, _same, empty_results, open_read, read_attrs, upgrade_results
+
+__all__ = ["CONFLICT_CHOICES", "merge"]
+
+log = logging.getLogger("gapsweep.sweep.merge")
+
+
+# Which of two finished rows of one task a merge keeps: a better status always wins (failed never beats done).
+_RANK = {STATUS["pending"]: 0, STATUS["failed"]: 1, STATUS["not_converged"]: 2, STATUS["done"]: 3}
+CONFLICT_CHOICES = ("error", "first", "last")
+
+
+def _row_equal(x: np.ndarray, y: np.ndarray, ex: np.ndarray, ey: np.ndarray, dx: np.ndarray,
+               dy: np.ndarray) -> bool:
+    for k in x.dtype.names:
+        if k not in VOLATILE and not _same(np.asarray(x[k]), np.asarray(y[k])):
+            return False
+    return _same(ex, ey) and _same(dx, dy)
+
+
+def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = False,
+          on_conflict: str = "error", break_lease: bool = False) -> dict[str, int]:
+    """Merge shard stores of one job into ``out`` (rows in the job's canonical task order, keyed by task id).
+
+    All shards must carry the same spec (hash). When a task has a finished row in several shards, the better
+    status wins (done > not_converged > failed; a failed row never replaces a done one). Rows of equal status
+    and different content (wall time and rank aside) are a conflict: ``on_conflict="error"`` (default) refuses
+    the merge naming the task, ``"first"`` / ``"last"`` keep the row of the first / last shard named. Rows
+    that a check finds incomplete (unknown status, done without result) count as pending. The merged store
+    lists every task of the job (missing ones stay pending); it is written under a temporary name and renamed
+    into place, holding ``out``'s lease. Returns counts per status (and ``conflicts`` resolved)."""
+    if not shards:
+        raise StoreError("merge: no shard stores given")
+    if on_conflict not in CONFLICT_CHOICES:
+        raise ValueError(f"merge: on_conflict must be one of {', '.join(CONFLICT_CHOICES)}, got {on_conflict!r}")
+    outp = Path(out)
+    if any(Path(x).resolve() == outp.resolve() for x in shards):
+        raise StoreError(f"merge: the output {outp} is also a shard; choose another --out")
+    if outp.exists() and not overwrite:
+        raise StoreError(f"merge: {outp} exists (pass --overwrite to replace it)")
+    metas = [read_attrs(s) for s in shards]
+    shas = {m["spec_sha256"] for m in metas}
+    if len(shas) != 1:
+        raise StoreError(f"merge: shards come from different job specs ({len(shas)} spec hashes)")
+    js = specmod.loads(metas[0]["spec_text"], base=metas[0].get("spec_dir") or None)
+    tasks = tasksmod.expand(js)
+    index = {t.task_id: i for i, t in enumerate(tasks)}
+    runs = []
+    for m in metas:
+        runs.extend(json.loads(m.get("runs", "[]")))
+    attrs = provenance.store_attrs(js, shard="", extra={"merged_from": json.dumps([str(s) for s in shards]),
+                                                        "runs": json.dumps(runs)})
+    attrs["spec_sha256"] = metas[0]["spec_sha256"]
+    bins = js.histogram["bins"]
+    results = empty_results(len(tasks))
+    edges = np.full((len(tasks), bins + 1), np.nan)
+    dens = np.full((len(tasks), bins), np.nan)
+    pedges = np.full((len(tasks), bins + 1), np.nan)
+    pdens = np.full((len(tasks), bins), np.nan)
+    source = [""] * len(tasks)
+    conflicts: list[str] = []
+    for s in shards:
+        with open_read(s) as f:
+            rep = storecheck.check(f, s)
+            if f["tasks"].shape[0] == 0:
+                continue
+            if f["histograms/density"].shape[1] != bins:
+                raise StoreError(f"merge: {s} has {f['histograms/density'].shape[1]} histogram bins, the job {bins}")
+            ids = [x.decode() for x in f["tasks"].fields("task_id")[...]]
+            r = upgrade_results(f["results"][...])  # a format-1 shard: by column name
+            e, d = f["histograms/edges"][...], f["histograms/density"][...]
+            if PRESSURE_HIST[0] in f:
+                pe, pd_ = f[PRESSURE_HIST[0]][...], f[PRESSURE_HIST[1]][...]
+            else:
+                pe, pd_ = np.full(e.shape, np.nan), np.full(d.shape, np.nan)
+        bad = set(rep.rerun)
+        for j, tid in enumerate(ids):
+            if tid not in index:
+                raise StoreError(f"merge: task {tid} of {s} is not in the job")
+            if j in bad or r["status"][j] == STATUS["pending"]:
+                continue
+            i = index[tid]
+            new, old = _RANK[int(r["status"][j])], _RANK[int(results["status"][i])]
+            if new < old:
+                continue
+            if new == old:
+                if _row_equal(results[i], r[j], edges[i], e[j], dens[i], d[j]):
+                    continue
+                conflicts.append(f"task {tid}: {source[i]} and {s} both have a {STATUS_NAMES[int(r['status'][j])]!r} "
+                                 "row with different results")
+                if on_conflict != "last":
+                    continue
+            results[i] = r[j]
+            edges[i], dens[i] = e[j], d[j]
+            pedges[i], pdens[i] = pe[j], pd_[j]
+            source[i] = str(s)
+    if conflicts and on_conflict == "error":
+        raise StoreError(f"merge: {len(conflicts)} conflicting row(s), e.g. {conflicts[0]}; pass "
+                         "--on-conflict first|last to choose, nothing was written")
+    for c in conflicts:
+        log.warning("merge: %s (kept the %s)", c, on_conflict)
+    with lease.acquire(outp, break_lease=break_lease, purpose="merge"):
+        tmp = outp.with_name(f".{outp.name}.tmp-{os.getpid()}")
+        try:
+            st = Store.create(tmp, tasks, attrs, bins)
+            try:
+                if len(tasks):
+                    st.f["histograms/edges"][...] = edges
+                    st.f["histograms/density"][...] = dens
+                    st.f[PRESSURE_HIST[0]][...] = pedges
+                    st.f[PRESSURE_HIST[1]][...] = pdens
+                    st.f["results"][...] = results
+                st.f.attrs["finished"] = provenance.now()
+            finally:
+                st.close()
+            os.replace(tmp, outp)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+    counts = {name: int(np.sum(results["status"] == code)) for name, code in STATUS.items()}
+    counts["conflicts"] = len(conflicts)
+    return counts

@@ -1,0 +1,52 @@
+"""The sweep's methods, one plug-in module each (interface: gapsweep.sweep.methods.base; docs/architecture.md).
+
+Built-in methods, in the canonical order of task expansion: ``theory`` (field theory and Persson's theory),
+``gfmd`` (the exact solver), ``sde`` (SDE ensembles), ``fokker_planck`` (the Fokker-Planck density). A method
+of another package registers through the entry-point group ``gapsweep.methods``; it then follows the built-ins.
+"""
+
+from __future__ import annotations
+
+import logging
+from importlib import metadata
+
+from gapsweep.sweep.methods import fokker_planck, gfmd, sde, theory  # noqa: F401 - registers the built-ins
+from gapsweep.sweep.methods.base import Env, Method, register, registered
+
+__all__ = ["Env", "Method", "all_methods", "get", "names", "register"]
+
+log = logging.getLogger("gapsweep.sweep.methods")
+_loaded = False
+
+
+def _load_entry_points() -> None:
+    """Import the modules named in the ``gapsweep.methods`` entry-point group once (each registers itself)."""
+    global _loaded
+    if _loaded:
+        return
+    _loaded = True
+    for ep in metadata.entry_points(group="gapsweep.methods"):
+        try:
+            ep.load()
+        except Exception as e:  # a broken third-party plug-in must not break the built-in methods
+            log.warning("sweep method plug-in %s (%s) failed to load: %s: %s", ep.name, ep.value,
+                        type(e).__name__, e)
+
+
+def all_methods() -> dict[str, Method]:
+    """Every registered method by name, built-ins first, in the canonical order of task expansion."""
+    _load_entry_points()
+    return registered()
+
+
+def names() -> tuple[str, ...]:
+    """The names of the registered methods, in canonical order."""
+    return tuple(all_methods())
+
+
+def get(name: str) -> Method:
+    """The method plug-in ``name``; ``KeyError`` naming the registered methods otherwise."""
+    reg = all_methods()
+    if name not in reg:
+        raise KeyError(f"no sweep method {name!r}; registered: {', '.join(reg)}")
+    return reg[name]

@@ -1,0 +1,204 @@
+"""The method plug-in interface and its registry (docs/architecture.md, "Adding a method").
+
+A sweep method is one module in ``gapsweep/sweep/methods/`` with one subclass of :class:`Method`, registered
+with :func:`register`. The class declares in one place everything the sweep needs to know about the method:
+
+* ``keys`` and :meth:`Method.validate` -- its ``[methods.<name>]`` spec keys, their types, ranges and defaults;
+* ``columns`` -- the store's result columns it fills (a subset of ``schema.FLOAT_RESULTS + INT_RESULTS``),
+  ``histogram`` -- whether its rows carry a gap histogram, ``variables`` / ``seed_free`` / ``select`` -- how its
+  columns appear in the xarray view (gapsweep.sweep.dataset);
+* :meth:`Method.expand` -- how a job spec expands into its tasks (canonical order, content ids);
+* :meth:`Method.cost`, :meth:`Method.memory`, :meth:`Method.needs_gpu`, :meth:`Method.set_key` -- what the
+  scheduler and ``gapsweep plan`` need;
+* ``extra_target`` -- the solver function that receives ``[methods.<name>.extra]`` keys (checked at validation);
+* :meth:`Method.run` -- how one task runs and becomes a :class:`~gapsweep.sweep.schema.TaskResult`.
+
+The spec validator, the task expansion, the runner, the store's validation, the dataset view and the report
+iterate :func:`methods`; none of them names a method. Third-party methods register through the entry-point group
+``gapsweep.methods`` (an entry point names a module that calls :func:`register` on import).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+from gapsweep.sweep import readers as rd
+from gapsweep.sweep.schema import FLOAT_RESULTS, INT_RESULTS, JobSpec, SpecError, Task, TaskResult, make_task
+
+__all__ = ["GRID_AXES", "Env", "Method", "axes", "common_options", "grid_tasks", "h_rms_option", "n_list",
+           "non_finite", "register", "registered"]
+
+GRID_AXES = ("hurst", "rho", "sigma0", "seeds")
+# unit attributes of a length in the dataset view (lengths in units of the spec's L)
+LENGTH = {"units": "1", "reference_unit": "L"}
+
+
+@dataclass(frozen=True)
+class Env:
+    """What a method's validation needs to know of the rest of the job: the interaction law, whether the surface
+    is a file (and its grid ``file_n``), the Nyquist limit of the surface's grid (M2) and which of rms_slope,
+    rms_height, c0 normalises the spectrum (``"file"`` for a file surface)."""
+
+    law: str = "exponential"
+    file_n: int | None = None
+    nyquist: int = 8
+    norm: str = "rms_slope"
+
+    @property
+    def file(self) -> bool:
+        return self.file_n is not None
+
+
+class Method:
+    """Base class of a sweep method plug-in; see the module docstring for what a subclass declares."""
+
+    name: str = ""
+    order: int = 100  # place in the canonical order of task expansion (built-ins 0..3; ties by name)
+    keys: tuple[str, ...] = ()
+    columns: tuple[str, ...] = ()
+    histogram: bool = False
+    variables: ClassVar[dict[str, tuple[str, str, dict[str, str]]]] = {}
+    seed_free: tuple[str, ...] = ()
+    select: str | None = None  # the option ("n" or "c2") of which the dataset view keeps one value
+    extra_target: tuple[str, str, tuple[str, ...]] | None = None  # (module, function, keys the sweep sets)
+
+    # -- validation --------------------------------------------------------------------------------------
+    def validate(self, key: str, t: dict[str, Any], env: Env) -> dict[str, Any]:
+        """The method's own options of ``[methods.<name>]`` (table ``t``), checked and with defaults filled in.
+        Grid overrides and ``extra`` are read by the spec validator. Raise ``SpecError`` naming ``key.<k>``."""
+        return {}
+
+    # -- expansion and scheduling -------------------------------------------------------------------------
+    def expand(self, spec: JobSpec) -> Iterator[Task]:
+        """The method's tasks of ``spec`` in canonical order."""
+        raise NotImplementedError
+
+    def cost(self, t: Task) -> float:
+        """Rough wall time of a task on one CPU core [s]; only ratios matter for scheduling."""
+        return 1.0
+
+    def memory(self, t: Task) -> float:
+        """Peak working memory of one task [bytes] (order of magnitude, for ``gapsweep plan``)."""
+        return 100e6
+
+    def needs_gpu(self, t: Task) -> bool:
+        """Whether the task must run on a rank with a GPU."""
+        return False
+
+    def set_key(self, t: Task) -> str:
+        """Key of independent tasks that share an expensive input (a surface) and run together, or ""."""
+        return ""
+
+    def provenance(self, options: dict[str, Any]) -> dict[str, Any]:
+        """Run-record entries about how this method runs here (for example the SDE's engine)."""
+        return {}
+
+    # -- execution ------------------------------------------------------------------------------------------
+    def run(self, t: Task, ctx: Any, prev: Any) -> tuple[TaskResult, Any]:
+        """Run one task on this rank (``ctx``: gapsweep.sweep.context.Context; ``prev``: the warm-start state of
+        the previous task of its chain). Returns the result record and the state for the next task."""
+        raise NotImplementedError
+
+
+_REGISTRY: dict[str, Method] = {}
+
+
+def register(cls: type[Method]) -> type[Method]:
+    """Class decorator: add a method plug-in to the registry (its ``name`` must be new and its ``columns``
+    store columns)."""
+    m = cls()
+    if not m.name or not m.name.isidentifier() or len(m.name) > 16:
+        raise ValueError(f"method plug-in {cls.__name__}: name must be an identifier of at most 16 characters "
+                         f"(the store's method column), got {m.name!r}")
+    if m.name in _REGISTRY and type(_REGISTRY[m.name]) is not cls:
+        raise ValueError(f"method {m.name!r} is registered twice ({type(_REGISTRY[m.name]).__name__}, "
+                         f"{cls.__name__})")
+    unknown = [c for c in m.columns if c not in FLOAT_RESULTS + INT_RESULTS]
+    if unknown:
+        raise ValueError(f"method {m.name!r}: columns {unknown} are not store columns (gapsweep.sweep.schema)")
+    _REGISTRY[m.name] = m
+    return cls
+
+
+def registered() -> dict[str, Method]:
+    """The methods registered so far, in registration order (use gapsweep.sweep.methods.all_methods, which
+    loads the built-in and third-party plug-ins first)."""
+    return {m.name: m for m in sorted(_REGISTRY.values(), key=lambda m: (m.order, m.name))}
+
+
+# ---------------------------------------------------------------------------------------------------------
+# helpers shared by the plug-ins
+
+
+def axes(spec: JobSpec, m: str) -> dict[str, list]:
+    """The grid axes of method ``m``: its overrides, else the job's ``[grid]``."""
+    o = spec.methods[m]
+    return {ax: o.get(ax, spec.grid[ax]) for ax in GRID_AXES}
+
+
+def common_options(spec: JobSpec, m: str, with_hist: bool) -> dict[str, Any]:
+    """Options shared by all tasks of a method: surface, material, interaction, method options (grid overrides
+    removed), ``extra.*`` and, for methods with histograms, the bins and range."""
+    o = {k: v for k, v in spec.methods[m].items() if k not in (*GRID_AXES, "n", "extra")}
+    o.update({f"surface.{k}": v for k, v in spec.surface.items()})
+    o.update(spec.material)
+    if spec.interaction:  # only beyond the default exponential law: older task ids stay as they were
+        o["interaction"] = spec.interaction["kind"]
+        o.update({k: v for k, v in spec.interaction.items() if k != "kind"})
+    for k, v in spec.methods[m].get("extra", {}).items():
+        o[f"extra.{k}"] = v
+    if with_hist:
+        o["bins"] = spec.histogram["bins"]
+        o["range"] = spec.histogram["range"]
+    if "forms" in o:
+        o["forms"] = list(o["forms"])
+    return o
+
+
+def grid_tasks(spec: JobSpec, name: str, *, seeds: list[int] | None = None, ns: list[int] | None = None,
+               with_hist: bool, chain: bool = False, sort: bool = False, reverse: bool = False,
+               ) -> Iterator[Task]:
+    """Tasks over (hurst, rho, seed, n, sigma0) in this nesting order -- the canonical order of every method --
+    with ``seeds`` and ``ns`` defaulting to the method's seeds and ``[0]``; ``sort``: the pressures in increasing
+    (``reverse``: decreasing) order, the order of a warm-started chain."""
+    ax, o = axes(spec, name), common_options(spec, name, with_hist=with_hist)
+    for h in ax["hurst"]:
+        for r in ax["rho"]:
+            for s in (ax["seeds"] if seeds is None else seeds):
+                for n in (ns or [0]):
+                    for p in (sorted(ax["sigma0"], reverse=reverse) if sort else ax["sigma0"]):
+                        yield make_task(name, h, r, p, s, n, o, chain=chain)
+
+
+def h_rms_option(key: str, t: dict[str, Any], env: Env) -> str:
+    """``h_rms``: which rms height feeds the theory/SDE/FP -- the continuum value of the spectrum or that of the
+    discrete surface (seed-dependent only with gaussian amplitudes). docs/model.md M2, M4."""
+    v = rd.string(f"{key}.h_rms", t.get("h_rms", "continuum"), ("continuum", "surface"))
+    if v == "continuum" and env.norm == "c0":
+        raise SpecError(f"{key}.h_rms: 'continuum' needs surface.rms_slope or surface.rms_height; "
+                        "with surface.c0 use h_rms = 'surface'")
+    return v
+
+
+def n_list(key: str, v: Any, nyquist: int) -> list[int]:
+    """A list of distinct grid sizes ``n`` (8 .. 65536) that carry ``lambda_s`` (Nyquist, M2)."""
+    vals = v if isinstance(v, list) else [v]
+    if not vals:
+        raise SpecError(f"{key}: expected an integer or a non-empty list of integers")
+    out = [rd.integer(f"{key}[{i}]" if isinstance(v, list) else key, x, ge=8, le=65536) for i, x in enumerate(vals)]
+    for x in out:
+        if x < nyquist:
+            raise SpecError(f"{key}: n={x} cannot carry surface.lambda_s (Nyquist, docs/model.md M2): "
+                            f"allowed n >= {nyquist}")
+    if len(set(out)) != len(out):
+        raise SpecError(f"{key}: values must be distinct, got {out}")
+    return out
+
+
+def non_finite(res: TaskResult) -> list[str]:
+    """The mean-gap columns of a result that are not finite (a done row must have none)."""
+    return [k for k, v in res.values.items() if k.startswith("mean_gap") and not math.isfinite(v)]
+

@@ -1,0 +1,286 @@
+"""Sweep method ``gfmd``: Green's function molecular dynamics at fixed mean pressure (docs/model.md M3,
+docs/gfmd.md) with any interaction law of gapsweep.gfmd.interactions.
+
+Spec keys (``[methods.gfmd]``, docs/jobs.md): ``n`` (grid sizes; a file surface: its own grid), ``tol``,
+``max_iter``, ``method`` (the law's minimisers or "auto"), ``backend`` (FFT backend or "cupy"), ``warm_start``,
+``order`` (of the pressures along a chain), ``keep_fields``, ``extra`` (keywords of ``gapsweep.gfmd.solve``).
+Columns: mean gap, rms height and slope of the surface, residual, load error, iterations, gap statistics,
+contact area, elastic energy, contact and pressure atoms, flags; histograms of the gap and of the pressure.
+Expansion: (hurst, rho, seed, n) chains over the pressures in ``order``; with ``warm_start`` each chain runs in
+order on one rank, each solve starting from the previous converged one.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+
+from gapsweep.core.fft import BACKENDS as FFT_BACKENDS
+from gapsweep.sweep import fields
+from gapsweep.sweep import readers as rd
+from gapsweep.sweep.context import Context, extra, hist, host, use_gpu
+from gapsweep.sweep.methods.base import LENGTH, Env, Method, grid_tasks, n_list, register
+from gapsweep.sweep.schema import FIELD_NAMES, FLAG_DETACHED, FLAG_JUMP, JobSpec, SpecError, Task, TaskResult
+
+JUMP_FACTOR = 3.0  # a jump: the mean gap moved by more than this times the secant prediction (docs/store.md)
+
+
+def _law_methods() -> dict[str, tuple[str, ...]]:
+    """Minimisers allowed for each interaction law (``method`` key), from gapsweep.gfmd's own tables."""
+    from gapsweep.gfmd import _MINIMISERS
+    from gapsweep.gfmd.interactions import INTERACTIONS
+
+    return {k: _MINIMISERS[cls.load_control][1] for k, (cls, _) in INTERACTIONS.items()}
+
+
+def _keep_fields_option(key: str, v: Any) -> str:
+    """``keep_fields = {fields = [...], hurst = [...], rho = [...], sigma0 = [...], seeds = [...], n = [...]}``:
+    the GFMD fields to keep and which tasks keep them (a missing selector: every value). Returned as canonical
+    JSON (task options must be hashable). See docs/jobs.md and gapsweep.sweep.fields."""
+    t = rd.table(key, v)
+    rd.known(key, t, ("fields", "hurst", "rho", "sigma0", "seeds", "n"))
+    names = t.get("fields")
+    if not isinstance(names, list) or not names:
+        raise SpecError(f"{key}.fields: expected a non-empty list from {', '.join(FIELD_NAMES)}")
+    out: dict[str, Any] = {"fields": sorted({rd.string(f"{key}.fields[{i}]", f, FIELD_NAMES)
+                                             for i, f in enumerate(names)})}
+    for sel in ("hurst", "rho", "sigma0"):
+        if sel in t:
+            vals = t[sel] if isinstance(t[sel], list) else [t[sel]]
+            out[sel] = [rd.number(f"{key}.{sel}[{i}]", x, gt=0.0) for i, x in enumerate(vals)]
+    for sel in ("seeds", "n"):
+        if sel in t:
+            vals = t[sel] if isinstance(t[sel], list) else [t[sel]]
+            out[sel] = [rd.integer(f"{key}.{sel}[{i}]", x, ge=0) for i, x in enumerate(vals)]
+    return json.dumps(out, sort_keys=True)
+
+
+@register
+class GFMD(Method):
+    name = "gfmd"
+    order = 1
+    keys = ("n", "tol", "max_iter", "method", "backend", "warm_start", "order", "keep_fields")
+    columns = ("mean_gap", "h_rms", "g_rms", "residual", "load_error", "iterations", "gap_std", "gap_min",
+               "gap_max", "contact_area", "elastic_energy", "contact_atom", "pressure_atom", "flags", "count")
+    histogram = True
+    variables = {  # noqa: RUF012 - read-only table
+        "mean_gap": ("gfmd_mean_gap", "mean gap g0 by GFMD", LENGTH),
+        "h_rms": ("gfmd_h_rms", "rms height of the simulated surface", LENGTH),
+        "g_rms": ("gfmd_g_rms", "rms gradient of the simulated surface", {"units": "1"}),
+        "residual": ("gfmd_residual", "GFMD residual rms(p_el - (p - <p>))/sigma0", {"units": "1"}),
+        "load_error": ("gfmd_load_error", "GFMD load error |<p> - sigma0|/sigma0", {"units": "1"}),
+        "iterations": ("gfmd_iterations", "GFMD iterations (force evaluations)", {"units": "1"}),
+        "gap_std": ("gfmd_gap_std", "standard deviation of the gap field", LENGTH),
+        "gap_min": ("gfmd_gap_min", "smallest gap of the gap field", LENGTH),
+        "contact_area": ("gfmd_contact_area", "real contact area, fraction of the nominal area (by the law's "
+                         "contact criterion, docs/gfmd.md)", {"units": "1"}),
+        "elastic_energy": ("gfmd_elastic_energy", "stored elastic energy per nominal area (E*/4) sum q |u~(q)|^2",
+                           {"units": "1", "reference_unit": "E* L"}),
+        "contact_atom": ("gfmd_contact_atom", "fraction of the surface at exactly g = 0 (hard-wall contact atom, "
+                         "apart from the gap histogram)", {"units": "1"}),
+        "pressure_atom": ("gfmd_pressure_atom", "fraction of the surface at exactly p = 0 (hard wall: free "
+                          "surface)", {"units": "1"}),
+        "flags": ("gfmd_flags", "load-path flags: 1 jump from the previous step, 2 detached (adhesion)",
+                  {"units": "1"}),
+    }
+    select = "n"
+    extra_target = ("gapsweep.gfmd", "solve", ("heights", "sigma0", "gamma0", "rho", "e_star", "length", "tol",
+                                               "method", "backend", "max_iter", "initial", "interaction", "work"))
+
+    def validate(self, key: str, t: dict[str, Any], env: Env) -> dict[str, Any]:
+        o: dict[str, Any] = {}
+        if env.file:  # the grid of the height map itself (no resampling)
+            o["n"] = [env.file_n]
+            if "n" in t and n_list(f"{key}.n", t["n"], 8) != [env.file_n]:
+                raise SpecError(f"{key}.n: a file surface is solved on its own grid: allowed n = {env.file_n} "
+                                "(or leave n out)")
+        else:
+            if "n" not in t:
+                raise SpecError(f"{key}.n: missing; the GFMD grid size (integer or list, >= {env.nyquist})")
+            o["n"] = n_list(f"{key}.n", t["n"], env.nyquist)
+        o["tol"] = rd.number(f"{key}.tol", t.get("tol", 1e-6), gt=0.0, lt=1.0)
+        o["max_iter"] = rd.integer(f"{key}.max_iter", t.get("max_iter", 100000), ge=1)
+        o["method"] = rd.string(f"{key}.method", t.get("method", "auto"), ("auto", *_law_methods()[env.law]))
+        o["backend"] = rd.string(f"{key}.backend", t.get("backend", "auto"), ("auto", *FFT_BACKENDS))
+        o["warm_start"] = rd.boolean(f"{key}.warm_start", t.get("warm_start", True))
+        o["order"] = rd.string(f"{key}.order", t.get("order", "decreasing"), ("decreasing", "increasing"))
+        if "keep_fields" in t:  # only when asked: the task ids of other specs stay as they were
+            o["keep_fields"] = _keep_fields_option(f"{key}.keep_fields", t["keep_fields"])
+        return o
+
+    def expand(self, spec: JobSpec) -> Iterator[Task]:
+        o = spec.methods[self.name]
+        yield from grid_tasks(spec, self.name, ns=o["n"], with_hist=True, chain=o["warm_start"], sort=True,
+                              reverse=o["order"] == "decreasing")
+
+    def cost(self, t: Task) -> float:
+        # ~ iterations x (FFT pair + a few array passes); preconditioned CG needs 5..30 (measured at N = 1024,
+        # about 15 ms per iteration on one core with pyFFTW).
+        cpu = 0.02 + 20 * 1.5e-9 * t.n * t.n * math.log2(t.n)
+        return cpu / 20 if t.opt("backend") == "cupy" else cpu  # an H200 solve is ~20x a CPU core
+
+    def memory(self, t: Task) -> float:
+        return 8.0 * t.n * t.n * 28  # 4 cached surfaces + solver vectors + complex FFT buffers
+
+    def needs_gpu(self, t: Task) -> bool:
+        return t.opt("backend") == "cupy"
+
+    def run(self, t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
+        return run_gfmd(t, ctx, prev)
+
+
+def _keep_fields(t: Task, ctx: Context, res: Any, h: np.ndarray, gap: np.ndarray, length: float) -> None:
+    """Write the fields this task keeps (``[methods.gfmd] keep_fields``) beside the store (gapsweep.sweep.fields)."""
+    want = fields.field_selected(json.loads(t.opt("keep_fields")), hurst=t.hurst, rho=t.rho, sigma0=t.sigma0,
+                                  seed=t.seed, n=t.n)
+    if not want:
+        return
+    g0 = float(res.mean_gap)
+    arrays = {"gap": gap, "height": np.asarray(h, dtype=float)}
+    arrays["displacement"] = gap - g0 + arrays["height"]  # g = g0 + u - h (docs/model.md M3)
+    arrays["pressure"] = np.asarray(getattr(res, "pressure", None) if getattr(res, "pressure", None) is not None
+                                    else t.opt("gamma0") / t.rho * np.exp(-gap / t.rho), dtype=float)
+    attrs = {"method": t.method, "hurst": t.hurst, "rho": t.rho, "sigma0": t.sigma0, "seed": t.seed, "n": t.n,
+             "e_star": t.opt("e_star"), "mean_gap": g0, "residual": float(res.residual), "interaction": t.law}
+    if t.opt("gamma0") is not None:
+        attrs["gamma0"] = t.opt("gamma0")
+    fields.write_fields(ctx.fields_dir, t.task_id, {k: arrays[k] for k in want}, length=length, attrs=attrs)
+
+
+def gfmd_host_fields(t: Task, ctx: Context) -> bool | tuple[str, ...]:
+    """Fields a GFMD task needs on the host: all when it keeps fields (gapsweep.sweep.fields), else none -- the
+    store's statistics and histogram of the gap are computed where the gap lives (on the GPU for cupy)."""
+    if t.opt("keep_fields") and getattr(ctx, "fields_dir", None) is not None:
+        if fields.field_selected(json.loads(t.opt("keep_fields")), hurst=t.hurst, rho=t.rho, sigma0=t.sigma0,
+                                 seed=t.seed, n=t.n):
+            return True
+    return False
+
+
+def run_gfmd(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
+    from gapsweep import gfmd
+
+    sp = t.surface_params()
+    use_gpu(t, ctx)
+    h = ctx.surface_on_gpu(t, t.n) if t.opt("backend") == "cupy" else ctx.surface(t, t.n)
+    res = gfmd.solve(h, sigma0=t.sigma0, **law_params(t), e_star=t.opt("e_star"),
+                     length=sp["length"], tol=t.opt("tol"), method=t.opt("method"), backend=t.opt("backend"),
+                     max_iter=t.opt("max_iter"), initial=prev if t.opt("warm_start") else None,
+                     host=gfmd_host_fields(t, ctx), **extra(t))
+    return gfmd_row(t, ctx, res, prev)
+
+
+def law_params(t: Task) -> dict[str, Any]:
+    """``interaction=`` and the law's keywords of gfmd.solve for a task (docs/gfmd.md): the exponential law
+    takes gamma0 and rho, the hard wall nothing, the adhesive law the work of adhesion and rho."""
+    law = t.law
+    if law == "exponential":
+        return {"gamma0": t.opt("gamma0"), "rho": t.rho}
+    if law == "hard_wall":
+        return {"interaction": "hard_wall"}
+    return {"interaction": law, "work": t.opt("work"), "rho": t.rho}
+
+
+def gfmd_row(t: Task, ctx: Context, res: Any, prev: Any = None) -> tuple[TaskResult, Any]:
+    """Store row of a GFMD result and the warm start it gives the next task of its chain (the converged
+    result, else None). The gap's statistics and histogram are taken where the gap lives (numpy or cupy).
+    Every law stores contact_area, elastic_energy, the pressure histogram and its atom at p = 0; the hard wall
+    its contact atom at g = 0 apart from the gap histogram; ``prev`` (the previous step's result, non-exponential
+    laws) marks jumps along the load path in ``flags``."""
+    from gapsweep.gfmd._ops import _is_cupy
+
+    gap = res.gap
+    xp = np
+    if _is_cupy(gap):
+        import cupy as xp
+    else:
+        gap = np.asarray(gap, dtype=float)
+    h_rms, g_rms = ctx.surface_rms(t, t.n)
+    if t.opt("keep_fields") and getattr(ctx, "fields_dir", None) is not None:
+        sp = t.surface_params()
+        _keep_fields(t, ctx, res, ctx.surface(t, t.n), np.asarray(host(gap), dtype=float), sp["length"])
+    v = {"mean_gap": float(res.mean_gap), "h_rms": h_rms, "g_rms": g_rms,
+         "residual": float(res.residual), "load_error": float(getattr(res, "load_error", math.nan)),
+         "iterations": int(res.iterations), "gap_std": float(xp.std(gap)), "gap_min": float(xp.min(gap)),
+         "gap_max": float(xp.max(gap)), "contact_area": float(getattr(res, "contact_area", math.nan)),
+         "elastic_energy": float(getattr(res, "elastic_energy", math.nan)), "flags": 0}
+    ok = bool(res.converged) and math.isfinite(v["mean_gap"])
+    status = "done" if ok else "not_converged"
+    msg = "" if ok else f"gfmd: {getattr(res, 'status', 'not converged')} (residual {v['residual']:.3g})"
+    if not (math.isfinite(v["contact_area"]) and math.isfinite(v["elastic_energy"])):
+        _fill_quantities(t, res, v, gap, xp)
+    hard = t.law == "hard_wall"
+    if hard:  # the contact atom at g = 0 is stored apart; the histogram is that of the free points
+        v["contact_atom"] = float(res.contact_atom())
+    phist = None
+    if getattr(res, "pressure", None) is not None:
+        phist, v["pressure_atom"] = _pressure_hist(t, res.pressure, xp)
+    if getattr(res, "status", "") == "detached":
+        v["flags"] |= FLAG_DETACHED
+        msg = (f"gfmd: detached at sigma0 = {t.sigma0:g} (beyond pull-off: no equilibrium in contact; "
+               "later, more tensile loads of the chain cannot be in contact either)")
+    # Jumps only where the energy is not convex (adhesion), by gfmd.solve_path's secant criterion: the mean gap
+    # moves by more than JUMP_FACTOR times what the secant dg0/dsigma0 of the two previous steps predicts (a
+    # branch that ends: snap-off, snap-in). Steps must be fine enough for the secant to hold on a smooth branch;
+    # the first two steps of a chain have no secant and are not judged (docs/store.md "flags").
+    if t.law == "adhesive" and prev is not None and hasattr(prev, "contact_area") and ok:
+        before = getattr(prev, "_prev_step", None)
+        dg = abs(v["mean_gap"] - float(prev.mean_gap))
+        predicted = math.inf
+        if before is not None and before[0] != float(prev.sigma0):
+            predicted = abs((float(prev.mean_gap) - before[1]) / (float(prev.sigma0) - before[0])
+                            * (t.sigma0 - float(prev.sigma0)))
+        if dg > JUMP_FACTOR * predicted:
+            v["flags"] |= FLAG_JUMP
+            msg = (f"jump along the load path: contact area {float(prev.contact_area):.4g} -> "
+                   f"{v['contact_area']:.4g}, mean gap {float(prev.mean_gap):.4g} -> {v['mean_gap']:.4g} "
+                   f"from sigma0 = {float(prev.sigma0):g}")
+    if t.law != "exponential" and ok:
+        res._prev_step = (float(prev.sigma0), float(prev.mean_gap)) if hasattr(prev, "mean_gap") else None
+    # warm start from the converged solution only. Exponential law: only its displacement is kept (the other
+    # fields are dropped with the result once the row is made); the other laws start from the whole result
+    # (hard wall: its pressure; adhesive: displacement and mean gap) and it marks jumps.
+    state = (res.displacement if t.law == "exponential" else res) if ok else None
+    return TaskResult(status, msg, v, hist(t, gap, exclude_zero=hard), phist), state
+
+
+def _fill_quantities(t: Task, res: Any, v: dict[str, float], gap: Any, xp: Any) -> None:
+    """contact_area and elastic_energy of a result that lacks them (the batched exponential minimiser): the law's
+    contact criterion on the gap, and ``(E*/4) sum_q q |u~(q)|^2`` with ``u~ = FFT(u)/N^2`` (docs/gfmd.md)."""
+    from gapsweep.gfmd.interactions import resolve
+
+    if not math.isfinite(v["contact_area"]):
+        law = resolve(t.law, **{k: x for k, x in law_params(t).items() if k != "interaction"})
+        v["contact_area"] = float(xp.count_nonzero(law.contact(gap, res.pressure))) / gap.size
+    u = getattr(res, "displacement", None)
+    if not math.isfinite(v["elastic_energy"]) and u is not None:
+        nx, ny = u.shape
+        length = t.opt("surface.length")
+        qx = 2 * np.pi * np.fft.fftfreq(nx, d=length / nx)
+        qy = 2 * np.pi * np.fft.fftfreq(ny, d=length / ny)
+        q = xp.asarray(np.hypot(qx[:, None], qy[None, :]))
+        uq = xp.fft.fft2(u) / (nx * ny)
+        v["elastic_energy"] = float(0.25 * t.opt("e_star") * xp.sum(q * xp.abs(uq) ** 2))
+
+
+def _pressure_hist(t: Task, p: Any, xp: Any) -> tuple[tuple[np.ndarray, np.ndarray], float]:
+    """Pressure histogram ``(edges, density)`` over the store's bin count, range the loaded points' min..max,
+    and the atom at exactly ``p = 0`` (the hard wall's free surface): the density of the other points integrates
+    to ``1 - atom`` (docs/store.md)."""
+    size = p.size
+    loaded = p[p != 0.0]
+    atom = 1.0 - loaded.size / size
+    bins = t.opt("bins")
+    if loaded.size == 0:
+        return (np.linspace(0.0, 1.0, bins + 1), np.zeros(bins)), atom
+    lo, hi = float(xp.min(loaded)), float(xp.max(loaded))
+    if lo == hi:
+        lo, hi = lo - 0.5 * abs(lo or 1.0), hi + 0.5 * abs(hi or 1.0)
+    edges = np.linspace(lo, hi, bins + 1)
+    counts, _ = xp.histogram(loaded, bins=xp.asarray(edges) if xp is not np else edges)
+    counts = host(counts)
+    return (edges, counts / (size * np.diff(edges))), atom

@@ -1,0 +1,232 @@
+"""The sweep's schema: the records of the data path and the store's columns, in one module at the bottom.
+
+Everything the sweep passes from one stage to the next is defined here (docs/architecture.md):
+
+* :class:`JobSpec` -- a validated job spec (gapsweep.sweep.spec builds it; docs/jobs.md);
+* :class:`Task` -- one grid point of one method, with its content id; :class:`Unit` -- what a worker runs in one
+  go; :class:`TaskResult` -- one result record (a store row);
+* the store's layout: status codes, result columns, the ``/tasks`` and ``/results`` row types, the format
+  version (docs/store.md), and the errors of the spec and the store.
+
+It imports nothing of gapsweep, so every other sweep module (spec, tasks, the method plug-ins, the store, its
+validation, provenance, the dataset views) can import it without a circle.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "FLAG_DETACHED", "FLAG_JUMP", "FLOAT_RESULTS", "FORMAT", "FORMAT_VERSION", "INT_RESULTS", "RESULT_DTYPE",
+    "STATUS", "TASK_DTYPE", "JobSpec", "SpecError", "StoreError", "StoreWriteError", "Task", "TaskResult", "Unit",
+    "make_task", "task_id",
+]
+
+# ---------------------------------------------------------------------------------------------------------
+# the job spec
+
+
+class SpecError(ValueError):
+    """A job spec is invalid; the message names the key and the allowed values."""
+
+
+@dataclass(frozen=True)
+class JobSpec:
+    """A validated job spec. ``methods`` maps method name -> resolved options (grid overrides included)."""
+
+    name: str
+    description: str
+    text: str
+    grid: dict[str, list]
+    surface: dict[str, Any]
+    material: dict[str, Any]
+    histogram: dict[str, Any]
+    methods: dict[str, dict[str, Any]] = field(default_factory=dict)
+    # [interaction] beyond the default exponential law ({} for it, so older specs keep their hash)
+    interaction: dict[str, Any] = field(default_factory=dict)
+    # directory that a file surface's path is relative to (not part of the hash: the file's sha256 is)
+    base_dir: str = ""
+
+    @property
+    def law(self) -> str:
+        """The interaction law's name: "exponential" (default), "hard_wall" or "adhesive" (docs/gfmd.md)."""
+        return self.interaction.get("kind", "exponential")
+
+    @property
+    def sha256(self) -> str:
+        """Hash of the parsed, canonical spec (every validated value, defaults filled in; not the text), stored
+        in the store's attributes; resume and merge compare it, so comments and formatting do not matter."""
+        return hashlib.sha256(self.canonical().encode()).hexdigest()
+
+    @property
+    def text_sha256(self) -> str:
+        """Hash of the spec text (what stores written before the canonical hash carry)."""
+        return hashlib.sha256(self.text.encode()).hexdigest()
+
+    def canonical(self) -> str:
+        """The validated spec as canonical JSON (sorted keys), the basis of :attr:`sha256`."""
+        d = {"name": self.name, "description": self.description, "grid": self.grid, "surface": self.surface,
+             "material": self.material, "histogram": self.histogram, "methods": self.methods}
+        if self.interaction:  # only beyond the default law: the hashes of older specs stay as they were
+            d["interaction"] = self.interaction
+        return json.dumps(d, sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+    def task_count(self) -> int:
+        """Upper bound of the number of tasks (product of the axes of each method), computed without
+        expanding the grid."""
+        total = 0
+        for o in self.methods.values():
+            k = 1
+            for ax in ("hurst", "rho", "sigma0", "seeds"):
+                k *= len(o.get(ax, self.grid[ax]))
+            total += k * len(o.get("n", [0]))
+        return total
+
+
+# ---------------------------------------------------------------------------------------------------------
+# tasks, units, result records
+
+# Status codes of the store (docs/store.md).
+STATUS = {"pending": 0, "done": 1, "failed": 2, "not_converged": 3}
+STATUS_NAMES = {v: k for k, v in STATUS.items()}
+# Result columns (float64, NaN where not computed) and integer result columns (-1 where not computed). Every
+# method plug-in declares which of them it fills (gapsweep.sweep.methods); the table is the store's format.
+FLOAT_RESULTS = (
+    "mean_gap", "mean_gap_paper", "mean_gap_continuum", "mean_gap_discrete", "h_rms", "g_rms",
+    "residual", "load_error", "wall_time", "gap_std", "gap_min", "gap_max",
+    # issue 12 (store format 2): quantities of every law, Persson's theory (docs/store.md)
+    "contact_area", "elastic_energy", "contact_atom", "pressure_atom", "mean_gap_persson",
+)
+INT_RESULTS = ("iterations", "count", "rank", "flags")
+# Bits of the ``flags`` column (GFMD rows; 0 = none, -1 = not a GFMD row): a jump along the load path (adhesion)
+# and detachment (adhesion beyond pull-off: no equilibrium in contact, the row is not_converged). docs/store.md.
+FLAG_JUMP = 1
+FLAG_DETACHED = 2
+# Columns filled by the sweep itself for every row (not by a method).
+COMMON_RESULTS = ("wall_time", "rank")
+# The kept fields of a GFMD task (docs/jobs.md "keep_fields", gapsweep.sweep.fields).
+FIELD_NAMES = ("gap", "pressure", "displacement", "height")
+
+
+@dataclass(frozen=True)
+class Task:
+    """One grid point of one method. ``options`` holds every other input that changes the result."""
+
+    method: str
+    hurst: float
+    rho: float
+    sigma0: float
+    seed: int
+    n: int
+    options: tuple[tuple[str, Any], ...]
+    task_id: str = ""
+    chain: str = ""
+
+    def surface_params(self) -> dict[str, Any]:
+        """The ``surface.*`` options without their prefix: keyword arguments of ``surfaces.self_affine`` (for a
+        file surface, ``kind = "file"`` and the loading options of gapsweep.sweep.filesurface)."""
+        return {k[8:]: v for k, v in self.options if k.startswith("surface.")}
+
+    @property
+    def law(self) -> str:
+        """The interaction law (docs/gfmd.md): "exponential" unless the job names another."""
+        return self.opt("interaction", "exponential")
+
+    def opt(self, key: str, default: Any = None) -> Any:
+        for k, v in self.options:
+            if k == key:
+                return v
+        return default
+
+    @property
+    def params(self) -> dict[str, Any]:
+        return dict(self.options)
+
+
+@dataclass
+class TaskResult:
+    """One store row: status (key of :data:`STATUS`), message, scalar results, optional histogram."""
+
+    status: str
+    message: str = ""
+    values: dict[str, float] = field(default_factory=dict)
+    hist: tuple[np.ndarray, np.ndarray, int] | None = None  # (edges, density, count)
+    phist: tuple[np.ndarray, np.ndarray] | None = None  # pressure histogram (edges, density), GFMD rows
+
+
+@dataclass(frozen=True)
+class Unit:
+    """Indices of tasks run by one worker and its cost estimate [s]. ``kind``: "single", "chain" (run in order
+    from its start, warm starts), "set" (independent tasks sharing a surface: only the wanted ones run) or
+    "batch" (``chains``: GFMD chains run side by side, gapsweep.sweep.batching; ``tasks`` is their
+    concatenation)."""
+
+    tasks: tuple[int, ...]
+    cost: float
+    gpu: bool = False
+    kind: str = "single"
+    chains: tuple[tuple[int, ...], ...] = ()
+
+    def remap(self, new: dict[int, int]) -> Unit:
+        """The unit with task indices mapped through ``new`` (old index -> new index)."""
+        return Unit(tuple(new[i] for i in self.tasks), self.cost, self.gpu, self.kind,
+                    tuple(tuple(new[i] for i in c) for c in self.chains))
+
+
+def task_id(payload: dict[str, Any]) -> str:
+    """Content id: the first 16 hex digits of the SHA-256 of the payload's canonical JSON."""
+    text = json.dumps(payload, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def make_task(method: str, hurst: float, rho: float, sigma0: float, seed: int, n: int, opts: dict[str, Any],
+              chain: bool) -> Task:
+    """A :class:`Task` with its content id (parameters that change the result, never the position in the
+    grid) and, for a chained task, the key of its chain (the same payload without ``sigma0``)."""
+    options = tuple(sorted(opts.items()))
+    payload = {"method": method, "hurst": hurst, "rho": rho, "sigma0": sigma0, "seed": seed, "n": n,
+               "options": {k: v for k, v in options}}
+    tid = task_id(payload)
+    ckey = ""
+    if chain:
+        ckey = task_id({k: v for k, v in payload.items() if k != "sigma0"})
+    return Task(method, hurst, rho, sigma0, seed, n, options, tid, ckey)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# the store's layout (docs/store.md)
+
+FORMAT = "gapsweep-store"
+FORMAT_VERSION = 2
+MESSAGE_LEN = 240
+
+TASK_DTYPE = np.dtype([
+    ("task_id", "S16"), ("method", "S16"), ("chain", "S16"), ("hurst", "f8"), ("rho", "f8"), ("sigma0", "f8"),
+    ("seed", "i8"), ("n", "i8"), ("lambda_l", "f8"), ("lambda_s", "f8"), ("length", "f8"), ("gamma0", "f8"),
+    ("e_star", "f8"), ("c1", "f8"), ("c2", "f8"),
+])
+RESULT_DTYPE = np.dtype(
+    [("status", "i1"), ("message", f"S{MESSAGE_LEN}")]
+    + [(k, "f8") for k in FLOAT_RESULTS]
+    + [(k, "i8") for k in INT_RESULTS]
+)
+# The results table of format 1 (stores written before the issue-12 columns); such stores still open and read.
+NEW_IN_V2 = ("contact_area", "elastic_energy", "contact_atom", "pressure_atom", "mean_gap_persson", "flags")
+RESULT_DTYPE_V1 = np.dtype([(k, RESULT_DTYPE.fields[k][0]) for k in RESULT_DTYPE.names if k not in NEW_IN_V2])
+RESULT_DTYPES = (RESULT_DTYPE, RESULT_DTYPE_V1)
+PRESSURE_HIST = ("histograms/pressure_edges", "histograms/pressure_density")
+# Columns that differ between two runs of the same job by nature (compare stores without them).
+VOLATILE = ("wall_time", "rank")
+
+
+class StoreError(RuntimeError):
+    """A store cannot be used as asked (wrong spec, wrong format, conflicting merge)."""
+
+
+class StoreWriteError(StoreError):
+    """Writing to a store failed (full disk, file-size limit, I/O error); rows written before are intact."""

@@ -1,0 +1,260 @@
+"""Job specifications: TOML files under ``jobs/`` describing a sweep (schema in ``docs/jobs.md``).
+
+A spec names the grid axes (``hurst``, ``rho``, ``sigma0``, ``seeds``), the fixed surface and material
+parameters (docs/model.md M1, M2, M6) and the methods to run at each grid point with their options. Everything is
+validated before anything runs, by the same rules for ``plan`` and ``run``: an unknown key, a wrong type or an
+out-of-range value raises :class:`SpecError` naming the dotted key and the allowed values.
+
+This module validates the job's own tables (``[job]``, ``[grid]``, ``[surface]``, ``[material]``,
+``[histogram]``, ``[interaction]``); each ``[methods.<name>]`` table is validated by its method plug-in
+(gapsweep.sweep.methods), and its ``extra`` keys against the signature of the solver they are passed to. The sweep
+is free of physics: the spec only checks ranges (and the Nyquist condition of M2, so that a grid that cannot
+carry ``lambda_s`` fails here rather than in the middle of a sweep).
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+import math
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+from gapsweep.sweep import methods as registry
+from gapsweep.sweep import readers as rd
+from gapsweep.sweep.filesurface import file_surface
+from gapsweep.sweep.methods.base import GRID_AXES, Env
+from gapsweep.sweep.schema import JobSpec, SpecError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+__all__ = ["MAX_TASKS", "JobSpec", "SpecError", "check_extra", "load", "loads", "max_tasks"]
+
+# Cap on the tasks of one job (every rank holds the task list: ~1.5 kB per task); raise it with
+# GAPSWEEP_MAX_TASKS=<n> (docs/jobs.md, docs/reliability.md).
+MAX_TASKS = 200_000
+
+
+def max_tasks() -> int:
+    """The task cap: ``GAPSWEEP_MAX_TASKS`` if set (a positive integer), else :data:`MAX_TASKS`."""
+    v = os.environ.get("GAPSWEEP_MAX_TASKS", "")
+    if not v:
+        return MAX_TASKS
+    try:
+        n = int(v)
+        if n < 1:
+            raise ValueError
+    except ValueError:
+        raise SpecError(f"GAPSWEEP_MAX_TASKS: expected a positive integer, got {v!r}") from None
+    return n
+SURFACE_KINDS = ("self_affine", "file")
+INTERACTION_KINDS = ("exponential", "hard_wall", "adhesive")
+_TOP = ("job", "grid", "surface", "material", "histogram", "methods", "interaction")
+
+
+def _grid(key: str, t: dict, *, required: bool, law: str = "exponential", file: bool = False) -> dict[str, list]:
+    """Grid axes of ``[grid]`` (``required``) or of a method override. A file surface has no Hurst exponent and
+    the hard wall no range: those axes are then not given and hold the placeholder 0.0 (docs/jobs.md). The
+    adhesive law takes tensile (negative) pressures too."""
+    out: dict[str, list] = {}
+
+    def _load(k, v):
+        if law == "adhesive":  # tensile loads allowed (docs/gfmd.md "Adhesion")
+            return rd.number(k, v)
+        return rd.positive(k, v)
+
+    for ax, check in (("hurst", rd.hurst_value), ("rho", rd.positive), ("sigma0", _load)):
+        unused = (ax == "hurst" and file) or (ax == "rho" and law == "hard_wall")
+        if unused:
+            if ax in t:
+                why = "surface.kind = 'file' (a measured map has no Hurst exponent)" if ax == "hurst" else \
+                    "interaction.kind = 'hard_wall' (no interaction range)"
+                raise SpecError(f"{key}.{ax}: not used with {why}; remove it")
+            if required:
+                out[ax] = [0.0]
+        elif ax in t:
+            out[ax] = rd.axis(f"{key}.{ax}", t[ax], check)
+        elif required:
+            need = ", ".join(a for a in ("hurst", "rho", "sigma0") if not (
+                (a == "hurst" and file) or (a == "rho" and law == "hard_wall")))
+            raise SpecError(f"{key}.{ax}: missing; this job needs the grid axes {need}")
+    if "seeds" in t:
+        out["seeds"] = rd.seed_list(f"{key}.seeds", t["seeds"])
+    elif required:
+        out["seeds"] = [0]
+    return out
+
+
+def _method(name: str, t: dict, env: Env) -> dict[str, Any]:
+    """``[methods.<name>]``: the plug-in's own keys (validated by the plug-in), grid overrides and ``extra``."""
+    key = f"methods.{name}"
+    m = registry.get(name)
+    rd.known(key, t, (*m.keys, "extra", *GRID_AXES))
+    o = m.validate(key, t, env)
+    o.update(_grid(key, t, required=False, law=env.law, file=env.file))
+    extra = rd.table(f"{key}.extra", t.get("extra", {}))
+    for k, v in extra.items():
+        if not isinstance(v, (int, float, str, bool)):
+            raise SpecError(f"{key}.extra.{k}: expected a number, string or boolean, got {v!r}")
+    o["extra"] = dict(sorted(extra.items()))
+    return o
+
+
+def check_extra(spec: JobSpec) -> None:
+    """Check every ``[methods.<m>.extra]`` key against the signature of the solver it is passed to (the
+    plug-in's ``extra_target``), so that a typo fails before a sweep instead of failing every task. Raises
+    ``SpecError``."""
+    for m, o in spec.methods.items():
+        extra = o.get("extra", {})
+        if not extra:
+            continue
+        target = registry.get(m).extra_target
+        if target is None:
+            raise SpecError(f"methods.{m}.extra: the {m} method takes no extra keys")
+        mod, fn, fixed = target
+        params = inspect.signature(getattr(importlib.import_module(mod), fn)).parameters
+        names = [k for k, p in params.items() if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
+        allowed = [k for k in names if k not in fixed]
+        for k in extra:
+            if k in fixed:
+                raise SpecError(f"methods.{m}.extra.{k}: set by the sweep itself (use the method's own key or the "
+                                "grid), not allowed in extra")
+            if k not in names:
+                raise SpecError(f"methods.{m}.extra.{k}: not a parameter of {mod}.{fn}; allowed extra keys: "
+                                f"{', '.join(allowed) or '(none)'}")
+
+
+def _interaction(t: dict) -> dict[str, Any]:
+    """``[interaction]``: ``kind`` ("exponential" default: its gamma0 is ``material.gamma0``, its range the grid's
+    ``rho``), "hard_wall" (no parameter, no rho axis) or "adhesive" (``work`` > 0, the work of adhesion per area in
+    units of E* L; its range is the grid's ``rho``). Returns {} for the default law so older specs keep their
+    hash."""
+    kind = rd.string("interaction.kind", t.get("kind", "exponential"), INTERACTION_KINDS)
+    keys = {"exponential": ("kind",), "hard_wall": ("kind",), "adhesive": ("kind", "work")}[kind]
+    for k in t:
+        if k not in keys:
+            raise SpecError(f"interaction.{k}: unknown key for kind = {kind!r}; allowed keys: {', '.join(keys)}"
+                            + (" (gamma0 is material.gamma0, rho the grid axis)" if kind == "exponential" else ""))
+    if kind == "exponential":
+        return {}
+    out: dict[str, Any] = {"kind": kind}
+    if kind == "adhesive":
+        if "work" not in t:
+            raise SpecError("interaction.work: missing; the work of adhesion per area (> 0, units of E* L)")
+        out["work"] = rd.number("interaction.work", t["work"], gt=0.0)
+    return out
+
+
+def loads(text: str, base: str | Path | None = None) -> JobSpec:
+    """Parse and validate a job spec from TOML text; raise :class:`SpecError` on any problem. ``base``: the
+    directory a file surface's ``path`` is relative to (default: the current directory)."""
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise SpecError(f"not valid TOML: {e}") from None
+    rd.known("", raw, _TOP)
+    for k in ("job", "grid", "methods"):
+        if k not in raw:
+            raise SpecError(f"{k}: missing table [{k}]; a job needs [job], [grid] and [methods.<name>]")
+    job = rd.table("job", raw["job"])
+    rd.known("job", job, ("name", "description"))
+    if "name" not in job:
+        raise SpecError("job.name: missing; a short name for the job (letters, digits, - and _)")
+    name = rd.string("job.name", job["name"])
+    if not name or not all(c.isalnum() or c in "-_." for c in name):
+        raise SpecError(f"job.name: allowed characters are letters, digits, '-', '_', '.', got {name!r}")
+    description = rd.string("job.description", job.get("description", ""))
+
+    interaction = _interaction(rd.table("interaction", raw.get("interaction", {})))
+    law = interaction.get("kind", "exponential")
+
+    s = rd.table("surface", raw.get("surface", {}))
+    kind = rd.string("surface.kind", s.get("kind", "self_affine"), SURFACE_KINDS)
+    file_n: int | None = None
+    if kind == "file":
+        surface, file_n = file_surface(s, base)
+        norm, nyquist = "file", 8
+    else:
+        rd.known("surface", s, ("kind", "lambda_l", "lambda_s", "length", "rms_slope", "rms_height", "c0",
+                              "amplitudes"))
+        length = rd.number("surface.length", s.get("length", 1.0), gt=0.0)
+        lambda_l = rd.number("surface.lambda_l", s.get("lambda_l", 0.25), gt=0.0, le=length)
+        lambda_s = rd.number("surface.lambda_s", s.get("lambda_s", 2.5e-3), gt=0.0, lt=lambda_l)
+        norms = [k for k in ("rms_slope", "rms_height", "c0") if k in s]
+        if len(norms) > 1:
+            raise SpecError(f"surface: give exactly one of rms_slope, rms_height, c0; got {', '.join(norms)}")
+        norm = norms[0] if norms else "rms_slope"
+        surface = {
+            "lambda_l": lambda_l, "lambda_s": lambda_s, "length": length,
+            norm: rd.number(f"surface.{norm}", s.get(norm, 1.0), gt=0.0),
+            "amplitudes": rd.string("surface.amplitudes", s.get("amplitudes", "fixed"), ("fixed", "gaussian")),
+        }
+        # M2 Nyquist condition as the surface module applies it: n > 2 floor(L / lambda_s).
+        nyquist = 2 * int(math.floor(length / lambda_s * (1 + 1e-9))) + 1
+
+    g = rd.table("grid", raw["grid"])
+    rd.known("grid", g, GRID_AXES)
+    grid = _grid("grid", g, required=True, law=law, file=kind == "file")
+    if kind == "file" and grid["seeds"] != [0]:
+        raise SpecError(f"grid.seeds: a file surface is one surface: allowed seeds = [0] (or leave seeds out), "
+                        f"got {grid['seeds']}")
+
+    m = rd.table("material", raw.get("material", {}))
+    rd.known("material", m, ("e_star", "gamma0"))
+    material = {"e_star": rd.number("material.e_star", m.get("e_star", 1.0), gt=0.0)}
+    if law == "exponential":
+        material["gamma0"] = rd.number("material.gamma0", m.get("gamma0", 1e-3), gt=0.0)
+    elif "gamma0" in m:
+        raise SpecError(f"material.gamma0: the exponential law's amplitude; not used with interaction.kind = "
+                        f"{law!r} (remove it)")
+
+    h = rd.table("histogram", raw.get("histogram", {}))
+    rd.known("histogram", h, ("bins", "range"))
+    bins = rd.integer("histogram.bins", h.get("bins", 64), ge=1, le=100000)
+    rng = h.get("range", "auto")
+    if rng != "auto":
+        if not (isinstance(rng, list) and len(rng) == 2 and all(rd.is_num(x) and math.isfinite(x) for x in rng)
+                and rng[0] < rng[1]):
+            raise SpecError(f"histogram.range: expected 'auto' or [lo, hi] with finite lo < hi (absolute gap), "
+                            f"got {rng!r}")
+        rng = [float(rng[0]), float(rng[1])]
+    histogram = {"bins": bins, "range": rng}
+
+    meth = rd.table("methods", raw["methods"])
+    names = registry.names()
+    rd.known("methods", meth, names)
+    if not meth:
+        raise SpecError(f"methods: empty; add at least one of [methods.{'], [methods.'.join(names)}]")
+    env = Env(law=law, file_n=file_n, nyquist=nyquist, norm=norm)
+    methods = {k: _method(k, rd.table(f"methods.{k}", v), env) for k, v in meth.items()}
+    js = JobSpec(name=name, description=description, text=text, grid=grid, surface=surface,
+                 material=material, histogram=histogram, methods=methods, interaction=interaction,
+                 base_dir=str(base) if base is not None else "")
+    n, cap = js.task_count(), max_tasks()
+    if n > cap:
+        raise SpecError(f"grid: the job has up to {n:,} tasks, more than the cap of {cap:,} (every rank holds "
+                        "the task list); split the job, or raise the cap with GAPSWEEP_MAX_TASKS=<n>")
+    check_extra(js)
+    return js
+
+
+def load(path: str | Path) -> JobSpec:
+    """Read and validate a job spec file (see :func:`loads`)."""
+    p = Path(path)
+    if not p.is_file():
+        raise SpecError(f"job spec {str(p)!r}: no such file")
+    try:
+        text = p.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise SpecError(f"job spec {str(p)!r}: not UTF-8 text (byte {e.start}); TOML files must be UTF-8") from None
+    except OSError as e:
+        raise SpecError(f"job spec {str(p)!r}: cannot be read ({e.strerror})") from None
+    try:
+        return loads(text, base=p.resolve().parent)
+    except SpecError as e:
+        raise SpecError(f"{p}: {e}") from None

@@ -1,0 +1,244 @@
+"""The package's layout as a contract (docs/architecture.md): no import circle anywhere in gapsweep (imports inside
+functions count), physics never imports the sweep, I/O or MPI, the sweep's core modules name no method, the
+stable public names of version 0.1 still import, and a new sweep method is one file."""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import math
+from pathlib import Path
+
+import pytest
+
+import gapsweep
+
+PKG = Path(gapsweep.__file__).resolve().parent
+PHYSICS = ("gapsweep.core", "gapsweep.surfaces", "gapsweep.gfmd", "gapsweep.theory", "gapsweep.gapdist")
+
+
+def _module_name(path: Path) -> str:
+    rel = path.relative_to(PKG.parent).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def _modules() -> dict[str, Path]:
+    return {_module_name(p): p for p in PKG.rglob("*.py")}
+
+
+def _imports(path: Path, name: str, known: set[str]) -> set[str]:
+    """Every gapsweep module imported anywhere in the file (module level, functions, classes)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    is_pkg = path.name == "__init__.py"
+    out: set[str] = set()
+
+    def add(mod: str) -> None:
+        mod = gapsweep.STABLE_NAMES.get(mod, mod)
+        if mod in known:
+            out.add(mod)
+
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                if a.name.startswith("gapsweep"):
+                    add(a.name)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                pkg = name.split(".") if is_pkg else name.split(".")[:-1]
+                pkg = pkg[: len(pkg) - (node.level - 1)]
+                base = ".".join(pkg + ([base] if base else []))
+            if not base.startswith("gapsweep"):
+                continue
+            for a in node.names:
+                sub = f"{base}.{a.name}"
+                if gapsweep.STABLE_NAMES.get(sub, sub) in known:
+                    add(sub)
+                else:
+                    add(base)
+    out.discard(name)
+    return out
+
+
+def _graph() -> dict[str, set[str]]:
+    mods = _modules()
+    known = set(mods)
+    return {m: _imports(p, m, known) for m, p in mods.items()}
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    out: list[list[str]] = []
+    counter = [0]
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_graph_sees_lazy_imports():
+    """The graph builder finds imports inside functions (a circle hidden in a function is still a circle)."""
+    g = _graph()
+    assert "gapsweep.gfmd" in g["gapsweep.theory.improved"]  # imported inside hybrid()
+    assert "gapsweep.sweep.schema" in g["gapsweep.sweep.store"]
+    # and it would report a circle: a synthetic graph with one
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": set()}) == [["a", "b", "c"]]
+
+
+@pytest.mark.xfail(strict=True, reason="gfmd's package-internal circle (solve() lives in gfmd/__init__ and its "
+                   "modules import it back): removed when the solver branches of this round merge")
+def test_no_import_cycle():
+    g = _graph()
+    assert len(g) > 50
+    assert _cycles(g) == []
+
+
+def test_physics_never_imports_the_sweep_or_drivers():
+    g = _graph()
+    bad = [(m, d) for m, deps in g.items() if m.startswith(PHYSICS)
+           for d in deps if d.startswith(("gapsweep.sweep", "gapsweep.cli", "gapsweep.demo"))]
+    assert bad == []
+    # nor I/O or MPI packages (h5py, mpi4py): those belong to the sweep
+    for m, p in _modules().items():
+        if m.startswith(PHYSICS):
+            tree = ast.parse(p.read_text(encoding="utf-8"))
+            names = {a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+            names |= {(n.module or "").split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+            assert not names & {"h5py", "mpi4py"}, m
+
+
+def test_sweep_core_names_no_method():
+    """The spec validator, the task expansion, the runner, the store and its validation, merge and the dataset
+    view iterate the method registry: no method name appears among their string constants."""
+    names = {"theory", "gfmd", "sde", "fokker_planck"}
+    for mod in ("spec", "tasks", "execute", "runner", "store", "storecheck", "merge", "dataset", "budget",
+                "provenance", "api"):
+        tree = ast.parse((PKG / "sweep" / f"{mod}.py").read_text(encoding="utf-8"))
+        docs = {id(n.body[0].value) for n in ast.walk(tree)
+                if isinstance(n, (ast.Module, ast.FunctionDef, ast.ClassDef)) and n.body
+                and isinstance(n.body[0], ast.Expr) and isinstance(n.body[0].value, ast.Constant)}
+        found = {n.value for n in ast.walk(tree) if isinstance(n, ast.Constant) and isinstance(n.value, str)
+                 and id(n) not in docs and n.value in names}
+        assert not found, f"gapsweep.sweep.{mod} names the method(s) {sorted(found)}"
+
+
+@pytest.mark.parametrize("old", sorted(gapsweep.STABLE_NAMES))
+def test_stable_names_import_the_same_module(old):
+    mod = importlib.import_module(old)
+    assert mod is importlib.import_module(gapsweep.STABLE_NAMES[old])
+    parent, _, child = old.rpartition(".")
+    assert getattr(importlib.import_module(parent), child) is mod
+
+
+def test_stable_names_of_the_readme_and_docs():
+    from gapsweep import fokker_planck, gfmd, sde, store, surface, theory
+
+    assert callable(surface.self_affine) and callable(theory.mean_gap) and callable(gfmd.solve)
+    assert callable(sde.gap_samples) and callable(fokker_planck.solve)
+    for f in ("read", "read_histograms", "diff", "merge", "to_dataset", "open_fields", "status"):
+        assert callable(getattr(store, f)), f
+
+
+# ---------------------------------------------------------------------------------------------------------
+# a new method is one file
+
+
+PLUGIN = '''
+"""A toy sweep method for the test: the paper's closed form of the field theory, as a method of its own."""
+from gapsweep import theory
+from gapsweep.sweep import readers as rd
+from gapsweep.sweep.methods.base import Method, grid_tasks, register
+from gapsweep.sweep.schema import TaskResult
+
+
+@register
+class PaperOnly(Method):
+    name = "paper_only"
+    keys = ("scale",)
+    columns = ("mean_gap",)
+    variables = {"mean_gap": ("paper_only_mean_gap", "mean gap, paper form", {"units": "1"})}
+
+    def validate(self, key, t, env):
+        return {"scale": rd.number(f"{key}.scale", t.get("scale", 1.0), gt=0.0)}
+
+    def expand(self, spec):
+        yield from grid_tasks(spec, self.name, seeds=[0], with_hist=False)
+
+    def run(self, t, ctx, prev):
+        sp = t.surface_params()
+        g = theory.mean_gap(t.sigma0, form="paper", hurst=t.hurst, h_rms=sp["rms_height"], rho=t.rho,
+                            gamma0=t.opt("gamma0"), lambda_l=sp["lambda_l"], lambda_s=sp["lambda_s"])
+        return TaskResult("done", "", {"mean_gap": t.opt("scale") * g}), None
+'''
+
+JOB = """
+[job]
+name = "plugin"
+[grid]
+hurst = 0.8
+rho = [5e-3, 1e-2]
+sigma0 = [1e-3, 1e-2]
+[surface]
+lambda_l = 0.25
+lambda_s = 0.0625
+rms_height = 0.01
+[methods.theory]
+forms = ["paper"]
+[methods.paper_only]
+scale = {scale}
+"""
+
+
+def test_a_new_method_is_one_file(tmp_path, monkeypatch):
+    from gapsweep import runner, spec, store
+    from gapsweep.sweep import methods
+    from gapsweep.sweep.methods import base
+
+    (tmp_path / "toy_method.py").write_text(PLUGIN)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    importlib.import_module("toy_method")
+    try:
+        assert "paper_only" in methods.names()
+        with pytest.raises(spec.SpecError, match=r"methods\.paper_only\.scale"):
+            spec.loads(JOB.format(scale=-1))
+        job = tmp_path / "job.toml"
+        job.write_text(JOB.format(scale=1.0))
+        runner.run(job, tmp_path / "s.h5", mpi="off", progress="none")
+        df = store.read(tmp_path / "s.h5")
+        assert sorted(set(df.method)) == ["paper_only", "theory"] and (df.status == "done").all()
+        mine = df[df.method == "paper_only"].set_index(["rho", "sigma0"]).mean_gap
+        ref = df[df.method == "theory"].set_index(["rho", "sigma0"]).mean_gap
+        assert len(mine) == 4 and all(math.isclose(mine[k], ref[k], rel_tol=1e-15) for k in ref.index)
+    finally:
+        base._REGISTRY.pop("paper_only", None)
+    assert "paper_only" not in methods.names()
