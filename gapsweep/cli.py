@@ -86,6 +86,8 @@ def _parser() -> argparse.ArgumentParser:
                         "(default) or keep the first / last shard's; a better status always wins (done > "
                         "not_converged > failed)")
     s.add_argument("--break-lease", action="store_true", help="take over the output's lease from a merge that is gone")
+    s.add_argument("--skip-damaged", action="store_true",
+                   help="merge without the shard rows whose checksum does not match (default: refuse)")
 
     s = sub.add_parser("report", help="figures, tables and verdicts from one or more stores (analysis package)")
     s.add_argument("store", nargs="+", help="HDF5 stores; figures are chosen from their axes and methods")
@@ -95,6 +97,8 @@ def _parser() -> argparse.ArgumentParser:
     s = sub.add_parser("export", help="write a store as a netCDF4 file that xarray and netCDF tools open")
     s.add_argument("store", help="HDF5 store written by `gapsweep run`")
     s.add_argument("--out", required=True, help="netCDF file to write (e.g. out/demo.nc)")
+    s.add_argument("--skip-damaged", action="store_true",
+                   help="export without the rows whose checksum does not match (default: refuse)")
     s.add_argument("--overwrite", action="store_true", help="replace an existing --out")
 
     s = sub.add_parser("demo", help="run the shipped demo job: GFMD vs field theory (figure 2) and a gap distribution")
@@ -198,7 +202,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         from gapsweep.sweep import merge
 
         counts = merge.merge(args.shards, args.out, overwrite=args.overwrite, on_conflict=args.on_conflict,
-                             break_lease=args.break_lease)
+                             break_lease=args.break_lease, skip_damaged=args.skip_damaged)
         print(f"merged {len(args.shards)} shard(s) into {args.out}: "
               + ", ".join(f"{v} {k}" for k, v in counts.items()))
         return 0
@@ -213,7 +217,8 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "export":
         from gapsweep.sweep import dataset
 
-        print(f"netCDF4: {dataset.export_netcdf(args.store, args.out, overwrite=args.overwrite)}")
+        nc = dataset.export_netcdf(args.store, args.out, overwrite=args.overwrite, skip_damaged=args.skip_damaged)
+        print(f"netCDF4: {nc}")
         return 0
     if args.command == "demo":
         return _demo(args)

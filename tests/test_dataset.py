@@ -125,3 +125,41 @@ def test_keep_fields_spec_errors():
     bad = text.replace('backend = "numpy"\n', 'backend = "numpy"\nkeep_fields = { fields = ["gap"], sigma = [1] }\n')
     with pytest.raises(SpecError, match="sigma"):
         loads(bad)
+
+
+def test_kept_fields_write_error_stops_the_run_with_the_row_pending(tmp_path):
+    """A file where the .fields folder should be: the solved row must not become a permanent 'failed' row; the
+    run exits 1 (store failure) and --resume finishes it once the folder can be written (issue 19 item 5)."""
+    import subprocess
+    import sys
+
+    job = tmp_path / "mixed_fields.toml"
+    job.write_text(_spec_with_fields())
+    path = tmp_path / "m.h5"
+    dataset.fields_dir(path).write_text("not a folder")
+    p = subprocess.run([sys.executable, "-m", "gapsweep", "run", str(job), "--store", str(path), "--mpi", "off",
+                        "--progress", "none"], capture_output=True, text=True, timeout=300)
+    assert p.returncode == 1, p.stdout + p.stderr
+    assert "kept fields" in p.stderr and "Traceback" not in p.stderr
+    df = store.read(path)
+    assert "failed" not in set(df.status)
+    kept = df[(df.method == "gfmd") & np.isclose(df.sigma0, 1e-2) & (df.seed == 0)]
+    assert (kept.status == "pending").all()
+    dataset.fields_dir(path).unlink()
+    p = subprocess.run([sys.executable, "-m", "gapsweep", "run", str(job), "--store", str(path), "--mpi", "off",
+                        "--progress", "none", "--resume"], capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    assert set(store.read(path).status) == {"done"} and len(store.open_fields(path)) == 1
+
+
+def test_overwrite_with_another_spec_removes_the_old_fields(tmp_path, mixed):
+    import shutil
+
+    path = tmp_path / "m.h5"
+    shutil.copy(mixed, path)
+    shutil.copytree(dataset.fields_dir(mixed), dataset.fields_dir(path))
+    (dataset.fields_dir(path) / "notes.txt").write_text("mine")  # not the run's: must stay
+    assert len(store.open_fields(path)) == 1
+    runner.run(ROOT / "jobs" / "test_mixed.toml", path, progress="none", mpi="off", overwrite=True)
+    assert store.open_fields(path) == {}
+    assert (dataset.fields_dir(path) / "notes.txt").read_text() == "mine"

@@ -41,7 +41,7 @@ from gapsweep.sweep.context import Context, use_gpu
 from gapsweep.sweep.execute import run_task
 from gapsweep.sweep.methods.base import non_finite as _non_finite
 from gapsweep.sweep.methods.gfmd import gfmd_host_fields, gfmd_row
-from gapsweep.sweep.schema import Task, TaskResult, Unit
+from gapsweep.sweep.schema import StoreWriteError, Task, TaskResult, Unit
 
 __all__ = ["BATCH_CHAINS", "BATCH_MAX_N", "MODES", "batch_units", "run_batch"]
 
@@ -181,6 +181,8 @@ def _solve_step(tasks: list[Task], probs: list, who: list[tuple[int, int]], ctx:
             out[i] = TaskResult("failed", msg, {"wall_time": limit, "rank": ctx.rank})
             state[j] = None
         return out
+    except StoreWriteError:
+        raise
     except Exception as e:  # e.g. one bad input: one task at a time, so that only its row fails
         log.info("batch step failed as a whole (%s: %s): its tasks run one by one", type(e).__name__, e)
         out = {}
@@ -204,6 +206,8 @@ def _solve_step(tasks: list[Task], probs: list, who: list[tuple[int, int]], ctx:
             bad = _non_finite(res) if res.status == "done" else []
             if bad:  # never store a NaN as success
                 res.status, res.message, nxt = "failed", f"non-finite result: {', '.join(bad)}", None
+        except StoreWriteError:
+            raise
         except Exception as e:
             res, nxt = TaskResult("failed", f"{type(e).__name__}: {e}"), None
         res.values["wall_time"] = share + time.perf_counter() - t1

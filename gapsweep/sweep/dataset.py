@@ -172,14 +172,24 @@ def _provenance(path: str | Path) -> dict[str, Any]:
     return out
 
 
-def to_dataset(path: str | Path, *, n: int | None = None, c2: float | None = None):
+def to_dataset(path: str | Path, *, n: int | None = None, c2: float | None = None, skip_damaged: bool = False):
     """Open the store at ``path`` as an ``xarray.Dataset`` (module docstring). ``n`` picks the GFMD (and discrete
     theory) grid and ``c2`` the SDE / Fokker-Planck fudge factor when a store holds several (default: the
-    finest grid, the smallest C2); the choices are recorded in the attributes."""
+    finest grid, the smallest C2); the choices are recorded in the attributes. A store with damaged rows
+    (checksum mismatch, docs/store.md) is refused unless ``skip_damaged`` (then those rows are left out and
+    counted in the attribute ``gapsweep_damaged_rows``)."""
     from gapsweep.sweep import store
 
     _xr()
-    return from_frame(store.read(path), n=n, c2=c2, attrs=_provenance(path))
+    df = store.read(path)
+    damaged = int((df["status"] == "damaged").sum())
+    if damaged and not skip_damaged:
+        raise store.StoreError(f"store {path}: {damaged} damaged row(s) (checksum mismatch; `gapsweep status` "
+                               "names them): re-run them with --resume, or pass --skip-damaged to leave them out")
+    attrs = _provenance(path)
+    if damaged:
+        attrs["gapsweep_damaged_rows"] = damaged
+    return from_frame(df, n=n, c2=c2, attrs=attrs)
 
 
 def export_netcdf(path: str | Path, out: str | Path, *, overwrite: bool = False, **kw: Any) -> Path:
@@ -220,7 +230,7 @@ def diff(a: str | Path, b: str | Path, *, rtol: float = 0.0, atol: float = 0.0,
     ma, mb = store.read_attrs(a), store.read_attrs(b)
     if ma.get("spec_sha256") != mb.get("spec_sha256"):
         out.append("spec_sha256 differs")
-    da, db = store.read(a), store.read(b)
+    da, db = store.read(a, mark_damaged=False), store.read(b, mark_damaged=False)
     if len(da) != len(db):
         return [*out, f"task count {len(da)} != {len(db)}"]
     if list(da["task_id"]) != list(db["task_id"]):

@@ -15,7 +15,7 @@ from typing import Any
 from gapsweep.sweep import methods as registry
 from gapsweep.sweep.context import Context
 from gapsweep.sweep.methods.base import non_finite
-from gapsweep.sweep.schema import Task, TaskResult
+from gapsweep.sweep.schema import StoreWriteError, Task, TaskResult
 
 __all__ = ["run_task"]
 
@@ -39,6 +39,8 @@ def run_task(t: Task, ctx: Context, prev: Any = None) -> tuple[TaskResult, Any]:
         if bad:  # never store a NaN as success
             res.status, res.message = "failed", f"non-finite result: {', '.join(bad)}"
             state = None
+    except StoreWriteError:  # the store's failure (kept fields not writable), not the task's: the run stops
+        raise
     except Exception as e:  # the sweep goes on; the row records what happened
         res, state = TaskResult("failed", f"{type(e).__name__}: {e}"), None
     res.values["wall_time"] = time.perf_counter() - t0

@@ -15,9 +15,9 @@ from typing import Any
 
 import numpy as np
 
-from gapsweep.sweep.schema import FIELD_NAMES
+from gapsweep.sweep.schema import FIELD_NAMES, StoreWriteError
 
-__all__ = ["FIELD_META", "FIELD_NAMES", "field_selected", "fields_dir", "write_fields"]
+__all__ = ["FIELD_META", "FIELD_NAMES", "field_selected", "fields_dir", "remove_fields", "write_fields"]
 
 _LEN = {"units": "1", "reference_unit": "L"}  # lengths in units of the spec's L
 # field -> (long_name, unit attributes)
@@ -50,7 +50,41 @@ def field_selected(opts: Mapping[str, Any] | None, *, hurst: float, rho: float, 
 def write_fields(directory: str | Path, task_id: str, arrays: Mapping[str, np.ndarray], *, length: float,
                  attrs: Mapping[str, Any]) -> Path:
     """Write one task's fields as ``directory/<task_id>.nc``: netCDF4 (HDF5 with dimension scales), float64 on
-    ``(x, y)`` cell centres, chunked and gzip-compressed; written under a temporary name and renamed."""
+    ``(x, y)`` cell centres, chunked and gzip-compressed; written under a temporary name and renamed.
+
+    A write error (full disk, a file where the folder should be) is the store's failure, not the task's: it
+    raises :class:`~gapsweep.sweep.schema.StoreWriteError`, so the run stops with the row still pending
+    (docs/reliability.md) instead of recording a solved task as failed."""
+    try:
+        return _write_fields(directory, task_id, arrays, length=length, attrs=attrs)
+    except OSError as e:
+        raise StoreWriteError(f"kept fields of task {task_id} in {directory}: cannot be written ({e}); the row "
+                              "stays pending: free space or fix the folder and run again with --resume") from None
+
+
+def remove_fields(directory: str | Path) -> int:
+    """Delete the kept-field files that runs wrote into ``directory`` (``<task_id>.nc`` with a 16-hex-digit task
+    id, and their temporary files) and the folder if it is then empty; anything else is left. Returns the count
+    of files removed. Used by ``run --overwrite``: the fields of the replaced store must not outlive it."""
+    d = Path(directory)
+    if not d.is_dir():
+        return 0
+    n = 0
+    for f in d.iterdir():
+        stem = f.name[1:].split(".", 1)[0] if f.name.startswith(".") else f.stem
+        if f.is_file() and len(stem) == 16 and all(c in "0123456789abcdef" for c in stem) and (
+                f.suffix == ".nc" or f.name.endswith(".tmp")):
+            f.unlink()
+            n += 1
+    try:
+        d.rmdir()
+    except OSError:
+        pass  # something else lives there: leave the folder
+    return n
+
+
+def _write_fields(directory: str | Path, task_id: str, arrays: Mapping[str, np.ndarray], *, length: float,
+                  attrs: Mapping[str, Any]) -> Path:
     import h5py
 
     d = Path(directory)

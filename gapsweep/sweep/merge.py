@@ -16,8 +16,8 @@ import numpy as np
 from gapsweep.sweep import lease, provenance, storecheck
 from gapsweep.sweep import spec as specmod
 from gapsweep.sweep import tasks as tasksmod
-from gapsweep.sweep.schema import PRESSURE_HIST, STATUS, STATUS_NAMES, VOLATILE, StoreError
-from gapsweep.sweep.store import Store, _same, empty_results, open_read, read_attrs, upgrade_results
+from gapsweep.sweep.schema import CHECKSUMS, PRESSURE_HIST, STATUS, STATUS_NAMES, VOLATILE, StoreError
+from gapsweep.sweep.store import Store, _same, checksums, empty_results, open_read, read_attrs, upgrade_results
 
 __all__ = ["CONFLICT_CHOICES", "merge"]
 
@@ -29,16 +29,17 @@ _RANK = {STATUS["pending"]: 0, STATUS["failed"]: 1, STATUS["not_converged"]: 2, 
 CONFLICT_CHOICES = ("error", "first", "last")
 
 
-def _row_equal(x: np.ndarray, y: np.ndarray, ex: np.ndarray, ey: np.ndarray, dx: np.ndarray,
-               dy: np.ndarray) -> bool:
+def _row_equal(x: np.ndarray, y: np.ndarray, hx: tuple[np.ndarray, ...], hy: tuple[np.ndarray, ...]) -> bool:
+    """Whether two result rows and their histograms (gap and pressure: edges, density) are the same, wall time
+    and rank aside."""
     for k in x.dtype.names:
         if k not in VOLATILE and not _same(np.asarray(x[k]), np.asarray(y[k])):
             return False
-    return _same(ex, ey) and _same(dx, dy)
+    return all(_same(a, b) for a, b in zip(hx, hy, strict=True))
 
 
 def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = False,
-          on_conflict: str = "error", break_lease: bool = False) -> dict[str, int]:
+          on_conflict: str = "error", break_lease: bool = False, skip_damaged: bool = False) -> dict[str, int]:
     """Merge shard stores of one job into ``out`` (rows in the job's canonical task order, keyed by task id).
 
     All shards must carry the same spec (hash). When a task has a finished row in several shards, the better
@@ -47,7 +48,9 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
     the merge naming the task, ``"first"`` / ``"last"`` keep the row of the first / last shard named. Rows
     that a check finds incomplete (unknown status, done without result) count as pending. The merged store
     lists every task of the job (missing ones stay pending); it is written under a temporary name and renamed
-    into place, holding ``out``'s lease. Returns counts per status (and ``conflicts`` resolved)."""
+    into place, holding ``out``'s lease. A shard row whose checksum does not match its bytes (docs/store.md,
+    "Checksums") refuses the merge, naming the shard and the rows, unless ``skip_damaged`` (then it counts as
+    pending). Returns counts per status (and ``conflicts`` resolved, ``damaged`` rows skipped)."""
     if not shards:
         raise StoreError("merge: no shard stores given")
     if on_conflict not in CONFLICT_CHOICES:
@@ -78,6 +81,7 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
     pdens = np.full((len(tasks), bins), np.nan)
     source = [""] * len(tasks)
     conflicts: list[str] = []
+    damaged = 0
     for s in shards:
         with open_read(s) as f:
             rep = storecheck.check(f, s)
@@ -92,6 +96,11 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
                 pe, pd_ = f[PRESSURE_HIST[0]][...], f[PRESSURE_HIST[1]][...]
             else:
                 pe, pd_ = np.full(e.shape, np.nan), np.full(d.shape, np.nan)
+        if rep.damaged and not skip_damaged:
+            raise StoreError(f"merge: {s} has {len(rep.damaged)} damaged row(s) (checksum mismatch, rows "
+                             f"{rep.damaged[:5]}{' ...' if len(rep.damaged) > 5 else ''}); re-run them with "
+                             "--resume, or pass --skip-damaged to merge without them; nothing was written")
+        damaged += len(rep.damaged)
         bad = set(rep.rerun)
         for j, tid in enumerate(ids):
             if tid not in index:
@@ -103,7 +112,8 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
             if new < old:
                 continue
             if new == old:
-                if _row_equal(results[i], r[j], edges[i], e[j], dens[i], d[j]):
+                if _row_equal(results[i], r[j], (edges[i], dens[i], pedges[i], pdens[i]),
+                              (e[j], d[j], pe[j], pd_[j])):
                     continue
                 conflicts.append(f"task {tid}: {source[i]} and {s} both have a {STATUS_NAMES[int(r['status'][j])]!r} "
                                  "row with different results")
@@ -129,6 +139,7 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
                     st.f[PRESSURE_HIST[0]][...] = pedges
                     st.f[PRESSURE_HIST[1]][...] = pdens
                     st.f["results"][...] = results
+                    st.f[CHECKSUMS][...] = checksums(st.f["tasks"][...], results, bins, edges, dens, pedges, pdens)
                 st.f.attrs["finished"] = provenance.now()
             finally:
                 st.close()
@@ -138,4 +149,5 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
             raise
     counts = {name: int(np.sum(results["status"] == code)) for name, code in STATUS.items()}
     counts["conflicts"] = len(conflicts)
+    counts["damaged"] = damaged
     return counts

@@ -36,7 +36,7 @@ from gapsweep.sweep import batching, budget, gpus, lease, limits, provenance, st
 from gapsweep.sweep import spec as specmod
 from gapsweep.sweep.context import Context
 from gapsweep.sweep.execute import run_task
-from gapsweep.sweep.fields import fields_dir
+from gapsweep.sweep.fields import fields_dir, remove_fields
 from gapsweep.sweep.limits import Interrupted, TaskTimeout
 from gapsweep.sweep.schema import STATUS, Task, TaskResult, Unit
 from gapsweep.sweep.spec import check_extra
@@ -208,11 +208,16 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
             sha, shard = f.attrs.get("spec_sha256"), f.attrs.get("shard")
             ids = [x.decode() for x in f["tasks"].fields("task_id")[...]] if f["tasks"].shape[0] else []
             todo = storecheck.incomplete_rows(f, path)
+            damaged = set(storecheck.check(f, path).damaged)
     except (OSError, StoreError) as e:
         raise RunError(f"{e}; pass --overwrite to replace it") from None
     if isinstance(sha, bytes):
         sha = sha.decode()
-    if sha not in (spec.sha256, spec.text_sha256) or shard != shard_text or ids != [t.task_id for t in tasks]:
+    want = [t.task_id for t in tasks]
+    # rows whose task parameters were damaged (checksum mismatch) are rewritten from the spec and run again
+    moved = {i for i, (a, b) in enumerate(zip(ids, want)) if a != b}
+    if sha not in (spec.sha256, spec.text_sha256) or shard != shard_text or len(ids) != len(want) \
+            or not moved <= damaged:
         raise RunError(f"store {path} was written for another job spec or shard; pass --overwrite to replace "
                        "it or choose another --store")
     if not todo:
@@ -515,13 +520,23 @@ def _open_store(path: Path, mode: str, tasks: list[Task], attrs: dict[str, Any],
                 comm.Barrier()
             if rank == 0:
                 os.replace(tmp, path)
+                # the kept fields of a store this one replaces (run --overwrite) must not outlive it
+                gone = remove_fields(fields_dir(path))
+                if gone:
+                    log.info("store %s replaced: removed %d kept-field file(s) of the old store", path, gone)
             if comm is not None:
                 comm.Barrier()
         except BaseException:
             if rank == 0:
                 tmp.unlink(missing_ok=True)
             raise
-    return Store.open(path, comm=comm)
+    st = Store.open(path, comm=comm)
+    if mode == "resume":  # task rows damaged since they were written come back from the spec (their rows re-run)
+        fixed = st.repair_tasks(tasks, write=rank == 0)
+        if fixed:
+            log.warning("store %s: task parameters of %d damaged row(s) restored from the job spec: %s", path,
+                        len(fixed), fixed[:5])
+    return st
 
 
 def _close_record(st: Store, record: dict[str, Any]) -> None:

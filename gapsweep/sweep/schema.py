@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -202,7 +203,8 @@ def make_task(method: str, hurst: float, rho: float, sigma0: float, seed: int, n
 # the store's layout (docs/store.md)
 
 FORMAT = "gapsweep-store"
-FORMAT_VERSION = 2
+# 3: per-row checksums (/checksums); 2: the issue-12 columns and pressure histograms; 1: the first format
+FORMAT_VERSION = 3
 MESSAGE_LEN = 240
 
 TASK_DTYPE = np.dtype([
@@ -220,6 +222,10 @@ NEW_IN_V2 = ("contact_area", "elastic_energy", "contact_atom", "pressure_atom", 
 RESULT_DTYPE_V1 = np.dtype([(k, RESULT_DTYPE.fields[k][0]) for k in RESULT_DTYPE.names if k not in NEW_IN_V2])
 RESULT_DTYPES = (RESULT_DTYPE, RESULT_DTYPE_V1)
 PRESSURE_HIST = ("histograms/pressure_edges", "histograms/pressure_density")
+# Format 3: one checksum per row over its task parameters, its result row and its four histogram rows, written
+# after the row's payload and status (0: not written). A row whose bytes no longer match is "damaged".
+CHECKSUMS = "checksums"
+CHECKSUM_DTYPE = np.dtype("u8")
 # Columns that differ between two runs of the same job by nature (compare stores without them).
 VOLATILE = ("wall_time", "rank")
 
@@ -230,3 +236,13 @@ class StoreError(RuntimeError):
 
 class StoreWriteError(StoreError):
     """Writing to a store failed (full disk, file-size limit, I/O error); rows written before are intact."""
+
+
+def row_checksum(parts: Sequence[np.ndarray | np.void]) -> int:
+    """Checksum of one store row: BLAKE2b (8 bytes) over the raw bytes of its parts in order -- the ``/tasks``
+    row, the ``/results`` row and the gap and pressure histogram rows (edges, density) exactly as stored. Never
+    0 (0 marks a row whose checksum was not written)."""
+    h = hashlib.blake2b(digest_size=8)
+    for a in parts:
+        h.update(np.asarray(a).tobytes())
+    return int.from_bytes(h.digest(), "little") or 1

@@ -39,6 +39,8 @@ import numpy as np
 
 from gapsweep.sweep import lease, storecheck
 from gapsweep.sweep.schema import (  # noqa: F401 - the store's layout, re-exported as in version 0.1
+    CHECKSUM_DTYPE,
+    CHECKSUMS,
     FLOAT_RESULTS,
     FORMAT,
     FORMAT_VERSION,
@@ -57,6 +59,7 @@ from gapsweep.sweep.schema import (  # noqa: F401 - the store's layout, re-expor
     StoreWriteError,
     Task,
     TaskResult,
+    row_checksum,
 )
 
 log = logging.getLogger("gapsweep.store")
@@ -191,6 +194,21 @@ def result_row(res: TaskResult, dtype: np.dtype = RESULT_DTYPE) -> np.ndarray:
     return row
 
 
+def checksums(tasks: np.ndarray, results: np.ndarray, bins: int, edges: np.ndarray | None = None,
+              density: np.ndarray | None = None, pedges: np.ndarray | None = None,
+              pdensity: np.ndarray | None = None) -> np.ndarray:
+    """Row checksums (:func:`gapsweep.sweep.schema.row_checksum`) of whole tables; histograms not given are the
+    all-NaN rows of a store's creation."""
+    n = len(tasks)
+    nan_e, nan_d = np.full(bins + 1, np.nan), np.full(bins, np.nan)
+    out = np.empty(n, dtype=CHECKSUM_DTYPE)
+    for i in range(n):
+        out[i] = row_checksum((tasks[i], results[i],
+                               nan_e if edges is None else edges[i], nan_d if density is None else density[i],
+                               nan_e if pedges is None else pedges[i], nan_d if pdensity is None else pdensity[i]))
+    return out
+
+
 def _locking_kw() -> dict[str, Any]:
     # A reader of a running store must not take (or wait for) HDF5's file lock.
     return {"locking": False} if h5py.version.hdf5_version_tuple >= (1, 10, 7) else {}
@@ -210,6 +228,9 @@ class Store:
         self._pedges = f[PRESSURE_HIST[0]] if PRESSURE_HIST[0] in f else None
         self._pdensity = f[PRESSURE_HIST[1]] if PRESSURE_HIST[1] in f else None
         self._rdtype = self._res.dtype
+        # format 3: each row's checksum, written after its payload and status (the task rows are its first part)
+        self._ck = f[CHECKSUMS] if CHECKSUMS in f else None
+        self._task_rows = f["tasks"][...] if self._ck is not None and f["tasks"].shape[0] else None
         self.parallel = comm is not None
         self.n_tasks = self._res.shape[0]
         self.bins = self._density.shape[1]
@@ -240,10 +261,13 @@ class Store:
             g.create_dataset("density", shape=(n, bins), dtype="f8", fillvalue=np.nan, dcpl=_early())
             g.create_dataset("pressure_edges", shape=(n, bins + 1), dtype="f8", fillvalue=np.nan, dcpl=_early())
             g.create_dataset("pressure_density", shape=(n, bins), dtype="f8", fillvalue=np.nan, dcpl=_early())
+            dc = f.create_dataset(CHECKSUMS, shape=(n,), dtype=CHECKSUM_DTYPE, fillvalue=0, dcpl=_early())
             if comm is None or comm.rank == 0:
                 if n:
-                    dt[...] = task_rows(tasks)
-                    dr[...] = empty_results(n)
+                    rows, res = task_rows(tasks), empty_results(n)
+                    dt[...] = rows
+                    dr[...] = res
+                    dc[...] = checksums(rows, res, bins)
             f.flush()
             if comm is not None:
                 comm.Barrier()
@@ -270,6 +294,24 @@ class Store:
             raise
         return cls(f, comm)
 
+    def repair_tasks(self, tasks: Sequence[Task], *, write: bool = True) -> list[int]:
+        """Rewrite the ``/tasks`` rows that differ from the job's (rows found damaged by their checksums;
+        ``write``: this rank writes, the others only update what they compute checksums from). Returns the rows."""
+        if not self.n_tasks:
+            return []
+        want = task_rows(tasks)
+        have = self.f["tasks"][...]
+        bad = [i for i in range(self.n_tasks) if have[i].tobytes() != want[i].tobytes()]
+        try:
+            if write:
+                for i in bad:
+                    self.f["tasks"][i] = want[i]
+        except (OSError, RuntimeError) as e:
+            raise _failed(f"store {self.path}: restoring task rows failed ({e})") from None
+        if self._task_rows is not None:
+            self._task_rows = want
+        return bad
+
     def statuses(self) -> np.ndarray:
         return self._res.fields("status")[...] if self.n_tasks else np.zeros(0, dtype="i1")
 
@@ -289,18 +331,26 @@ class Store:
             self._write(i, res, flush)
 
     def _write(self, i: int, res: TaskResult, flush: bool) -> None:
+        ck = self._ck is not None
+        nan_e, nan_d = np.full(self.bins + 1, np.nan), np.full(self.bins, np.nan)
+        hist = (np.asarray(res.hist[0], dtype=np.float64), np.asarray(res.hist[1], dtype=np.float64)) \
+            if res.hist is not None else (nan_e, nan_d)
+        phist = (np.asarray(res.phist[0], dtype=np.float64), np.asarray(res.phist[1], dtype=np.float64)) \
+            if res.phist is not None else (nan_e, nan_d)
         try:
-            if res.hist is not None:
-                edges, density, _ = res.hist
-                self._edges[i] = edges
-                self._density[i] = density
-            if res.phist is not None and self._pedges is not None:
-                self._pedges[i] = res.phist[0]
-                self._pdensity[i] = res.phist[1]
-            if flush and not self.parallel and (res.hist is not None or res.phist is not None):
+            # a checksummed row writes every part, so that its checksum covers exactly what is stored (a row run
+            # again keeps no histogram of an earlier run)
+            if res.hist is not None or ck:
+                self._edges[i], self._density[i] = hist
+            if self._pedges is not None and (res.phist is not None or ck):
+                self._pedges[i], self._pdensity[i] = phist
+            if flush and not self.parallel and (res.hist is not None or res.phist is not None or ck):
                 self.f.flush()
             self._inject()
-            self._res[i] = result_row(res, self._rdtype)[0]
+            row = result_row(res, self._rdtype)[0]
+            self._res[i] = row
+            if ck:  # after the payload and the status: a row whose checksum is stale or missing is damaged
+                self._ck[i] = row_checksum((self._task_rows[i], row, *hist, *phist))
             if flush and not self.parallel:
                 self.f.flush()
         except (OSError, RuntimeError) as e:
@@ -385,21 +435,31 @@ def read_attrs(path: str | Path) -> dict[str, Any]:
         return {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
 
 
-def read(path: str | Path):
+def read(path: str | Path, *, mark_damaged: bool = True):
     """One row per task: parameters, status (string), message and results (``docs/store.md``).
 
     Returns a ``pandas.DataFrame`` with columns task_id, method, chain, hurst, rho, sigma0, seed, n, lambda_l,
     lambda_s, length, gamma0, e_star, c1, c2, status, message, the float results (NaN where not computed) and
-    iterations, count, rank (-1 where not computed)."""
+    iterations, count, rank (-1 where not computed). A row whose checksum does not match its bytes has the status
+    ``"damaged"`` (and a warning is logged): analysis that keeps ``done`` rows leaves it out; ``mark_damaged =
+    False`` gives the stored status (a comparison of contents, :func:`diff`)."""
     import pandas as pd
 
-    with open_read(path) as f:
+    with open_read(path, check=False) as f:
+        report = storecheck.check(f, path)
         t = f["tasks"][...]
         r = f["results"][...]
+    if not mark_damaged:
+        report.damaged = []
+    if report.damaged:
+        log.warning("store %s: %d damaged row(s) (checksum mismatch), read with status 'damaged': %s", path,
+                    len(report.damaged), report.damaged[:5])
     cols: dict[str, Any] = {}
     for k in TASK_DTYPE.names:
         cols[k] = [x.decode() for x in t[k]] if TASK_DTYPE[k].kind == "S" else t[k]
     cols["status"] = [STATUS_NAMES.get(int(s), "unknown") for s in r["status"]]
+    for i in report.damaged:
+        cols["status"][i] = "damaged"
     cols["message"] = [x.decode("utf-8", "replace") for x in r["message"]]
     for k in FLOAT_RESULTS + INT_RESULTS:  # a format-1 store lacks the newer columns: NaN (floats), -1 (flags)
         cols[k] = r[k] if k in r.dtype.names else np.full(len(r), np.nan if k in FLOAT_RESULTS else -1)
@@ -459,7 +519,7 @@ def status(path: str | Path) -> str:
     lines.extend(f"check: {x}" for x in report.lines())
     if len(df):
         tab = df.groupby(["method", "status"]).size().unstack(fill_value=0)
-        cols = [*STATUS, "unknown"] if "unknown" in tab.columns else list(STATUS)
+        cols = [*STATUS, *(x for x in ("unknown", "damaged") if x in tab.columns)]
         for s in cols:
             if s not in tab.columns:
                 tab[s] = 0

@@ -18,7 +18,16 @@ from typing import Any
 import numpy as np
 
 from gapsweep.sweep import methods as registry
-from gapsweep.sweep.schema import FORMAT, PRESSURE_HIST, RESULT_DTYPES, STATUS, TASK_DTYPE, StoreError
+from gapsweep.sweep.schema import (
+    CHECKSUMS,
+    FORMAT,
+    PRESSURE_HIST,
+    RESULT_DTYPES,
+    STATUS,
+    TASK_DTYPE,
+    StoreError,
+    row_checksum,
+)
 
 __all__ = ["Report", "check", "incomplete_rows"]
 
@@ -31,13 +40,23 @@ class Report:
     n_tasks: int
     unknown_status: list[int] = field(default_factory=list)
     done_incomplete: list[int] = field(default_factory=list)
+    damaged: list[int] = field(default_factory=list)  # rows whose checksum does not match their bytes
+    checksums: bool = True  # False: a store of format 1 or 2, whose rows carry no checksum
 
     @property
     def rerun(self) -> list[int]:
-        return sorted(set(self.unknown_status) | set(self.done_incomplete))
+        return sorted(set(self.unknown_status) | set(self.done_incomplete) | set(self.damaged))
 
     def lines(self) -> list[str]:
         out = []
+        if not self.checksums:
+            out.append("no row checksums (a store written before format 3): rows are checked for completeness "
+                       "only, not for changed bytes")
+        if self.damaged:
+            out.append(f"{len(self.damaged)} damaged row(s): checksum mismatch (rows {self.damaged[:5]}"
+                       f"{' ...' if len(self.damaged) > 5 else ''}): their parameters, results or histograms "
+                       "changed after they were written; re-run by --resume, refused by merge and export "
+                       "unless --skip-damaged")
         if self.unknown_status:
             out.append(f"{len(self.unknown_status)} row(s) with an unknown status code (rows "
                        f"{self.unknown_status[:5]}{' ...' if len(self.unknown_status) > 5 else ''}): re-run by "
@@ -63,6 +82,8 @@ def check(f: Any, path: str | Path) -> Report:
     for name in ("tasks", "results", "histograms/edges", "histograms/density"):
         if name not in f:
             _fail(path, f"dataset /{name} missing (damaged or partial store)")
+        if not hasattr(f[name], "dtype"):
+            _fail(path, f"/{name} is a group, not a dataset (damaged store)")
     t, r, e, d = f["tasks"], f["results"], f["histograms/edges"], f["histograms/density"]
     if t.dtype != TASK_DTYPE:
         _fail(path, f"/tasks has dtype {t.dtype}, expected the gapsweep task table")
@@ -106,9 +127,32 @@ def check(f: Any, path: str | Path) -> Report:
     if "contact_atom" in r.dtype.names:  # hard wall in full contact: every point is in the atom at g = 0
         atom = r.fields("contact_atom")[...]
         hist_ok |= np.all(np.isfinite(dens), axis=1) & (atom >= 1.0)
-    bad = done & (~np.isfinite(mean_gap) | (needs_hist & ~hist_ok))
+    edges_ok = np.all(np.isfinite(e[...]), axis=1)
+    bad = done & (~np.isfinite(mean_gap) | (needs_hist & ~(hist_ok & edges_ok)))
     rep.done_incomplete = np.flatnonzero(bad).tolist()
+    rep.checksums = CHECKSUMS in f
+    if rep.checksums and not all(has_p):
+        _fail(path, f"/{CHECKSUMS} present without the pressure histograms it covers (damaged or partial store)")
+    if rep.checksums:
+        rep.damaged = _damaged(f, path, n)
     return rep
+
+
+def _damaged(f: Any, path: Any, n: int) -> list[int]:
+    """Rows whose stored checksum does not match the checksum of their bytes (a changed value, parameter,
+    histogram or status byte, swapped rows), or whose checksum was never written (a crash between a row's
+    status and its checksum)."""
+    ck = f[CHECKSUMS]
+    if not hasattr(ck, "dtype") or ck.shape != (n,):
+        _fail(path, f"/{CHECKSUMS} is not a table of {n} row checksums (damaged store)")
+    try:
+        stored = ck[...]
+        t, r = f["tasks"][...], f["results"][...]
+        e, d = f["histograms/edges"][...], f["histograms/density"][...]
+        pe, pd = f[PRESSURE_HIST[0]][...], f[PRESSURE_HIST[1]][...]
+    except (OSError, ValueError, KeyError) as exc:
+        _fail(path, f"cannot read the tables ({exc}): damaged store")
+    return [i for i in range(n) if int(stored[i]) != row_checksum((t[i], r[i], e[i], d[i], pe[i], pd[i]))]
 
 
 def incomplete_rows(f: Any, path: str | Path) -> list[int]:
