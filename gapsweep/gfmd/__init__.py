@@ -111,6 +111,8 @@ _MINIMISERS: dict[str, tuple[Any, tuple[str, ...]]] = {
     "multiplier": (_constrained.minimise, _constrained.METHODS),
     "variable": (_smooth.minimise, _smooth.METHODS),
 }
+# Minimisers that take periodic=False (free boundaries), by load_control.
+_FREE: dict[str, Any] = {"multiplier": _constrained.minimise}
 
 
 def solve(
@@ -130,6 +132,7 @@ def solve(
     initial: GFMDResult | np.ndarray | None = None,
     threads: int | None = None,
     host: bool | tuple[str, ...] = True,
+    periodic: bool | None = None,
 ) -> GFMDResult:
     """Equilibrium gap of an elastic half-space on the rigid surface ``heights`` at mean pressure ``sigma0``.
 
@@ -149,8 +152,29 @@ def solve(
     for the exponential law is the linear response of M4. ``threads``: FFTW threads. ``host``: which fields of
     a cupy run come to the host (pinned, asynchronous copies): True (all), False (none: they stay on the GPU) or
     names such as ``("gap",)``. Warns (UnderResolvedWarning) when ``rho < length/n`` (M7, exponential law).
+
+    ``periodic``: True, the map is one period of a periodic surface (docs/model.md M1); False, a finite map on
+    an elastic half-space with free boundaries (docs/gfmd.md, "Periodic or free boundaries"): the Boussinesq
+    response of the map's pixels on a grid padded to twice the map, pressure only on the map, ``sigma0`` the
+    mean pressure over the map's own area (load = ``sigma0 Lx Ly``); hard wall on the CPU and GPU (cupy).
+    Default (None): a :class:`gapsweep.topography.Topography` passed as ``heights`` brings its own
+    ``periodic`` flag and its ``length`` (a ``length`` given here must then be left at 1.0); arrays are periodic.
     """
     t_start = time.perf_counter()
+    from gapsweep.topography import Topography
+
+    if isinstance(heights, Topography):
+        if length != 1.0 and tuple(np.broadcast_to(length, 2)) != tuple(heights.length):
+            raise ValueError(f"length={length!r} contradicts the Topography's own length {heights.length}; "
+                             "leave length out when passing a Topography")
+        length = tuple(heights.length)
+        periodic = heights.periodic if periodic is None else periodic
+        heights = heights.heights
+    if periodic is None:
+        periodic = True
+    if not isinstance(periodic, (bool, np.bool_)):
+        raise ValueError(f"periodic must be True or False, got {periodic!r}")
+    periodic = bool(periodic)
     if not _is_cupy(heights):
         if isinstance(heights, (str, bytes)) or heights is None:
             raise TypeError(f"heights must be a 2-D real array, got {type(heights).__name__}")
@@ -180,9 +204,18 @@ def solve(
                          f"{law.name!r}; got {method!r}")
     if not isinstance(backend, str) or backend not in ("auto", *BACKENDS):
         raise ValueError(f"backend must be one of {', '.join(map(repr, ('auto', *BACKENDS)))}; got {backend!r}")
-    return minimise(heights, law, sigma0=sigma0, e_star=e_star, length=length, tol=tol, method=method,
-                    backend=backend, max_iter=max_iter, initial=initial, threads=threads, host=host,
-                    t_start=t_start)
+    if periodic:
+        return minimise(heights, law, sigma0=sigma0, e_star=e_star, length=length, tol=tol, method=method,
+                        backend=backend, max_iter=max_iter, initial=initial, threads=threads, host=host,
+                        t_start=t_start)
+    if law.load_control not in _FREE:
+        raise NotImplementedError(f"periodic=False (free boundaries) is implemented for the laws of "
+                                  f"{sorted(_FREE)} load control, not for {law.name!r} ({law.load_control!r})")
+    r = _FREE[law.load_control](heights, law, sigma0=sigma0, e_star=e_star, length=length, tol=tol,
+                                method=method, backend=backend, max_iter=max_iter, initial=initial,
+                                threads=threads, host=host, t_start=t_start, periodic=False)
+    r.periodic = False
+    return r
 
 
 # Batches of problems of one grid size (gfmd/batched.py): imported last, it builds on solve and _MINIMISERS.

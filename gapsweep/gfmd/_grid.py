@@ -1,5 +1,6 @@
-"""Periodic rectangular grids for the constrained and smooth minimisers (docs/gfmd.md): FFTs of normalised
-coefficients, ``|q|``, Parseval sums and the elastic energy, for numpy or cupy arrays.
+"""Rectangular grids for the constrained and smooth minimisers (docs/gfmd.md): FFTs of normalised
+coefficients, ``|q|``, Parseval sums and the elastic energy, for numpy or cupy arrays. :class:`Grid` is periodic;
+:class:`FreeGrid` adds the free-boundary compliance of a finite map (docs/gfmd.md, "Periodic or free boundaries").
 
 A field ``a`` on ``nx x ny`` points of a ``Lx x Ly`` box has the half-spectrum coefficients
 ``a~ = rfft2(a) / (nx ny)`` (rfft along axis 1), ``q = 2 pi (kx/Lx, ky/Ly)``. Square boxes use the planned
@@ -105,3 +106,96 @@ class Grid:
     def synchronize(self) -> None:
         if self.xp is not np:
             self.xp.cuda.get_current_stream().synchronize()
+
+
+def boussinesq_pixel(x: Any, y: Any, a: float, b: float, e_star: float, xp: Any = np) -> Any:
+    """Surface displacement at ``(x, y)`` of an elastic half-space (contact modulus ``E*``) under a unit uniform
+    pressure on the rectangle ``|x'| <= a, |y'| <= b`` (Love 1929; Johnson, Contact Mechanics, Eq. 3.25), units
+    length / pressure:
+
+        u = 1/(pi E*) [ (x+a) ln((y+b + r_pp)/(y-b + r_mp)) + (y+b) ln((x+a + r_pp)/(x-a + r_pm))
+                      + (x-a) ln((y-b + r_mm)/(y+b + r_pm)) + (y-b) ln((x-a + r_mm)/(x+a + r_mp)) ],
+
+    ``r_pp = |(x+a, y+b)|``, ``r_pm = |(x-a, y+b)|``, ``r_mp = |(x+a, y-b)|``, ``r_mm = |(x-a, y-b)|``. Far from
+    the pixel it tends to Boussinesq's point load ``4ab/(pi E* r)`` (docs/model.md M3: the Fourier transform of
+    ``1/(pi E* r)`` is the compliance ``2/(E* q)`` of the periodic solver). ``s + r`` with ``s < 0`` is written
+    ``t^2/(r - s)`` (``r = |(s, t)|``) so that no digits cancel far from the pixel."""
+
+    def plus(s: Any, t: Any) -> Any:  # s + sqrt(s^2 + t^2), without cancellation for s < 0
+        r = xp.sqrt(s * s + t * t)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return xp.where(s >= 0, s + r, (t * t) / (r - s))
+
+    def term(c: Any, num: Any, den: Any) -> Any:  # c ln(num/den), 0 where c = 0 (the limit c ln c -> 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            v = c * xp.log(num / den)
+        return xp.where(c == 0, 0.0, v)
+
+    xa, xm, yb, ym = x + a, x - a, y + b, y - b
+    u = (term(xa, plus(yb, xa), plus(ym, xa)) + term(yb, plus(xa, yb), plus(xm, yb))
+         + term(xm, plus(ym, xm), plus(yb, xm)) + term(ym, plus(xm, ym), plus(xa, ym)))
+    return u / (math.pi * e_star)
+
+
+class FreeGrid(Grid):
+    """A finite, non-periodic map on an elastic half-space (free boundaries; docs/gfmd.md, "Periodic or free
+    boundaries"). The map's own grid (``nx x ny``, box ``Lx x Ly``) keeps every method of :class:`Grid` (its
+    periodic ``|q|`` serves the preconditioner); :meth:`compliance` is the exact discrete free-surface response
+    ``u(r_i) = sum_j G(r_i - r_j) p(r_j)`` over the map's pixels, ``G`` from :func:`boussinesq_pixel`, evaluated
+    as a circular convolution on the ``2nx x 2ny`` grid with the pressure zero outside the map (Hockney's
+    method: every distance between two pixels of the map, ``|dx| <= nx - 1``, appears once on the doubled
+    grid, so no periodic image enters; the same construction as ContactMechanics' FreeFFTElasticHalfSpace).
+    The displacement has no zero-mean constraint: the mean pressure (taken over the map's area) sets it."""
+
+    periodic = False
+
+    def __init__(self, shape: tuple[int, int], length: Any, backend: str, threads: int | None,
+                 on_gpu: bool) -> None:
+        super().__init__(shape, length, backend, threads, on_gpu)
+        if self.xp is np:  # scipy's pocketfft: about twice numpy's speed on these sizes (benchmarks/bench_free.py)
+            import scipy.fft
+
+            self._f, self._kw = scipy.fft, {"workers": threads or 1}
+        else:
+            self._f, self._kw = self.xp.fft, {}
+        self._green: dict[float, Any] = {}
+
+    def green(self, e_star: float) -> Any:
+        """Spectrum of ``G`` on the doubled grid (distances wrapped to ``[-n, n]`` pixels), shape
+        ``(2nx, ny + 1)``, unnormalised (``rfft2`` of ``G``): real, as ``G`` is even. Made once per ``E*``."""
+        if e_star not in self._green:
+            xp, (nx, ny) = self.xp, self.shape
+            dx, dy = self.lx / nx, self.ly / ny
+            ix = xp.arange(2 * nx)
+            iy = xp.arange(2 * ny)
+            x = xp.where(ix <= nx, ix, ix - 2 * nx) * dx
+            y = xp.where(iy <= ny, iy, iy - 2 * ny) * dy
+            g = boussinesq_pixel(x[:, None], y[None, :], 0.5 * dx, 0.5 * dy, e_star, xp)
+            self._green[e_star] = xp.ascontiguousarray(xp.fft.rfft2(g).real)
+        return self._green[e_star]
+
+    def compliance(self, e_star: float) -> Any:
+        """``K(p, out=None)``: the map's displacement (length) under the pressure ``p`` on the map (docstring of
+        :class:`FreeGrid`). The zero padding is never formed: the transform runs axis by axis, the first one
+        over the map's ``nx`` rows only and the inverse back to the map's rows only, which saves about a third of
+        the doubled grid's FFT work."""
+        m = self.green(e_star)
+        nx, ny = self.shape
+        f, kw = self._f, self._kw
+
+        def apply(a: Any, out: Any = None) -> Any:
+            b = f.rfft(a, n=2 * ny, axis=1, **kw)  # rows of the map, zero padded to 2 ny
+            b = f.fft(b, n=2 * nx, axis=0, overwrite_x=True, **kw)  # rows nx .. 2nx - 1 are zero pressure
+            b *= m
+            b = f.ifft(b, axis=0, overwrite_x=True, **kw)[:nx]  # only the map's rows come back
+            u = f.irfft(b, n=2 * ny, axis=1, **kw)[:, :ny]
+            if out is None:
+                return self.xp.ascontiguousarray(u)
+            out[...] = u
+            return out
+
+        return apply
+
+    def elastic_energy_pu(self, p: Any, u: Any) -> float:
+        """Elastic energy per map area ``<p u> / 2`` (pressure x length) of the equilibrium ``u = K p``."""
+        return 0.5 * float(self.xp.mean(p * u))
