@@ -1,6 +1,7 @@
 """Free boundaries (``gfmd.solve(..., periodic=False)``, docs/gfmd.md "Periodic or free boundaries"): a finite
 map on an elastic half-space, against closed forms (the pixel Green's function against Boussinesq's point load
-and a quadrature of it; Hertz) and against ContactMechanics' FreeFFTElasticHalfSpace (marker ``peers``).
+and a quadrature of it; Hertz), against ContactMechanics' FreeFFTElasticHalfSpace (hard wall, marker ``peers``)
+and, for the smooth laws, against a second algorithm (dense compliance matrix by direct summation, Newton).
 
 The peer runs in its own interpreter (it pins its own numpy): ``GAPSWEEP_PEERS_PYTHON=/path/to/python`` with
 ContactMechanics installed (``python3 -m venv peers && peers/bin/pip install numpy scipy contactmechanics``), or
@@ -19,6 +20,7 @@ import pytest
 
 from gapsweep.gfmd import solve
 from gapsweep.gfmd._grid import FreeGrid, boussinesq_pixel
+from gapsweep.gfmd.interactions import resolve
 from gapsweep.surface import self_affine
 from gapsweep.topography import Topography
 
@@ -133,3 +135,68 @@ def test_free_hard_wall_agrees_with_contactmechanics(tmp_path, shape, length, hu
     np.testing.assert_array_equal(r.pressure > 0, peer["p"] > 0)
     assert r.mean_gap == pytest.approx(float(peer["gap"].mean()), rel=1e-6)
     np.testing.assert_allclose(r.pressure, peer["p"], rtol=0, atol=1e-6 * sigma0)
+
+
+def dense_newton(h: np.ndarray, length, law, sigma0: float, u: np.ndarray, delta: float):
+    """Independent solve of a smooth law on a small free map: the dense compliance matrix by direct summation of
+    the pixel Green's function, Newton on ``u = K p(delta + u - h)``, ``<p> = sigma0`` (Jacobian from
+    ``law.stiffness``), to round-off. Returns ``(u, delta, gap)``."""
+    nx, ny = h.shape
+    dx, dy = length[0] / nx, length[1] / ny
+    ix, iy = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
+    x, y = ix.ravel() * dx, iy.ravel() * dy
+    K = boussinesq_pixel(x[:, None] - x[None, :], y[:, None] - y[None, :], dx / 2, dy / 2, 1.0)
+    hv, n = h.ravel(), h.size
+    for _ in range(100):
+        g = delta + u - hv
+        p, kk = law.pressure(g), law.stiffness(g)
+        F = np.concatenate([u - K @ p, [p.mean() - sigma0]])
+        J = np.zeros((n + 1, n + 1))
+        J[:n, :n] = np.eye(n) + K * kk[None, :]
+        J[:n, n] = K @ kk
+        J[n, :n] = -kk / n
+        J[n, n] = -kk.mean()
+        step = np.linalg.solve(J, -F)
+        u, delta = u + step[:n], delta + step[n]
+        if np.abs(step).max() < 1e-14 * (1 + abs(delta)):
+            break
+    return u, delta, (delta + u - hv).reshape(h.shape)
+
+
+SMOOTH = [("exponential", dict(gamma0=1e-4, rho=2e-3), 0.01), ("exponential", dict(gamma0=1e-3, rho=5e-3), 0.1),
+          ("adhesive", dict(work=1e-4, rho=2e-3), 0.01)]
+
+
+@pytest.mark.parametrize(("name", "kw", "sigma0"), SMOOTH)
+def test_smooth_laws_on_a_free_map_agree_with_dense_newton(name, kw, sigma0) -> None:
+    """Exponential repulsion and adhesion on a 24 x 16 free map (box 1.5 x 1): mean gap to 1e-8 relative and
+    pressures to 1e-7 sigma0 against :func:`dense_newton` (measured: 1e-11 and 1e-10). The exponential law
+    (convex, one equilibrium) is solved by Newton from a flat start; the adhesive one (non-convex) from
+    gapsweep's answer, which Newton must leave unchanged (it is an equilibrium of the dense equations)."""
+    nx, ny, length = 24, 16, (1.5, 1.0)
+    h = self_affine(64, 0.8, lambda_l=0.5, lambda_s=0.1, seed=3)[5:5 + nx, 7:7 + ny]
+    h = (h - h.mean()) / h.std() * 0.01
+    r = solve(h, sigma0=sigma0, interaction=name, length=length, tol=1e-10, periodic=False, **kw)
+    assert r.converged and not r.periodic
+    assert float(r.pressure.mean()) == pytest.approx(sigma0, rel=1e-9)
+    law = resolve(name, **kw)
+    if name == "exponential":
+        u, delta = np.zeros(h.size), float(h.max())
+    else:
+        u, delta = r.displacement.ravel().copy(), float(r.diagnostics["approach"])
+    _, _, gap = dense_newton(h, length, law, sigma0, u, delta)
+    assert r.mean_gap == pytest.approx(float(gap.mean()), rel=1e-8)
+    np.testing.assert_allclose(r.pressure, law.pressure(gap), rtol=0, atol=1e-7 * sigma0)
+
+
+def test_free_exponential_warm_start_and_bad_method() -> None:
+    h = self_affine(32, 0.8, lambda_l=0.5, lambda_s=0.2, seed=2)[:20, :12] * 0.1
+    a = solve(h, sigma0=0.01, gamma0=1e-4, rho=2e-3, length=(1.0, 0.6), tol=1e-9, periodic=False)
+    b = solve(h, sigma0=0.011, gamma0=1e-4, rho=2e-3, length=(1.0, 0.6), tol=1e-9, periodic=False, initial=a)
+    c = solve(h, sigma0=0.011, gamma0=1e-4, rho=2e-3, length=(1.0, 0.6), tol=1e-9, periodic=False)
+    assert b.converged and c.converged and b.iterations < c.iterations
+    assert b.mean_gap == pytest.approx(c.mean_gap, rel=1e-7)
+    with pytest.raises(ValueError, match="with periodic=False"):
+        solve(h, sigma0=0.01, gamma0=1e-4, rho=2e-3, periodic=False, method="cg")
+    with pytest.raises(ValueError, match="initial must be None or a GFMDResult of a free-boundary"):
+        solve(h, sigma0=0.01, gamma0=1e-4, rho=2e-3, periodic=False, initial=np.zeros_like(h))

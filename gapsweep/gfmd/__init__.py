@@ -60,7 +60,7 @@ import numpy as np
 # _make_ops looks up _have_numba here (tests monkeypatch gfmd._have_numba); benchmarks use gfmd._Problem, _make_ops.
 from gapsweep import _checks as chk
 from gapsweep.fft import BACKENDS
-from gapsweep.gfmd import _constrained, _smooth, _softmax
+from gapsweep.gfmd import _constrained, _free, _smooth, _softmax
 from gapsweep.gfmd._cuda import _CupyOps
 from gapsweep.gfmd._ops import _have_numba, _is_cupy, _NumbaOps, _Ops
 from gapsweep.gfmd._path import LoadPath, solve_path
@@ -111,8 +111,13 @@ _MINIMISERS: dict[str, tuple[Any, tuple[str, ...]]] = {
     "multiplier": (_constrained.minimise, _constrained.METHODS),
     "variable": (_smooth.minimise, _smooth.METHODS),
 }
-# Minimisers that take periodic=False (free boundaries), by load_control.
-_FREE: dict[str, Any] = {"multiplier": _constrained.minimise}
+# Minimisers that take periodic=False (free boundaries), by load_control: the hard wall's own (its compliance
+# swapped for the free one), every smooth law (the exponential one included) on gfmd._free.
+_FREE: dict[str, tuple[Any, tuple[str, ...]]] = {
+    "multiplier": (_constrained.minimise, _constrained.METHODS),
+    "softmax": (_free.minimise, _free.METHODS),
+    "variable": (_free.minimise, _free.METHODS),
+}
 
 
 def solve(
@@ -156,7 +161,8 @@ def solve(
     ``periodic``: True, the map is one period of a periodic surface (docs/model.md M1); False, a finite map on
     an elastic half-space with free boundaries (docs/gfmd.md, "Periodic or free boundaries"): the Boussinesq
     response of the map's pixels on a grid padded to twice the map, pressure only on the map, ``sigma0`` the
-    mean pressure over the map's own area (load = ``sigma0 Lx Ly``); hard wall on the CPU and GPU (cupy).
+    mean pressure over the map's own area (load = ``sigma0 Lx Ly``); every law (hard wall: its own methods;
+    exponential and adhesive: "lbfgs" on ``gfmd._free``), on the CPU and the GPU (cupy).
     Default (None): a :class:`gapsweep.topography.Topography` passed as ``heights`` brings its own
     ``periodic`` flag and its ``length`` (a ``length`` given here must then be left at 1.0); arrays are periodic.
     """
@@ -198,22 +204,19 @@ def solve(
     tol = chk.positive(tol, "tol")
     if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
         raise ValueError(f"max_iter must be an integer >= 1, got {max_iter!r}")
-    minimise, methods = _MINIMISERS[law.load_control]
+    minimise, methods = _MINIMISERS[law.load_control] if periodic else _FREE[law.load_control]
     if not isinstance(method, str) or method not in ("auto", *methods):
         raise ValueError(f"method must be one of {', '.join(map(repr, ('auto', *methods)))} for interaction "
-                         f"{law.name!r}; got {method!r}")
+                         f"{law.name!r}{'' if periodic else ' with periodic=False'}; got {method!r}")
     if not isinstance(backend, str) or backend not in ("auto", *BACKENDS):
         raise ValueError(f"backend must be one of {', '.join(map(repr, ('auto', *BACKENDS)))}; got {backend!r}")
     if periodic:
         return minimise(heights, law, sigma0=sigma0, e_star=e_star, length=length, tol=tol, method=method,
                         backend=backend, max_iter=max_iter, initial=initial, threads=threads, host=host,
                         t_start=t_start)
-    if law.load_control not in _FREE:
-        raise NotImplementedError(f"periodic=False (free boundaries) is implemented for the laws of "
-                                  f"{sorted(_FREE)} load control, not for {law.name!r} ({law.load_control!r})")
-    r = _FREE[law.load_control](heights, law, sigma0=sigma0, e_star=e_star, length=length, tol=tol,
-                                method=method, backend=backend, max_iter=max_iter, initial=initial,
-                                threads=threads, host=host, t_start=t_start, periodic=False)
+    r = minimise(heights, law, sigma0=sigma0, e_star=e_star, length=length, tol=tol, method=method,
+                 backend=backend, max_iter=max_iter, initial=initial, threads=threads, host=host, t_start=t_start,
+                 periodic=False)
     r.periodic = False
     return r
 
