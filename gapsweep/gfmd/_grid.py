@@ -155,9 +155,9 @@ class FreeGrid(Grid):
         if self.xp is np:  # scipy's pocketfft: about twice numpy's speed on these sizes (benchmarks/bench_free.py)
             import scipy.fft
 
-            self._f, self._kw = scipy.fft, {"workers": threads or 1}
-        else:
-            self._f, self._kw = self.xp.fft, {}
+            self._f, self._kw, self._ow = scipy.fft, {"workers": threads or 1}, {"overwrite_x": True}
+        else:  # cupy.fft (cuFFT): the same calls without scipy's keywords
+            self._f, self._kw, self._ow = self.xp.fft, {}, {}
         self._green: dict[float, Any] = {}
 
     def green(self, e_star: float) -> Any:
@@ -181,13 +181,13 @@ class FreeGrid(Grid):
         the doubled grid's FFT work."""
         m = self.green(e_star)
         nx, ny = self.shape
-        f, kw = self._f, self._kw
+        f, kw, ow = self._f, self._kw, self._ow
 
         def apply(a: Any, out: Any = None) -> Any:
             b = f.rfft(a, n=2 * ny, axis=1, **kw)  # rows of the map, zero padded to 2 ny
-            b = f.fft(b, n=2 * nx, axis=0, overwrite_x=True, **kw)  # rows nx .. 2nx - 1 are zero pressure
+            b = f.fft(b, n=2 * nx, axis=0, **ow, **kw)  # rows nx .. 2nx - 1 are zero pressure
             b *= m
-            b = f.ifft(b, axis=0, overwrite_x=True, **kw)[:nx]  # only the map's rows come back
+            b = f.ifft(b, axis=0, **ow, **kw)[:nx]  # only the map's rows come back
             u = f.irfft(b, n=2 * ny, axis=1, **kw)[:, :ny]
             if out is None:
                 return self.xp.ascontiguousarray(u)
