@@ -14,9 +14,10 @@ its normalised half spectrum ``u~``) and the rigid approach ``delta``; the gap e
 the elastic pressure) has the gradient ``k u~ - (N_pad/N_map) FFT[p 1_map]/N_pad`` in ``u~`` and
 ``sigma0 - <p>_map`` in ``delta``. At a stationary point the elastic pressure equals ``p`` on the map and
 vanishes outside it (the free surface around the map carries no load), and the mean pressure over the map's own
-area is ``sigma0``. Minimised by L-BFGS with the initial inverse Hessian ``1/(k(q) + c)`` (``c`` from
-``law.curvature``) and ``1/c`` for ``delta``, the strong-Wolfe line search of :mod:`gapsweep.gfmd._smooth` moving in
-real space (one FFT pair on the doubled grid per iteration). The same array code runs on numpy and cupy.
+area is ``sigma0``. Minimised by L-BFGS with the initial inverse Hessian ``1/(k(q) + c N_map/N_pad)`` (``c``
+from ``law.curvature``, averaged over the doubled grid) and ``1/c`` for ``delta``, the strong-Wolfe line search
+of :mod:`gapsweep.gfmd._smooth` moving in real space (per iteration one forward transform of the map's pressure
+and one inverse to the map's rows, FreeGrid.pad_fwd/pad_inv). The same array code runs on numpy and cupy.
 
 Convergence on the returned fields: ``residual = rms_map-normalised(f - p 1_map) / P`` (the force imbalance on
 the whole doubled grid, summed and divided by the map's pixel count: outside the map it is the load that would
@@ -46,27 +47,27 @@ class _FreeState:
     """Point ``(u~, delta)`` with the map's gap, pressure, energy and gradient ``(G_u, G_delta)``; the interface
     that :func:`gapsweep.gfmd._smooth._wolfe` uses (``line``, ``phi``, ``e_law``, ``energy``)."""
 
-    def __init__(self, pad: Grid, shape: tuple[int, int], law: SmoothInteraction, h: Any, k: Any, sigma0: float,
+    def __init__(self, free: FreeGrid, pad: Grid, law: SmoothInteraction, h: Any, k: Any, sigma0: float,
                  U: Any, delta: float) -> None:
-        self.pad, self.law, self.h, self.k, self.sigma0 = pad, law, h, k, sigma0
-        self.nx, self.ny = shape
-        self.ratio = pad.size / (self.nx * self.ny)  # N_pad / N_map
+        self.free, self.pad, self.law, self.h, self.k, self.sigma0 = free, pad, law, h, k, sigma0
+        self.ratio = pad.size / free.size  # N_pad / N_map
         self.xp = pad.xp
         self.U, self.delta = U, float(delta)
-        self.g = self._map(pad.inv(U)) + self.delta - h
+        self.g = self.map_field(U) + self.delta - h
         self.nfev = 0
         self._evaluate()
 
-    def _map(self, a: Any) -> Any:
-        return a[: self.nx, : self.ny]
+    def map_field(self, A: Any) -> Any:
+        """The map block of the real field of the normalised doubled-grid coefficients ``A`` (only the map's
+        rows are transformed back: FreeGrid.pad_inv)."""
+        return self.free.pad_inv(A * float(self.pad.size))
 
     def _evaluate(self) -> None:
         xp = self.xp
         self.p = self.law.pressure(self.g, xp)
         self.e_law = float(xp.mean(self.law.energy(self.g, xp)))
-        pm = xp.zeros(self.pad.shape)
-        pm[: self.nx, : self.ny] = self.p
-        self.Gu = self.k * self.U - self.ratio * self.pad.fwd(pm)
+        # FFT of p zero-padded to the doubled grid, normalised (FreeGrid.pad_fwd never forms the padding)
+        self.Gu = self.k * self.U - (self.ratio / self.pad.size) * self.free.pad_fwd(self.p)
         self.Gd = self.sigma0 - float(self.p.mean())
         self.nfev += 1
 
@@ -79,7 +80,7 @@ class _FreeState:
     def line(self, D: tuple[Any, float]) -> tuple[Any, float, float, float]:
         """Real-space direction of the map's gap and the scalars of ``phi(alpha) = F(x + alpha D)``."""
         DU, dd = D
-        d = self._map(self.pad.inv(DU)) + dd
+        d = self.map_field(DU) + dd
         a = self.pad.dot(DU, self.k * self.U)
         b = self.pad.dot(DU, self.k * DU)
         return d, a, b, dd
@@ -122,7 +123,10 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
     ratio = pad.size / (nx * ny)
     k = ratio / green
     c = law.curvature(sigma0)
-    minv_u = 1.0 / (k + c) if c > 0 else 1.0 / k
+    # Local stiffness c acts on the map only, a quarter of the doubled grid: its mean over the grid, c/ratio, is
+    # the Fourier-diagonal estimate (as the periodic preconditioner takes the mean of p/rho). Measured on a
+    # 256 x 192 crop (exponential, sigma0 = 0.05): 146 iterations against 215 with c.
+    minv_u = 1.0 / (k + c / ratio) if c > 0 else 1.0 / k
     minv_d = 1.0 / c if c > 0 else 1.0 / max(law.pressure_scale(sigma0) / (law.range() or 1.0), 1e-300)
     p_ref = law.pressure_scale(sigma0)
     rng = law.range()
@@ -140,7 +144,7 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
     else:
         raise ValueError(f"initial must be None or a GFMDResult of a free-boundary (periodic=False) solve of a "
                          f"{nx} x {ny} map")
-    st = _FreeState(pad, (nx, ny), law, h, k, sigma0, U, delta)
+    st = _FreeState(free, pad, law, h, k, sigma0, U, delta)
     history: list[float] = []
     s_hist: list = []
     y_hist: list = []
