@@ -153,7 +153,7 @@ def contact_area(
     The spectrum is the self-affine one of M2 (``hurst``, ``lambda_l``, ``lambda_s`` and one of ``rms_slope``,
     ``rms_height``, ``c0``; default ``rms_slope=1``) or that of ``heights`` (a 2-D map of side ``length``, or a
     Topography), taken by ``spectrum.map_spectrum(heights, length, periodic=periodic)``: ``periodic=None`` uses
-    the Topography's flag or the map's edges, False the non-periodic estimator (docs/theory.md, "Spectra of
+    the Topography's flag or the map's edges, False the non-periodic estimator (docs/gfmd.md, "Spectra of
     measured maps"). Only ``g_rms`` enters. Small loads: ``A/A0 -> sqrt(8/pi) sigma0 / (E* g_rms)``
     (persson2001). Vectorised over ``sigma0``.
     """

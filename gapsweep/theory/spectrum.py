@@ -17,7 +17,7 @@ spectrum should go through it.
 
 Conventions (M2): ``h~ = FFT[h] / (nx ny)``, the mean plane (q = 0) is excluded.
 
-Maps that are not periodic (docs/theory.md, "Spectra of measured maps"). The FFT treats a map as one period, so
+Maps that are not periodic (docs/gfmd.md, "Spectra of measured maps"). The FFT treats a map as one period, so
 the jump between opposite edges (and any tilt) counts as roughness: a step of the order of ``h_rms`` along two
 lines of the map, whose power falls only as ``q^-2`` and so inflates the rms slope (measured: a crop of a
 surface of rms slope 1.00 gives 1.56 by the plain FFT). ``map_spectrum`` therefore differentiates inside the map
@@ -266,7 +266,7 @@ def _difference_power(h: np.ndarray, lx: float, ly: float) -> tuple[np.ndarray, 
 def map_spectrum(heights: Any, length: float | tuple[float, float] | None = None, *, periodic: bool | None = None,
                  lambda_l: float | None = None, form: str = "discrete") -> MapSpectrum:
     """Spectrum of a measured height map, right for the data (module docstring, "Maps that are not periodic";
-    docs/theory.md, "Spectra of measured maps"; docs/model.md M2 conventions).
+    docs/gfmd.md, "Spectra of measured maps"; docs/model.md M2 conventions).
 
     ``heights``: a 2-D array (``nx x ny``, units of ``length``) or a :class:`gapsweep.topography.Topography`
     (its ``length`` and ``periodic`` flag are used unless given here). ``length``: ``Lx`` or ``(Lx, Ly)``
