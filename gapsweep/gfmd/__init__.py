@@ -7,6 +7,9 @@ docstring describes the exponential law's minimiser (``gfmd._softmax``).
 
 An elastic half-space (contact modulus ``E*``) is pressed with mean pressure ``sigma0`` onto a rigid periodic
 rough surface ``h`` (``n x n`` grid, side ``length``); the surfaces repel with ``p(g) = (gamma0/rho) exp(-g/rho)``.
+A finite, non-periodic map (``solve(..., periodic=False)``) is solved with free boundaries instead: the
+half-space's Boussinesq response on a grid padded to twice the map (``gfmd._grid.FreeGrid``; hard wall on its own
+minimiser, smooth laws on ``gfmd._free``; docs/gfmd.md, "Periodic or free boundaries").
 
 Formulation (M3, "Identities"). With ``<u> = 0`` and the mean gap ``g0`` eliminated exactly, the equilibrium
 displacement minimises the reduced convex energy per area
