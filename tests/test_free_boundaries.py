@@ -111,7 +111,8 @@ def _peer_python() -> str | None:
     return sys.executable
 
 
-CASES = [((96, 64), (1.5, 1.0), 0.8, 0.05), ((64, 64), (1.0, 1.0), 0.3, 0.2), ((80, 120), (0.5, 0.75), 0.8, 0.01)]
+CASES = [((96, 64), (1.5, 1.0), 0.8, 0.05), ((64, 64), (1.0, 1.0), 0.3, 0.2), ((80, 120), (0.5, 0.75), 0.8, 0.01),
+         ((64, 48), (1.0, 1.0), 0.8, 0.05)]  # the last with rectangular pixels (dx != dy)
 
 
 @pytest.mark.peers
@@ -119,7 +120,7 @@ CASES = [((96, 64), (1.5, 1.0), 0.8, 0.05), ((64, 64), (1.0, 1.0), 0.3, 0.2), ((
 def test_free_hard_wall_agrees_with_contactmechanics(tmp_path, shape, length, hurst, sigma0) -> None:
     """Identical contact pixels, mean gap to 1e-6 relative and pressures to 1e-6 sigma0 against
     ContactMechanics' FreeFFTElasticHalfSpace + NonSmoothContactSystem at the same total force (non-periodic
-    crops of periodic surfaces; rectangular maps and boxes). Measured: mean gaps to ~1e-12."""
+    crops of periodic surfaces; rectangular maps, boxes and pixels). Measured: mean gaps to ~1e-12."""
     py = _peer_python()
     if py is None:
         pytest.skip("ContactMechanics not available (set GAPSWEEP_PEERS_PYTHON)")
