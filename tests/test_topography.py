@@ -112,3 +112,85 @@ def test_missing_file_and_garbled_text(tmp_path) -> None:
     (tmp_path / "bad.txt").write_text("1 2\n3 x\n")
     with pytest.raises(ValueError, match="not a grid of numbers"):
         load(tmp_path / "bad.txt", pixel_size=1.0)
+
+
+# ---------------------------------------------------------------------------------------------- issue 20: loaders
+def write_xyz(path, h: np.ndarray, dx: float, dy: float, order: np.ndarray | None = None, x0: float = 3.0) -> None:
+    ix, iy = np.meshgrid(np.arange(h.shape[0]), np.arange(h.shape[1]), indexing="ij")
+    pts = np.column_stack([x0 + ix.ravel() * dx, -1.0 + iy.ravel() * dy, h.ravel()])
+    if order is not None:
+        pts = pts[order]
+    np.savetxt(path, pts, fmt="%.10g", header="x y z")
+
+
+@pytest.mark.parametrize("suffix", ["xyz", "txt", "csv"])
+def test_xyz_points_rebuild_the_grid(tmp_path, heights, suffix: str) -> None:
+    """x,y,z points (shuffled, offset origin, dx != dy) give back the height grid and its pixel size; they used
+    to load as an N x 3 height map."""
+    path = tmp_path / f"pts.{suffix}"
+    order = np.random.default_rng(3).permutation(heights.size)
+    if suffix == "csv":
+        ix, iy = np.meshgrid(np.arange(32), np.arange(24), indexing="ij")
+        pts = np.column_stack([ix.ravel() * 0.25, iy.ravel() * 0.5, heights.ravel()])[order]
+        np.savetxt(path, pts, delimiter=",", fmt="%.17g")
+    else:
+        write_xyz(path, heights, 0.25, 0.5, order)
+    t = load(path, unit="um", detrend="none")
+    assert t.shape == (32, 24) and t.length == pytest.approx((8.0, 12.0)) and t.unit == "um"
+    assert t.pixel_size == pytest.approx((0.25, 0.5))
+    np.testing.assert_allclose(t.heights, heights, rtol=0, atol=1e-9 * np.abs(heights).max())
+
+
+def test_three_column_grid_on_request(tmp_path) -> None:
+    h = np.random.default_rng(2).random((10, 3))
+    np.savetxt(tmp_path / "g.txt", h)
+    t = load(tmp_path / "g.txt", pixel_size=1.0, format="text", detrend="none")
+    np.testing.assert_array_equal(t.heights, h)
+
+
+@pytest.mark.parametrize(("rows", "match"), [
+    ("0 0 1\n1 0 2\n0.4 1 3\n1 1 4\n", "not on a regular grid"),       # scattered x
+    ("0 0 1\n1 0 2\n0 1 3\n", "1 grid points missing"),                # a hole
+    ("0 0 1\n1 0 2\n0 1 3\n1 1 4\n1 1 5\n", "repeated"),               # a duplicate
+    ("0 0 1\n0 1 2\n0 2 3\n", "all x are equal"),                      # a profile
+    ("0 0 nan\n1 0 2\n0 1 3\n1 1 4\n", "1 of 4 heights are NaN"),      # missing height
+])
+def test_bad_xyz(tmp_path, rows: str, match: str) -> None:
+    (tmp_path / "p.xyz").write_text(rows)
+    with pytest.raises(ValueError, match=match):
+        load(tmp_path / "p.xyz")
+    with pytest.raises(ValueError, match="states its own pixel size"):
+        (tmp_path / "ok.xyz").write_text("0 0 1\n1 0 2\n0 1 3\n1 1 4\n")
+        load(tmp_path / "ok.xyz", pixel_size=1.0)
+
+
+@pytest.mark.parametrize(("content", "match"), [
+    ("", "no heights"),
+    ("# only a comment\n", "no heights"),
+    ("1 2 3 4 5\n", "single profile"),
+    ("nan nan\nnan nan\n", "all 4 heights are NaN"),
+])
+def test_degenerate_text_maps_refused_in_one_line(tmp_path, content: str, match: str) -> None:
+    (tmp_path / "m.txt").write_text(content)
+    with pytest.raises(ValueError, match=match) as info:
+        load(tmp_path / "m.txt", pixel_size=1.0)
+    assert "\n" not in str(info.value)
+
+
+def test_periodic_flag_from_the_edges(tmp_path) -> None:
+    """Neither file nor caller says: a periodic surface (plus a tilt, removed by the plane detrend) loads as
+    periodic, a crop of it as non-periodic; the caller's flag wins."""
+    full = self_affine(64, 0.8, lambda_l=0.5, lambda_s=0.1, seed=4)
+    x = np.arange(64)[:, None] / 64
+    np.save(tmp_path / "full.npy", full + 0.2 * x)
+    np.save(tmp_path / "crop.npy", full[5:50, 3:40])
+    assert load(tmp_path / "full.npy", pixel_size=1 / 64, detrend="plane").periodic
+    assert not load(tmp_path / "full.npy", pixel_size=1 / 64, detrend="mean").periodic  # the tilt is a jump
+    assert not load(tmp_path / "crop.npy", pixel_size=1 / 64).periodic
+    assert load(tmp_path / "crop.npy", pixel_size=1 / 64, periodic=True).periodic
+
+
+def test_bad_format(tmp_path) -> None:
+    np.save(tmp_path / "m.npy", np.zeros((4, 4)))
+    with pytest.raises(ValueError, match="format must be one of"):
+        load(tmp_path / "m.npy", pixel_size=1.0, format="tiff")

@@ -7,6 +7,9 @@ docstring describes the exponential law's minimiser (``gfmd._softmax``).
 
 An elastic half-space (contact modulus ``E*``) is pressed with mean pressure ``sigma0`` onto a rigid periodic
 rough surface ``h`` (``n x n`` grid, side ``length``); the surfaces repel with ``p(g) = (gamma0/rho) exp(-g/rho)``.
+A finite, non-periodic map (``solve(..., periodic=False)``) is solved with free boundaries instead: the
+half-space's Boussinesq response on a grid padded to twice the map (``gfmd._grid.FreeGrid``; hard wall on its own
+minimiser, smooth laws on ``gfmd._free``; docs/gfmd.md, "Periodic or free boundaries").
 
 Formulation (M3, "Identities"). With ``<u> = 0`` and the mean gap ``g0`` eliminated exactly, the equilibrium
 displacement minimises the reduced convex energy per area
@@ -60,7 +63,7 @@ import numpy as np
 # _make_ops looks up _have_numba here (tests monkeypatch gfmd._have_numba); benchmarks use gfmd._Problem, _make_ops.
 from gapsweep import _checks as chk
 from gapsweep.fft import BACKENDS
-from gapsweep.gfmd import _constrained, _smooth, _softmax
+from gapsweep.gfmd import _constrained, _free, _smooth, _softmax
 from gapsweep.gfmd._cuda import _CupyOps
 from gapsweep.gfmd._ops import _have_numba, _is_cupy, _NumbaOps, _Ops
 from gapsweep.gfmd._path import LoadPath, solve_path
@@ -111,6 +114,13 @@ _MINIMISERS: dict[str, tuple[Any, tuple[str, ...]]] = {
     "multiplier": (_constrained.minimise, _constrained.METHODS),
     "variable": (_smooth.minimise, _smooth.METHODS),
 }
+# Minimisers that take periodic=False (free boundaries), by load_control: the hard wall's own (its compliance
+# swapped for the free one), every smooth law (the exponential one included) on gfmd._free.
+_FREE: dict[str, tuple[Any, tuple[str, ...]]] = {
+    "multiplier": (_constrained.minimise, _constrained.METHODS),
+    "softmax": (_free.minimise, _free.METHODS),
+    "variable": (_free.minimise, _free.METHODS),
+}
 
 
 def solve(
@@ -130,6 +140,7 @@ def solve(
     initial: GFMDResult | np.ndarray | None = None,
     threads: int | None = None,
     host: bool | tuple[str, ...] = True,
+    periodic: bool | None = None,
 ) -> GFMDResult:
     """Equilibrium gap of an elastic half-space on the rigid surface ``heights`` at mean pressure ``sigma0``.
 
@@ -149,8 +160,30 @@ def solve(
     for the exponential law is the linear response of M4. ``threads``: FFTW threads. ``host``: which fields of
     a cupy run come to the host (pinned, asynchronous copies): True (all), False (none: they stay on the GPU) or
     names such as ``("gap",)``. Warns (UnderResolvedWarning) when ``rho < length/n`` (M7, exponential law).
+
+    ``periodic``: True, the map is one period of a periodic surface (docs/model.md M1); False, a finite map on
+    an elastic half-space with free boundaries (docs/gfmd.md, "Periodic or free boundaries"): the Boussinesq
+    response of the map's pixels on a grid padded to twice the map, pressure only on the map, ``sigma0`` the
+    mean pressure over the map's own area (load = ``sigma0 Lx Ly``); every law (hard wall: its own methods;
+    exponential and adhesive: "lbfgs" on ``gfmd._free``), on the CPU and the GPU (cupy).
+    Default (None): a :class:`gapsweep.topography.Topography` passed as ``heights`` brings its own
+    ``periodic`` flag and its ``length`` (a ``length`` given here must then be left at 1.0); arrays are periodic.
     """
     t_start = time.perf_counter()
+    from gapsweep.topography import Topography
+
+    if isinstance(heights, Topography):
+        if length != 1.0 and tuple(np.broadcast_to(length, 2)) != tuple(heights.length):
+            raise ValueError(f"length={length!r} contradicts the Topography's own length {heights.length}; "
+                             "leave length out when passing a Topography")
+        length = tuple(heights.length)
+        periodic = heights.periodic if periodic is None else periodic
+        heights = heights.heights
+    if periodic is None:
+        periodic = True
+    if not isinstance(periodic, (bool, np.bool_)):
+        raise ValueError(f"periodic must be True or False, got {periodic!r}")
+    periodic = bool(periodic)
     if not _is_cupy(heights):
         if isinstance(heights, (str, bytes)) or heights is None:
             raise TypeError(f"heights must be a 2-D real array, got {type(heights).__name__}")
@@ -174,15 +207,21 @@ def solve(
     tol = chk.positive(tol, "tol")
     if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
         raise ValueError(f"max_iter must be an integer >= 1, got {max_iter!r}")
-    minimise, methods = _MINIMISERS[law.load_control]
+    minimise, methods = _MINIMISERS[law.load_control] if periodic else _FREE[law.load_control]
     if not isinstance(method, str) or method not in ("auto", *methods):
         raise ValueError(f"method must be one of {', '.join(map(repr, ('auto', *methods)))} for interaction "
-                         f"{law.name!r}; got {method!r}")
+                         f"{law.name!r}{'' if periodic else ' with periodic=False'}; got {method!r}")
     if not isinstance(backend, str) or backend not in ("auto", *BACKENDS):
         raise ValueError(f"backend must be one of {', '.join(map(repr, ('auto', *BACKENDS)))}; got {backend!r}")
-    return minimise(heights, law, sigma0=sigma0, e_star=e_star, length=length, tol=tol, method=method,
-                    backend=backend, max_iter=max_iter, initial=initial, threads=threads, host=host,
-                    t_start=t_start)
+    if periodic:
+        return minimise(heights, law, sigma0=sigma0, e_star=e_star, length=length, tol=tol, method=method,
+                        backend=backend, max_iter=max_iter, initial=initial, threads=threads, host=host,
+                        t_start=t_start)
+    r = minimise(heights, law, sigma0=sigma0, e_star=e_star, length=length, tol=tol, method=method,
+                 backend=backend, max_iter=max_iter, initial=initial, threads=threads, host=host, t_start=t_start,
+                 periodic=False)
+    r.periodic = False
+    return r
 
 
 # Batches of problems of one grid size (gfmd/batched.py): imported last, it builds on solve and _MINIMISERS.

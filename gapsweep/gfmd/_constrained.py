@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from gapsweep.gfmd._constrained_ops import make_ops
-from gapsweep.gfmd._grid import Grid
+from gapsweep.gfmd._grid import FreeGrid, Grid
 from gapsweep.gfmd._ops import _is_cupy
 from gapsweep.gfmd._result import GFMDResult, host_fields
 from gapsweep.gfmd.interactions.base import Interaction
@@ -69,22 +69,25 @@ def coarsen(h: Any, xp: Any) -> Any:
 
 
 def _coarse_start(h: Any, law: Interaction, sigma0: float, e_star: float, length: Any, threads: int | None,
-                  backend: str, xp: Any) -> tuple[Any, list[int]]:
+                  backend: str, xp: Any, periodic: bool = True) -> tuple[Any, list[int]]:
     """"mpcg": the pressure of the hard-wall problem on the coarsened surface (recursively, to
     ``_COARSE_TOL``), each coarse pixel's pressure copied to its 2 x 2 fine pixels; and the coarse levels'
     iteration counts (coarsest last)."""
-    r = minimise(coarsen(h, xp), law, sigma0=sigma0, e_star=e_star, length=length, tol=_COARSE_TOL,
+    # Free boundaries: 2 x 2 block means (a Fourier cut of a non-periodic map would ring at its edges).
+    hc = coarsen(h, xp) if periodic else h.reshape(h.shape[0] // 2, 2, h.shape[1] // 2, 2).mean(axis=(1, 3))
+    r = minimise(hc, law, sigma0=sigma0, e_star=e_star, length=length, tol=_COARSE_TOL,
                  method="mpcg", backend=backend, max_iter=2000, initial=None, threads=threads, host=False,
-                 t_start=time.perf_counter())
+                 t_start=time.perf_counter(), periodic=periodic)
     p = xp.repeat(xp.repeat(r.pressure, 2, axis=0), 2, axis=1)
     return p, [r.iterations, *r.diagnostics.get("coarse_iterations", [])]
 
 
 def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, length: Any, tol: float,
              method: str, backend: str, max_iter: int, initial: Any, threads: int | None, host: Any,
-             t_start: float) -> GFMDResult:
-    """Hard wall ``law`` on the periodic grid ``heights`` (inputs validated by ``gfmd.solve``)."""
-    grid = Grid(heights.shape, length, backend, threads, _is_cupy(heights))
+             t_start: float, periodic: bool = True) -> GFMDResult:
+    """Hard wall ``law`` on the grid ``heights`` (inputs validated by ``gfmd.solve``): periodic, or a finite map
+    with free boundaries (``periodic=False``: :class:`FreeGrid`'s compliance, the same iteration)."""
+    grid = (Grid if periodic else FreeGrid)(heights.shape, length, backend, threads, _is_cupy(heights))
     if method == "auto":
         method = DEFAULT_METHOD_GPU if grid.backend == "cupy" else DEFAULT_METHOD
     xp = grid.xp
@@ -103,10 +106,13 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
     def compliance(a: Any, out: Any = None) -> Any:  # u = K a, <u> = 0
         return grid.convolve(a, kinv, out)
 
+    if not periodic:
+        compliance = grid.compliance(e_star)  # free boundaries: u = K p on the map, any mean
+
     coarse_its: list[int] = []
     if initial is None and method == "mpcg" and min(grid.shape) >= 2 * _COARSEST \
             and grid.shape[0] % 2 == 0 and grid.shape[1] % 2 == 0:
-        p, coarse_its = _coarse_start(h, law, sigma0, e_star, length, threads, backend, xp)
+        p, coarse_its = _coarse_start(h, law, sigma0, e_star, length, threads, backend, xp, periodic)
         p *= sigma0 / float(p.mean())
     elif initial is None:
         p = xp.full(grid.shape, sigma0)
@@ -186,7 +192,7 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
         residual = max(rms, overlap) / g_ref
         complementarity = float(xp.mean(p * xp.abs(g))) / (sigma0 * g_ref)
         load_error = abs(float(p.mean()) / sigma0 - 1.0)
-        elastic = grid.elastic_energy(grid.fwd(u), e_star)
+        elastic = grid.elastic_energy(grid.fwd(u), e_star) if periodic else grid.elastic_energy_pu(p, u)
         gap = xp.where(S, 0.0, g)  # the contact atom exactly at g = 0
     fields_ok = math.isfinite(residual) and bool(xp.all(xp.isfinite(p))) and bool(xp.all(xp.isfinite(u)))
     if not fields_ok:

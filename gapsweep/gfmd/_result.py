@@ -55,6 +55,7 @@ class GFMDResult:
     ``contact_criterion``), ``elastic_energy`` (stored elastic energy per nominal area,
     ``(E*/4) sum_q q |u~(q)|^2``, pressure x length), ``interaction`` (the law's name) with its ``params``,
     ``diagnostics`` (the minimiser's further convergence measures, e.g. complementarity for the hard wall).
+    ``periodic``: False for a finite map solved with free boundaries (``solve(..., periodic=False)``).
     """
 
     mean_gap: float
@@ -82,6 +83,7 @@ class GFMDResult:
     elastic_energy: float = math.nan
     contact_criterion: str = ""
     diagnostics: dict[str, float] = field(default_factory=dict)
+    periodic: bool = True  # False: a finite map with free boundaries (docs/gfmd.md)
 
     @property
     def n(self) -> int:

@@ -3,7 +3,10 @@
 function.
 
 Formats: ``.npy`` (one 2-D array), ``.npz`` (the array named ``key``, default the only one), plain text grids
-(``.txt``, ``.dat``, ``.asc``, ``.csv``: one row per line, ``#`` comments, comma or whitespace separated) and,
+(``.txt``, ``.dat``, ``.asc``, ``.csv``: one row per line, ``#`` comments, comma or whitespace separated), x,y,z
+point lists (``.xyz``, or any text file of exactly three columns: one point ``x y z`` per line; the points must
+fill a regular grid, in any order, whose spacing becomes the pixel size; scattered points are refused, and a
+genuine ``N x 3`` height grid is read with ``format="text"``) and,
 with the optional extra ``topography`` (``pip install gapsweep[topography]``), every format that
 SurfaceTopography reads (``format="surfacetopography"``, chosen automatically for other extensions). Axis 0 of
 the array is x, axis 1 is y (as everywhere in gapsweep).
@@ -11,14 +14,23 @@ the array is x, axis 1 is y (as everywhere in gapsweep).
 Units: heights and lateral sizes share ``unit`` unless ``height_unit`` is given; ``to_unit`` converts both (names
 in :data:`UNITS`, metres). The box is ``length = (Lx, Ly)`` or ``pixel_size * (nx, ny)``. Detrending: "mean"
 (subtract the mean: only ``h - <h>`` matters for contact at fixed load), "plane" (least-squares plane
-``a + b x + c y``; for measured maps with a tilt) or "none". Periodicity: GFMD treats every map as periodic;
-for a non-periodic map :meth:`Topography.padded` embeds it in a twice larger box filled at the lowest height,
-so that the periodic images never touch each other's contact (free boundaries up to the images' long-range
-elastic coupling, which falls as the box grows)."""
+``a + b x + c y``; for measured maps with a tilt) or "none".
+
+Refused with one line naming the problem: empty files, maps of one row or column (a profile), maps with NaN
+or inf heights (missing data: no filling is done, because every filling invents roughness that the contact then
+feels; crop the map to its valid part or fill it with your instrument's software first).
+
+Periodicity: ``Topography.periodic`` is the file's own flag, else the caller's ``periodic=``, else decided from
+the map's edges after detrending (``theory.spectrum.edge_ratio <= 3``: a measured map is almost never
+periodic). ``gfmd.solve`` honours it (free boundaries for ``periodic=False``: docs/gfmd.md, "Periodic or free
+boundaries"), and so does ``theory.spectrum.map_spectrum``. :meth:`Topography.padded` is the older,
+approximate alternative (see its docstring)."""
 
 from __future__ import annotations
 
+import logging
 import math
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -32,11 +44,15 @@ UNITS: dict[str, float] = {"m": 1.0, "mm": 1e-3, "um": 1e-6, "nm": 1e-9, "A": 1e
 _ALIASES = {"\u00b5m": "um", "\u03bcm": "um", "\u00c5": "A", "\u212b": "A"}  # micro/mu signs, Angstrom signs
 _TEXT = (".txt", ".dat", ".asc", ".csv", ".xyz_grid")
 DETRENDS = ("none", "mean", "plane")
+FORMATS = ("npy", "npz", "text", "xyz", "surfacetopography")
+log = logging.getLogger("gapsweep.topography")
 
 
 @dataclass
 class Topography:
-    """A height map: ``heights[ix, iy]`` (float64, ``unit``) on a box ``length = (Lx, Ly)`` (``unit``)."""
+    """A height map: ``heights[ix, iy]`` (float64, ``unit``) on a box ``length = (Lx, Ly)`` (``unit``: the
+    length unit of heights and box alike, a name of :data:`UNITS` or None for model units). ``periodic``:
+    whether the map is one period of a periodic surface (False: a finite map, solved with free boundaries)."""
 
     heights: np.ndarray
     length: tuple[float, float]
@@ -54,7 +70,15 @@ class Topography:
 
     def padded(self, factor: int = 2) -> Topography:
         """The map embedded at the origin of a ``factor`` times larger periodic box, the rest filled with the
-        lowest height (never in contact before the map itself is flattened): the non-periodic option."""
+        lowest height (never in contact before the map itself is flattened).
+
+        Prefer ``gfmd.solve(topography, ...)`` with ``periodic=False`` (exact free boundaries, same cost class).
+        If you use this: the padded box has ``factor^2`` times the map's area and only the map carries load, so
+        to put the map under the mean pressure ``sigma0`` pass ``sigma0 / factor**2`` (the same ``sigma0`` puts
+        ``factor^2`` times the load on the map); and results such as ``mean_gap`` and ``contact_area`` describe
+        the padded box: take them over ``result.gap[:nx, :ny]`` yourself. The periodic images still couple
+        elastically (a ``1/distance`` interaction that falls as ``factor`` grows): free boundaries only
+        approximately."""
         if isinstance(factor, bool) or not isinstance(factor, int) or factor < 2:
             raise ValueError(f"factor must be an integer >= 2, got {factor!r}")
         nx, ny = self.shape
@@ -112,9 +136,40 @@ def _read_text(path: Path, delimiter: str | None) -> np.ndarray:
     if delimiter is None:
         delimiter = "," if path.suffix.lower() == ".csv" else None
     try:
-        return np.loadtxt(path, delimiter=delimiter, comments="#", ndmin=2, dtype=np.float64)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)  # numpy's "input contained no data": refused below
+            return np.loadtxt(path, delimiter=delimiter, comments="#", ndmin=2, dtype=np.float64)
     except ValueError as exc:
         raise ValueError(f"{path}: not a grid of numbers ({exc})") from exc
+
+
+def _axis(values: np.ndarray, name: str, path: Path) -> tuple[np.ndarray, float]:
+    """Index of every point along one axis of a regular grid and the spacing (ValueError if not regular)."""
+    u = np.unique(values)
+    if u.size < 2:
+        raise ValueError(f"{path}: x,y,z points: all {name} are equal; a height map needs >= 2 points per axis")
+    step = float(np.median(np.diff(u)))
+    idx = np.rint((values - u[0]) / step)
+    # Coordinates are written with finitely many digits: allow 1e-6 of a pixel.
+    if not np.allclose(idx * step + u[0], values, rtol=0, atol=1e-6 * step) or int(idx.max()) + 1 != u.size:
+        raise ValueError(f"{path}: x,y,z points are not on a regular grid ({name} values are not equally spaced); "
+                         "scattered points must be interpolated onto a grid first")
+    return idx.astype(np.int64), step
+
+
+def _grid_from_points(xyz: np.ndarray, path: Path) -> tuple[np.ndarray, tuple[float, float]]:
+    """``(heights[ix, iy], (dx, dy))`` of x,y,z points that fill a regular grid, in any order."""
+    ix, dx = _axis(xyz[:, 0], "x", path)
+    iy, dy = _axis(xyz[:, 1], "y", path)
+    nx, ny = int(ix.max()) + 1, int(iy.max()) + 1
+    count = np.zeros((nx, ny), dtype=np.int64)
+    np.add.at(count, (ix, iy), 1)
+    if np.any(count != 1):
+        raise ValueError(f"{path}: x,y,z points do not fill a regular {nx} x {ny} grid once each "
+                         f"({int(np.sum(count == 0))} grid points missing, {int(np.sum(count > 1))} repeated)")
+    h = np.empty((nx, ny))
+    h[ix, iy] = xyz[:, 2]
+    return h, (dx, dy)
 
 
 def _read_surfacetopography(path: Path) -> tuple[np.ndarray, tuple[float, float] | None, str | None, bool]:
@@ -140,15 +195,21 @@ def load(path: str | Path, *, length: Any = None, pixel_size: Any = None, unit: 
     ``length`` (Lx, Ly) or ``pixel_size`` (dx, dy), one of them unless the file states the size
     (SurfaceTopography formats); a number stands for both directions. ``unit``: the file's lateral unit and,
     unless ``height_unit`` is given, its height unit; ``to_unit``: the unit of the result (default ``unit``).
-    ``periodic``: the file's own flag where it has one, else True. Raises ValueError naming the problem for a
-    missing file, a map that is not 2-D (at least 2 x 2), non-finite heights, or inconsistent sizes."""
+    ``periodic``: the caller's flag, else the file's own, else decided from the map's edges (module docstring).
+    ``format``: one of :data:`FORMATS` (default from the suffix; text files of three columns are x,y,z points
+    unless ``format="text"``). Raises ValueError naming the problem for a missing file, an empty file, a map
+    that is not 2-D (at least 2 x 2), NaN or inf heights, scattered x,y,z points, or inconsistent sizes."""
     p = Path(path)
     if not p.is_file():
         raise FileNotFoundError(f"no such height map: {p}")
+    if format is not None and format not in FORMATS:
+        raise ValueError(f"format must be one of {', '.join(map(repr, FORMATS))}; got {format!r}")
     fmt = format or ("npy" if p.suffix.lower() == ".npy" else "npz" if p.suffix.lower() == ".npz"
-                     else "text" if p.suffix.lower() in _TEXT else "surfacetopography")
+                     else "xyz" if p.suffix.lower() == ".xyz" else "text" if p.suffix.lower() in _TEXT
+                     else "surfacetopography")
     file_size = file_unit = None
     file_periodic = None
+    file_pixel = None
     if fmt == "npy":
         h = np.load(p, allow_pickle=False)
     elif fmt == "npz":
@@ -157,27 +218,45 @@ def load(path: str | Path, *, length: Any = None, pixel_size: Any = None, unit: 
             if key is None and len(names) != 1:
                 raise ValueError(f"{p}: holds {names}; pass key= to choose the height map")
             h = z[key if key is not None else names[0]]
-    elif fmt == "text":
+    elif fmt in ("text", "xyz"):
         h = _read_text(p, delimiter)
-    elif fmt == "surfacetopography":
+        # Three columns and no explicit format="text": an x,y,z point list (a 3-wide height grid is rare).
+        if h.size and (fmt == "xyz" or (format is None and h.shape[1] == 3)):
+            if h.shape[1] != 3:
+                raise ValueError(f"{p}: an x,y,z file needs exactly 3 columns, got {h.shape[1]}")
+            if not np.all(np.isfinite(h[:, :2])):
+                raise ValueError(f"{p}: x,y,z points: {int(np.sum(~np.isfinite(h[:, :2])))} x or y coordinates "
+                                 "are NaN or inf")
+            h, file_pixel = _grid_from_points(h, p)
+            log.info("%s: x,y,z points on a regular %d x %d grid, pixel %g x %g", p, *h.shape, *file_pixel)
+    else:  # surfacetopography (the format was validated above)
         h, file_size, file_unit, file_periodic = _read_surfacetopography(p)
-    else:
-        raise ValueError(f"format must be 'npy', 'npz', 'text' or 'surfacetopography'; got {format!r}")
     h = np.asarray(h)
+    if h.size == 0:
+        raise ValueError(f"{p}: the file holds no heights (empty)")
     if h.ndim != 2 or min(h.shape) < 2:
-        raise ValueError(f"{p}: a 2-D height map of at least 2 x 2 points is needed, got shape {h.shape}")
+        raise ValueError(f"{p}: a 2-D height map of at least 2 x 2 points is needed, got shape {h.shape}"
+                         + (" (a single profile?)" if h.ndim == 2 else ""))
     if not np.issubdtype(h.dtype, np.number) or np.iscomplexobj(h):
         raise ValueError(f"{p}: heights must be real numbers, got dtype {h.dtype}")
     h = h.astype(np.float64)
-    if not np.all(np.isfinite(h)):
-        raise ValueError(f"{p}: {int(np.sum(~np.isfinite(h)))} heights are NaN or inf (missing data): fill or "
-                         "crop them first")
+    finite = np.isfinite(h)
+    if not np.any(finite):
+        raise ValueError(f"{p}: all {h.size} heights are NaN or inf: no data")
+    if not np.all(finite):
+        raise ValueError(f"{p}: {int(np.sum(~finite))} of {h.size} heights are NaN or inf (missing data): "
+                         "crop the map to its valid part or fill it first (gapsweep does not invent heights)")
     if unit is None and file_unit is not None:
         unit = file_unit
     unit, height_unit, to_unit = _canonical(unit), _canonical(height_unit), _canonical(to_unit)
     if length is not None and pixel_size is not None:
         raise ValueError("give length or pixel_size, not both")
-    if length is not None:
+    if file_pixel is not None and (length is not None or pixel_size is not None):
+        raise ValueError(f"{p}: an x,y,z file states its own pixel size {file_pixel}: leave length= and "
+                         "pixel_size= out")
+    if file_pixel is not None:
+        box = (file_pixel[0] * h.shape[0], file_pixel[1] * h.shape[1])
+    elif length is not None:
         box = _pair(length, "length")
     elif pixel_size is not None:
         d = _pair(pixel_size, "pixel_size")
@@ -194,5 +273,15 @@ def load(path: str | Path, *, length: Any = None, pixel_size: Any = None, unit: 
     h = h * (vertical / target)
     box = (box[0] * lateral / target, box[1] * lateral / target)
     h = globals()["detrend"](h, detrend, box)
-    is_periodic = periodic if periodic is not None else (file_periodic if file_periodic is not None else True)
-    return Topography(h, box, to_unit if to_unit is not None else unit, bool(is_periodic), str(p))
+    if periodic is not None:
+        is_periodic = bool(periodic)
+    elif file_periodic is not None:
+        is_periodic = bool(file_periodic)
+    else:  # neither the file nor the caller says: the edges do (after detrending, so a tilt alone is not a jump)
+        from gapsweep.theory.spectrum import EDGE_RATIO_LIMIT, edge_ratio
+
+        ratio = edge_ratio(h)
+        is_periodic = ratio <= EDGE_RATIO_LIMIT
+        log.info("%s: periodic=%s from the edges (edge ratio %.3g, limit %g)", p, is_periodic, ratio,
+                 EDGE_RATIO_LIMIT)
+    return Topography(h, box, to_unit if to_unit is not None else unit, is_periodic, str(p))

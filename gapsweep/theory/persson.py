@@ -55,11 +55,23 @@ _TAIL = 7.0  # exp(-x^2) integrands are negligible (< 1e-21 relative) beyond y +
 # --------------------------------------------------------------------------------------------------------------
 # spectrum from the keywords
 # --------------------------------------------------------------------------------------------------------------
-def _spectrum(hurst, lambda_l, lambda_s, rms_slope, rms_height, c0, length, heights) -> spec.Spectrum:
+def _map(heights, length, lambda_l, periodic, form: str) -> spec.Spectrum:
+    """A map's own spectrum, always through ``spectrum.map_spectrum`` (non-periodic maps handled there; a
+    Topography brings its length and periodic flag)."""
+    from gapsweep.topography import Topography
+
+    if isinstance(heights, Topography):
+        return spec.map_spectrum(heights, None if length == 1.0 else length, periodic=periodic,
+                                 lambda_l=lambda_l, form=form).spectrum
+    if np.ndim(length) == 0:
+        heights = chk.square_heights(heights)  # a rectangular map needs length = (Lx, Ly)
+    return spec.map_spectrum(heights, length, periodic=periodic, lambda_l=lambda_l, form=form).spectrum
+
+
+def _spectrum(hurst, lambda_l, lambda_s, rms_slope, rms_height, c0, length, heights,
+              periodic=None) -> spec.Spectrum:
     if heights is not None:
-        if np.ndim(length) == 0:
-            heights = chk.square_heights(heights)  # a rectangular map needs length = (Lx, Ly)
-        return spec.from_heights(heights, length, lambda_l=lambda_l)
+        return _map(heights, length, lambda_l, periodic, "discrete")
     if hurst is None or lambda_l is None or lambda_s is None:
         raise ValueError("give hurst, lambda_l and lambda_s (self-affine spectrum) or heights= (a height map)")
     return spec.self_affine(hurst, lambda_l=lambda_l, lambda_s=lambda_s, rms_slope=rms_slope,
@@ -134,18 +146,21 @@ def contact_area(
     variant: str = "persson2001",
     gamma: float | None = None,
     heights: ArrayLike | None = None,
+    periodic: bool | None = None,
 ) -> float | np.ndarray:
     """Relative contact area ``A/A0`` (dimensionless) at mean pressure ``sigma0`` (module docstring).
 
     The spectrum is the self-affine one of M2 (``hurst``, ``lambda_l``, ``lambda_s`` and one of ``rms_slope``,
-    ``rms_height``, ``c0``; default ``rms_slope=1``) or that of ``heights`` (a 2-D map of side ``length``).
-    Only ``g_rms`` enters. Small loads: ``A/A0 -> sqrt(8/pi) sigma0 / (E* g_rms)`` (persson2001). Vectorised
-    over ``sigma0``.
+    ``rms_height``, ``c0``; default ``rms_slope=1``) or that of ``heights`` (a 2-D map of side ``length``, or a
+    Topography), taken by ``spectrum.map_spectrum(heights, length, periodic=periodic)``: ``periodic=None`` uses
+    the Topography's flag or the map's edges, False the non-periodic estimator (docs/gfmd.md, "Spectra of
+    measured maps"). Only ``g_rms`` enters. Small loads: ``A/A0 -> sqrt(8/pi) sigma0 / (E* g_rms)``
+    (persson2001). Vectorised over ``sigma0``.
     """
     s = chk.positive_array(sigma0, "sigma0")
     e_star = chk.positive(e_star, "e_star")
     gam = _gamma(variant, gamma)
-    sp = _spectrum(hurst, lambda_l, lambda_s, rms_slope, rms_height, c0, length, heights)
+    sp = _spectrum(hurst, lambda_l, lambda_s, rms_slope, rms_height, c0, length, heights, periodic)
     v_c = (e_star * sp.g_rms) ** 2 / 4.0
     v = _pressure_variance(s, v_c, variant, gam)
     a = erf(s / np.sqrt(2.0 * v))
@@ -165,7 +180,8 @@ def pressure_distribution(
     e_star = chk.positive(e_star, "e_star")
     gam = _gamma(variant, gamma)
     sp = _spectrum(surface.get("hurst"), surface.get("lambda_l"), surface.get("lambda_s"), surface.get("rms_slope"),
-                   surface.get("rms_height"), surface.get("c0"), surface.get("length", 1.0), surface.get("heights"))
+                   surface.get("rms_height"), surface.get("c0"), surface.get("length", 1.0), surface.get("heights"),
+                   surface.get("periodic"))
     v = float(_pressure_variance(np.asarray([s]), (e_star * sp.g_rms) ** 2 / 4.0, variant, gam)[0])
     norm = 1.0 / math.sqrt(2.0 * math.pi * v)
     out = norm * (np.exp(-((pp - s) ** 2) / (2 * v)) - np.exp(-((pp + s) ** 2) / (2 * v)))
@@ -236,6 +252,7 @@ def mean_separation(
     variant: str = "persson2001",
     gamma: float = GAMMA_YP,
     heights: ArrayLike | None = None,
+    periodic: bool | None = None,
 ) -> float | np.ndarray:
     """Mean interfacial separation ``u(sigma0)`` [length] of a hard-wall contact (Persson 2007; Yang & Persson 2008).
 
@@ -243,7 +260,7 @@ def mean_separation(
     elastic-energy factor (default 0.42; 1 gives Persson 2007). ``variant`` is accepted for symmetry with
     :func:`contact_area` and validated; the separation uses Persson's 2001 ``P(q)`` inside ``F``, as Yang & Persson
     do. Small loads: ``u -> -u0 ln sigma0 + const`` with ``u0 = gamma sqrt(2/pi) int_0^g q(s)^(-1) ds``.
-    Vectorised over ``sigma0``.
+    Vectorised over ``sigma0``. ``heights``/``periodic``: as in :func:`contact_area`.
     """
     s = chk.positive_array(sigma0, "sigma0")
     e_star = chk.positive(e_star, "e_star")
@@ -251,7 +268,7 @@ def mean_separation(
     gam = chk.real(gamma, "gamma")
     if not 0.0 < gam <= 1.5:
         raise ValueError(f"gamma must be in (0, 1.5], got {gamma!r}")
-    sp = _spectrum(hurst, lambda_l, lambda_s, rms_slope, rms_height, c0, length, heights)
+    sp = _spectrum(hurst, lambda_l, lambda_s, rms_slope, rms_height, c0, length, heights, periodic)
     c = math.sqrt(2.0) * s.ravel() / e_star
     if sp.kind == "continuum":
         out = _u_continuum(c, sp, gam)
@@ -318,6 +335,7 @@ def gap_distribution(
     length: float | tuple[float, float] = 1.0,
     gamma: float = GAMMA_YP,
     heights: ArrayLike | None = None,
+    periodic: bool | None = None,
 ) -> tuple[np.ndarray, float]:
     """Gap (separation) distribution of a hard-wall contact after Almqvist et al. (2011): ``(P(u), A/A0)``.
 
@@ -328,7 +346,8 @@ def gap_distribution(
     restricted spectrum) and the height variance ``h_j^2`` of that roughness; ``N_mirror(u; m, s^2) =
     N(u; m, s^2) + N(u; -m, s^2)`` on ``u >= 0`` (mass 1). Returns the continuous density [1/length] on ``u``
     and the weight ``A/A0`` of the delta at ``u = 0``; the two integrate to 1. A height map is reduced to its
-    radially averaged PSD (``spectrum.radial``) to keep the ``O(shells^2)`` cost small.
+    radially averaged PSD (``spectrum.map_spectrum(..., form="radial")``, ``periodic`` as in :func:`contact_area`)
+    to keep the ``O(shells^2)`` cost small.
     """
     uu = chk.finite_array(u, "u")
     s = chk.positive(sigma0, "sigma0")
@@ -337,9 +356,7 @@ def gap_distribution(
     if not 0.0 < gam <= 1.5:
         raise ValueError(f"gamma must be in (0, 1.5], got {gamma!r}")
     if heights is not None:
-        if np.ndim(length) == 0:
-            heights = chk.square_heights(heights)
-        sp = spec.radial(heights, length, lambda_l=lambda_l)
+        sp = _map(heights, length, lambda_l, periodic, "radial")
     else:
         sp = _spectrum(hurst, lambda_l, lambda_s, rms_slope, rms_height, c0, length, None)
     q, v = sp.q, sp.v

@@ -1,0 +1,75 @@
+"""Cost of free boundaries: ``gfmd.solve(..., periodic=False)`` against the periodic solve of the same map, side
+by side in one process (docs/gfmd.md, "Periodic or free boundaries"). Also prints how much the boundary
+condition changes the answer (mean gap, contact area).
+
+Each case: one warm-up solve per mode (numba compilation, FFT plans, the Green's function), then ``--repeats``
+timed solves per mode, alternating, the minimum reported; ``ratio = free / periodic``. CPU, one thread, the
+default method of each law ("auto").
+
+    PYTHONPATH=$PWD nice python benchmarks/bench_free.py [--repeats 3] [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+from gapsweep.gfmd import solve
+from gapsweep.surface import self_affine
+from gapsweep.topography import load
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def cases() -> list[tuple[str, np.ndarray, tuple[float, float], dict]]:
+    ex = load(ROOT / "jobs/data/measured_tilted_192x128.npz", unit="um", pixel_size=0.5, detrend="plane")
+    p = self_affine(512, 0.8, lambda_l=0.5, lambda_s=8 / 512, seed=5, rms_slope=1.0)
+    hw = dict(interaction="hard_wall", tol=1e-8)
+    return [
+        ("example 192x128 um, hard wall", ex.heights, ex.length, dict(sigma0=5e-3, **hw)),
+        ("crop 256x256, hard wall", p[:256, :256], (0.5, 0.5), dict(sigma0=0.05, **hw)),
+        ("crop 512x384, hard wall", p[:, 64:448], (1.0, 0.75), dict(sigma0=0.05, **hw)),
+        ("crop 256x192, exponential", p[:256, :192], (0.5, 0.375),
+         dict(sigma0=0.05, gamma0=1e-4, rho=1e-3, tol=1e-8)),
+    ]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args()
+    rows = []
+    print(f"{'case':32s} {'periodic s':>10s} {'free s':>9s} {'ratio':>6s} {'its p/f':>9s} "
+          f"{'gap free/per':>12s} {'area free/per':>13s}")
+    for name, h, length, kw in cases():
+        res, best = {}, {True: np.inf, False: np.inf}
+        for per in (True, False):
+            res[per] = solve(h, length=length, periodic=per, **kw)  # warm-up
+        for _ in range(args.repeats):
+            for per in (True, False):
+                t = time.perf_counter()
+                res[per] = solve(h, length=length, periodic=per, **kw)
+                best[per] = min(best[per], time.perf_counter() - t)
+        a, b = res[True], res[False]
+        assert a.converged and b.converged, (a.status, b.status)
+        row = dict(case=name, periodic_s=best[True], free_s=best[False], ratio=best[False] / best[True],
+                   iterations_periodic=a.iterations, iterations_free=b.iterations,
+                   mean_gap_ratio=b.mean_gap / a.mean_gap, area_ratio=b.contact_area / a.contact_area)
+        rows.append(row)
+        print(f"{name:32s} {best[True]:10.3f} {best[False]:9.3f} {row['ratio']:6.2f} "
+              f"{a.iterations:4d}/{b.iterations:<4d} {row['mean_gap_ratio']:12.3f} {row['area_ratio']:13.3f}")
+    meta = dict(machine=platform.processor() or platform.machine(), python=platform.python_version(),
+                repeats=args.repeats)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(dict(meta=meta, rows=rows), indent=1))
+
+
+if __name__ == "__main__":
+    main()
