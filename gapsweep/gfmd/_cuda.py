@@ -17,10 +17,51 @@ from gapsweep.gfmd._ops import _Ops
 # Slot k of a reduction is a max where bit k of ``mx`` is set (NaN propagates, as numpy's max), else a sum.
 _CUDA_SRC = Path(__file__).with_name("kernels.cu").read_text(encoding="utf-8")
 _CUDA_BLOCKS_PER_SM = 8
-_HALF_KERNELS = ("gs_dot", "gs_grad", "gs_cgdir")
+_HALF_KERNELS = ("gs_dot", "gs_grad", "gs_cgdir", "gs_linresp", "gs_resid")
 _CUPY_KERNELS: Any = None
 # A guessed exponent shift is used when the new max lies within this distance of it (e <= e^50: no overflow).
 _SHIFT_SLACK = 50.0
+
+
+# Work area of one cuFFT double-precision 2-D plan (R2C or C2R) of an n x n grid, in half spectra (16 n (n/2+1)
+# bytes). Calibrated on n = 2048, 4096, 8192 (benchmarks/bench_gfmd_limit.py, docs/benchmarks_gfmd.md, "Memory");
+# the estimate is checked against the measured peak at n = 16384 and 32768.
+_CUFFT_WORK = 1.0
+# Grid-sized arrays of one solve besides cuFFT's work areas, per method (the exponential law on the GPU, the
+# fused kernels; gfmd/_softmax.py::_solve_lean): "real" n x n float64, "half" n x (n/2+1) complex128 spectra,
+# "halfreal" n x (n/2+1) float64.
+_ARRAYS = {
+    # W, Wt, e, et; FFT output buffer. X, G, D; FFT input copy and output. k, M, M^-1, cached |q|.
+    "cg": {"real": 5, "half": 5, "halfreal": 4},
+    # + G_old, 5 (s, y) pairs, q, D, kD, y temporaries
+    "lbfgs": {"real": 5, "half": 4 + 1 + 10 + 4, "halfreal": 4},
+    # + G_old, V, F, Fm, F Fm temporaries
+    "fire": {"real": 5, "half": 4 + 1 + 5, "halfreal": 4},
+}
+
+
+def solve_memory(n: int, *, method: str = "cg", heights_on_gpu: bool = True) -> dict[str, Any]:
+    """GPU memory one exponential-law solve of an ``n x n`` grid needs (bytes), for ``gfmd.solve`` on a cupy
+    array with the fused kernels (docs/gfmd.md; sweep planning: refuse what does not fit).
+
+    ``method``: "cg" (default), "lbfgs" or "fire". ``heights_on_gpu``: count the caller's surface (True when
+    it is passed as a cupy array, as the sweep does). Returns ``{"bytes": total, "arrays": grid-sized arrays
+    (real n x n float64 units), "parts": {name: bytes}}``; the fields returned to the host cost none (they
+    reuse the solver's buffers). Needs no GPU. The real requirement is the total plus cupy's pool rounding
+    and the CUDA context (~0.5 GB)."""
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
+        raise ValueError(f"n must be an integer >= 2, got {n!r}")
+    if method not in _ARRAYS:
+        raise ValueError(f"method must be one of {', '.join(map(repr, _ARRAYS))}, got {method!r}")
+    n = int(n)
+    real, half = 8 * n * n, 16 * n * (n // 2 + 1)
+    a = _ARRAYS[method]
+    parts = {"solver real fields": a["real"] * real, "solver half spectra": a["half"] * half,
+             "stiffness and preconditioner": a["halfreal"] * half // 2,
+             "cuFFT work areas (R2C + C2R plans)": int(2 * _CUFFT_WORK * half),
+             "heights": real if heights_on_gpu else 0}
+    total = sum(parts.values())
+    return {"bytes": total, "arrays": total / real, "parts": parts}
 
 
 def _cupy_kernels() -> Any:
@@ -31,6 +72,7 @@ def _cupy_kernels() -> Any:
 
         mod = cupy.RawModule(code=_CUDA_SRC, options=("--std=c++14",))
         names = ("gs_max", "gs_point", "gs_moments", "gs_dot", "gs_grad", "gs_cgdir",
+                 "gs_sumfinite", "gs_field", "gs_final", "gs_linresp", "gs_resid",  # set-up and result passes
                  "bt_point", "bt_moments", "bt_cgdots", "bt_cgupdate", "bt_accept")  # bt_*: gfmd/batched.py
         _CUPY_KERNELS = {name: mod.get_function(name) for name in names}
     return _CUPY_KERNELS
@@ -112,6 +154,34 @@ class _CupyOps(_Ops):
         stream.synchronize()
         return self._host[:nout].tolist()
 
+    # -- set-up and result passes of one solve (gfmd/_softmax.py, GPU branch): one pass each, no temporaries
+    def sum_finite(self, a) -> tuple[float, int]:
+        """``(sum of the finite entries of a, number of non-finite entries)`` of a real n x n field."""
+        r = self._launch("gs_sumfinite", False, 2, self.xp.ascontiguousarray(a, dtype=self.xp.float64))
+        return float(r[0]), int(r[1])
+
+    def field(self, h, hm: float, u, inv_rho: float, W) -> float:
+        """``W = ((h - hm) - u) inv_rho`` (M3: ``w = (h - u)/rho`` of the centred surface); returns ``max W``."""
+        return float(self._launch("gs_field", False, 1, h, np.float64(hm), u, np.float64(inv_rho), W)[0])
+
+    def final(self, W, e, cp: float, a0: float, rho: float, hs: float, thr: float) -> tuple[float, int, int]:
+        """Result fields in place: ``p = cp e`` (into ``e``), ``gap = a0 - rho W`` (into ``W``); returns
+        ``(sum p, #{gap + hs < thr}, #{non-finite gap or p})``."""
+        r = self._launch("gs_final", False, 3, W, e, *(np.float64(x) for x in (cp, a0, rho, hs, thr)))
+        return float(r[0]), int(r[1]), int(r[2])
+
+    def linresp(self, H, s: float, sr: float, ka: float, kb: float, X) -> None:
+        """``X = (s H) sr / (ka kb |q| + sr)``, 0 at q = 0: the linear response of M4 from ``H = rfft2(h)``."""
+        self.K["gs_linresp"](self.grid["gs_linresp"], (256,),
+                             (H, np.float64(s), np.float64(sr), X, np.uint32(self.n), np.float64(ka), np.float64(kb),
+                              np.uint32(self.nh), self._nhalf))
+
+    def resid(self, Ur, Pr, s: float, ka: float, kb: float) -> tuple[float, float]:
+        """``(<F F>, <U k U>)`` with ``U = s Ur``, ``F = k U - s Pr`` (0 at q = 0), ``k = ka kb |q|``."""
+        r = self._launch("gs_resid", True, 2, Ur, Pr, np.float64(s), np.uint32(self.n), np.float64(ka),
+                         np.float64(kb))
+        return float(r[0]), float(r[1])
+
     def bind_stiffness(self, k, minv, ka: float, kb: float, sr: float) -> None:
         """``k = ka (kb |q|)`` and ``minv = 1/(k + sr)`` (0 at q = 0) of _Problem: the half-spectrum kernels
         compute them per mode instead of reading two arrays when given exactly these ``k``, ``minv``."""
@@ -149,7 +219,8 @@ class _CupyOps(_Ops):
         fk, geo = self._stiff_args(k, minv if flags & 2 else None)
         r = self._launch("gs_grad", True, 3, X, D, np.float64(alpha), E, np.float64(c), k, G, minv, gold,
                          np.int32(flags | fk), *geo)
-        self._cg_cache = (G, gold if gold is not G else None, float(r[1]), float(r[2])) if flags & 2 else None
+        # gold is G when CG keeps one gradient array (the kernel reads the old value before writing the new one)
+        self._cg_cache = (G, gold, float(r[1]), float(r[2])) if flags & 2 else None
         self._last_G = G
         return float(r[0])
 

@@ -47,7 +47,11 @@ class _Problem:
     ``X = u~`` (half spectrum), ``W = (h - u)/rho`` and ``e = exp(W - m)`` (real space), ``S = sum e``, the
     Fourier gradient ``G = (E* q/2) u~ - p~`` and ``r2 = <G G>`` (M3)."""
 
-    def __init__(self, h, x0, *, sigma0, rho, e_star, length, fft: FFTBackend, ops: _Ops) -> None:
+    def __init__(self, h, x0, *, sigma0, rho, e_star, length, fft: FFTBackend, ops: _Ops,
+                 h_mean: float | None = None, share_gold: bool = False) -> None:
+        """``h_mean`` (GPU, ops with ``field``): ``h`` is the caller's surface, centred in the pass that forms
+        ``W`` (no centred copy is kept). ``share_gold`` (CG on the GPU): ``G_old`` is ``G`` itself, the
+        gradient pass reading each old mode before writing the new one (one half spectrum less)."""
         xp = fft.xp
         n = h.shape[0]
         self.xp, self.n, self.fft, self.ops = xp, n, fft, ops
@@ -61,12 +65,16 @@ class _Problem:
         self.h = h
         self.X = x0
         self.X[0, 0] = 0.0
-        self.W = (h - fft.irfft2(self.X)) * (1.0 / rho)
+        if h_mean is not None and hasattr(ops, "field"):
+            self.W = xp.empty((n, n), dtype=xp.float64)
+            ops.field(h, h_mean, fft.irfft2(self.X), 1.0 / rho, self.W)
+        else:
+            self.W = (h - fft.irfft2(self.X)) * (1.0 / rho)
         self.Wt = xp.empty_like(self.W)
         self.e = xp.empty_like(self.W)
         self.et = xp.empty_like(self.W)
         self.G = xp.empty_like(self.X)
-        self.G_old = xp.empty_like(self.X)
+        self.G_old = self.G if share_gold else xp.empty_like(self.X)
         self.nfev = 0
         self.m = ops.trial(self.W, self.W, 0.0, self.Wt)
         self.S, _, _ = ops.expstats(self.Wt, self.m, self.e)

@@ -167,6 +167,8 @@ KERNEL_H gs_grad(double2* X, const double2* __restrict__ D, double alpha, const 
         const double kk = (flags & 4) ? stiff(r, j, n, ka, kb) : k[i];
         double2 g = make_double2(kk * x.x - c * ee.x, kk * x.y - c * ee.y);
         if (i == 0) g = make_double2(0.0, 0.0);
+        // Gold may be G itself (CG on the GPU keeps one gradient array): read the old value before the write.
+        const double2 go = (flags & 2) ? Gold[i] : make_double2(0.0, 0.0);
         G[i] = g;
         const double wgt = PWEIGHT(j, nh, even);
         const double gg = cdot(g, g);
@@ -174,7 +176,7 @@ KERNEL_H gs_grad(double2* X, const double2* __restrict__ D, double alpha, const 
         if (flags & 2) {
             const double z = wgt * ((flags & 4) ? (i == 0 ? 0.0 : 1.0 / (kk + sr)) : minv[i]);
             v[1] += z * gg;
-            v[2] += z * cdot(g, Gold[i]);
+            v[2] += z * cdot(g, go);
         }
     }
     grid_reduce<3>(v, 0u, part, count, out);
@@ -199,6 +201,81 @@ KERNEL_H gs_cgdir(const double2* __restrict__ G, const double* __restrict__ minv
         v[2] += kw * cdot(d, d);
     }
     grid_reduce<3>(v, 0u, part, count, out);
+}
+
+// ------------------------------------------------------------------------------------------- set-up, result
+// Set-up and result passes of one solve on the GPU (gapsweep/gfmd/_softmax.py, GPU branch): each replaces a chain
+// of array expressions (one pass and often one temporary each) by one pass without temporaries.
+
+// out = (sum of the finite a, number of non-finite a).
+KERNEL gs_sumfinite(const double* __restrict__ a, unsigned long long N, double* part, unsigned int* count,
+                    double* out) {
+    double v[2] = {0.0, 0.0};
+    GRID_LOOP(i, N) {
+        const double x = a[i];
+        if (isfinite(x)) v[0] += x; else v[1] += 1.0;
+    }
+    grid_reduce<2>(v, 0u, part, count, out);
+}
+
+// W = ((h - hm) - u) * inv_rho (the CPU's order of operations); out[0] = max W.
+KERNEL gs_field(const double* __restrict__ h, double hm, const double* __restrict__ u, double inv_rho, double* W,
+                unsigned long long N, double* part, unsigned int* count, double* out) {
+    double v[1] = {neg_inf()};
+    GRID_LOOP(i, N) {
+        const double w = ((h[i] - hm) - u[i]) * inv_rho;
+        W[i] = w;
+        v[0] = comb(v[0], w, true);
+    }
+    grid_reduce<1>(v, 1u, part, count, out);
+}
+
+// Result fields in place: p = e cp (into e), gap = a0 - rho W (into W);
+// out = (sum p, #{gap + hs < thr}, #{gap or p not finite}).
+KERNEL gs_final(double* W, double* e, double cp, double a0, double rho, double hs, double thr,
+                unsigned long long N, double* part, unsigned int* count, double* out) {
+    double v[3] = {0.0, 0.0, 0.0};
+    GRID_LOOP(i, N) {
+        const double p = e[i] * cp;
+        e[i] = p;
+        const double g = __dsub_rn(a0, __dmul_rn(rho, W[i]));  // no fma: as numpy rounds it
+        W[i] = g;
+        v[0] += p;
+        v[1] += (__dadd_rn(g, hs) < thr) ? 1.0 : 0.0;
+        v[2] += (isfinite(p) && isfinite(g)) ? 0.0 : 1.0;
+    }
+    grid_reduce<3>(v, 0u, part, count, out);
+}
+
+// Linear response of M4 from the half spectrum H = rfft2(h): X = (s H) (sr / (k + sr)), X(q=0) = 0,
+// k = ka (kb |q|) per mode (as gs_grad). No reduction.
+extern "C" __global__ void __launch_bounds__(NT) gs_linresp(const double2* __restrict__ H, double s, double sr,
+                                                           double2* X, unsigned n, double ka, double kb,
+                                                           unsigned nh, unsigned long long N) {
+    HALF_LOOP(i, r, j, N, nh) {
+        const double f = sr / (stiff(r, j, n, ka, kb) + sr);
+        const double2 hh = H[i];
+        X[i] = i == 0 ? make_double2(0.0, 0.0) : make_double2((hh.x * s) * f, (hh.y * s) * f);
+    }
+}
+
+// Residual and elastic energy of the result: U = s Ur, P = s Pr, F = k U - P (0 at q = 0);
+// out = (<F F>, <U k U>) (Parseval weights), k = ka (kb |q|) per mode.
+KERNEL_H gs_resid(const double2* __restrict__ Ur, const double2* __restrict__ Pr, double s, unsigned n, double ka,
+                  double kb, unsigned nh, int even, unsigned long long N, double* part, unsigned int* count,
+                  double* out) {
+    double v[2] = {0.0, 0.0};
+    HALF_LOOP(i, r, j, N, nh) {
+        const double kk = stiff(r, j, n, ka, kb);
+        const double2 u = Ur[i], pr = Pr[i];
+        const double2 uu = make_double2(u.x * s, u.y * s);
+        double2 f = make_double2(kk * uu.x - pr.x * s, kk * uu.y - pr.y * s);
+        if (i == 0) f = make_double2(0.0, 0.0);
+        const double wgt = PWEIGHT(j, nh, even);
+        v[0] += wgt * cdot(f, f);
+        v[1] += wgt * kk * cdot(uu, uu);
+    }
+    grid_reduce<2>(v, 0u, part, count, out);
 }
 
 // ------------------------------------------------------------------------------------------------- batches
