@@ -127,6 +127,68 @@ def part_pairs(a, rows: list) -> None:
         del h
 
 
+def part_phases(a, rows: list) -> None:
+    """Where a solve's time goes: each kernel launch (with its synchronisation), each FFT (synchronised after
+    it, for this part only), the minimiser loop and the rest (set-up, result), summed over one solve."""
+    for n in a.n_phases:
+        rows.append(_phases(n))
+        print(json.dumps(rows[-1]), flush=True)
+
+
+def _phases(n: int) -> dict:
+    import cupy
+
+    from gapsweep import gfmd
+    from gapsweep.fft import _CupyBackend
+    from gapsweep.gfmd import _cuda, _softmax
+
+    sync = cupy.cuda.get_current_stream().synchronize
+    h, _ = surface(n)
+    kw = dict(sigma0=1e-2, gamma0=GAMMA0, rho=2e-3, tol=1e-6, host=False)
+    gfmd.solve(h, **kw)
+    acc: collections.Counter = collections.Counter()
+    saved = {}
+
+    def timed(cls, name, key):
+        fn = getattr(cls, name)
+        saved[(cls, name)] = fn
+
+        def wrap(*args, **kwargs):
+            sync()
+            t = time.perf_counter()
+            r = fn(*args, **kwargs)
+            sync()
+            acc[key(args)] += time.perf_counter() - t
+            return r
+        setattr(cls, name, wrap)
+
+    timed(_cuda._CupyOps, "_launch", lambda args: args[1])
+    timed(_CupyBackend, "rfft2", lambda args: "rfft2")
+    timed(_CupyBackend, "irfft2", lambda args: "irfft2")
+    runner = _softmax._RUNNERS["cg"]
+
+    def loop(*args, **kwargs):
+        sync()
+        t = time.perf_counter()
+        r = runner(*args, **kwargs)
+        sync()
+        acc["LOOP (cg, all of the above inside)"] += time.perf_counter() - t
+        return r
+    _softmax._RUNNERS["cg"] = loop
+    try:
+        sync()
+        t = time.perf_counter()
+        r = gfmd.solve(h, **kw)
+        sync()
+        total = time.perf_counter() - t
+    finally:
+        _softmax._RUNNERS["cg"] = runner
+        for (cls, name), fn in saved.items():
+            setattr(cls, name, fn)
+    return {"part": "phases", "n": n, "evals": r.iterations, "total_ms": 1e3 * total,
+            "ms": {k: round(1e3 * v, 3) for k, v in sorted(acc.items(), key=lambda kv: -kv[1])}}
+
+
 def _plan_work(n: int) -> int:
     """Bytes of the work areas of gapsweep.fft's two cuFFT plans of an n x n grid (0 if not readable)."""
     from gapsweep.fft import get_backend
@@ -220,6 +282,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--n-pairs", type=int, nargs="+", default=[2048, 4096, 8192])
     p.add_argument("--n-memory", type=int, nargs="+", default=[2048, 4096, 8192, 16384, 32768])
     p.add_argument("--n-surface", type=int, nargs="+", default=[1024, 4096])
+    p.add_argument("--n-phases", type=int, nargs="+", default=[2048, 8192])
     p.add_argument("--force", action="store_true", help="memory: run sizes whose estimate exceeds the free memory")
     a = p.parse_args(argv)
     import cupy
@@ -232,7 +295,7 @@ def main(argv: list[str] | None = None) -> None:
             "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
     print(json.dumps(meta), flush=True)
     rows: list = []
-    parts = {"surface": part_surface, "pairs": part_pairs, "memory": part_memory}
+    parts = {"surface": part_surface, "pairs": part_pairs, "memory": part_memory, "phases": part_phases}
     for name in a.parts:
         try:
             parts[name](a, rows)
