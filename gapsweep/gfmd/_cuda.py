@@ -21,6 +21,9 @@ _HALF_KERNELS = ("gs_dot", "gs_grad", "gs_cgdir", "gs_linresp", "gs_resid")
 _CUPY_KERNELS: Any = None
 # A guessed exponent shift is used when the new max lies within this distance of it (e <= e^50: no overflow).
 _SHIFT_SLACK = 50.0
+# Result slots of the chained CG (offsets into _CupyOps.slots): gradient pass, direction pass, moments, first trial.
+SLOT_GRAD, SLOT_CGDIR, SLOT_MOM, SLOT_TRIAL = 0, 4, 8, 12
+_NSLOTS = 20
 
 
 # Work area of one cuFFT double-precision 2-D plan (R2C or C2R) of an n x n grid, in half spectra (16 n (n/2+1)
@@ -73,6 +76,7 @@ def _cupy_kernels() -> Any:
         mod = cupy.RawModule(code=_CUDA_SRC, options=("--std=c++14",))
         names = ("gs_max", "gs_point", "gs_moments", "gs_dot", "gs_grad", "gs_cgdir",
                  "gs_sumfinite", "gs_field", "gs_final", "gs_linresp", "gs_resid",  # set-up and result passes
+                 "gs_trial0",  # chained CG
                  "bt_point", "bt_moments", "bt_cgdots", "bt_cgupdate", "bt_accept")  # bt_*: gfmd/batched.py
         _CUPY_KERNELS = {name: mod.get_function(name) for name in names}
     return _CUPY_KERNELS
@@ -121,13 +125,15 @@ class _CupyOps(_Ops):
         self.part = xp.empty(4 * max(g[0] for g in self.grid.values()), dtype=xp.float64)
         self.count = xp.zeros(1, dtype=xp.uint32)
         self.res = xp.zeros(4, dtype=xp.float64)
+        self.slots = xp.zeros(_NSLOTS, dtype=xp.float64)  # chained CG: one result slot per queued pass
         # Scalars come back through one pinned buffer: a bare async copy and a stream sync per pass.
         try:
             import cupyx
 
             self._host = cupyx.empty_pinned((4,), dtype=np.float64)
+            self._host_slots = cupyx.empty_pinned((_NSLOTS,), dtype=np.float64)
         except Exception:  # pragma: no cover - old cupy
-            self._host = None
+            self._host = self._host_slots = None
         self._stiff: tuple | None = None  # (k, minv, ka, kb, sr) of the bound problem
         self._nr = np.uint64(n * n)
         self._nhalf = np.uint64(n * self.nh)
@@ -236,8 +242,63 @@ class _CupyOps(_Ops):
 
     def cg_update(self, G, minv, D, beta: float, k, X) -> tuple[float, float, float]:
         fk, geo = self._stiff_args(k, minv)
-        r = self._launch("gs_cgdir", True, 3, G, minv, D, np.float64(beta), k, X, np.int32(fk), *geo)
+        r = self._launch("gs_cgdir", True, 3, G, minv, D, np.float64(beta), k, X, np.int32(fk), *geo, self.res,
+                         np.float64(1.0))
         return float(r[0]), float(r[1]), float(r[2])
+
+    # -- chained CG (_solvers._run_cg_chained): passes queued without reading their scalars, each into its own
+    # slot of one device buffer; one copy and one synchronisation read them all.
+    def _enqueue(self, name: str, half: bool, slot: int, *args) -> None:
+        out = self.slots[slot:]
+        if half:
+            args = (*args, *self._geo, self._nhalf, self.part, self.count, out)
+        else:
+            args = (*args, self._nr, self.part, self.count, out)
+        self.K[name](self.grid[name], (256,), args)
+
+    def chain_grad(self, X, D, alpha: float, E, c: float, k, G) -> None:
+        """:meth:`grad_step` of CG with one gradient array (``G_old`` is ``G``), queued: slot ``GRAD`` receives
+        ``(<G G>, <Z G>, <Z G_old>)``."""
+        fk, geo = self._stiff_args(k, self._cg_minv)
+        self._enqueue("gs_grad", True, SLOT_GRAD, X, D, np.float64(alpha), E, np.float64(c), k, G, self._cg_minv,
+                      G, np.int32(1 | 2 | fk), *geo)
+
+    def chain_cgdir(self, G, minv, D, k, X, zg_old: float | None) -> None:
+        """:meth:`cg_update` queued, ``beta = max(0, (zg - zc)/zg_old)`` from slot ``GRAD`` on the device (0 when
+        ``zg_old`` is None: a restart); slot ``CGDIR`` receives ``(phi0p, a, b)``."""
+        fk, geo = self._stiff_args(k, minv)
+        flags = fk | (8 if zg_old is not None else 0)
+        self._enqueue("gs_cgdir", True, SLOT_CGDIR, G, minv, D, np.float64(0.0), k, X, np.int32(flags), *geo,
+                      self.slots[SLOT_GRAD:], np.float64(1.0 if zg_old is None else zg_old))
+
+    def chain_moments(self, e, d) -> None:
+        """:meth:`moments` queued into slot ``MOM``."""
+        self._enqueue("gs_moments", False, SLOT_MOM, e, d)
+
+    def chain_trial(self, W, d, S: float, sr: float, rho: float, Wt, e) -> float:
+        """The first line-search trial from slots ``CGDIR`` and ``MOM`` (kernels.cu, gs_trial0), queued into slot
+        ``TRIAL`` = ``(max, S, s1, s2, alpha)``; returns the exponent shift it used."""
+        shift = self._guess if self._guess is not None else 0.0
+        self._enqueue("gs_trial0", False, SLOT_TRIAL, W, d, self.slots[SLOT_CGDIR:], self.slots[SLOT_MOM:],
+                      np.float64(S), np.float64(sr), np.float64(rho), Wt, e, np.float64(shift))
+        return shift
+
+    def chain_read(self) -> np.ndarray:
+        """Every slot, after one device-to-host copy and one synchronisation."""
+        if self._host_slots is None:
+            return self.slots.get()
+        rt = self.xp.cuda.runtime
+        stream = self.xp.cuda.get_current_stream()
+        rt.memcpyAsync(self._host_slots.ctypes.data, self.slots.data.ptr, 8 * self.slots.size,
+                       rt.memcpyDeviceToHost, stream.ptr)
+        stream.synchronize()
+        return self._host_slots.copy()
+
+    def retrial(self, W, d, c: float, Wt, e, shift: float) -> tuple[float, float, float]:
+        """The first trial again with the exact shift (its max lay more than ``_SHIFT_SLACK`` from the guess):
+        ``(S, s1, s2)``."""
+        r = self._point(W, d, c, d, Wt, e, shift, 3)
+        return float(r[1]), float(r[2]), float(r[3])
 
     # -- real space
     def _max(self, w, d, c: float) -> float:

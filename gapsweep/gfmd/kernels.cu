@@ -167,27 +167,29 @@ KERNEL_H gs_grad(double2* X, const double2* __restrict__ D, double alpha, const 
         const double kk = (flags & 4) ? stiff(r, j, n, ka, kb) : k[i];
         double2 g = make_double2(kk * x.x - c * ee.x, kk * x.y - c * ee.y);
         if (i == 0) g = make_double2(0.0, 0.0);
-        // Gold may be G itself (CG on the GPU keeps one gradient array): read the old value before the write.
-        const double2 go = (flags & 2) ? Gold[i] : make_double2(0.0, 0.0);
-        G[i] = g;
         const double wgt = PWEIGHT(j, nh, even);
         const double gg = cdot(g, g);
         v[0] += wgt * gg;
         if (flags & 2) {
             const double z = wgt * ((flags & 4) ? (i == 0 ? 0.0 : 1.0 / (kk + sr)) : minv[i]);
             v[1] += z * gg;
-            v[2] += z * cdot(g, go);
+            // Gold may be G itself (CG on the GPU keeps one gradient array): read before the store below.
+            v[2] += z * cdot(g, Gold[i]);
         }
+        G[i] = g;
     }
     grid_reduce<3>(v, 0u, part, count, out);
 }
 
 // D = beta D - minv G; out = (<G D>, <kD X>, <kD D>). flags & 4: k, minv on the fly as in gs_grad.
+// flags & 8: beta = max(0, (zg - zc) / zg_old) from the gradient pass's results gs = (<G G>, zg, zc) on the
+// device (the chained CG of _solvers._run_cg_chained: no host round trip between the gradient and the direction).
 KERNEL_H gs_cgdir(const double2* __restrict__ G, const double* __restrict__ minv, double2* D, double beta,
                 const double* __restrict__ k, const double2* __restrict__ X, int flags, unsigned n, double ka,
-                double kb, double sr, unsigned nh, int even, unsigned long long N, double* part,
-                unsigned int* count, double* out) {
+                double kb, double sr, const double* __restrict__ gs, double zg_old, unsigned nh, int even,
+                unsigned long long N, double* part, unsigned int* count, double* out) {
     double v[3] = {0.0, 0.0, 0.0};
+    if (flags & 8) beta = fmax(0.0, __ddiv_rn(__dsub_rn(gs[1], gs[2]), zg_old));
     HALF_LOOP(i, r, j, N, nh) {
         const double2 g = G[i], d0 = D[i];
         const double kk = (flags & 4) ? stiff(r, j, n, ka, kb) : k[i];
@@ -201,6 +203,33 @@ KERNEL_H gs_cgdir(const double2* __restrict__ G, const double* __restrict__ minv
         v[2] += kw * cdot(d, d);
     }
     grid_reduce<3>(v, 0u, part, count, out);
+}
+
+// First trial of a chained CG line search: the step alpha = -phi0p / curv (1 if curv <= 0) of
+// _solvers._Problem.line_search, curv = b + sr (s2/S - (s1/S)^2), from the direction pass's results
+// cg = (phi0p, a, b) and the moments mo = (s1, s2) on the device, rounded as the host rounds it (no fma); then
+// the trial point as gs_point with flags 3 (c = -alpha/rho). out = (max wt, sum e, sum e d, sum e d^2, alpha).
+KERNEL gs_trial0(const double* __restrict__ W, const double* __restrict__ dt, const double* __restrict__ cg,
+                 const double* __restrict__ mo, double S, double sr, double rho, double* Wt, double* e, double shift,
+                 unsigned long long N, double* part, unsigned int* count, double* out) {
+    const double s1 = __ddiv_rn(mo[0], S), s2 = __ddiv_rn(mo[1], S);
+    const double curv = __dadd_rn(cg[2], __dmul_rn(sr, __dsub_rn(s2, __dmul_rn(s1, s1))));
+    const double alpha = curv > 0.0 ? __ddiv_rn(-cg[0], curv) : 1.0;
+    const double c = __ddiv_rn(-alpha, rho);
+    double v[4] = {neg_inf(), 0.0, 0.0, 0.0};
+    GRID_LOOP(i, N) {
+        const double w = fma(c, dt[i], W[i]);
+        Wt[i] = w;
+        const double x = exp(w - shift);
+        e[i] = x;
+        v[0] = comb(v[0], w, true);
+        v[1] += x;
+        const double y = x * dt[i];
+        v[2] += y;
+        v[3] += y * dt[i];
+    }
+    grid_reduce<4>(v, 1u, part, count, out);
+    if (blockIdx.x == 0 && threadIdx.x == 0) out[4] = alpha;
 }
 
 // ------------------------------------------------------------------------------------------- set-up, result
