@@ -318,7 +318,7 @@ def main(argv: list[str] | None = None) -> None:
     (a.out / f"{a.tag}.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
     summary = collections.defaultdict(list)
     for r in rows:
-        if r.get("part") == "pairs":
+        if r.get("part") == "pairs" and "n" in r:
             summary[r["n"]].append(r)
     print(f"\n[{a.tag}] {meta['gpu']}: whole solves, fields on the GPU, figure-2 case rho = 2e-3, tol 1e-6")
     print("| n | pair ms | evals (sigma0 1e-4..1) | s per solve | pairs/eval | mean pairs/eval | syncs/eval |")

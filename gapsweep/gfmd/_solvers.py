@@ -229,7 +229,7 @@ def _run_cg_chained(pb: _Problem, tol: float, max_iter: int, history: list[float
             phi0p, a, b = ops.cg_update(pb.G, pb.minv, D, 0.0, pb.k, pb.X)
             d = None
         else:
-            alpha, mt, St, s1, s2 = (float(x) for x in r[SLOT_TRIAL:SLOT_TRIAL + 5])
+            mt, St, s1, s2, alpha = (float(x) for x in r[SLOT_TRIAL:SLOT_TRIAL + 5])  # gs_trial0 order
             if math.isfinite(mt):
                 if abs(mt - shift) > _SHIFT_SLACK:  # guessed shift too far off: the pass again, shifted exactly
                     St, s1, s2 = ops.retrial(pb.W, d, -alpha / rho, pb.Wt, pb.et, mt)
