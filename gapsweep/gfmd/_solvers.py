@@ -67,7 +67,8 @@ class _Problem:
         self.X[0, 0] = 0.0
         if h_mean is not None and hasattr(ops, "field"):
             self.W = xp.empty((n, n), dtype=xp.float64)
-            ops.field(h, h_mean, fft.irfft2(self.X), 1.0 / rho, self.W)
+            # the pass returns max W: the start point's exponentials need no separate max pass
+            ops._guess = ops.field(h, h_mean, fft.irfft2(self.X), 1.0 / rho, self.W)
         else:
             self.W = (h - fft.irfft2(self.X)) * (1.0 / rho)
         self.Wt = xp.empty_like(self.W)
