@@ -77,6 +77,7 @@ def _cupy_kernels() -> Any:
         names = ("gs_max", "gs_point", "gs_moments", "gs_dot", "gs_grad", "gs_cgdir",
                  "gs_sumfinite", "gs_field", "gs_final", "gs_linresp", "gs_resid",  # set-up and result passes
                  "gs_trial0",  # chained CG
+                 "pk_contact_sum", "pk_gap", "pk_zstats", "pk_direction", "pk_rstats", "pk_update", "pk_rescale",
                  "bt_point", "bt_moments", "bt_cgdots", "bt_cgupdate", "bt_accept")  # bt_*: gfmd/batched.py
         _CUPY_KERNELS = {name: mod.get_function(name) for name in names}
     return _CUPY_KERNELS
@@ -337,3 +338,74 @@ class _CupyOps(_Ops):
     def moments(self, e, d) -> tuple[float, float]:
         r = self._launch("gs_moments", False, 2, e, d)
         return float(r[0]), float(r[1])
+
+
+class _PKCupy:
+    """GPU passes of the hard-wall minimiser (gapsweep/gfmd/_constrained.py; the interface of
+    ``_constrained_ops._PKOps``): one fused CUDA pass per operation (kernels.cu, "hard wall"), rounded as the numba
+    passes, instead of a chain of cupy expressions with temporaries and a synchronisation per scalar. Any
+    ``nx x ny`` grid. Scalars come back in one small copy per pass; ``direction`` and ``rescale`` return none and
+    do not synchronise."""
+
+    def __init__(self, xp: Any) -> None:
+        self.xp = xp
+        self.K = _cupy_kernels()
+        self._sms = xp.cuda.Device().attributes["MultiProcessorCount"]
+        self._n = None
+        self.part = xp.empty(4 * _CUDA_BLOCKS_PER_SM * self._sms, dtype=xp.float64)
+        self.count = xp.zeros(1, dtype=xp.uint32)
+        self.res = xp.zeros(4, dtype=xp.float64)
+        try:
+            import cupyx
+
+            self._host = cupyx.empty_pinned((4,), dtype=np.float64)
+        except Exception:  # pragma: no cover - old cupy
+            self._host = None
+
+    def _grid(self, size: int) -> tuple[int]:
+        return (int(max(1, min(-(-size // 256), _CUDA_BLOCKS_PER_SM * self._sms))),)
+
+    def _run(self, name: str, nout: int, a, *args) -> list[float]:
+        size = a.size
+        self.K[name](self._grid(size), (256,), (*args, np.uint64(size), self.part, self.count, self.res))
+        if self._host is None:
+            return self.res.get()[:nout].tolist()
+        rt = self.xp.cuda.runtime
+        stream = self.xp.cuda.get_current_stream()
+        rt.memcpyAsync(self._host.ctypes.data, self.res.data.ptr, 8 * nout, rt.memcpyDeviceToHost, stream.ptr)
+        stream.synchronize()
+        return self._host[:nout].tolist()
+
+    @staticmethod
+    def _c(a):
+        if not a.flags.c_contiguous:  # every array of the minimiser is allocated C-contiguous
+            raise ValueError("hard-wall GPU passes need C-contiguous arrays")
+        return a
+
+    def contact_sum(self, u, h, p) -> tuple[int, float]:
+        r = self._run("pk_contact_sum", 2, p, self._c(u), self._c(h), self._c(p))
+        return int(r[0]), float(r[1])
+
+    def gap(self, u, h, gbar: float, p, g, gs) -> tuple[float, float]:
+        r = self._run("pk_gap", 2, p, self._c(u), self._c(h), np.float64(gbar), self._c(p), self._c(g), self._c(gs))
+        return float(r[0]), -float(r[1])
+
+    def zstats(self, z, gs, p) -> tuple[float, float]:
+        r = self._run("pk_zstats", 2, p, self._c(z), self._c(gs), self._c(p))
+        return float(r[0]), float(r[1])
+
+    def direction(self, t, z, zbar: float, c: float, p) -> None:
+        self.K["pk_direction"](self._grid(p.size), (256,), (self._c(t), self._c(z), np.float64(zbar), np.float64(c),
+                                                             self._c(p), np.uint64(p.size)))
+
+    def rstats(self, r, t, gs, p) -> tuple[float, float, float, float]:
+        v = self._run("pk_rstats", 4, p, self._c(r), self._c(t), self._c(gs), self._c(p))
+        return float(v[0]), float(v[1]), float(v[2]), float(v[3])
+
+    def update(self, p, t, g, tau: float) -> tuple[bool, int, float]:
+        v = self._run("pk_update", 3, p, self._c(p), self._c(t), self._c(g), np.float64(tau))
+        return v[0] > 0, int(v[1]), float(v[2])
+
+    def rescale(self, p, u, r, scale: float, tau: float, follow: bool) -> None:
+        self.K["pk_rescale"](self._grid(p.size), (256,), (self._c(p), self._c(u), self._c(r), np.float64(scale),
+                                                           np.float64(tau), np.int32(bool(follow)), np.uint64(p.size)))

@@ -307,6 +307,93 @@ KERNEL_H gs_resid(const double2* __restrict__ Ur, const double2* __restrict__ Pr
     grid_reduce<2>(v, 0u, part, count, out);
 }
 
+// ------------------------------------------------------------------------------------------------ hard wall
+// Passes of the hard-wall minimiser (gapsweep/gfmd/_constrained.py) on any nx x ny grid (N = nx ny), one pass each
+// with its reductions, rounded as the numba passes of _constrained_ops.py (no fma contraction); S = {p > 0}.
+#define IN_S(i) (p[i] > 0.0)
+
+// out = (|S|, sum_S (u - h)).
+KERNEL pk_contact_sum(const double* __restrict__ u, const double* __restrict__ h, const double* __restrict__ p,
+                      unsigned long long N, double* part, unsigned int* count, double* out) {
+    double v[2] = {0.0, 0.0};
+    GRID_LOOP(i, N) {
+        if (IN_S(i)) { v[0] += 1.0; v[1] += __dsub_rn(u[i], h[i]); }
+    }
+    grid_reduce<2>(v, 0u, part, count, out);
+}
+
+// g = (u - h) - gbar, gs = g on S else 0; out = (sum_S g^2, -min over the free surface of g) (max of -g).
+KERNEL pk_gap(const double* __restrict__ u, const double* __restrict__ h, double gbar, const double* __restrict__ p,
+              double* g, double* gs, unsigned long long N, double* part, unsigned int* count, double* out) {
+    double v[2] = {0.0, neg_inf()};
+    GRID_LOOP(i, N) {
+        const double x = __dsub_rn(__dsub_rn(u[i], h[i]), gbar);
+        g[i] = x;
+        if (IN_S(i)) { gs[i] = x; v[0] += __dmul_rn(x, x); }
+        else { gs[i] = 0.0; v[1] = comb(v[1], -x, true); }
+    }
+    grid_reduce<2>(v, 2u, part, count, out);
+}
+
+// out = (sum_S z, sum gs z).
+KERNEL pk_zstats(const double* __restrict__ z, const double* __restrict__ gs, const double* __restrict__ p,
+                 unsigned long long N, double* part, unsigned int* count, double* out) {
+    double v[2] = {0.0, 0.0};
+    GRID_LOOP(i, N) {
+        if (IN_S(i)) { v[0] += z[i]; v[1] += __dmul_rn(gs[i], z[i]); }
+    }
+    grid_reduce<2>(v, 0u, part, count, out);
+}
+
+// t = (z - zbar) + c t on S, 0 elsewhere. No reduction.
+extern "C" __global__ void __launch_bounds__(NT) pk_direction(double* t, const double* __restrict__ z, double zbar,
+                                                             double c, const double* __restrict__ p,
+                                                             unsigned long long N) {
+    GRID_LOOP(i, N) t[i] = IN_S(i) ? __dadd_rn(__dsub_rn(z[i], zbar), __dmul_rn(c, t[i])) : 0.0;
+}
+
+// out = (sum_S r, sum_S r t, sum_S t, sum gs t).
+KERNEL pk_rstats(const double* __restrict__ r, const double* __restrict__ t, const double* __restrict__ gs,
+                 const double* __restrict__ p, unsigned long long N, double* part, unsigned int* count, double* out) {
+    double v[4] = {0.0, 0.0, 0.0, 0.0};
+    GRID_LOOP(i, N) {
+        const double tt = t[i];
+        if (IN_S(i)) {
+            const double rr = r[i];
+            v[0] += rr;
+            v[1] += __dmul_rn(rr, tt);
+            v[2] += tt;
+        }
+        v[3] += __dmul_rn(gs[i], tt);
+    }
+    grid_reduce<4>(v, 0u, part, count, out);
+}
+
+// p = max(p - tau t, 0), then p = -tau g where p = 0 and g < 0; out = (#clipped, #overlap, sum p).
+KERNEL pk_update(double* p, const double* __restrict__ t, const double* __restrict__ g, double tau,
+                 unsigned long long N, double* part, unsigned int* count, double* out) {
+    double v[3] = {0.0, 0.0, 0.0};
+    GRID_LOOP(i, N) {
+        double x = __dsub_rn(p[i], __dmul_rn(tau, t[i]));
+        if (x < 0.0) { v[0] += 1.0; x = 0.0; }
+        const double gg = g[i];
+        if (x == 0.0 && gg < 0.0) { v[1] += 1.0; x = __dmul_rn(-tau, gg); }
+        p[i] = x;
+        v[2] += x;
+    }
+    grid_reduce<3>(v, 0u, part, count, out);
+}
+
+// p *= scale; follow: u = scale (u - tau r). No reduction.
+extern "C" __global__ void __launch_bounds__(NT) pk_rescale(double* p, double* u, const double* __restrict__ r,
+                                                           double scale, double tau, int follow,
+                                                           unsigned long long N) {
+    GRID_LOOP(i, N) {
+        p[i] = __dmul_rn(p[i], scale);
+        if (follow) u[i] = __dmul_rn(scale, __dsub_rn(u[i], __dmul_rn(tau, r[i])));
+    }
+}
+
 // ------------------------------------------------------------------------------------------------- batches
 // Kernels of gapsweep/gfmd/batched.py: a stack of B problems, problem b = blockIdx.y, its arrays at offset
 // b * N (real n x n: N = n^2; half spectra n x nh: N = n nh; k is shared by all problems). Per-problem scalars

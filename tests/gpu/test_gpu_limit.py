@@ -142,3 +142,26 @@ def test_chained_cg_equals_synchronous_cg(sigma0: float, monkeypatch) -> None:
     assert a.iterations == b.iterations
     np.testing.assert_allclose(a.history, b.history, rtol=1e-9, atol=0)
     assert abs(a.mean_gap - b.mean_gap) <= 1e-14 * abs(a.mean_gap)
+
+
+@pytest.mark.gpu
+@pytest.mark.parametrize("method, shape", [("pcg", (256, 256)), ("pk", (128, 64)), ("mpcg", (256, 256))])
+def test_hard_wall_fused_gpu_passes_match_generic(method: str, shape: tuple, monkeypatch) -> None:
+    """The fused CUDA passes of the hard wall (gfmd/_cuda.py::_PKCupy) against the generic cupy passes
+    (``GAPSWEEP_GENERIC_KERNELS=1``) and the numpy solver: same iterations (+-1: summation order), mean gap to
+    1e-9, same contact area."""
+    cupy = _cupy()
+    from gapsweep.gfmd import solve
+
+    h = self_affine(shape[0], 0.8, lambda_l=0.25, lambda_s=4 / shape[1], seed=6)[:, : shape[1]]
+    length = (1.0, shape[1] / shape[0])
+    kw = dict(sigma0=2e-2, interaction="hard_wall", tol=1e-10, method=method, length=length)
+    a = solve(cupy.asarray(h), **kw)
+    monkeypatch.setenv("GAPSWEEP_GENERIC_KERNELS", "1")
+    b = solve(cupy.asarray(h), **kw)
+    c = solve(h, backend="numpy", **kw)
+    assert a.converged and b.converged and c.converged
+    assert abs(a.iterations - b.iterations) <= 1, (a.iterations, b.iterations)
+    assert abs(a.mean_gap - b.mean_gap) <= 1e-9 * abs(b.mean_gap)
+    assert abs(a.mean_gap - c.mean_gap) <= 1e-9 * abs(c.mean_gap)
+    assert a.contact_area == b.contact_area == c.contact_area
