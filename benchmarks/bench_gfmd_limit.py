@@ -267,6 +267,64 @@ def part_memory(a, rows: list) -> None:
         print(json.dumps(row), flush=True)
 
 
+def _pool_peak(solve_fn, n: int) -> tuple[float, object]:
+    """``(bytes the pool grew by during solve_fn(), its result)``, FFT plans and caches of every size dropped."""
+    import cupy
+
+    from gapsweep import fft, gfmd
+
+    pool = cupy.get_default_memory_pool()
+    fft._PLANS.clear()
+    gfmd._solvers._half_q_cached.cache_clear()
+    cupy.fft.config.get_plan_cache().clear()
+    pool.free_all_blocks()
+    base = pool.total_bytes()
+    r = solve_fn()
+    return pool.total_bytes() - base, r
+
+
+def part_methods(a, rows: list) -> None:
+    """Memory (grid-sized arrays, surface excluded) and time of each exponential-law method and of the hard wall
+    (pcg, tol 1e-8), the surface on the GPU; sizes ``--n-methods``."""
+    import cupy
+
+    from gapsweep import gfmd
+
+    try:
+        from gapsweep.gfmd._cuda import solve_memory
+    except ImportError:
+        solve_memory = None
+    for n in a.n_methods:
+        h, _ = surface(n)
+        cases = [("exponential", m, dict(gamma0=GAMMA0, rho=2e-3, tol=1e-6, method=m)) for m in ("cg", "lbfgs", "fire")]
+        cases.append(("hard_wall", "pcg", dict(interaction="hard_wall", tol=1e-8, method="pcg")))
+        for law, method, kw in cases:
+            if n > a.n_methods_max.get(method, 1 << 30):
+                continue
+            try:
+                peak, r = _pool_peak(lambda kw=kw, h=h: gfmd.solve(h, sigma0=1e-2, host=False, max_iter=20000, **kw), n)
+                cupy.cuda.get_current_stream().synchronize()
+                t = time.perf_counter()
+                r = gfmd.solve(h, sigma0=1e-2, host=False, max_iter=20000, **kw)
+                cupy.cuda.get_current_stream().synchronize()
+                wall = time.perf_counter() - t
+                row = {"part": "methods", "n": n, "law": law, "method": method, "status": r.status,
+                       "iterations": r.iterations, "solve_s": wall, "pool_GB_excl_heights": peak / 1e9,
+                       "arrays_excl_heights": peak / (8 * n * n), "mean_gap": r.mean_gap}
+                if solve_memory is not None and law == "exponential":
+                    try:
+                        row["estimate/measured"] = solve_memory(n, method=method, heights_on_gpu=False)["bytes"] / peak
+                    except Exception:
+                        pass
+                del r
+            except Exception as exc:
+                row = {"part": "methods", "n": n, "law": law, "method": method,
+                       "status": f"failed: {type(exc).__name__}: {str(exc)[:200]}"}
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+        del h
+
+
 def part_surface(a, rows: list) -> None:
     import cupy
 
@@ -295,8 +353,10 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--n-memory", type=int, nargs="+", default=[2048, 4096, 8192, 16384, 32768])
     p.add_argument("--n-surface", type=int, nargs="+", default=[1024, 4096])
     p.add_argument("--n-phases", type=int, nargs="+", default=[2048, 8192])
+    p.add_argument("--n-methods", type=int, nargs="+", default=[2048, 4096, 16384])
     p.add_argument("--force", action="store_true", help="memory: run sizes whose estimate exceeds the free memory")
     a = p.parse_args(argv)
+    a.n_methods_max = {"fire": 4096}  # FIRE needs hundreds of evaluations: the large grid only for the others
     import cupy
 
     warnings.simplefilter("ignore")
@@ -307,7 +367,8 @@ def main(argv: list[str] | None = None) -> None:
             "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
     print(json.dumps(meta), flush=True)
     rows: list = []
-    parts = {"surface": part_surface, "pairs": part_pairs, "memory": part_memory, "phases": part_phases}
+    parts = {"surface": part_surface, "pairs": part_pairs, "memory": part_memory, "phases": part_phases,
+             "methods": part_methods}
     for name in a.parts:
         try:
             parts[name](a, rows)
