@@ -27,40 +27,50 @@ _NSLOTS = 20
 
 
 # Work area of one cuFFT double-precision 2-D plan (R2C or C2R) of an n x n grid, in half spectra (16 n (n/2+1)
-# bytes). Calibrated on n = 2048, 4096, 8192 (benchmarks/bench_gfmd_limit.py, docs/benchmarks_gfmd.md, "Memory");
-# the estimate is checked against the measured peak at n = 16384 and 32768.
+# bytes), read off n = 4096 and 8192 (benchmarks/bench_gfmd_limit.py; docs/benchmarks_gfmd.md, "GPU at the
+# limit"); the estimates below were checked against the measured peak at n = 16384 and 32768. At n <= 2048 cuFFT
+# took no work area from cupy's pool, and the estimate is 2 arrays above the measured peak.
 _CUFFT_WORK = 1.0
-# Grid-sized arrays of one solve besides cuFFT's work areas, per method (the exponential law on the GPU, the
-# fused kernels; gfmd/_softmax.py::_solve_lean): "real" n x n float64, "half" n x (n/2+1) complex128 spectra,
-# "halfreal" n x (n/2+1) float64.
+# Grid-sized arrays of one solve besides cuFFT's work areas and the caller's surface, per (interaction, method),
+# on the GPU: "real" n x n float64, "half" n x (n/2+1) complex128 spectra, "halfreal" n x (n/2+1) float64. The
+# exponential law's are counted from gfmd/_softmax.py::_solve_lean; the L-BFGS and FIRE counts of half spectra and
+# the hard wall's total were read off the pool's high-water mark at n = 4096 and checked at n = 16384 (L-BFGS,
+# hard wall) and 2048 (all): docs/benchmarks_gfmd.md, "GPU at the limit".
 _ARRAYS = {
-    # W, Wt, e, et; FFT output buffer. X, G, D; FFT input copy and output. k, M, M^-1, cached |q|.
-    "cg": {"real": 5, "half": 5, "halfreal": 4},
-    # + G_old, 5 (s, y) pairs, q, D, kD, y temporaries
-    "lbfgs": {"real": 5, "half": 4 + 1 + 10 + 4, "halfreal": 4},
-    # + G_old, V, F, Fm, F Fm temporaries
-    "fire": {"real": 5, "half": 4 + 1 + 5, "halfreal": 4},
+    # W, Wt, e, et, cuFFT's real output; X, G, D, cuFFT's complex input copy and output; k, M, M^-1, cached |q|
+    ("exponential", "cg"): {"real": 5, "half": 5, "halfreal": 4},
+    ("exponential", "lbfgs"): {"real": 5, "half": 20, "halfreal": 4},  # + G_old, 5 (s, y) pairs, temporaries
+    ("exponential", "fire"): {"real": 5, "half": 9, "halfreal": 4},  # + G_old, V, F, F/M, temporaries
+    # heights centred, K^-1, M, p, u, t, g, gs, z, r, convolution temporaries (method "pcg", the GPU default)
+    ("hard_wall", "pcg"): {"real": 18.13},
 }
+_DEFAULT_METHOD = {"exponential": "cg", "hard_wall": "pcg"}
 
 
-def solve_memory(n: int, *, method: str = "cg", heights_on_gpu: bool = True) -> dict[str, Any]:
-    """GPU memory one exponential-law solve of an ``n x n`` grid needs (bytes), for ``gfmd.solve`` on a cupy
-    array with the fused kernels (docs/gfmd.md; sweep planning: refuse what does not fit).
+def solve_memory(n: int, *, interaction: str = "exponential", method: str = "auto",
+                 heights_on_gpu: bool = True) -> dict[str, Any]:
+    """GPU memory (bytes) one solve of an ``n x n`` grid needs with ``gfmd.solve`` on a cupy array (docs/gfmd.md;
+    for the sweep's planning: refuse what does not fit, saying how much it needs).
 
-    ``method``: "cg" (default), "lbfgs" or "fire". ``heights_on_gpu``: count the caller's surface (True when
-    it is passed as a cupy array, as the sweep does). Returns ``{"bytes": total, "arrays": grid-sized arrays
-    (real n x n float64 units), "parts": {name: bytes}}``; the fields returned to the host cost none (they
-    reuse the solver's buffers). Needs no GPU. The real requirement is the total plus cupy's pool rounding
-    and the CUDA context (~0.5 GB)."""
+    ``interaction``: "exponential" (``method`` "cg" = "auto", "lbfgs", "fire") or "hard_wall" (``method`` "pcg" =
+    "auto", the GPU default; other methods were not measured). ``heights_on_gpu``: count the caller's surface
+    (True when it is passed as a cupy array, as the sweep does). Returns ``{"bytes": total, "arrays": total in
+    real n x n float64 arrays, "parts": {name: bytes}}``; fields returned to the host need none (the exponential
+    law's reuse the solver's buffers). Needs no GPU. Add the CUDA context (~0.5 GB) for the whole process."""
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
         raise ValueError(f"n must be an integer >= 2, got {n!r}")
-    if method not in _ARRAYS:
-        raise ValueError(f"method must be one of {', '.join(map(repr, _ARRAYS))}, got {method!r}")
+    if interaction not in _DEFAULT_METHOD:
+        raise ValueError(f"interaction must be one of {', '.join(map(repr, _DEFAULT_METHOD))}, got {interaction!r}")
+    method = _DEFAULT_METHOD[interaction] if method == "auto" else method
+    if (interaction, method) not in _ARRAYS:
+        allowed = ["auto", *(m for law, m in _ARRAYS if law == interaction)]
+        raise ValueError(f"method must be one of {', '.join(map(repr, allowed))} for interaction {interaction!r}, "
+                         f"got {method!r}")
     n = int(n)
     real, half = 8 * n * n, 16 * n * (n // 2 + 1)
-    a = _ARRAYS[method]
-    parts = {"solver real fields": a["real"] * real, "solver half spectra": a["half"] * half,
-             "stiffness and preconditioner": a["halfreal"] * half // 2,
+    a = _ARRAYS[(interaction, method)]
+    parts = {"solver real fields": int(a.get("real", 0) * real), "solver half spectra": a.get("half", 0) * half,
+             "stiffness and preconditioner": a.get("halfreal", 0) * half // 2,
              "cuFFT work areas (R2C + C2R plans)": int(2 * _CUFFT_WORK * half),
              "heights": real if heights_on_gpu else 0}
     total = sum(parts.values())

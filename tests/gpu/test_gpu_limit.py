@@ -36,6 +36,11 @@ def test_solve_memory_arguments() -> None:
         solve_memory(1)
     with pytest.raises(ValueError, match="method must be one of"):
         solve_memory(64, method="newton")
+    with pytest.raises(ValueError, match="interaction must be one of"):
+        solve_memory(64, interaction="adhesive")
+    with pytest.raises(ValueError, match="method must be one of 'auto', 'pcg' for interaction 'hard_wall'"):
+        solve_memory(64, interaction="hard_wall", method="pk")
+    assert solve_memory(64, method="auto") == solve_memory(64, method="cg")
     m = solve_memory(1024)
     assert m["bytes"] == sum(m["parts"].values())
     # the caller's surface is one real n x n array more
@@ -115,13 +120,19 @@ def test_solve_memory_against_measured_pool() -> None:
     n = 1536
     h = cupy.asarray(_surface(n, 4))
     pool = cupy.get_default_memory_pool()
-    pool.free_all_blocks()
-    base = pool.total_bytes()
-    r = solve(h, sigma0=1e-2, gamma0=1e-3, rho=0.01, tol=1e-6, host=False)
-    assert r.converged
-    used = pool.total_bytes() - base
-    est = solve_memory(n, heights_on_gpu=False)["bytes"]
-    assert 0.8 * used <= est <= 1.25 * used, (est / 1e6, used / 1e6)
+    for law, kw in (("exponential", dict(gamma0=1e-3, rho=0.01, tol=1e-6)),
+                    ("hard_wall", dict(interaction="hard_wall", tol=1e-8))):
+        from gapsweep import fft
+
+        fft._PLANS.clear()  # plans (and their buffers) made fresh inside the solve
+        pool.free_all_blocks()
+        base = pool.total_bytes()
+        r = solve(h, sigma0=1e-2, host=False, **kw)
+        assert r.converged
+        used = pool.total_bytes() - base
+        del r
+        est = solve_memory(n, interaction=law, heights_on_gpu=False)["bytes"]
+        assert 0.8 * used <= est <= 1.25 * used, (law, est / 1e6, used / 1e6)
 
 
 @pytest.mark.gpu
