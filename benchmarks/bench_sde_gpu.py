@@ -7,8 +7,10 @@ The paper: 10^7 realisations in about 20 s on an RTX 4090D.
 Kernel limit (issue 14, ``--limit``, needs cupy): the headline case (float32, 9,900 steps, histogram) side by
 side with hand-written CUDA kernels of the same step count built with -use_fast_math
 (benchmarks/sde_reference.cu): the plain cuRAND Euler-Maruyama kernel, the same with a hand-written Philox, and
-the split step written in CUDA; each warp log1p variant (gapsweep._sde_kernels.VARIANTS) is timed too. Times
-are the median of ``--repeat`` warm launches + count copies (events-free: synchronize, then the host clock).
+the split step written in CUDA; each warp log1p variant (gapsweep._sde_kernels.VARIANTS) is timed too when warp is
+installed (without warp the CUDA rows and gapsweep's CUDA engine are timed, the warp rows are left out and said so).
+Times are the median of ``--repeat`` warm launches + count copies (events-free: synchronize, then the host clock).
+The user-call cases need warp only for the paper's Euler-Maruyama scheme (skipped without it).
 
     python benchmarks/bench_sde_gpu.py --out results/sde_gpu            # on the GPU machine
     python benchmarks/bench_sde_gpu.py --out results/sde_gpu --limit --cases none   # kernel limit only
@@ -18,6 +20,7 @@ are the median of ``--repeat`` warm launches + count copies (events-free: synchr
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import math
 import os
@@ -30,6 +33,35 @@ import numpy as np
 from gapsweep import sde
 
 PAPER_SECONDS = 20.0
+
+
+def have_warp() -> bool:
+    """Whether warp can be imported (the CUDA engine and the --limit reference kernels need only cupy)."""
+    return importlib.util.find_spec("warp") is not None
+
+
+def device_sync_and_name(device: str) -> tuple:
+    """``(synchronize, name)`` of ``device``: through warp when installed, else through cupy (issue 22, item 7:
+    --limit ran only with warp installed although it times cupy kernels)."""
+    if have_warp() and not device.startswith("cpu"):
+        import warp as wp
+
+        wp.config.log_level = 30
+        wp.init()
+        return (lambda: wp.synchronize_device(device)), wp.get_device(device).name
+    if have_warp():
+        import warp as wp
+
+        wp.config.log_level = 30
+        wp.init()
+        return (lambda: None), wp.get_device(device).name
+    if device.startswith("cpu"):
+        raise SystemExit("--device cpu runs the warp kernels: install warp (pip install warp-lang)")
+    import cupy as cp
+
+    idx = int(device.split(":", 1)[1]) if ":" in device else 0
+    dev = cp.cuda.Device(idx)
+    return dev.synchronize, cp.cuda.runtime.getDeviceProperties(idx)["name"].decode()
 
 
 def fig6_h_rms(c0: float = 8e-6, hurst: float = 0.3, lambda_l: float = 0.25, lambda_s: float = 2.5e-3) -> float:
@@ -51,12 +83,7 @@ def main() -> None:
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
 
-    import warp as wp
-
-    wp.config.log_level = 30
-    wp.init()
-    dev = wp.get_device(args.device)
-    name = dev.name
+    sync, name = device_sync_and_name(args.device)
     fig6 = dict(hurst=0.3, h_rms=fig6_h_rms(), rho=2e-3, gamma0=1e-3, lambda_l=0.25, lambda_s=2.5e-3)
     stiff = dict(hurst=0.3, h_rms=2.34e-3, rho=5e-4, gamma0=1e-3, lambda_l=0.25, lambda_s=2.5e-3)
     cases = [
@@ -73,8 +100,11 @@ def main() -> None:
     ]
     rows = []
     if args.limit:
-        kernel_limit(args, fig6, name)
+        kernel_limit(args, fig6, name, sync)
     for label, p, s0, c2, dz, steps, dtype, scheme in (cases if args.cases == "all" else []):
+        if scheme != "split" and not have_warp():
+            print(f"skipped (needs warp): {label}", flush=True)
+            continue
         kw = dict(p, c2=c2, dzeta=dz, steps=steps, dtype=dtype, scheme=scheme, n=args.n, device=args.device,
                   bins=args.bins, seed=1)
         t = time.perf_counter()
@@ -82,7 +112,7 @@ def main() -> None:
         first = time.perf_counter() - t
         times, kernel_times = [], []
         for rep in range(args.repeat):
-            wp.synchronize_device(args.device)
+            sync()
             t = time.perf_counter()
             r = sde.gap_histogram_counts(s0, **{**kw, "seed": 2 + rep})
             times.append(time.perf_counter() - t)
@@ -123,12 +153,16 @@ def _median_time(fn, repeat: int, sync) -> float:
     return statistics.median(times)
 
 
-def kernel_limit(args, fig6: dict, gpu_name: str) -> None:
-    """Headline case: warp split kernel (each log1p variant) vs hand-written fast-math CUDA kernels."""
+def kernel_limit(args, fig6: dict, gpu_name: str, device_sync) -> None:
+    """Headline case: gapsweep's CUDA engine and (with warp installed) the warp split kernel, each log1p variant,
+    vs hand-written fast-math CUDA kernels. Needs cupy only."""
     import cupy as cp
-    import warp as wp
 
-    from gapsweep import _sde_kernels as K
+    warp = have_warp()
+    if warp:
+        from gapsweep import _sde_kernels as K
+    else:
+        print("warp not installed: the warp rows are left out (CUDA engine and reference kernels only)", flush=True)
 
     s0, c2, n, nb = 1e-4, 0.5, args.n, args.bins
     kw = dict(fig6, c2=c2, dzeta=0.01, steps="uniform", dtype="float32", scheme="split", n=n, device=args.device,
@@ -178,10 +212,11 @@ def kernel_limit(args, fig6: dict, gpu_name: str) -> None:
         launcher(mods["philox"], "plain_em_philox"), args.repeat, sync)
     ref_key = next(iter(rows))
     engine_counts = {}
-    for engine in ("cuda", "warp"):
+    for engine in (("cuda", "warp") if warp else ("cuda",)):
         os.environ["GAPSWEEP_SDE_ENGINE"] = "auto" if engine == "cuda" else "warp"
         for variant in (["poly"] if engine == "cuda" else K.VARIANTS):
-            K.VARIANT = variant
+            if engine == "warp":
+                K.VARIANT = variant
             launch_times: list[float] = []
             label = "gapsweep CUDA engine (cupy)" if engine == "cuda" else f"warp kernels, log1p={variant}"
 
@@ -190,12 +225,13 @@ def kernel_limit(args, fig6: dict, gpu_name: str) -> None:
                 engine_counts[key] = np.r_[r.counts, r.below, r.above, r.nonfinite]
                 launch_times.append(r.wall_time)
             rows[f"split step, {label}: whole user call"] = _median_time(
-                call, args.repeat, lambda: wp.synchronize_device(args.device))
+                call, args.repeat, device_sync)
             # the same calls without the host-side step plan: coefficient upload + launch + count copy
             rows[f"split step, {label}: upload + launch + copy"] = statistics.median(launch_times[1:])
     os.environ.pop("GAPSWEEP_SDE_ENGINE", None)
-    K.VARIANT = "poly"
-    agree = int(np.abs(engine_counts["cuda/poly"] - engine_counts["warp/poly"]).sum())
+    if warp:
+        K.VARIANT = "poly"
+    agree = int(np.abs(engine_counts["cuda/poly"] - engine_counts["warp/poly"]).sum()) if warp else None
     ref = rows[ref_key]
     lines = [f"# SDE kernel limit on {gpu_name} (n = {n:.0e} x {plan.n_steps} steps, float32, {nb}-bin histogram,"
              f" median of {args.repeat})", "",
@@ -203,7 +239,8 @@ def kernel_limit(args, fig6: dict, gpu_name: str) -> None:
              "| --- | --- | --- |"]
     for key, t in rows.items():
         lines.append(f"| {key} | {t:.4f} | {t / ref:.2f} |")
-    lines += ["", f"sum |count difference| over bins, CUDA engine vs warp kernels (poly), same seed: {agree} of {n}"]
+    lines += ["", f"sum |count difference| over bins, CUDA engine vs warp kernels (poly), same seed: {agree} of {n}"
+              if warp else "warp not installed: no warp rows, no count comparison with the warp kernels"]
     text = "\n".join(lines)
     print(text, flush=True)
     (args.out / "sde_kernel_limit.md").write_text(text + "\n")

@@ -224,4 +224,8 @@ def make_ops(xp: Any) -> _PKOps:
 
     if xp is np and _have_numba() and os.environ.get("GAPSWEEP_GENERIC_KERNELS") != "1":
         return _PKNumba(xp)
+    if getattr(xp, "__name__", "") == "cupy" and os.environ.get("GAPSWEEP_GENERIC_KERNELS") != "1":
+        from gapsweep.gfmd._cuda import _PKCupy  # fused CUDA passes (issue 22, item 2)
+
+        return _PKCupy(xp)
     return _PKOps(xp)

@@ -17,10 +17,64 @@ from gapsweep.gfmd._ops import _Ops
 # Slot k of a reduction is a max where bit k of ``mx`` is set (NaN propagates, as numpy's max), else a sum.
 _CUDA_SRC = Path(__file__).with_name("kernels.cu").read_text(encoding="utf-8")
 _CUDA_BLOCKS_PER_SM = 8
-_HALF_KERNELS = ("gs_dot", "gs_grad", "gs_cgdir")
+_HALF_KERNELS = ("gs_dot", "gs_grad", "gs_cgdir", "gs_linresp", "gs_resid")
 _CUPY_KERNELS: Any = None
 # A guessed exponent shift is used when the new max lies within this distance of it (e <= e^50: no overflow).
 _SHIFT_SLACK = 50.0
+# Result slots of the chained CG (offsets into _CupyOps.slots): gradient pass, direction pass, moments, first trial.
+SLOT_GRAD, SLOT_CGDIR, SLOT_MOM, SLOT_TRIAL = 0, 4, 8, 12
+_NSLOTS = 20
+
+
+# Work area of one cuFFT double-precision 2-D plan (R2C or C2R) of an n x n grid, in half spectra (16 n (n/2+1)
+# bytes), read off n = 4096 and 8192 (benchmarks/bench_gfmd_limit.py; docs/benchmarks_gfmd.md, "GPU at the
+# limit"); the estimates below were checked against the measured peak at n = 16384 and 32768. At n <= 2048 cuFFT
+# took no work area from cupy's pool, and the estimate is 2 arrays above the measured peak.
+_CUFFT_WORK = 1.0
+# Grid-sized arrays of one solve besides cuFFT's work areas and the caller's surface, per (interaction, method),
+# on the GPU: "real" n x n float64, "half" n x (n/2+1) complex128 spectra, "halfreal" n x (n/2+1) float64. The
+# exponential law's are counted from gfmd/_softmax.py::_solve_lean; the L-BFGS and FIRE counts of half spectra and
+# the hard wall's total were read off the pool's high-water mark at n = 4096 and checked at n = 16384 (L-BFGS,
+# hard wall) and 2048 (all): docs/benchmarks_gfmd.md, "GPU at the limit".
+_ARRAYS = {
+    # W, Wt, e, et, cuFFT's real output; X, G, D, cuFFT's complex input copy and output; k, M, M^-1, cached |q|
+    ("exponential", "cg"): {"real": 5, "half": 5, "halfreal": 4},
+    ("exponential", "lbfgs"): {"real": 5, "half": 20, "halfreal": 4},  # + G_old, 5 (s, y) pairs, temporaries
+    ("exponential", "fire"): {"real": 5, "half": 9, "halfreal": 4},  # + G_old, V, F, F/M, temporaries
+    # heights centred, K^-1, M, p, u, t, g, gs, z, r, convolution temporaries (method "pcg", the GPU default)
+    ("hard_wall", "pcg"): {"real": 18.13},
+}
+_DEFAULT_METHOD = {"exponential": "cg", "hard_wall": "pcg"}
+
+
+def solve_memory(n: int, *, interaction: str = "exponential", method: str = "auto",
+                 heights_on_gpu: bool = True) -> dict[str, Any]:
+    """GPU memory (bytes) one solve of an ``n x n`` grid needs with ``gfmd.solve`` on a cupy array (docs/gfmd.md;
+    for the sweep's planning: refuse what does not fit, saying how much it needs).
+
+    ``interaction``: "exponential" (``method`` "cg" = "auto", "lbfgs", "fire") or "hard_wall" (``method`` "pcg" =
+    "auto", the GPU default; other methods were not measured). ``heights_on_gpu``: count the caller's surface
+    (True when it is passed as a cupy array, as the sweep does). Returns ``{"bytes": total, "arrays": total in
+    real n x n float64 arrays, "parts": {name: bytes}}``; fields returned to the host need none (the exponential
+    law's reuse the solver's buffers). Needs no GPU. Add the CUDA context (~0.5 GB) for the whole process."""
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
+        raise ValueError(f"n must be an integer >= 2, got {n!r}")
+    if interaction not in _DEFAULT_METHOD:
+        raise ValueError(f"interaction must be one of {', '.join(map(repr, _DEFAULT_METHOD))}, got {interaction!r}")
+    method = _DEFAULT_METHOD[interaction] if method == "auto" else method
+    if (interaction, method) not in _ARRAYS:
+        allowed = ["auto", *(m for law, m in _ARRAYS if law == interaction)]
+        raise ValueError(f"method must be one of {', '.join(map(repr, allowed))} for interaction {interaction!r}, "
+                         f"got {method!r}")
+    n = int(n)
+    real, half = 8 * n * n, 16 * n * (n // 2 + 1)
+    a = _ARRAYS[(interaction, method)]
+    parts = {"solver real fields": int(a.get("real", 0) * real), "solver half spectra": a.get("half", 0) * half,
+             "stiffness and preconditioner": a.get("halfreal", 0) * half // 2,
+             "cuFFT work areas (R2C + C2R plans)": int(2 * _CUFFT_WORK * half),
+             "heights": real if heights_on_gpu else 0}
+    total = sum(parts.values())
+    return {"bytes": total, "arrays": total / real, "parts": parts}
 
 
 def _cupy_kernels() -> Any:
@@ -31,6 +85,9 @@ def _cupy_kernels() -> Any:
 
         mod = cupy.RawModule(code=_CUDA_SRC, options=("--std=c++14",))
         names = ("gs_max", "gs_point", "gs_moments", "gs_dot", "gs_grad", "gs_cgdir",
+                 "gs_sumfinite", "gs_field", "gs_final", "gs_linresp", "gs_resid",  # set-up and result passes
+                 "gs_trial0",  # chained CG
+                 "pk_contact_sum", "pk_gap", "pk_zstats", "pk_direction", "pk_rstats", "pk_update", "pk_rescale",
                  "bt_point", "bt_moments", "bt_cgdots", "bt_cgupdate", "bt_accept")  # bt_*: gfmd/batched.py
         _CUPY_KERNELS = {name: mod.get_function(name) for name in names}
     return _CUPY_KERNELS
@@ -79,13 +136,15 @@ class _CupyOps(_Ops):
         self.part = xp.empty(4 * max(g[0] for g in self.grid.values()), dtype=xp.float64)
         self.count = xp.zeros(1, dtype=xp.uint32)
         self.res = xp.zeros(4, dtype=xp.float64)
+        self.slots = xp.zeros(_NSLOTS, dtype=xp.float64)  # chained CG: one result slot per queued pass
         # Scalars come back through one pinned buffer: a bare async copy and a stream sync per pass.
         try:
             import cupyx
 
             self._host = cupyx.empty_pinned((4,), dtype=np.float64)
+            self._host_slots = cupyx.empty_pinned((_NSLOTS,), dtype=np.float64)
         except Exception:  # pragma: no cover - old cupy
-            self._host = None
+            self._host = self._host_slots = None
         self._stiff: tuple | None = None  # (k, minv, ka, kb, sr) of the bound problem
         self._nr = np.uint64(n * n)
         self._nhalf = np.uint64(n * self.nh)
@@ -111,6 +170,34 @@ class _CupyOps(_Ops):
         rt.memcpyAsync(self._host.ctypes.data, self.res.data.ptr, 8 * nout, rt.memcpyDeviceToHost, stream.ptr)
         stream.synchronize()
         return self._host[:nout].tolist()
+
+    # -- set-up and result passes of one solve (gfmd/_softmax.py, GPU branch): one pass each, no temporaries
+    def sum_finite(self, a) -> tuple[float, int]:
+        """``(sum of the finite entries of a, number of non-finite entries)`` of a real n x n field."""
+        r = self._launch("gs_sumfinite", False, 2, self.xp.ascontiguousarray(a, dtype=self.xp.float64))
+        return float(r[0]), int(r[1])
+
+    def field(self, h, hm: float, u, inv_rho: float, W) -> float:
+        """``W = ((h - hm) - u) inv_rho`` (M3: ``w = (h - u)/rho`` of the centred surface); returns ``max W``."""
+        return float(self._launch("gs_field", False, 1, h, np.float64(hm), u, np.float64(inv_rho), W)[0])
+
+    def final(self, W, e, cp: float, a0: float, rho: float, hs: float, thr: float) -> tuple[float, int, int]:
+        """Result fields in place: ``p = cp e`` (into ``e``), ``gap = a0 - rho W`` (into ``W``); returns
+        ``(sum p, #{gap + hs < thr}, #{non-finite gap or p})``."""
+        r = self._launch("gs_final", False, 3, W, e, *(np.float64(x) for x in (cp, a0, rho, hs, thr)))
+        return float(r[0]), int(r[1]), int(r[2])
+
+    def linresp(self, H, s: float, sr: float, ka: float, kb: float, X) -> None:
+        """``X = (s H) sr / (ka kb |q| + sr)``, 0 at q = 0: the linear response of M4 from ``H = rfft2(h)``."""
+        self.K["gs_linresp"](self.grid["gs_linresp"], (256,),
+                             (H, np.float64(s), np.float64(sr), X, np.uint32(self.n), np.float64(ka), np.float64(kb),
+                              np.uint32(self.nh), self._nhalf))
+
+    def resid(self, Ur, Pr, s: float, ka: float, kb: float) -> tuple[float, float]:
+        """``(<F F>, <U k U>)`` with ``U = s Ur``, ``F = k U - s Pr`` (0 at q = 0), ``k = ka kb |q|``."""
+        r = self._launch("gs_resid", True, 2, Ur, Pr, np.float64(s), np.uint32(self.n), np.float64(ka),
+                         np.float64(kb))
+        return float(r[0]), float(r[1])
 
     def bind_stiffness(self, k, minv, ka: float, kb: float, sr: float) -> None:
         """``k = ka (kb |q|)`` and ``minv = 1/(k + sr)`` (0 at q = 0) of _Problem: the half-spectrum kernels
@@ -149,7 +236,8 @@ class _CupyOps(_Ops):
         fk, geo = self._stiff_args(k, minv if flags & 2 else None)
         r = self._launch("gs_grad", True, 3, X, D, np.float64(alpha), E, np.float64(c), k, G, minv, gold,
                          np.int32(flags | fk), *geo)
-        self._cg_cache = (G, gold if gold is not G else None, float(r[1]), float(r[2])) if flags & 2 else None
+        # gold is G when CG keeps one gradient array (the kernel reads the old value before writing the new one)
+        self._cg_cache = (G, gold, float(r[1]), float(r[2])) if flags & 2 else None
         self._last_G = G
         return float(r[0])
 
@@ -165,8 +253,63 @@ class _CupyOps(_Ops):
 
     def cg_update(self, G, minv, D, beta: float, k, X) -> tuple[float, float, float]:
         fk, geo = self._stiff_args(k, minv)
-        r = self._launch("gs_cgdir", True, 3, G, minv, D, np.float64(beta), k, X, np.int32(fk), *geo)
+        r = self._launch("gs_cgdir", True, 3, G, minv, D, np.float64(beta), k, X, np.int32(fk), *geo, self.res,
+                         np.float64(1.0))
         return float(r[0]), float(r[1]), float(r[2])
+
+    # -- chained CG (_solvers._run_cg_chained): passes queued without reading their scalars, each into its own
+    # slot of one device buffer; one copy and one synchronisation read them all.
+    def _enqueue(self, name: str, half: bool, slot: int, *args) -> None:
+        out = self.slots[slot:]
+        if half:
+            args = (*args, *self._geo, self._nhalf, self.part, self.count, out)
+        else:
+            args = (*args, self._nr, self.part, self.count, out)
+        self.K[name](self.grid[name], (256,), args)
+
+    def chain_grad(self, X, D, alpha: float, E, c: float, k, G) -> None:
+        """:meth:`grad_step` of CG with one gradient array (``G_old`` is ``G``), queued: slot ``GRAD`` receives
+        ``(<G G>, <Z G>, <Z G_old>)``."""
+        fk, geo = self._stiff_args(k, self._cg_minv)
+        self._enqueue("gs_grad", True, SLOT_GRAD, X, D, np.float64(alpha), E, np.float64(c), k, G, self._cg_minv,
+                      G, np.int32(1 | 2 | fk), *geo)
+
+    def chain_cgdir(self, G, minv, D, k, X, zg_old: float | None) -> None:
+        """:meth:`cg_update` queued, ``beta = max(0, (zg - zc)/zg_old)`` from slot ``GRAD`` on the device (0 when
+        ``zg_old`` is None: a restart); slot ``CGDIR`` receives ``(phi0p, a, b)``."""
+        fk, geo = self._stiff_args(k, minv)
+        flags = fk | (8 if zg_old is not None else 0)
+        self._enqueue("gs_cgdir", True, SLOT_CGDIR, G, minv, D, np.float64(0.0), k, X, np.int32(flags), *geo,
+                      self.slots[SLOT_GRAD:], np.float64(1.0 if zg_old is None else zg_old))
+
+    def chain_moments(self, e, d) -> None:
+        """:meth:`moments` queued into slot ``MOM``."""
+        self._enqueue("gs_moments", False, SLOT_MOM, e, d)
+
+    def chain_trial(self, W, d, S: float, sr: float, rho: float, Wt, e) -> float:
+        """The first line-search trial from slots ``CGDIR`` and ``MOM`` (kernels.cu, gs_trial0), queued into slot
+        ``TRIAL`` = ``(max, S, s1, s2, alpha)``; returns the exponent shift it used."""
+        shift = self._guess if self._guess is not None else 0.0
+        self._enqueue("gs_trial0", False, SLOT_TRIAL, W, d, self.slots[SLOT_CGDIR:], self.slots[SLOT_MOM:],
+                      np.float64(S), np.float64(sr), np.float64(rho), Wt, e, np.float64(shift))
+        return shift
+
+    def chain_read(self) -> np.ndarray:
+        """Every slot, after one device-to-host copy and one synchronisation."""
+        if self._host_slots is None:
+            return self.slots.get()
+        rt = self.xp.cuda.runtime
+        stream = self.xp.cuda.get_current_stream()
+        rt.memcpyAsync(self._host_slots.ctypes.data, self.slots.data.ptr, 8 * self.slots.size,
+                       rt.memcpyDeviceToHost, stream.ptr)
+        stream.synchronize()
+        return self._host_slots.copy()
+
+    def retrial(self, W, d, c: float, Wt, e, shift: float) -> tuple[float, float, float]:
+        """The first trial again with the exact shift (its max lay more than ``_SHIFT_SLACK`` from the guess):
+        ``(S, s1, s2)``."""
+        r = self._point(W, d, c, d, Wt, e, shift, 3)
+        return float(r[1]), float(r[2]), float(r[3])
 
     # -- real space
     def _max(self, w, d, c: float) -> float:
@@ -205,3 +348,74 @@ class _CupyOps(_Ops):
     def moments(self, e, d) -> tuple[float, float]:
         r = self._launch("gs_moments", False, 2, e, d)
         return float(r[0]), float(r[1])
+
+
+class _PKCupy:
+    """GPU passes of the hard-wall minimiser (gapsweep/gfmd/_constrained.py; the interface of
+    ``_constrained_ops._PKOps``): one fused CUDA pass per operation (kernels.cu, "hard wall"), rounded as the numba
+    passes, instead of a chain of cupy expressions with temporaries and a synchronisation per scalar. Any
+    ``nx x ny`` grid. Scalars come back in one small copy per pass; ``direction`` and ``rescale`` return none and
+    do not synchronise."""
+
+    def __init__(self, xp: Any) -> None:
+        self.xp = xp
+        self.K = _cupy_kernels()
+        self._sms = xp.cuda.Device().attributes["MultiProcessorCount"]
+        self._n = None
+        self.part = xp.empty(4 * _CUDA_BLOCKS_PER_SM * self._sms, dtype=xp.float64)
+        self.count = xp.zeros(1, dtype=xp.uint32)
+        self.res = xp.zeros(4, dtype=xp.float64)
+        try:
+            import cupyx
+
+            self._host = cupyx.empty_pinned((4,), dtype=np.float64)
+        except Exception:  # pragma: no cover - old cupy
+            self._host = None
+
+    def _grid(self, size: int) -> tuple[int]:
+        return (int(max(1, min(-(-size // 256), _CUDA_BLOCKS_PER_SM * self._sms))),)
+
+    def _run(self, name: str, nout: int, a, *args) -> list[float]:
+        size = a.size
+        self.K[name](self._grid(size), (256,), (*args, np.uint64(size), self.part, self.count, self.res))
+        if self._host is None:
+            return self.res.get()[:nout].tolist()
+        rt = self.xp.cuda.runtime
+        stream = self.xp.cuda.get_current_stream()
+        rt.memcpyAsync(self._host.ctypes.data, self.res.data.ptr, 8 * nout, rt.memcpyDeviceToHost, stream.ptr)
+        stream.synchronize()
+        return self._host[:nout].tolist()
+
+    @staticmethod
+    def _c(a):
+        if not a.flags.c_contiguous:  # every array of the minimiser is allocated C-contiguous
+            raise ValueError("hard-wall GPU passes need C-contiguous arrays")
+        return a
+
+    def contact_sum(self, u, h, p) -> tuple[int, float]:
+        r = self._run("pk_contact_sum", 2, p, self._c(u), self._c(h), self._c(p))
+        return int(r[0]), float(r[1])
+
+    def gap(self, u, h, gbar: float, p, g, gs) -> tuple[float, float]:
+        r = self._run("pk_gap", 2, p, self._c(u), self._c(h), np.float64(gbar), self._c(p), self._c(g), self._c(gs))
+        return float(r[0]), -float(r[1])
+
+    def zstats(self, z, gs, p) -> tuple[float, float]:
+        r = self._run("pk_zstats", 2, p, self._c(z), self._c(gs), self._c(p))
+        return float(r[0]), float(r[1])
+
+    def direction(self, t, z, zbar: float, c: float, p) -> None:
+        self.K["pk_direction"](self._grid(p.size), (256,), (self._c(t), self._c(z), np.float64(zbar), np.float64(c),
+                                                             self._c(p), np.uint64(p.size)))
+
+    def rstats(self, r, t, gs, p) -> tuple[float, float, float, float]:
+        v = self._run("pk_rstats", 4, p, self._c(r), self._c(t), self._c(gs), self._c(p))
+        return float(v[0]), float(v[1]), float(v[2]), float(v[3])
+
+    def update(self, p, t, g, tau: float) -> tuple[bool, int, float]:
+        v = self._run("pk_update", 3, p, self._c(p), self._c(t), self._c(g), np.float64(tau))
+        return v[0] > 0, int(v[1]), float(v[2])
+
+    def rescale(self, p, u, r, scale: float, tau: float, follow: bool) -> None:
+        self.K["pk_rescale"](self._grid(p.size), (256,), (self._c(p), self._c(u), self._c(r), np.float64(scale),
+                                                           np.float64(tau), np.int32(bool(follow)), np.uint64(p.size)))

@@ -51,7 +51,16 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
     xp = fft.xp
 
     h = fft.asarray(heights)
-    if not bool(xp.all(xp.isfinite(h))):
+    ops = _make_ops(xp, n)
+    # GPU with the fused kernels (issue 22): set-up and result in single passes without temporaries, the surface
+    # centred inside the pass that forms W (no centred copy), CG with one gradient array; see _solve_lean.
+    lean = hasattr(ops, "final")
+    if lean:
+        h = xp.ascontiguousarray(h)
+        h_sum, bad = ops.sum_finite(h)
+        if bad:
+            raise ValueError("heights contain NaN or inf")
+    elif not bool(xp.all(xp.isfinite(h))):
         raise ValueError("heights contain NaN or inf")
     dx = length / n
     if rho < dx:
@@ -61,6 +70,10 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
             UnderResolvedWarning,
             stacklevel=3,
         )
+    if lean:
+        return _solve_lean(h, h_sum / (n * n), law, fft, ops, sigma0=sigma0, e_star=e_star, length=length, tol=tol,
+                           method=method, backend=backend, max_iter=max_iter, initial=initial, host=host,
+                           t_start=t_start)
     h = h - h.mean()  # only h - <h> matters: <h> shifts g0 by a constant; report the gap of h - <h>
     h_shift = float(xp.asarray(heights, dtype=xp.float64).mean())
 
@@ -82,7 +95,6 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
             x0 = xp.asarray(_transfer_modes(u0, n))
     x0 = xp.array(x0, dtype=xp.complex128)
 
-    ops = _make_ops(xp, n)
     history: list[float] = []
     # Non-finite values are caught by the status checks (residual, fields), not by numpy warnings.
     with np.errstate(all="ignore"):
@@ -144,5 +156,93 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
         contact_area=area,
         elastic_energy=elastic,
         contact_criterion=law.contact_criterion,
+        diagnostics={"running_residual": history[-1] if history else math.inf},
+    )
+
+
+def _initial_modes(initial: Any, n: int, fft: Any) -> Any:
+    """Half spectrum ``u~`` of a warm start (a result or a displacement on any square grid), a new array."""
+    from gapsweep.gfmd import _transfer_modes  # late: tests patch gfmd
+
+    xp = fft.xp
+    u0 = initial.displacement if isinstance(initial, GFMDResult) else initial
+    u0 = (u0 if xp is not np and u0.shape[0] == n else fft.to_host(u0)) if _is_cupy(u0) else \
+        np.asarray(u0, dtype=np.float64)
+    uxp = xp if _is_cupy(u0) else np
+    if u0.ndim != 2 or u0.shape[0] != u0.shape[1] or not bool(uxp.all(uxp.isfinite(u0))):
+        raise ValueError("initial must be a GFMDResult or a finite square displacement field")
+    if u0.shape[0] == n:
+        return xp.array(fft.rfft2(xp.asarray(u0, dtype=xp.float64)) * (1.0 / (n * n)), dtype=xp.complex128)
+    return xp.asarray(_transfer_modes(u0, n), dtype=xp.complex128)
+
+
+def _solve_lean(h: Any, h_mean: float, law: Exponential, fft: Any, ops: Any, *, sigma0: float, e_star: float,
+                length: float, tol: float, method: str, backend: str, max_iter: int, initial: Any, host: Any,
+                t_start: float) -> GFMDResult:
+    """The GPU branch of :func:`minimise` (fused cupy kernels, gfmd/_cuda.py): the same equations and algorithm
+    (docs/model.md M3, M4), arranged for memory and passes (issue 22, items 3 and 5).
+
+    Memory: the caller's ``h`` is read, never copied (centred inside the pass that forms ``W``); CG keeps one
+    gradient array; the result fields reuse the solver's buffers (``u`` in ``Wt``, ``gap`` in ``W``, ``p`` in
+    ``e``), so a solve holds about 8 grid-sized arrays plus cuFFT's (see :func:`gapsweep.gfmd._cuda.solve_memory`).
+    Passes: the linear response (M4), the result fields, their residual and elastic energy are one CUDA pass
+    each (kernels.cu, "set-up, result") instead of a chain of array expressions with a temporary per step."""
+    xp = fft.xp
+    n = h.shape[0]
+    rho = law.rho
+    ka, kb, sr = 0.5 * e_star, 2 * np.pi / length, sigma0 / rho
+    if initial is None:
+        x0 = xp.empty((n, n // 2 + 1), dtype=xp.complex128)
+        # rfft2 of the uncentred h: only the q = 0 mode differs, and the linear response sets it to 0 (<u> = 0)
+        ops.linresp(fft.rfft2(h), 1.0 / (n * n), sr, ka, kb, x0)
+    else:
+        x0 = _initial_modes(initial, n, fft)
+    history: list[float] = []
+    with np.errstate(all="ignore"):
+        pb = _Problem(h, x0, sigma0=sigma0, rho=rho, e_star=e_star, length=length, fft=fft, ops=ops,
+                      h_mean=h_mean, share_gold=method == "cg")
+        del x0  # pb.X holds it (and lets it go before the result passes)
+        status = _RUNNERS[method](pb, tol, max_iter, history)
+        nfev = pb.nfev
+        # Result fields from the Fourier state (fresh transform, no drift between X and W), in the solver's buffers.
+        u, w, e = pb.Wt, pb.W, pb.e
+        pb.et = pb.G_old = pb.D = None  # free what the result does not need
+        xp.copyto(u, fft.irfft2(pb.X))
+        m = ops.field(h, h_mean, u, 1.0 / rho, w)
+        S, _, _ = ops.expstats(w, m, e)
+        lse = m + math.log(S / (n * n)) if S > 0 else math.nan  # S >= 1 whenever m is finite
+        g0 = law.mean_gap(lse, sigma0)
+        p_sum, n_contact, n_bad = ops.final(w, e, sigma0 * n * n / S if S > 0 else math.nan, g0 - h_mean, rho,
+                                            h_mean, rho)
+        gap, p = w, e
+        if type(law).contact is not Exponential.contact:  # a law with its own contact criterion
+            n_contact = int(xp.count_nonzero(law.contact(gap + h_mean, p)))
+        # Residual of the returned fields (issue 9), rms(p_el - (p - <p>)) / sigma0 by Parseval, and the elastic
+        # energy (E*/4) sum_q q |u~|^2 from one pass over rfft2(u) (kept in G) and rfft2(p).
+        U = pb.G
+        pb.X = None
+        xp.copyto(U, fft.rfft2(u))
+        ff, uku = ops.resid(U, fft.rfft2(p), 1.0 / (n * n), ka, kb)
+        residual = math.sqrt(max(ff, 0.0)) / sigma0
+        elastic = 0.5 * uku
+        area = n_contact / (n * n)
+        del U, pb
+    load_error = abs(p_sum / (n * n) / sigma0 - 1.0)
+    fields_ok = math.isfinite(g0) and n_bad == 0
+    if not fields_ok:
+        status = "non_finite"
+    converged = status == "converged" and residual <= tol and load_error <= tol and fields_ok
+    if status == "converged" and not converged:
+        status = "stalled"
+    fields = dict(zip(FIELDS, (gap, p, u)))
+    fields.update(fft.to_host_many({k: fields[k] for k in host_fields(host)}))
+    gap, p, u = (fields[k] for k in FIELDS)
+    fft.synchronize()
+    return GFMDResult(
+        mean_gap=g0 - h_mean, gap=gap, pressure=p, displacement=u, iterations=nfev, converged=converged,
+        residual=residual, load_error=load_error, wall_time=time.perf_counter() - t_start, method=method,
+        backend=backend, status=status, sigma0=sigma0, rho=rho, gamma0=law.gamma0, e_star=e_star, length=length,
+        tol=tol, history=history, interaction=law.name, params=law.params(), contact_area=area,
+        elastic_energy=elastic, contact_criterion=law.contact_criterion,
         diagnostics={"running_residual": history[-1] if history else math.inf},
     )

@@ -47,7 +47,11 @@ class _Problem:
     ``X = u~`` (half spectrum), ``W = (h - u)/rho`` and ``e = exp(W - m)`` (real space), ``S = sum e``, the
     Fourier gradient ``G = (E* q/2) u~ - p~`` and ``r2 = <G G>`` (M3)."""
 
-    def __init__(self, h, x0, *, sigma0, rho, e_star, length, fft: FFTBackend, ops: _Ops) -> None:
+    def __init__(self, h, x0, *, sigma0, rho, e_star, length, fft: FFTBackend, ops: _Ops,
+                 h_mean: float | None = None, share_gold: bool = False) -> None:
+        """``h_mean`` (GPU, ops with ``field``): ``h`` is the caller's surface, centred in the pass that forms
+        ``W`` (no centred copy is kept). ``share_gold`` (CG on the GPU): ``G_old`` is ``G`` itself, the
+        gradient pass reading each old mode before writing the new one (one half spectrum less)."""
         xp = fft.xp
         n = h.shape[0]
         self.xp, self.n, self.fft, self.ops = xp, n, fft, ops
@@ -61,12 +65,17 @@ class _Problem:
         self.h = h
         self.X = x0
         self.X[0, 0] = 0.0
-        self.W = (h - fft.irfft2(self.X)) * (1.0 / rho)
+        if h_mean is not None and hasattr(ops, "field"):
+            self.W = xp.empty((n, n), dtype=xp.float64)
+            # the pass returns max W: the start point's exponentials need no separate max pass
+            ops._guess = ops.field(h, h_mean, fft.irfft2(self.X), 1.0 / rho, self.W)
+        else:
+            self.W = (h - fft.irfft2(self.X)) * (1.0 / rho)
         self.Wt = xp.empty_like(self.W)
         self.e = xp.empty_like(self.W)
         self.et = xp.empty_like(self.W)
         self.G = xp.empty_like(self.X)
-        self.G_old = xp.empty_like(self.X)
+        self.G_old = self.G if share_gold else xp.empty_like(self.X)
         self.nfev = 0
         self.m = ops.trial(self.W, self.W, 0.0, self.Wt)
         self.S, _, _ = ops.expstats(self.Wt, self.m, self.e)
@@ -85,27 +94,33 @@ class _Problem:
         return math.sqrt(max(self.r2, 0.0)) / self.sigma0
 
     def line_search(self, D, phi0p: float, a: float, b: float, eta: float, alpha0: float | None = None,
-                    max_trials: int = 40):
+                    max_trials: int = 40, d=None, first: tuple | None = None):
         """Find ``alpha > 0`` with ``|phi'(alpha)| <= eta |phi'(0)|`` for the convex ``phi(alpha) = F(X + alpha D)``.
 
         ``phi'(alpha) = a + alpha b - <p_alpha d>`` with ``a = <kD, X>``, ``b = <kD, D>`` (Fourier sums) and the
         softmax pressure at ``W - alpha d / rho``, ``d = irfft2(D)`` (real space): no further FFT. Newton steps
         inside a bracket, secant or bisection when Newton leaves it. Leaves the accepted point in (Wt, et)
-        and returns ``(alpha, m, S, ok)``."""
+        and returns ``(alpha, m, S, ok)``. GPU, chained CG: ``d`` is ``irfft2(D)`` already and ``first = (alpha,
+        m, S, s1, s2)`` the first trial, already evaluated on the device (the same step as below)."""
         ops, rho, s0 = self.ops, self.rho, self.sigma0
-        d = self.fft.irfft2(D)
-        if alpha0 is None:
+        d = self.fft.irfft2(D) if d is None else d
+        if first is not None:
+            alpha = first[0]
+        elif alpha0 is None:
             s1, s2 = ops.moments(self.e, d)
             curv = b + (s0 / rho) * (s2 / self.S - (s1 / self.S) ** 2)
             alpha = -phi0p / curv if curv > 0 else 1.0
         else:
             alpha = alpha0
         lo, hi, dlo, dhi = 0.0, math.inf, phi0p, math.nan
-        for _ in range(max_trials):
+        for it in range(max_trials):
             if not math.isfinite(alpha) or alpha <= 0:
                 break
-            m = ops.trial(self.W, d, -alpha / rho, self.Wt)
-            S, s1, s2 = ops.expstats(self.Wt, m, self.et, d)
+            if it == 0 and first is not None:
+                m, S, s1, s2 = first[1:]
+            else:
+                m = ops.trial(self.W, d, -alpha / rho, self.Wt)
+                S, s1, s2 = ops.expstats(self.Wt, m, self.et, d)
             if not (math.isfinite(m) and math.isfinite(S) and math.isfinite(s1) and math.isfinite(s2)):
                 hi = alpha
                 alpha = 0.5 * (lo + alpha)
@@ -151,6 +166,8 @@ def _check(pb: _Problem, tol: float, max_iter: int, history: list[float]) -> str
 def _run_cg(pb: _Problem, tol: float, max_iter: int, history: list[float], eta: float = 0.1) -> str:
     """Preconditioned Polak-Ribiere+ nonlinear CG with the Newton line search of _Problem.line_search."""
     ops = pb.ops
+    if hasattr(ops, "chain_read") and pb.G_old is pb.G:  # GPU: the same iteration, one synchronisation
+        return _run_cg_chained(pb, tol, max_iter, history, eta)
     if hasattr(ops, "bind_cg"):  # GPU: the gradient pass also yields the next cg_dots (no extra pass)
         ops.bind_cg(pb.minv)
     D = pb.xp.zeros_like(pb.X)
@@ -174,6 +191,68 @@ def _run_cg(pb: _Problem, tol: float, max_iter: int, history: list[float], eta: 
         zg_old = zg
         pb.accept(alpha, D, m, S)
     return status
+
+
+def _run_cg_chained(pb: _Problem, tol: float, max_iter: int, history: list[float], eta: float = 0.1) -> str:
+    """:func:`_run_cg` on the GPU with one host synchronisation per iteration (issue 22, item 3): the gradient of
+    the accepted point, the next direction (``beta`` on the device), ``irfft2`` of it, the moments and the first
+    trial of the line search are queued back to back (gfmd/_cuda.py, ``chain_*``) and their scalars read in one
+    copy. The host then takes the same decisions as :func:`_run_cg` in the same order (convergence, restart,
+    descent check, line search); further trials, a restart with ``beta = 0`` and a shift re-run go through the
+    plain synchronous operations. Work queued past convergence (one direction and one trial) is discarded.
+    Needs ``pb.G_old is pb.G`` (the gradient pass reads the old gradient in place)."""
+    from gapsweep.gfmd._cuda import _SHIFT_SLACK, SLOT_CGDIR, SLOT_GRAD, SLOT_TRIAL
+
+    ops, fft, rho = pb.ops, pb.fft, pb.rho
+    ops.bind_cg(pb.minv)
+    D = pb.xp.zeros_like(pb.X)
+    zg, zc = ops.cg_dots(pb.G, None, pb.minv)[0], 0.0  # the start point's <Z G> (its gradient had no CG dots)
+    zg_old = 0.0
+    restart = True
+    fresh = False  # slot GRAD holds the gradient of an accepted point that the host has not read yet
+    sr = pb.sigma0 / rho
+    while True:
+        ops.chain_cgdir(pb.G, pb.minv, D, pb.k, pb.X, None if restart else zg_old)
+        d = fft.irfft2(D)
+        ops.chain_moments(pb.e, d)
+        shift = ops.chain_trial(pb.W, d, pb.S, sr, rho, pb.Wt, pb.et)
+        r = ops.chain_read()
+        if fresh:
+            pb.r2, zg, zc = float(r[SLOT_GRAD]), float(r[SLOT_GRAD + 1]), float(r[SLOT_GRAD + 2])
+            fresh = False
+        status = _check(pb, tol, max_iter, history)
+        if status is not None:
+            return status
+        beta = 0.0 if restart else max(0.0, (zg - zc) / zg_old)
+        phi0p, a, b = (float(x) for x in r[SLOT_CGDIR:SLOT_CGDIR + 3])
+        first = None
+        if phi0p >= 0 and beta > 0:  # not a descent direction (round-off): restart along -M^-1 G
+            phi0p, a, b = ops.cg_update(pb.G, pb.minv, D, 0.0, pb.k, pb.X)
+            d = None
+        else:
+            mt, St, s1, s2, alpha = (float(x) for x in r[SLOT_TRIAL:SLOT_TRIAL + 5])  # gs_trial0 order
+            if math.isfinite(mt):
+                if abs(mt - shift) > _SHIFT_SLACK:  # guessed shift too far off: the pass again, shifted exactly
+                    St, s1, s2 = ops.retrial(pb.W, d, -alpha / rho, pb.Wt, pb.et, mt)
+                ops._guess = mt
+            first = (alpha, mt, St, s1, s2)
+        if not phi0p < 0:
+            return "stalled" if math.isfinite(phi0p) else "non_finite"
+        alpha, m, S, ok = pb.line_search(D, phi0p, a, b, eta, d=d, first=first)
+        if not ok:
+            if restart:
+                return "stalled"
+            restart = True
+            continue
+        restart = False
+        zg_old = zg
+        # pb.accept, with the gradient pass queued instead of read
+        pb.W, pb.Wt = pb.Wt, pb.W
+        pb.e, pb.et = pb.et, pb.e
+        pb.m, pb.S = float(m), S
+        pb.nfev += 1
+        ops.chain_grad(pb.X, D, alpha, fft.rfft2(pb.e), pb.sigma0 / S, pb.k, pb.G)
+        fresh = True
 
 
 def _clear(*lists: list) -> None:

@@ -167,25 +167,29 @@ KERNEL_H gs_grad(double2* X, const double2* __restrict__ D, double alpha, const 
         const double kk = (flags & 4) ? stiff(r, j, n, ka, kb) : k[i];
         double2 g = make_double2(kk * x.x - c * ee.x, kk * x.y - c * ee.y);
         if (i == 0) g = make_double2(0.0, 0.0);
-        G[i] = g;
         const double wgt = PWEIGHT(j, nh, even);
         const double gg = cdot(g, g);
         v[0] += wgt * gg;
         if (flags & 2) {
             const double z = wgt * ((flags & 4) ? (i == 0 ? 0.0 : 1.0 / (kk + sr)) : minv[i]);
             v[1] += z * gg;
+            // Gold may be G itself (CG on the GPU keeps one gradient array): read before the store below.
             v[2] += z * cdot(g, Gold[i]);
         }
+        G[i] = g;
     }
     grid_reduce<3>(v, 0u, part, count, out);
 }
 
 // D = beta D - minv G; out = (<G D>, <kD X>, <kD D>). flags & 4: k, minv on the fly as in gs_grad.
+// flags & 8: beta = max(0, (zg - zc) / zg_old) from the gradient pass's results gs = (<G G>, zg, zc) on the
+// device (the chained CG of _solvers._run_cg_chained: no host round trip between the gradient and the direction).
 KERNEL_H gs_cgdir(const double2* __restrict__ G, const double* __restrict__ minv, double2* D, double beta,
                 const double* __restrict__ k, const double2* __restrict__ X, int flags, unsigned n, double ka,
-                double kb, double sr, unsigned nh, int even, unsigned long long N, double* part,
-                unsigned int* count, double* out) {
+                double kb, double sr, const double* __restrict__ gs, double zg_old, unsigned nh, int even,
+                unsigned long long N, double* part, unsigned int* count, double* out) {
     double v[3] = {0.0, 0.0, 0.0};
+    if (flags & 8) beta = fmax(0.0, __ddiv_rn(__dsub_rn(gs[1], gs[2]), zg_old));
     HALF_LOOP(i, r, j, N, nh) {
         const double2 g = G[i], d0 = D[i];
         const double kk = (flags & 4) ? stiff(r, j, n, ka, kb) : k[i];
@@ -199,6 +203,195 @@ KERNEL_H gs_cgdir(const double2* __restrict__ G, const double* __restrict__ minv
         v[2] += kw * cdot(d, d);
     }
     grid_reduce<3>(v, 0u, part, count, out);
+}
+
+// First trial of a chained CG line search: the step alpha = -phi0p / curv (1 if curv <= 0) of
+// _solvers._Problem.line_search, curv = b + sr (s2/S - (s1/S)^2), from the direction pass's results
+// cg = (phi0p, a, b) and the moments mo = (s1, s2) on the device, rounded as the host rounds it (no fma); then
+// the trial point as gs_point with flags 3 (c = -alpha/rho). out = (max wt, sum e, sum e d, sum e d^2, alpha).
+KERNEL gs_trial0(const double* __restrict__ W, const double* __restrict__ dt, const double* __restrict__ cg,
+                 const double* __restrict__ mo, double S, double sr, double rho, double* Wt, double* e, double shift,
+                 unsigned long long N, double* part, unsigned int* count, double* out) {
+    const double s1 = __ddiv_rn(mo[0], S), s2 = __ddiv_rn(mo[1], S);
+    const double curv = __dadd_rn(cg[2], __dmul_rn(sr, __dsub_rn(s2, __dmul_rn(s1, s1))));
+    const double alpha = curv > 0.0 ? __ddiv_rn(-cg[0], curv) : 1.0;
+    const double c = __ddiv_rn(-alpha, rho);
+    double v[4] = {neg_inf(), 0.0, 0.0, 0.0};
+    GRID_LOOP(i, N) {
+        const double w = fma(c, dt[i], W[i]);
+        Wt[i] = w;
+        const double x = exp(w - shift);
+        e[i] = x;
+        v[0] = comb(v[0], w, true);
+        v[1] += x;
+        const double y = x * dt[i];
+        v[2] += y;
+        v[3] += y * dt[i];
+    }
+    grid_reduce<4>(v, 1u, part, count, out);
+    if (blockIdx.x == 0 && threadIdx.x == 0) out[4] = alpha;
+}
+
+// ------------------------------------------------------------------------------------------- set-up, result
+// Set-up and result passes of one solve on the GPU (gapsweep/gfmd/_softmax.py, GPU branch): each replaces a chain
+// of array expressions (one pass and often one temporary each) by one pass without temporaries.
+
+// out = (sum of the finite a, number of non-finite a).
+KERNEL gs_sumfinite(const double* __restrict__ a, unsigned long long N, double* part, unsigned int* count,
+                    double* out) {
+    double v[2] = {0.0, 0.0};
+    GRID_LOOP(i, N) {
+        const double x = a[i];
+        if (isfinite(x)) v[0] += x; else v[1] += 1.0;
+    }
+    grid_reduce<2>(v, 0u, part, count, out);
+}
+
+// W = ((h - hm) - u) * inv_rho (the CPU's order of operations); out[0] = max W.
+KERNEL gs_field(const double* __restrict__ h, double hm, const double* __restrict__ u, double inv_rho, double* W,
+                unsigned long long N, double* part, unsigned int* count, double* out) {
+    double v[1] = {neg_inf()};
+    GRID_LOOP(i, N) {
+        const double w = ((h[i] - hm) - u[i]) * inv_rho;
+        W[i] = w;
+        v[0] = comb(v[0], w, true);
+    }
+    grid_reduce<1>(v, 1u, part, count, out);
+}
+
+// Result fields in place: p = e cp (into e), gap = a0 - rho W (into W);
+// out = (sum p, #{gap + hs < thr}, #{gap or p not finite}).
+KERNEL gs_final(double* W, double* e, double cp, double a0, double rho, double hs, double thr,
+                unsigned long long N, double* part, unsigned int* count, double* out) {
+    double v[3] = {0.0, 0.0, 0.0};
+    GRID_LOOP(i, N) {
+        const double p = e[i] * cp;
+        e[i] = p;
+        const double g = __dsub_rn(a0, __dmul_rn(rho, W[i]));  // no fma: as numpy rounds it
+        W[i] = g;
+        v[0] += p;
+        v[1] += (__dadd_rn(g, hs) < thr) ? 1.0 : 0.0;
+        v[2] += (isfinite(p) && isfinite(g)) ? 0.0 : 1.0;
+    }
+    grid_reduce<3>(v, 0u, part, count, out);
+}
+
+// Linear response of M4 from the half spectrum H = rfft2(h): X = (s H) (sr / (k + sr)), X(q=0) = 0,
+// k = ka (kb |q|) per mode (as gs_grad). No reduction.
+extern "C" __global__ void __launch_bounds__(NT) gs_linresp(const double2* __restrict__ H, double s, double sr,
+                                                           double2* X, unsigned n, double ka, double kb,
+                                                           unsigned nh, unsigned long long N) {
+    HALF_LOOP(i, r, j, N, nh) {
+        const double f = sr / (stiff(r, j, n, ka, kb) + sr);
+        const double2 hh = H[i];
+        X[i] = i == 0 ? make_double2(0.0, 0.0) : make_double2((hh.x * s) * f, (hh.y * s) * f);
+    }
+}
+
+// Residual and elastic energy of the result: U = s Ur, P = s Pr, F = k U - P (0 at q = 0);
+// out = (<F F>, <U k U>) (Parseval weights), k = ka (kb |q|) per mode.
+KERNEL_H gs_resid(const double2* __restrict__ Ur, const double2* __restrict__ Pr, double s, unsigned n, double ka,
+                  double kb, unsigned nh, int even, unsigned long long N, double* part, unsigned int* count,
+                  double* out) {
+    double v[2] = {0.0, 0.0};
+    HALF_LOOP(i, r, j, N, nh) {
+        const double kk = stiff(r, j, n, ka, kb);
+        const double2 u = Ur[i], pr = Pr[i];
+        const double2 uu = make_double2(u.x * s, u.y * s);
+        double2 f = make_double2(kk * uu.x - pr.x * s, kk * uu.y - pr.y * s);
+        if (i == 0) f = make_double2(0.0, 0.0);
+        const double wgt = PWEIGHT(j, nh, even);
+        v[0] += wgt * cdot(f, f);
+        v[1] += wgt * kk * cdot(uu, uu);
+    }
+    grid_reduce<2>(v, 0u, part, count, out);
+}
+
+// ------------------------------------------------------------------------------------------------ hard wall
+// Passes of the hard-wall minimiser (gapsweep/gfmd/_constrained.py) on any nx x ny grid (N = nx ny), one pass each
+// with its reductions, rounded as the numba passes of _constrained_ops.py (no fma contraction); S = {p > 0}.
+#define IN_S(i) (p[i] > 0.0)
+
+// out = (|S|, sum_S (u - h)).
+KERNEL pk_contact_sum(const double* __restrict__ u, const double* __restrict__ h, const double* __restrict__ p,
+                      unsigned long long N, double* part, unsigned int* count, double* out) {
+    double v[2] = {0.0, 0.0};
+    GRID_LOOP(i, N) {
+        if (IN_S(i)) { v[0] += 1.0; v[1] += __dsub_rn(u[i], h[i]); }
+    }
+    grid_reduce<2>(v, 0u, part, count, out);
+}
+
+// g = (u - h) - gbar, gs = g on S else 0; out = (sum_S g^2, -min over the free surface of g) (max of -g).
+KERNEL pk_gap(const double* __restrict__ u, const double* __restrict__ h, double gbar, const double* __restrict__ p,
+              double* g, double* gs, unsigned long long N, double* part, unsigned int* count, double* out) {
+    double v[2] = {0.0, neg_inf()};
+    GRID_LOOP(i, N) {
+        const double x = __dsub_rn(__dsub_rn(u[i], h[i]), gbar);
+        g[i] = x;
+        if (IN_S(i)) { gs[i] = x; v[0] += __dmul_rn(x, x); }
+        else { gs[i] = 0.0; v[1] = comb(v[1], -x, true); }
+    }
+    grid_reduce<2>(v, 2u, part, count, out);
+}
+
+// out = (sum_S z, sum gs z).
+KERNEL pk_zstats(const double* __restrict__ z, const double* __restrict__ gs, const double* __restrict__ p,
+                 unsigned long long N, double* part, unsigned int* count, double* out) {
+    double v[2] = {0.0, 0.0};
+    GRID_LOOP(i, N) {
+        if (IN_S(i)) { v[0] += z[i]; v[1] += __dmul_rn(gs[i], z[i]); }
+    }
+    grid_reduce<2>(v, 0u, part, count, out);
+}
+
+// t = (z - zbar) + c t on S, 0 elsewhere. No reduction.
+extern "C" __global__ void __launch_bounds__(NT) pk_direction(double* t, const double* __restrict__ z, double zbar,
+                                                             double c, const double* __restrict__ p,
+                                                             unsigned long long N) {
+    GRID_LOOP(i, N) t[i] = IN_S(i) ? __dadd_rn(__dsub_rn(z[i], zbar), __dmul_rn(c, t[i])) : 0.0;
+}
+
+// out = (sum_S r, sum_S r t, sum_S t, sum gs t).
+KERNEL pk_rstats(const double* __restrict__ r, const double* __restrict__ t, const double* __restrict__ gs,
+                 const double* __restrict__ p, unsigned long long N, double* part, unsigned int* count, double* out) {
+    double v[4] = {0.0, 0.0, 0.0, 0.0};
+    GRID_LOOP(i, N) {
+        const double tt = t[i];
+        if (IN_S(i)) {
+            const double rr = r[i];
+            v[0] += rr;
+            v[1] += __dmul_rn(rr, tt);
+            v[2] += tt;
+        }
+        v[3] += __dmul_rn(gs[i], tt);
+    }
+    grid_reduce<4>(v, 0u, part, count, out);
+}
+
+// p = max(p - tau t, 0), then p = -tau g where p = 0 and g < 0; out = (#clipped, #overlap, sum p).
+KERNEL pk_update(double* p, const double* __restrict__ t, const double* __restrict__ g, double tau,
+                 unsigned long long N, double* part, unsigned int* count, double* out) {
+    double v[3] = {0.0, 0.0, 0.0};
+    GRID_LOOP(i, N) {
+        double x = __dsub_rn(p[i], __dmul_rn(tau, t[i]));
+        if (x < 0.0) { v[0] += 1.0; x = 0.0; }
+        const double gg = g[i];
+        if (x == 0.0 && gg < 0.0) { v[1] += 1.0; x = __dmul_rn(-tau, gg); }
+        p[i] = x;
+        v[2] += x;
+    }
+    grid_reduce<3>(v, 0u, part, count, out);
+}
+
+// p *= scale; follow: u = scale (u - tau r). No reduction.
+extern "C" __global__ void __launch_bounds__(NT) pk_rescale(double* p, double* u, const double* __restrict__ r,
+                                                           double scale, double tau, int follow,
+                                                           unsigned long long N) {
+    GRID_LOOP(i, N) {
+        p[i] = __dmul_rn(p[i], scale);
+        if (follow) u[i] = __dmul_rn(scale, __dsub_rn(u[i], __dmul_rn(tau, r[i])));
+    }
 }
 
 // ------------------------------------------------------------------------------------------------- batches

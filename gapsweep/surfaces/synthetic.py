@@ -115,12 +115,19 @@ def self_affine(
     c0: float | None = None,
     amplitudes: Literal["fixed", "gaussian"] = "fixed",
     seed: int = 0,
+    backend: Literal["numpy", "cupy"] = "numpy",
 ) -> np.ndarray:
     """Random-phase self-affine surface ``h`` of shape ``(n, n)`` (M2), zero mean, real, units of ``length``.
 
     Exactly one of ``rms_slope`` (``g_rms``, dimensionless), ``rms_height`` (``h_rms``, length) or ``c0``
     (``C0``, length^4, with ``h~(q) = sqrt(C(q)/A) exp(i phase)``) fixes the spectrum; none given means
     ``rms_slope=1`` (the paper's default). The grid must carry ``q_s``: ``n > 2 length / lambda_s``.
+
+    ``backend="cupy"`` builds the surface on the GPU and returns a cupy array: the mode set and its
+    coefficients (independent of ``n``, a few MB) are computed on the host exactly as for numpy, only the
+    ``n x n`` half spectrum and its inverse FFT (cuFFT) live on the GPU, so the result equals the numpy surface
+    of the same seed to FFT round-off (~1e-15 relative) and grids too large for host memory work. GPU memory:
+    the half spectrum, cuFFT's copy of it and the surface, about 3 grid-sized float64 arrays at the peak.
     """
     n = chk.count(n, "n", minimum=2)
     hurst = chk.hurst(hurst)
@@ -140,6 +147,8 @@ def self_affine(
     norm_value = chk.positive(norm_value, norm_name)
     if amplitudes not in ("fixed", "gaussian"):
         raise ValueError(f"amplitudes must be 'fixed' or 'gaussian', got {amplitudes!r}")
+    if backend not in ("numpy", "cupy"):
+        raise ValueError(f"backend must be 'numpy' or 'cupy', got {backend!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) < 2**63:
         raise ValueError(f"seed must be an integer in [0, 2**63), got {seed!r}")
     seed = int(seed)
@@ -170,11 +179,36 @@ def self_affine(
         coeff *= norm_value / math.sqrt(2.0 * np.sum(q2 * np.abs(coeff) ** 2))
 
     # Half-spectrum layout of irfft2 (axis 1 holds ky >= 0). The ky = 0 column needs both kx and -kx.
+    if backend == "cupy":
+        return _irfft2_modes_gpu(n, kx, ky, coeff)
     half = np.zeros((n, n // 2 + 1), dtype=np.complex128)
     half[kx % n, ky] = coeff
     on_axis = ky == 0
     half[(-kx[on_axis]) % n, 0] = np.conj(coeff[on_axis])
     return np.fft.irfft2(half, s=(n, n)) * (n * n)
+
+
+def _irfft2_modes_gpu(n: int, kx: np.ndarray, ky: np.ndarray, coeff: np.ndarray):
+    """``irfft2`` of the half spectrum holding ``coeff`` at ``(kx, ky)`` (and the ky = 0 mirrors), times ``n^2``,
+    on the GPU (cupy): the same layout as the numpy branch of :func:`self_affine`."""
+    from gapsweep import _extras
+
+    cupy = _extras.require("cupy", 'GPU surfaces (backend="cupy")')
+    from cupyx.scipy.fft import get_fft_plan
+
+    half = cupy.zeros((n, n // 2 + 1), dtype=cupy.complex128)
+    on_axis = ky == 0
+    rows = np.concatenate([kx % n, (-kx[on_axis]) % n])
+    cols = np.concatenate([ky, np.zeros(int(on_axis.sum()), dtype=ky.dtype)])
+    vals = np.concatenate([coeff, np.conj(coeff[on_axis])])
+    # Same write order as the numpy branch (the mirrors last), so a mode written twice keeps the same value.
+    half[cupy.asarray(rows), cupy.asarray(cols)] = cupy.asarray(vals)
+    # A plan of its own, used once and dropped: cupy's plan cache would keep its work area on the GPU.
+    plan = get_fft_plan(half, shape=(n, n), axes=(0, 1), value_type="C2R")
+    with plan:
+        h = cupy.fft.irfft2(half, s=(n, n), norm="forward")  # norm="forward": the unscaled sum, = irfft2 n^2
+    del half, plan
+    return h
 
 
 def fourier_coefficients(heights: np.ndarray) -> np.ndarray:
