@@ -115,9 +115,10 @@ def test_file_surface_grid_is_the_map(tmp_path):
         with pytest.raises(spec.SpecError) as e:
             spec.loads(head.format(g=g) + tail + t, base=tmp_path)
         assert str(e.value).startswith(key), str(e.value)
-    np.save(tmp_path / "r.npy", np.zeros((32, 16)))
-    with pytest.raises(spec.SpecError, match="square"):
-        spec.loads(head.format(g="").replace("m.npy", "r.npy") + tail, base=tmp_path)
+    # rectangular maps are taken (issue 20): solved on their own nx x ny grid, box [Lx, Ly]
+    np.save(tmp_path / "r.npy", np.random.default_rng(1).normal(size=(32, 16)))
+    js = spec.loads(head.format(g="").replace("m.npy", "r.npy") + tail, base=tmp_path)
+    assert js.methods["gfmd"]["n"] == [32] and js.surface["shape"] == [32, 16] and js.surface["length"] == [32, 16]
 
 
 def test_cli_refuses_a_bad_file_spec_and_writes_nothing(tmp_path):

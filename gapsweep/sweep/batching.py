@@ -62,6 +62,8 @@ def _batchable(t: Task, mode: str) -> bool:
         return False
     if t.opt("method") not in ("auto", "cg") or t.opt("interaction", "exponential") != "exponential":
         return False
+    if t.opt("surface.periodic") is False:  # free boundaries: solve_batch is periodic only
+        return False
     if any(k.startswith("extra.") for k, _ in t.options):
         return False
     return mode == "all" or t.opt("backend") == "cupy"

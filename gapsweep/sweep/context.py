@@ -64,14 +64,22 @@ class Context:
         return h
 
     def surface_rms(self, t: Task, n: int) -> tuple[float, float]:
-        """``(h_rms, g_rms)`` of :meth:`surface` (M2), computed once per cached surface (``g_rms`` costs an FFT)."""
+        """``(h_rms, g_rms)`` of :meth:`surface` (M2), computed once per cached surface (``g_rms`` costs an FFT).
+        A measured map's come from its spectrum taken right for its boundaries (``theory.spectrum.map_spectrum``:
+        a non-periodic map's edge jump is no roughness)."""
         from gapsweep.surfaces import synthetic as surface
 
         sp = t.surface_params()
         h = self.surface(t, n)
         key = self._key(t, n, sp)
         if key not in self._rms:
-            self._rms[key] = (surface.rms_height(h), surface.rms_slope(h, sp["length"]))
+            if sp.get("kind") == "file":
+                from gapsweep.theory.spectrum import map_spectrum
+
+                ms = map_spectrum(h, sp["length"], periodic=sp.get("periodic", True))
+                self._rms[key] = (ms.h_rms, ms.g_rms)
+            else:
+                self._rms[key] = (surface.rms_height(h), surface.rms_slope(h, sp["length"]))
         return self._rms[key]
 
     def spectrum(self, t: Task, n: int) -> Any:

@@ -189,7 +189,49 @@ def to_dataset(path: str | Path, *, n: int | None = None, c2: float | None = Non
     attrs = _provenance(path)
     if damaged:
         attrs["gapsweep_damaged_rows"] = damaged
-    return from_frame(df, n=n, c2=c2, attrs=attrs)
+    ds = from_frame(df, n=n, c2=c2, attrs=attrs)
+    meta = store.read_attrs(path)
+    ds = _drop_placeholders(ds, meta.get("spec_text", ""))
+    return apply_units(ds, json.loads(meta.get("units", "{}") or "{}"))
+
+
+def _drop_placeholders(ds: Any, spec_text: str) -> Any:
+    """Leave out the axes a job does not have: ``hurst`` for a measured map (it is 0 there), ``rho`` for the
+    hard wall (0: no interaction range)."""
+    try:
+        import tomllib
+    except ImportError:  # pragma: no cover - Python 3.10
+        import tomli as tomllib
+    try:
+        raw = tomllib.loads(spec_text)
+    except (tomllib.TOMLDecodeError, TypeError):
+        return ds
+    drop = []
+    if raw.get("surface", {}).get("kind") == "file":  # one map: no Hurst exponent, one "seed"
+        drop += ["hurst", "seed"]
+    if raw.get("interaction", {}).get("kind") == "hard_wall":
+        drop.append("rho")
+    for d in drop:
+        if d in ds.dims and ds.sizes[d] == 1 and float(ds[d][0]) == 0.0 and d in ds.coords:
+            ds = ds.isel({d: 0}, drop=True)
+    return ds
+
+
+def apply_units(ds: Any, units: Mapping[str, str | None]) -> Any:
+    """Give every variable and coordinate measured in the model's length ``L`` or pressure ``E*`` the job's
+    physical unit (CF ``units``, e.g. ``"um"``, ``"MPa"``, ``"MPa um"`` for an energy per area) when the store
+    records one (attribute ``units``, docs/store.md); model units stay ``"1"`` with ``reference_unit``."""
+    length, pressure = units.get("length"), units.get("pressure")
+    phys = {"L": length, "E*": pressure, "E* L": f"{pressure} {length}" if pressure and length else None}
+    for name in [*ds.data_vars, *ds.coords]:
+        a = ds[name].attrs
+        u = phys.get(a.get("reference_unit", ""))
+        if u:
+            a["units"] = u
+            del a["reference_unit"]
+    if length or pressure:
+        ds.attrs["gapsweep_units"] = json.dumps(dict(units), sort_keys=True)
+    return ds
 
 
 def export_netcdf(path: str | Path, out: str | Path, *, overwrite: bool = False, **kw: Any) -> Path:

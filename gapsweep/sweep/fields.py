@@ -23,7 +23,8 @@ _LEN = {"units": "1", "reference_unit": "L"}  # lengths in units of the spec's L
 # field -> (long_name, unit attributes)
 FIELD_META = {
     "gap": ("local gap g(r) = g0 + u(r) - h(r)", _LEN),
-    "pressure": ("local pressure p(r) = (gamma0/rho) exp(-g/rho)", {"units": "1", "reference_unit": "E*"}),
+    "pressure": ("local pressure p(r) of the interaction law (file attribute interaction; docs/gfmd.md)",
+                 {"units": "1", "reference_unit": "E*"}),
     "displacement": ("elastic displacement u(r), zero mean", _LEN),
     "height": ("surface height h(r), zero mean", _LEN),
 }
@@ -83,6 +84,16 @@ def remove_fields(directory: str | Path) -> int:
     return n
 
 
+def _length_units(attrs: Mapping[str, Any]) -> dict[str, str]:
+    u = attrs.get("length_unit")
+    return {"units": str(u)} if u else dict(_LEN)
+
+
+def _pressure_units(attrs: Mapping[str, Any]) -> dict[str, str]:
+    u = attrs.get("pressure_unit")
+    return {"units": str(u)} if u else {"units": "1", "reference_unit": "E*"}
+
+
 def _write_fields(directory: str | Path, task_id: str, arrays: Mapping[str, np.ndarray], *, length: float,
                   attrs: Mapping[str, Any]) -> Path:
     import h5py
@@ -91,18 +102,19 @@ def _write_fields(directory: str | Path, task_id: str, arrays: Mapping[str, np.n
     d.mkdir(parents=True, exist_ok=True)
     final = d / f"{task_id}.nc"
     tmp = d / f".{task_id}.{os.getpid()}.tmp"
-    n = next(iter(arrays.values())).shape[0]
-    x = (np.arange(n) + 0.5) * (length / n)
-    chunk = (min(n, 256), min(n, 256))
+    nx, ny = next(iter(arrays.values())).shape
+    lx, ly = (length, length) if np.isscalar(length) else length
+    axes = {"x": (np.arange(nx) + 0.5) * (lx / nx), "y": (np.arange(ny) + 0.5) * (ly / ny)}
+    chunk = (min(nx, 256), min(ny, 256))
     try:
         with h5py.File(tmp, "w", track_order=True) as f:
-            for name in ("x", "y"):
+            for name, x in axes.items():
                 ds = f.create_dataset(name, data=x)
                 ds.make_scale(name)
-                ds.attrs.update({"long_name": f"{name} position of the cell centre", "units": "1",
-                                 "reference_unit": "L"})
+                ds.attrs.update({"long_name": f"{name} position of the cell centre", **_length_units(attrs)})
             for name, a in arrays.items():
                 long_name, units = FIELD_META[name]
+                units = _length_units(attrs) if units is _LEN else _pressure_units(attrs)
                 ds = f.create_dataset(name, data=np.asarray(a, dtype=np.float64), chunks=chunk, compression="gzip",
                                       compression_opts=4, shuffle=True)
                 ds.dims[0].attach_scale(f["x"])

@@ -17,11 +17,11 @@ from gapsweep.surfaces import topography
 from gapsweep.sweep import readers as rd
 from gapsweep.sweep.schema import SpecError
 
-__all__ = ["FILE_KEYS", "file_surface", "file_surface_heights", "load_file_surface"]
+__all__ = ["FILE_KEYS", "file_surface", "file_surface_heights", "length_unit", "load_file_surface"]
 
 
 FILE_KEYS = ("kind", "path", "format", "key", "delimiter", "unit", "height_unit", "to_unit", "length",
-              "pixel_size", "detrend")
+              "pixel_size", "detrend", "periodic")
 
 
 def _pair_or_num(key: str, v: Any) -> float | list[float]:
@@ -45,7 +45,7 @@ def file_surface(s: dict, base: str | Path | None) -> tuple[dict[str, Any], int]
         raise SpecError(f"surface.path: no such height map {str(full)!r} (paths are relative to the job spec)")
     out: dict[str, Any] = {"kind": "file", "path": path}
     if "format" in s:
-        out["format"] = rd.string("surface.format", s["format"], ("npy", "npz", "text", "surfacetopography"))
+        out["format"] = rd.string("surface.format", s["format"], topography.FORMATS)
     for k in ("key", "delimiter"):
         if k in s:
             out[k] = rd.string(f"surface.{k}", s[k])
@@ -59,6 +59,7 @@ def file_surface(s: dict, base: str | Path | None) -> tuple[dict[str, Any], int]
         if k in s:
             out[f"file_{k}"] = _pair_or_num(f"surface.{k}", s[k])
     out["detrend"] = rd.string("surface.detrend", s.get("detrend", "mean"), topography.DETRENDS)
+    asked = rd.boolean("surface.periodic", s["periodic"]) if "periodic" in s else None
     try:
         topo = load_file_surface(out, full)
         digest = hashlib.sha256(full.read_bytes()).hexdigest()
@@ -67,11 +68,17 @@ def file_surface(s: dict, base: str | Path | None) -> tuple[dict[str, Any], int]
     except (OSError, ValueError, ImportError) as e:
         raise SpecError(f"surface.path: {path!r} does not load as a height map: {e}") from None
     nx, ny = topo.shape
-    if nx != ny or not math.isclose(topo.length[0], topo.length[1], rel_tol=1e-12):
-        raise SpecError(f"surface.path: {path!r} is {nx} x {ny} with box {topo.length}; the sweep takes square "
-                        "maps on square boxes (gapsweep.gfmd.solve itself takes rectangular ones)")
     out["sha256"] = digest
-    out["length"] = float(topo.length[0])
+    # The box: one number for a square box (as before), [Lx, Ly] otherwise; a rectangular grid records its shape.
+    if math.isclose(topo.length[0], topo.length[1], rel_tol=1e-12):
+        out["length"] = float(topo.length[0])
+    else:
+        out["length"] = [float(topo.length[0]), float(topo.length[1])]
+    if nx != ny:
+        out["shape"] = [int(nx), int(ny)]
+    # Periodic or free boundaries (docs/gfmd.md "Periodic or free boundaries"): the spec's choice, else the
+    # file's own flag, else what the map's edges say (gapsweep.surfaces.topography).
+    out["periodic"] = bool(topo.periodic) if asked is None else asked
     _FILES[digest] = str(full.resolve())
     return out, nx
 
@@ -91,6 +98,13 @@ def file_surface_heights(surface: dict[str, Any]):
     if hashlib.sha256(Path(path).read_bytes()).hexdigest() != surface["sha256"]:
         raise SpecError(f"surface.path: {path!r} changed since the job spec was validated (sha256 differs)")
     return load_file_surface(surface, path).heights
+
+
+def length_unit(surface: dict[str, Any]) -> str | None:
+    """The length unit of a validated file surface's heights and box (``to_unit``, else ``unit``), or None
+    (model units)."""
+    u = surface.get("to_unit") or surface.get("unit")
+    return topography._canonical(u) if u else None
 
 
 def load_file_surface(surface: dict[str, Any], full: str | Path):

@@ -89,6 +89,9 @@ def store_attrs(spec: Any, *, shard: str = "", extra: dict[str, Any] | None = No
         "created": now(),
         "runs": "[]",
     }
+    units = spec.units() if hasattr(spec, "units") else {}
+    if any(units.values()):  # physical units of lengths and pressures (docs/store.md); absent: model units
+        a["units"] = json.dumps(units, sort_keys=True)
     if getattr(spec, "surface", {}).get("kind") == "file" and getattr(spec, "base_dir", ""):
         a["spec_dir"] = spec.base_dir  # where the height map's path is relative to (merge re-reads the spec)
     a.update(extra or {})

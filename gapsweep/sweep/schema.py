@@ -77,6 +77,15 @@ class JobSpec:
             d["interaction"] = self.interaction
         return json.dumps(d, sort_keys=True, separators=(",", ":"), allow_nan=False)
 
+    def units(self) -> dict[str, str | None]:
+        """The physical units of the job's lengths and pressures (None: model units, lengths in units of L and
+        pressures in units of E*): a file surface's length unit (``to_unit``, else ``unit``) or ``[surface]
+        unit``, and ``[material] pressure_unit``. Written into the store (attribute ``units``) and carried to the
+        dataset, the netCDF export and the report."""
+        s = self.surface
+        return {"length": s.get("to_unit") or s.get("unit") or None,
+                "pressure": self.material.get("pressure_unit") or None}
+
     def task_count(self) -> int:
         """Upper bound of the number of tasks (product of the axes of each method), computed without
         expanding the grid."""

@@ -53,6 +53,12 @@ def max_tasks() -> int:
         raise SpecError(f"GAPSWEEP_MAX_TASKS: expected a positive integer, got {v!r}") from None
     return n
 SURFACE_KINDS = ("self_affine", "file")
+PRESSURE_UNITS = ("Pa", "kPa", "MPa", "GPa")
+LENGTH_UNITS = ("m", "mm", "um", "nm", "A", "pm")
+
+
+def _unit_label(key: str, v: Any, allowed: tuple[str, ...]) -> str:
+    return rd.string(key, v, allowed)
 INTERACTION_KINDS = ("exponential", "hard_wall", "adhesive")
 _TOP = ("job", "grid", "surface", "material", "histogram", "methods", "interaction")
 
@@ -95,6 +101,8 @@ def _method(name: str, t: dict, env: Env) -> dict[str, Any]:
     key = f"methods.{name}"
     m = registry.get(name)
     rd.known(key, t, (*m.keys, "extra", *GRID_AXES))
+    if env.file and "seeds" in t:
+        raise SpecError(f"{key}.seeds: a file surface is one map with one seed; remove seeds")
     o = m.validate(key, t, env)
     o.update(_grid(key, t, required=False, law=env.law, file=env.file))
     extra = rd.table(f"{key}.extra", t.get("extra", {}))
@@ -181,7 +189,7 @@ def loads(text: str, base: str | Path | None = None) -> JobSpec:
         norm, nyquist = "file", 8
     else:
         rd.known("surface", s, ("kind", "lambda_l", "lambda_s", "length", "rms_slope", "rms_height", "c0",
-                              "amplitudes"))
+                              "amplitudes", "unit"))
         length = rd.number("surface.length", s.get("length", 1.0), gt=0.0)
         lambda_l = rd.number("surface.lambda_l", s.get("lambda_l", 0.25), gt=0.0, le=length)
         lambda_s = rd.number("surface.lambda_s", s.get("lambda_s", 2.5e-3), gt=0.0, lt=lambda_l)
@@ -194,6 +202,8 @@ def loads(text: str, base: str | Path | None = None) -> JobSpec:
             norm: rd.number(f"surface.{norm}", s.get(norm, 1.0), gt=0.0),
             "amplitudes": rd.string("surface.amplitudes", s.get("amplitudes", "fixed"), ("fixed", "gaussian")),
         }
+        if "unit" in s:  # a label: lengths (L, lambda_l, lambda_s, rho, heights) are in this unit
+            surface["unit"] = _unit_label("surface.unit", s["unit"], LENGTH_UNITS)
         # M2 Nyquist condition as the surface module applies it: n > 2 floor(L / lambda_s).
         nyquist = 2 * int(math.floor(length / lambda_s * (1 + 1e-9))) + 1
 
@@ -205,8 +215,10 @@ def loads(text: str, base: str | Path | None = None) -> JobSpec:
                         f"got {grid['seeds']}")
 
     m = rd.table("material", raw.get("material", {}))
-    rd.known("material", m, ("e_star", "gamma0"))
+    rd.known("material", m, ("e_star", "gamma0", "pressure_unit"))
     material = {"e_star": rd.number("material.e_star", m.get("e_star", 1.0), gt=0.0)}
+    if "pressure_unit" in m:  # a label: E*, sigma0, gamma0/rho and work/rho are then in this unit (docs/jobs.md)
+        material["pressure_unit"] = _unit_label("material.pressure_unit", m["pressure_unit"], PRESSURE_UNITS)
     if law == "exponential":
         material["gamma0"] = rd.number("material.gamma0", m.get("gamma0", 1e-3), gt=0.0)
     elif "gamma0" in m:

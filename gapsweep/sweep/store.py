@@ -145,11 +145,17 @@ def _nan_or(v: Any) -> float:
     return math.nan if v is None else float(v)
 
 
+def _lx(length: Any) -> float:
+    """The ``/tasks`` length column: the box side ``L``, or ``Lx`` of a rectangular box (``[Lx, Ly]`` in the
+    spec text, attribute ``spec_text``)."""
+    return float(length[0]) if isinstance(length, (list, tuple)) else float(length)
+
+
 def task_rows(tasks: Sequence[Task]) -> np.ndarray:
     rows = np.zeros(len(tasks), dtype=TASK_DTYPE)
     for i, t in enumerate(tasks):
         rows[i] = (t.task_id.encode(), t.method.encode(), t.chain.encode(), t.hurst, t.rho, t.sigma0, t.seed, t.n,
-                   _nan_or(t.opt("surface.lambda_l")), _nan_or(t.opt("surface.lambda_s")), t.opt("surface.length"),
+                   _nan_or(t.opt("surface.lambda_l")), _nan_or(t.opt("surface.lambda_s")), _lx(t.opt("surface.length")),
                    _nan_or(t.opt("gamma0")),
                    t.opt("e_star"), _nan_or(t.opt("c1")), _nan_or(t.opt("c2")))
     return rows

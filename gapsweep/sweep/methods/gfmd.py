@@ -89,7 +89,8 @@ class GFMD(Method):
     }
     select = "n"
     extra_target = ("gapsweep.gfmd", "solve", ("heights", "sigma0", "gamma0", "rho", "e_star", "length", "tol",
-                                               "method", "backend", "max_iter", "initial", "interaction", "work"))
+                                               "method", "backend", "max_iter", "initial", "interaction", "work",
+                                               "periodic"))
 
     def validate(self, key: str, t: dict[str, Any], env: Env) -> dict[str, Any]:
         o: dict[str, Any] = {}
@@ -148,6 +149,11 @@ def _keep_fields(t: Task, ctx: Context, res: Any, h: np.ndarray, gap: np.ndarray
              "e_star": t.opt("e_star"), "mean_gap": g0, "residual": float(res.residual), "interaction": t.law}
     if t.opt("gamma0") is not None:
         attrs["gamma0"] = t.opt("gamma0")
+    unit = t.opt("surface.to_unit") or t.opt("surface.unit")
+    if unit:
+        attrs["length_unit"] = unit
+    if t.opt("pressure_unit"):
+        attrs["pressure_unit"] = t.opt("pressure_unit")
     fields.write_fields(ctx.fields_dir, t.task_id, {k: arrays[k] for k in want}, length=length, attrs=attrs)
 
 
@@ -170,8 +176,14 @@ def run_gfmd(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
     res = gfmd.solve(h, sigma0=t.sigma0, **law_params(t), e_star=t.opt("e_star"),
                      length=sp["length"], tol=t.opt("tol"), method=t.opt("method"), backend=t.opt("backend"),
                      max_iter=t.opt("max_iter"), initial=prev if t.opt("warm_start") else None,
-                     host=gfmd_host_fields(t, ctx), **extra(t))
+                     host=gfmd_host_fields(t, ctx), **boundaries(t), **extra(t))
     return gfmd_row(t, ctx, res, prev)
+
+
+def boundaries(t: Task) -> dict[str, Any]:
+    """``periodic=False`` for a measured map solved with free boundaries (docs/gfmd.md "Periodic or free
+    boundaries"); nothing for periodic surfaces (older task ids and calls stay as they were)."""
+    return {"periodic": False} if t.opt("surface.periodic") is False else {}
 
 
 def law_params(t: Task) -> dict[str, Any]:
@@ -260,8 +272,9 @@ def _fill_quantities(t: Task, res: Any, v: dict[str, float], gap: Any, xp: Any) 
     if not math.isfinite(v["elastic_energy"]) and u is not None:
         nx, ny = u.shape
         length = t.opt("surface.length")
-        qx = 2 * np.pi * np.fft.fftfreq(nx, d=length / nx)
-        qy = 2 * np.pi * np.fft.fftfreq(ny, d=length / ny)
+        lx, ly = (length, length) if np.isscalar(length) else length
+        qx = 2 * np.pi * np.fft.fftfreq(nx, d=lx / nx)
+        qy = 2 * np.pi * np.fft.fftfreq(ny, d=ly / ny)
         q = xp.asarray(np.hypot(qx[:, None], qy[None, :]))
         uq = xp.fft.fft2(u) / (nx * ny)
         v["elastic_energy"] = float(0.25 * t.opt("e_star") * xp.sum(q * xp.abs(uq) ** 2))

@@ -120,10 +120,10 @@ def _run_persson(t: Task, ctx: Context) -> dict[str, float]:
 
     sp = t.surface_params()
     kw: dict[str, Any] = {"e_star": t.opt("e_star"), "length": sp["length"]}
-    if sp.get("kind") == "file":
-        h = ctx.surface(t, 0)
-        kw["heights"] = h
-        h_rms, g_rms = surface.rms_height(h), surface.rms_slope(h, sp["length"])
+    if sp.get("kind") == "file":  # the map's own spectrum, taken right for its boundaries (map_spectrum)
+        kw["heights"] = ctx.surface(t, 0)
+        kw["periodic"] = sp.get("periodic", True)
+        h_rms, g_rms = ctx.surface_rms(t, 0)
     else:
         kw.update(hurst=t.hurst, lambda_l=sp["lambda_l"], lambda_s=sp["lambda_s"])
         for k in ("rms_slope", "rms_height", "c0"):

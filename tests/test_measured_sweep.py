@@ -1,0 +1,119 @@
+"""Measured maps through the sweep (issue 20; docs/jobs.md "Measured maps"): the worked example
+jobs/measured_map.toml -- a rectangular (192 x 128), tilted, non-periodic map in micrometres with E* in MPa --
+solved with free boundaries, Persson's theory from the map's spectrum taken right for a finite map, units in the
+store, the dataset and the netCDF export, and no placeholder dimensions. References are independent calls of the
+physics (gapsweep.gfmd.solve on the loaded map; theory.spectrum.map_spectrum) and the parent surface's exact rms
+slope (0.1, scripts/make_measured_map.py)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from gapsweep import gfmd, runner, spec, store
+from gapsweep.surfaces import topography
+
+ROOT = Path(__file__).resolve().parents[1]
+JOB = ROOT / "jobs" / "measured_map.toml"
+
+
+@pytest.fixture(scope="module")
+def measured(tmp_path_factory):
+    path = tmp_path_factory.mktemp("mm") / "mm.h5"
+    runner.run(JOB, path, progress="none", mpi="off")
+    return path
+
+
+def _map():
+    return topography.load(ROOT / "jobs" / "data" / "measured_tilted_192x128.npz", key="heights", unit="um",
+                           pixel_size=0.5, detrend="plane", periodic=False)
+
+
+def test_rectangular_free_boundary_rows_equal_a_direct_solve(measured):
+    df = store.read(measured)
+    assert set(df.status) == {"done"} and len(df) == 10
+    topo = _map()
+    assert topo.shape == (192, 128) and topo.length == pytest.approx((96.0, 64.0))
+    g = df[df.method == "gfmd"].set_index("sigma0")
+    for s0 in (2.0, 20.0):
+        ref = gfmd.solve(topo.heights, sigma0=s0, interaction="hard_wall", e_star=1000.0, length=topo.length,
+                         tol=1e-8, backend="numpy", periodic=False)
+        # the sweep warm-starts along the chain; both are converged to tol 1e-8
+        assert g.mean_gap[s0] == pytest.approx(ref.mean_gap, rel=1e-6)
+        assert g.contact_area[s0] == pytest.approx(ref.contact_area, abs=2.0 / topo.heights.size)
+    # free boundaries, not periodic: the periodic solve of the same map differs by far more than the tolerance
+    per = gfmd.solve(topo.heights, sigma0=20.0, interaction="hard_wall", e_star=1000.0, length=topo.length,
+                     tol=1e-8, backend="numpy", periodic=True)
+    assert abs(per.mean_gap - g.mean_gap[20.0]) > 1e-3 * abs(g.mean_gap[20.0])
+
+
+def test_persson_uses_the_maps_own_slope_not_the_edge_jump(measured):
+    df = store.read(measured)
+    th = df[df.method == "theory"]
+    # the parent surface's rms slope is 0.1 (the map is a crop of it, tilted): within 3 %, where the plain FFT of
+    # the detrended map counts the edge jump (about 0.125)
+    assert th.g_rms.iloc[0] == pytest.approx(0.1, rel=0.03)
+    from gapsweep.theory import persson
+    from gapsweep.theory.spectrum import map_spectrum
+
+    h = _map().heights
+    assert map_spectrum(h, (96.0, 64.0), periodic=True).g_rms > 1.15 * th.g_rms.iloc[0]  # what a plain FFT says
+
+    for s0, area in zip(th.sigma0, th.contact_area):
+        ref = persson.contact_area(s0, heights=h, length=(96.0, 64.0), e_star=1000.0, periodic=False)
+        assert area == pytest.approx(float(ref), rel=1e-12)
+
+
+def test_units_carried_to_store_dataset_and_netcdf(measured, tmp_path):
+    assert json.loads(store.read_attrs(measured)["units"]) == {"length": "um", "pressure": "MPa"}
+    pytest.importorskip("xarray")
+    ds = store.to_dataset(measured)
+    assert set(ds.dims) == {"sigma0"}  # no placeholder hurst = 0, rho = 0 or seed = 0 for a hard-wall map
+    assert ds.sigma0.attrs["units"] == "MPa" and ds.gfmd_mean_gap.attrs["units"] == "um"
+    assert ds.persson_mean_gap.attrs["units"] == "um" and ds.gfmd_elastic_energy.attrs["units"] == "MPa um"
+    assert ds.gfmd_contact_area.attrs["units"] == "1"
+    pytest.importorskip("h5netcdf")
+    import xarray as xr
+
+    out = store.export_netcdf(measured, tmp_path / "mm.nc")
+    with xr.open_dataset(out) as nc:
+        assert nc.sigma0.attrs["units"] == "MPa" and nc.gfmd_mean_gap.attrs["units"] == "um"
+
+
+def test_spec_keys_of_measured_maps():
+    text = JOB.read_text()
+    js = spec.loads(text, base=JOB.parent)
+    assert js.surface["periodic"] is False and js.surface["length"] == [96.0, 64.0]
+    assert js.surface["shape"] == [192, 128] and js.units() == {"length": "um", "pressure": "MPa"}
+    assert js.methods["gfmd"]["n"] == [192]
+    # the file's edges decide when the spec does not: this map is not periodic
+    js2 = spec.loads(text.replace("periodic = false\n", ""), base=JOB.parent)
+    assert js2.surface["periodic"] is False
+    js3 = spec.loads(text.replace("periodic = false\n", "periodic = true\n"), base=JOB.parent)
+    assert js3.surface["periodic"] is True and js3.sha256 != js.sha256
+    with pytest.raises(spec.SpecError, match=r"methods\.gfmd\.seeds"):
+        spec.loads(text.replace('backend = "numpy"\n', 'backend = "numpy"\nseeds = [0, 1]\n'), base=JOB.parent)
+    with pytest.raises(spec.SpecError, match=r"material\.pressure_unit"):
+        spec.loads(text.replace('pressure_unit = "MPa"', 'pressure_unit = "psi"'), base=JOB.parent)
+    with pytest.raises(spec.SpecError, match=r"surface\.periodic"):
+        spec.loads(text.replace("periodic = false", 'periodic = "no"'), base=JOB.parent)
+
+
+def test_kept_fields_of_a_rectangular_map_carry_its_axes_and_units(tmp_path):
+    pytest.importorskip("xarray")
+    pytest.importorskip("h5netcdf")
+    job = tmp_path / "mm.toml"
+    text = JOB.read_text().replace('path = "data/', f'path = "{ROOT / "jobs" / "data"}/')
+    job.write_text(text.replace('backend = "numpy"\n', 'backend = "numpy"\nkeep_fields = { fields = ["gap", '
+                                '"pressure"], sigma0 = [5.0] }\n'))
+    path = tmp_path / "mm.h5"
+    runner.run(job, path, progress="none", mpi="off")
+    (f,) = store.open_fields(path).values()
+    assert f.gap.shape == (192, 128) and f.x.size == 192 and f.y.size == 128
+    assert f.x[-1] == pytest.approx(96.0 - 0.25) and f.y[-1] == pytest.approx(64.0 - 0.25)
+    assert f.gap.attrs["units"] == "um" and f.pressure.attrs["units"] == "MPa"
+    assert f.attrs["interaction"] == "hard_wall"
+    assert math.isclose(float(f.pressure.mean()), 5.0, rel_tol=1e-6)
