@@ -49,6 +49,8 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--shard", help="i/n: plan only shard i of n")
     s.add_argument("--ranks", type=int, default=1, help="ranks for the wall-time estimate (default 1)")
     s.add_argument("--store", help="check that the store fits on the disk of this path")
+    s.add_argument("--ranks-per-gpu", type=int, default=1, metavar="K",
+                   help="ranks sharing one GPU, for the GPU-memory check (default 1)")
 
     s = sub.add_parser("run", help="run a job into a store (serial, or under mpiexec as an MPI task farm)")
     s.add_argument("job", help="job spec (TOML)")
@@ -175,7 +177,8 @@ def _dispatch(args: argparse.Namespace) -> int:
 
         if args.ranks < 1:
             raise ValueError(f"--ranks: expected an integer >= 1, got {args.ranks}")
-        print(runner.plan(args.job, runner.parse_shard(args.shard), args.ranks, store=args.store))
+        print(runner.plan(args.job, runner.parse_shard(args.shard), args.ranks, store=args.store,
+                          ranks_per_gpu=args.ranks_per_gpu))
         return 0
     if args.command == "run":
         from gapsweep.sweep import runner

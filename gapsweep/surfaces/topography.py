@@ -270,7 +270,11 @@ def load(path: str | Path, *, length: Any = None, pixel_size: Any = None, unit: 
     target = _unit(to_unit if to_unit is not None else unit, "to_unit")
     if to_unit is not None and unit is None:
         raise ValueError("to_unit needs the file's unit: give unit=")
-    h = h * (vertical / target)
+    with np.errstate(over="ignore"):  # an overflow is refused just below, in one line
+        h = h * (vertical / target)
+    if not np.all(np.isfinite(h)):
+        raise ValueError(f"heights not finite after converting {height_unit or unit} to {to_unit or unit} "
+                         "(float64 overflow): choose another to_unit")
     box = (box[0] * lateral / target, box[1] * lateral / target)
     h = globals()["detrend"](h, detrend, box)
     if periodic is not None:

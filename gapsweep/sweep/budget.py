@@ -13,6 +13,7 @@ from gapsweep.sweep.schema import RESULT_DTYPE, TASK_DTYPE, Task
 __all__ = ["BASE_MEMORY", "TASK_LIST_BYTES", "disk_free", "memory_total", "peak_memory", "store_bytes"]
 
 BASE_MEMORY = 300e6  # interpreter, numpy/scipy/h5py/numba, FFT plans [bytes]
+CUDA_CONTEXT = 0.5e9  # a CUDA context and cupy's pools per process on the GPU [bytes]
 TASK_LIST_BYTES = 1600  # one expanded Task with its options, on every rank (measured: ~1.5 kB) [bytes]
 
 
@@ -26,6 +27,24 @@ def store_bytes(n_tasks: int, bins: int, spec_text_len: int = 0) -> int:
 def task_memory(t: Task) -> float:
     """Peak working memory of one task [bytes] (the method plug-in's order-of-magnitude model)."""
     return registry.get(t.method).memory(t)
+
+
+def gpu_memory(tasks: list[Task], ranks_per_gpu: int = 1) -> float:
+    """GPU memory one GPU needs [bytes]: its ``ranks_per_gpu`` ranks each holding the largest GPU task (the
+    method's ``gpu_memory``; gfmd: ``gapsweep.gfmd._cuda.solve_memory``) and a CUDA context (0.5 GB). 0 without
+    GPU tasks."""
+    per = max((registry.get(t.method).gpu_memory(t) for t in tasks), default=0.0)
+    return ranks_per_gpu * (per + CUDA_CONTEXT) if per else 0.0
+
+
+def gpu_memory_total() -> int:
+    """Memory of this process's GPU [bytes] (0 when there is none or cupy is missing)."""
+    try:
+        import cupy
+
+        return int(cupy.cuda.Device().mem_info[1])
+    except Exception:  # no cupy, no driver, no device: nothing to check against
+        return 0
 
 
 def peak_memory(tasks: list[Task]) -> float:

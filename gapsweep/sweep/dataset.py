@@ -122,7 +122,9 @@ def from_frame(df: Any, *, n: int | None = None, c2: float | None = None, attrs:
             a = np.full(shape, np.nan)
             a[tuple(i[done] for i in idx)] = vals[done]
             meta = {"long_name": long_name, **units}
-            if col in seed_free:
+            # seed-free only where the method ran one seed (h_rms = "surface" with gaussian amplitudes: one
+            # task per seed, values that differ)
+            if col in seed_free and sub["seed"].nunique() <= 1:
                 data[name] = (DIMS[:3], _collapse_seed(a, name), {**meta, "comment": "seed-independent: "
                               "no seed dimension, broadcasts over every seed"})
             else:

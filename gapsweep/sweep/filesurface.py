@@ -13,6 +13,8 @@ import math
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from gapsweep.surfaces import topography
 from gapsweep.sweep import readers as rd
 from gapsweep.sweep.schema import SpecError
@@ -68,6 +70,10 @@ def file_surface(s: dict, base: str | Path | None) -> tuple[dict[str, Any], int]
     except (OSError, ValueError, ImportError) as e:
         raise SpecError(f"surface.path: {path!r} does not load as a height map: {e}") from None
     nx, ny = topo.shape
+    if not (np.all(np.isfinite(topo.heights)) and all(math.isfinite(x) and x > 0 for x in topo.length)):
+        raise SpecError(f"surface.path: {path!r}: heights or box not finite after the unit conversion "
+                        f"({out.get('unit')} -> {out.get('to_unit')}): allowed are maps whose values stay finite "
+                        "floats (choose another to_unit)")
     out["sha256"] = digest
     # The box: one number for a square box (as before), [Lx, Ly] otherwise; a rectangular grid records its shape.
     if math.isclose(topo.length[0], topo.length[1], rel_tol=1e-12):

@@ -141,7 +141,7 @@ def _load(job: str | Path | specmod.JobSpec) -> specmod.JobSpec:
 
 
 def plan(job: str | Path | specmod.JobSpec, shard: tuple[int, int] | None = None, ranks: int = 1,
-         store: str | Path | None = None) -> str:
+         store: str | Path | None = None, ranks_per_gpu: int = 1) -> str:
     """Text summary of a job: tasks per method, units, cost estimate (core-seconds and wall time on ``ranks``),
     peak memory per rank and store size. Raises ``SpecError`` for what cannot run (an ``extra`` key the solver
     does not take) and ``RunError`` for what will not fit (memory of this machine, free disk at ``store``)."""
@@ -164,13 +164,9 @@ def plan(job: str | Path | specmod.JobSpec, shard: tuple[int, int] | None = None
     longest = max((u.cost for u in units), default=0.0)
     lines.append(f"  estimated cost ~{total:.1f} core-s; on {ranks} rank(s) ~{max(total / ranks, longest):.1f} s "
                  "wall (rough model, see docs/jobs.md)")
-    mem = budget.peak_memory(tasks)
     size = budget.store_bytes(len(tasks), spec.histogram["bins"], len(spec.text))
-    lines.append(f"  peak memory ~{budget.human(mem)} per rank; store ~{budget.human(size)}")
-    ram = budget.memory_total()
-    if ram and mem > ram:
-        raise RunError(f"the job needs ~{budget.human(mem)} per rank, more than this machine's "
-                       f"{budget.human(ram)}: use smaller grids (n, samples) or fewer tasks per job (shards)")
+    lines.extend(_check_resources(tasks, ranks_per_gpu))
+    lines.append(f"  store ~{budget.human(size)}")
     if store is not None:
         path = _store_path(store, shard)
         free = budget.disk_free(path.parent)
@@ -178,6 +174,26 @@ def plan(job: str | Path | specmod.JobSpec, shard: tuple[int, int] | None = None
         if size > free:
             raise RunError(f"store {path}: needs ~{budget.human(size)}, only {budget.human(free)} free there")
     return "\n".join(lines)
+
+
+def _check_resources(tasks: list[Task], ranks_per_gpu: int = 1) -> list[str]:
+    """The memory a rank needs (and the GPU memory of its GPU tasks), the same check for ``plan`` and ``run``:
+    raises ``RunError`` for what will not fit this machine (its RAM; a visible GPU's memory), saying how much is
+    needed. Returns the plan's lines."""
+    mem = budget.peak_memory(tasks)
+    lines = [f"  peak memory ~{budget.human(mem)} per rank"]
+    ram = budget.memory_total()
+    if ram and mem > ram:
+        raise RunError(f"the job needs ~{budget.human(mem)} per rank, more than this machine's "
+                       f"{budget.human(ram)}: use smaller grids (n, samples) or fewer tasks per job (shards)")
+    need = budget.gpu_memory(tasks, ranks_per_gpu)
+    if need:
+        lines.append(f"  GPU memory ~{budget.human(need)} per GPU ({ranks_per_gpu} rank(s) per GPU)")
+        have = budget.gpu_memory_total()
+        if have and need > have:
+            raise RunError(f"the GPU tasks need ~{budget.human(need)} per GPU, more than this GPU's "
+                           f"{budget.human(have)}: use smaller grids (n), fewer ranks per GPU, or a larger GPU")
+    return lines
 
 
 def _store_path(path: str | Path, shard: tuple[int, int] | None) -> Path:
@@ -342,6 +358,7 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     if os.environ.get("GAPSWEEP_TEST_PIDDIR"):  # test hook: lets a test kill -9 one particular rank
         Path(os.environ["GAPSWEEP_TEST_PIDDIR"], f"rank{rank}.pid").write_text(str(os.getpid()))
     tasks, units = _select(spec, shard, batch)
+    _check_resources(tasks, ranks_per_gpu)  # the same refusal as `plan`
     path = _store_path(store, shard)
     shard_text = f"{shard[0]}/{shard[1]}" if shard else ""
 

@@ -113,6 +113,39 @@ def _method(name: str, t: dict, env: Env) -> dict[str, Any]:
     return o
 
 
+_PRIMITIVES = {"bool": bool, "int": int, "float": float, "str": str}
+
+
+def _check_extra_type(key: str, v: Any, param: inspect.Parameter, where: str) -> None:
+    """An ``extra`` value must have a type the solver's parameter takes (its annotation, or its default's type):
+    ``threads = "many"`` or ``host = 1`` fail here, before a sweep, not in every task. Parameters that take
+    arrays or objects cannot be set from a job spec; a ``Literal[...]`` takes only its values."""
+    ann = param.annotation if isinstance(param.annotation, str) else getattr(param.annotation, "__name__", "")
+    ann = str(ann)
+    import re
+
+    names = {w for w in re.findall(r"\b(bool|int|float|str)\b", ann)}
+    literals = re.findall(r"['\"]([^'\"]+)['\"]", ann) if "Literal" in ann else []
+    if literals:
+        names.add("str")
+    d = param.default
+    if d is not inspect.Parameter.empty and d is not None and type(d).__name__ in _PRIMITIVES:
+        names.add(type(d).__name__)
+    if not names:
+        raise SpecError(f"{key}: {where}'s parameter {param.name} takes {ann or 'an object'}, which a job spec "
+                        "cannot give")
+    ok = (isinstance(v, bool) and "bool" in names) or (
+        isinstance(v, int) and not isinstance(v, bool) and names & {"int", "float"}) or (
+        isinstance(v, float) and "float" in names) or (isinstance(v, str) and "str" in names)
+    if not ok:
+        raise SpecError(f"{key}: expected {' or '.join(sorted(names))} ({where}, parameter {param.name}: {ann}), "
+                        f"got {v!r}")
+    if isinstance(v, float) and not math.isfinite(v):
+        raise SpecError(f"{key}: expected a finite number, got {v!r}")
+    if literals and isinstance(v, str) and v not in literals:
+        raise SpecError(f"{key}: expected one of {', '.join(map(repr, literals))}, got {v!r}")
+
+
 def check_extra(spec: JobSpec) -> None:
     """Check every ``[methods.<m>.extra]`` key against the signature of the solver it is passed to (the
     plug-in's ``extra_target``), so that a typo fails before a sweep instead of failing every task. Raises
@@ -128,13 +161,14 @@ def check_extra(spec: JobSpec) -> None:
         params = inspect.signature(getattr(importlib.import_module(mod), fn)).parameters
         names = [k for k, p in params.items() if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)]
         allowed = [k for k in names if k not in fixed]
-        for k in extra:
+        for k, v in extra.items():
             if k in fixed:
                 raise SpecError(f"methods.{m}.extra.{k}: set by the sweep itself (use the method's own key or the "
                                 "grid), not allowed in extra")
             if k not in names:
                 raise SpecError(f"methods.{m}.extra.{k}: not a parameter of {mod}.{fn}; allowed extra keys: "
                                 f"{', '.join(allowed) or '(none)'}")
+            _check_extra_type(f"methods.{m}.extra.{k}", v, params[k], f"{mod}.{fn}")
 
 
 def _interaction(t: dict) -> dict[str, Any]:
@@ -252,6 +286,8 @@ def loads(text: str, base: str | Path | None = None) -> JobSpec:
         raise SpecError(f"grid: the job has up to {n:,} tasks, more than the cap of {cap:,} (every rank holds "
                         "the task list); split the job, or raise the cap with GAPSWEEP_MAX_TASKS=<n>")
     check_extra(js)
+    for name in js.methods:  # checks that need the whole job (a plug-in's selectors against the grid, say)
+        registry.get(name).check_job(js)
     return js
 
 

@@ -5,11 +5,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from .conftest import HIST_JOB, THEORY_JOB, gs, one_line_error
 
 BASE = THEORY_JOB.read_text()
+_GFMD = '\n[methods.gfmd]\nn = 64\nbackend = "numpy"\n'
 
 
 def _edit(old: str, new: str) -> str:
@@ -47,11 +49,28 @@ SPECS = [
      ["methods", "at least one"]),
     ("wrong-type", _edit("gamma0 = 1e-3", 'gamma0 = "small"'), ["material.gamma0", "number"]),
     ("lambda-s-too-big", _edit("lambda_s = 0.04", "lambda_s = 0.5"), ["surface.lambda_s"]),
+    # round 2 (issue 19 item 9): what `plan` used to accept and `run` then failed on, task by task
+    ("extra-host-set-by-sweep", BASE + _GFMD + "[methods.gfmd.extra]\nhost = false\n",
+     ["methods.gfmd.extra.host", "set by the sweep"]),
+    ("extra-threads-string", BASE + _GFMD + '[methods.gfmd.extra]\nthreads = "many"\n',
+     ["methods.gfmd.extra.threads", "int"]),
+    ("extra-heights-number", BASE + "\n[methods.theory.extra]\nheights = 1\n",
+     ["methods.theory.extra.heights", "cannot give"]),
+    ("extra-tol-bool", BASE + _GFMD + "[methods.gfmd.extra]\nthreads = true\n", ["methods.gfmd.extra.threads"]),
+    ("sde-zeta-end-1e300", BASE + "\n[methods.sde]\nzeta_end = 1e300\n", ["methods.sde.zeta_end", "<= 1e+06"]),
+    ("sde-steps-too-many", BASE + "\n[methods.sde]\nzeta_end = 1e6\ndzeta = 1e-4\n",
+     ["methods.sde.zeta_end", "1e8"]),
+    ("keep-fields-no-match", BASE + _GFMD + "keep_fields = { fields = [\"gap\"], sigma0 = [0.5] }\n",
+     ["methods.gfmd.keep_fields.sigma0", "no field"]),
+    ("pressure-unit-unknown", _edit("gamma0 = 1e-3", 'gamma0 = 1e-3\npressure_unit = "psi"'),
+     ["material.pressure_unit", "MPa"]),
 ]
 
 
 # `run` validates exactly as `plan` does (same loader); it is exercised on these, `plan` on all.
-RUN_TOO = ("grid-1e8-points", "extra-typo-theory", "range-infinite", "not-toml", "n-below-nyquist")
+RUN_TOO = ("grid-1e8-points", "extra-typo-theory", "range-infinite", "not-toml", "n-below-nyquist",
+           "extra-host-set-by-sweep", "extra-threads-string", "extra-heights-number", "sde-zeta-end-1e300",
+           "keep-fields-no-match")
 
 
 SPEC_CASES = [("plan", *c) for c in SPECS] + [("run", *c) for c in SPECS if c[0] in RUN_TOO]
@@ -191,3 +210,44 @@ def test_plan_refuses_what_will_not_fit(tmp_path):
     p = gs("plan", job)
     one_line_error(p, "per rank", "more than this machine")
     assert p.returncode == 1
+
+
+def test_heights_that_overflow_after_unit_conversion(tmp_path):
+    """A map in metres converted to picometres overflows float64: refused at validation (plan and run)."""
+    np.save(tmp_path / "big.npy", np.full((16, 16), 1e300) * np.arange(256).reshape(16, 16))
+    job = tmp_path / "j.toml"
+    job.write_text('[job]\nname = "x"\n[grid]\nsigma0 = [1e-2]\n[surface]\nkind = "file"\npath = "big.npy"\n'
+                   'unit = "m"\nto_unit = "pm"\npixel_size = 1.0\n[interaction]\nkind = "hard_wall"\n'
+                   '[methods.gfmd]\nbackend = "numpy"\n')
+    for cmd in (("plan", job), ("run", job, "--store", tmp_path / "s.h5", "--mpi", "off")):
+        one_line_error(gs(*cmd), "surface.path", "not finite", "to_unit")
+    assert not (tmp_path / "s.h5").exists()
+
+
+def test_keep_fields_select_zero_and_tensile_loads(tmp_path):
+    """Valid input once mishandled (issue 19 item 11): an adhesive job keeps the fields of its tensile loads."""
+    from gapsweep import spec
+
+    text = (Path(__file__).resolve().parents[2] / "jobs" / "adhesion_quick.toml").read_text()
+    tensile = [0.0, -1e-4, -8e-4]  # loads of jobs/adhesion_quick.toml
+    assert "0.0, -1e-4, -2e-4, -4e-4, -8e-4]" in text
+    js = spec.loads(text.replace("[methods.gfmd]\n", f"[methods.gfmd]\nkeep_fields = {{ fields = [\"gap\"], "
+                                 f"sigma0 = {tensile} }}\n"), base=Path(__file__).resolve().parents[2] / "jobs")
+    assert "keep_fields" in js.methods["gfmd"]
+
+
+def test_export_theory_with_surface_h_rms_and_gaussian_amplitudes(tmp_path):
+    """Valid input once mishandled (issue 19 item 11): the paper form with the surface's own h_rms depends on the
+    seed, so the export keeps its seed dimension instead of failing with "values differ between seeds"."""
+    pytest.importorskip("xarray")
+    from gapsweep import runner, store
+
+    job = tmp_path / "t.toml"
+    job.write_text(BASE.replace("rms_slope = 1.0", 'rms_slope = 1.0\namplitudes = "gaussian"').replace(
+        'forms = ["paper", "continuum", "discrete"]\nn = 64', 'forms = ["paper"]\nh_rms = "surface"'))
+    runner.run(job, tmp_path / "t.h5", mpi="off", progress="none")
+    ds = store.to_dataset(tmp_path / "t.h5")
+    assert "seed" in ds["theory_paper"].dims and ds.sizes["seed"] == 2
+    a = ds["theory_paper"].isel(seed=0).values
+    b = ds["theory_paper"].isel(seed=1).values
+    assert not np.allclose(a, b, rtol=1e-9, atol=0.0)

@@ -71,6 +71,10 @@ class Method:
         Grid overrides and ``extra`` are read by the spec validator. Raise ``SpecError`` naming ``key.<k>``."""
         return {}
 
+    def check_job(self, spec: JobSpec) -> None:
+        """Checks of the method's options that need the whole validated job (raise ``SpecError``)."""
+        return None
+
     # -- expansion and scheduling -------------------------------------------------------------------------
     def expand(self, spec: JobSpec) -> Iterator[Task]:
         """The method's tasks of ``spec`` in canonical order."""
@@ -83,6 +87,10 @@ class Method:
     def memory(self, t: Task) -> float:
         """Peak working memory of one task [bytes] (order of magnitude, for ``gapsweep plan``)."""
         return 100e6
+
+    def gpu_memory(self, t: Task) -> float:
+        """GPU memory of one task [bytes] (0: a CPU task)."""
+        return 0.0
 
     def needs_gpu(self, t: Task) -> bool:
         """Whether the task must run on a rank with a GPU."""

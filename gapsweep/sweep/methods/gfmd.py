@@ -23,7 +23,7 @@ from gapsweep.core.fft import BACKENDS as FFT_BACKENDS
 from gapsweep.sweep import fields
 from gapsweep.sweep import readers as rd
 from gapsweep.sweep.context import Context, extra, hist, host, use_gpu
-from gapsweep.sweep.methods.base import LENGTH, Env, Method, grid_tasks, n_list, register
+from gapsweep.sweep.methods.base import LENGTH, Env, Method, axes, grid_tasks, n_list, register
 from gapsweep.sweep.schema import FIELD_NAMES, FLAG_DETACHED, FLAG_JUMP, JobSpec, SpecError, Task, TaskResult
 
 JUMP_FACTOR = 3.0  # a jump: the mean gap moved by more than this times the secant prediction (docs/store.md)
@@ -48,10 +48,11 @@ def _keep_fields_option(key: str, v: Any) -> str:
         raise SpecError(f"{key}.fields: expected a non-empty list from {', '.join(FIELD_NAMES)}")
     out: dict[str, Any] = {"fields": sorted({rd.string(f"{key}.fields[{i}]", f, FIELD_NAMES)
                                              for i, f in enumerate(names)})}
-    for sel in ("hurst", "rho", "sigma0"):
+    for sel in ("hurst", "rho", "sigma0"):  # sigma0 may be 0 or tensile (adhesion); 0 is a placeholder axis
         if sel in t:
             vals = t[sel] if isinstance(t[sel], list) else [t[sel]]
-            out[sel] = [rd.number(f"{key}.{sel}[{i}]", x, gt=0.0) for i, x in enumerate(vals)]
+            out[sel] = [rd.number(f"{key}.{sel}[{i}]", x, **({} if sel == "sigma0" else {"ge": 0.0}))
+                        for i, x in enumerate(vals)]
     for sel in ("seeds", "n"):
         if sel in t:
             vals = t[sel] if isinstance(t[sel], list) else [t[sel]]
@@ -90,7 +91,7 @@ class GFMD(Method):
     select = "n"
     extra_target = ("gapsweep.gfmd", "solve", ("heights", "sigma0", "gamma0", "rho", "e_star", "length", "tol",
                                                "method", "backend", "max_iter", "initial", "interaction", "work",
-                                               "periodic"))
+                                               "periodic", "host"))
 
     def validate(self, key: str, t: dict[str, Any], env: Env) -> dict[str, Any]:
         o: dict[str, Any] = {}
@@ -113,6 +114,23 @@ class GFMD(Method):
             o["keep_fields"] = _keep_fields_option(f"{key}.keep_fields", t["keep_fields"])
         return o
 
+    def check_job(self, spec: JobSpec) -> None:
+        """Every ``keep_fields`` selector value must be one of the job's: a selector that matches no task would
+        silently keep nothing."""
+        o = spec.methods[self.name]
+        if not o.get("keep_fields"):
+            return
+        sel = json.loads(o["keep_fields"])
+        have = {**axes(spec, self.name), "n": o["n"]}
+        for k, vals in sel.items():
+            if k == "fields":
+                continue
+            pool = have[k]
+            for v in vals:
+                if not any(math.isclose(float(v), float(w), rel_tol=1e-9, abs_tol=0.0) for w in pool):
+                    raise SpecError(f"methods.gfmd.keep_fields.{k}: {v!r} is not a value of the job's {k} "
+                                    f"{pool}: it would keep no field")
+
     def expand(self, spec: JobSpec) -> Iterator[Task]:
         o = spec.methods[self.name]
         yield from grid_tasks(spec, self.name, ns=o["n"], with_hist=True, chain=o["warm_start"], sort=True,
@@ -129,6 +147,19 @@ class GFMD(Method):
 
     def needs_gpu(self, t: Task) -> bool:
         return t.opt("backend") == "cupy"
+
+    def gpu_memory(self, t: Task) -> float:
+        """The solver's GPU memory plan (gapsweep.gfmd._cuda.solve_memory; measured to 0.01 % at n >= 4096)."""
+        if not self.needs_gpu(t):
+            return 0.0
+        from gapsweep.gfmd._cuda import solve_memory
+
+        law = "hard_wall" if t.law == "hard_wall" else "exponential"
+        method = t.opt("method") if t.opt("method") != "auto" else "auto"
+        try:
+            return float(solve_memory(max(t.n, 2), interaction=law, method=method)["bytes"])
+        except ValueError:  # a method without a measured plan: the default's, a lower bound
+            return float(solve_memory(max(t.n, 2), interaction=law)["bytes"])
 
     def run(self, t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
         return run_gfmd(t, ctx, prev)

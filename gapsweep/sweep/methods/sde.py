@@ -70,7 +70,11 @@ class SDE(Method):
         o["samples"] = rd.integer(f"{key}.samples", t.get("samples", 100000), ge=1, le=10**10)
         o["dzeta"] = rd.number(f"{key}.dzeta", t.get("dzeta", 0.01), gt=0.0, le=10.0)
         if "zeta_end" in t:
-            o["zeta_end"] = rd.number(f"{key}.zeta_end", t["zeta_end"], ge=1.0)
+            o["zeta_end"] = rd.number(f"{key}.zeta_end", t["zeta_end"], ge=1.0, le=1e6)
+            steps = (o["zeta_end"] - 1.0) / o["dzeta"]
+            if steps > 1e8:
+                raise SpecError(f"{key}.zeta_end: {steps:.3g} steps of dzeta = {o['dzeta']:g}; allowed at most 1e8 "
+                                "(raise dzeta or lower zeta_end)")
         o["dtype"] = rd.string(f"{key}.dtype", t.get("dtype", "float32"), ("float32", "float64"))
         o["device"] = rd.string(f"{key}.device", t.get("device", "cpu"), ("cpu", "cuda"))
         return o
