@@ -122,9 +122,9 @@ def from_frame(df: Any, *, n: int | None = None, c2: float | None = None, attrs:
             a = np.full(shape, np.nan)
             a[tuple(i[done] for i in idx)] = vals[done]
             meta = {"long_name": long_name, **units}
-            # seed-free only where the method ran one seed (h_rms = "surface" with gaussian amplitudes: one
-            # task per seed, values that differ)
-            if col in seed_free and sub["seed"].nunique() <= 1:
+            # seed-free only where the values agree between seeds (h_rms = "surface" with gaussian amplitudes
+            # makes the paper's form seed-dependent: then the seed dimension stays)
+            if col in seed_free and _seed_independent(a):
                 data[name] = (DIMS[:3], _collapse_seed(a, name), {**meta, "comment": "seed-independent: "
                               "no seed dimension, broadcasts over every seed"})
             else:
@@ -144,6 +144,15 @@ def from_frame(df: Any, *, n: int | None = None, c2: float | None = None, attrs:
         ds[k].attrs.update(m)
     ds.attrs.update({"Conventions": "CF-1.10", "title": "gapsweep store", **ds_attrs, **dict(attrs or {})})
     return ds
+
+
+def _seed_independent(a: np.ndarray) -> bool:
+    """Whether the finite values of ``a`` (dims hurst, rho, sigma0, seed) agree between seeds (rtol 1e-12)."""
+    with np.errstate(invalid="ignore"):
+        lo = np.nanmin(np.where(np.isnan(a), np.inf, a), axis=3)
+        hi = np.nanmax(np.where(np.isnan(a), -np.inf, a), axis=3)
+    have = np.isfinite(lo)
+    return not np.any(have & ~np.isclose(lo, hi, rtol=1e-12, atol=0.0))
 
 
 def _collapse_seed(a: np.ndarray, name: str) -> np.ndarray:

@@ -125,6 +125,8 @@ def _check_extra_type(key: str, v: Any, param: inspect.Parameter, where: str) ->
     import re
 
     names = {w for w in re.findall(r"\b(bool|int|float|str)\b", ann)}
+    if "ArrayLike" in ann:  # a number is array-like (a scalar zeta, say)
+        names |= {"int", "float"}
     literals = re.findall(r"['\"]([^'\"]+)['\"]", ann) if "Literal" in ann else []
     if literals:
         names.add("str")

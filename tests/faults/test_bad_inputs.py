@@ -55,7 +55,7 @@ SPECS = [
     ("extra-threads-string", BASE + _GFMD + '[methods.gfmd.extra]\nthreads = "many"\n',
      ["methods.gfmd.extra.threads", "int"]),
     ("extra-heights-number", BASE + "\n[methods.theory.extra]\nheights = 1\n",
-     ["methods.theory.extra.heights", "cannot give"]),
+     ["methods.theory.extra.heights", "set by the sweep"]),
     ("extra-tol-bool", BASE + _GFMD + "[methods.gfmd.extra]\nthreads = true\n", ["methods.gfmd.extra.threads"]),
     ("sde-zeta-end-1e300", BASE + "\n[methods.sde]\nzeta_end = 1e300\n", ["methods.sde.zeta_end", "<= 1e+06"]),
     ("sde-steps-too-many", BASE + "\n[methods.sde]\nzeta_end = 1e6\ndzeta = 1e-4\n",

@@ -48,7 +48,7 @@ class Theory(Method):
     seed_free = ("mean_gap_paper", "mean_gap_continuum", "mean_gap_persson", "contact_area")
     select = "n"
     extra_target = ("gapsweep.theory", "mean_gap", ("sigma0", "form", "hurst", "h_rms", "rho", "gamma0",
-                                                     "lambda_l", "lambda_s", "e_star"))
+                                                     "lambda_l", "lambda_s", "e_star", "heights", "length"))
 
     def validate(self, key: str, t: dict[str, Any], env: Env) -> dict[str, Any]:
         o: dict[str, Any] = {}
