@@ -44,6 +44,7 @@ from scipy.special import ndtr
 
 from gapsweep import theory
 from gapsweep.core import checks as chk
+from gapsweep.core import deadline
 from gapsweep.gapdist.sde import _check_common, _interval_integrals
 
 __all__ = ["FPResult", "solve"]
@@ -343,6 +344,7 @@ def solve(sigma0: float, *, hurst: float, h_rms: float, rho: float, gamma0: floa
     # the steps while the estimate exceeds tol (backward Euler is first order: error(fine) ~ fine - coarse).
     k_steps = n_steps
     while True:
+        deadline.check()  # a task time limit ends the solve between refinements
         zt = nodes(k_steps)
         g0t, (snaps, mass_err, edge_mass) = run(zt)
         err = 0.0

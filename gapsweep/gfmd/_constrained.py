@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from gapsweep.core import deadline
 from gapsweep.gfmd._constrained_ops import make_ops
 from gapsweep.gfmd._grid import FreeGrid, Grid
 from gapsweep.gfmd._ops import _is_cupy
@@ -139,6 +140,7 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
     with np.errstate(all="ignore"):
         u = compliance(p)
         while True:
+            deadline.check()  # a task time limit ends the solve between iterations
             n_s, s_us = ops.contact_sum(u, h, p)
             ns = max(n_s, 1)
             sg2, gmin_free = ops.gap(u, h, s_us / ns, p, g, gs)

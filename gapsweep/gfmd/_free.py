@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from gapsweep.core import deadline
 from gapsweep.gfmd._grid import FreeGrid, Grid
 from gapsweep.gfmd._ops import _is_cupy
 from gapsweep.gfmd._result import GFMDResult, host_fields
@@ -159,6 +160,7 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
 
     with np.errstate(all="ignore"):
         while True:
+            deadline.check()  # a task time limit ends the solve between iterations
             grad = (st.Gu, st.Gd)
             # G_u = ratio FFT[f - p 1_map]/N_pad: sqrt(dot/ratio) is the imbalance's rms normalised to the map
             res = max(math.sqrt(max(pad.dot(st.Gu, st.Gu), 0.0) / ratio), abs(st.Gd)) / p_ref

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from gapsweep.core import deadline
 from gapsweep.gfmd._grid import Grid
 from gapsweep.gfmd._ops import _is_cupy
 from gapsweep.gfmd._result import GFMDResult, host_fields
@@ -150,6 +151,7 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
     status = "max_iter"
     with np.errstate(all="ignore"):
         while True:
+            deadline.check()  # a task time limit ends the solve between iterations
             g00 = complex(st.G[0, 0])
             rr = max(grid.dot(st.G, st.G) - abs(g00) ** 2, 0.0)
             res = max(math.sqrt(rr), abs(g00.real)) / p_ref

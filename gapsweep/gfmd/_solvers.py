@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from gapsweep.core import deadline
 from gapsweep.fft import FFTBackend
 from gapsweep.gfmd._ops import _Ops
 
@@ -152,6 +153,7 @@ class _Problem:
 
 
 def _check(pb: _Problem, tol: float, max_iter: int, history: list[float]) -> str | None:
+    deadline.check()  # a task time limit ends the solve here, between iterations (gapsweep.core.deadline)
     r = pb.residual()
     history.append(r)
     if not math.isfinite(r):

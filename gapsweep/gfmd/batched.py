@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from gapsweep import _checks as chk
+from gapsweep.core import deadline
 from gapsweep.fft import BACKENDS, available_backends, get_backend
 from gapsweep.gfmd._ops import _is_cupy
 from gapsweep.gfmd._result import FIELDS, GFMDResult, host_fields
@@ -442,6 +443,7 @@ def _softmax_batch(heights: list, laws: list, sigma0s: list[float], starts: list
             a[sel] for a in (m, S, r2, rho, s0, restart, zg_old, nfev, alive))
 
     while ids and alive.any():
+        deadline.check()  # a task time limit ends the batch between iterations
         # _check of _run_cg, per problem
         done = []
         for j, i in enumerate(ids):

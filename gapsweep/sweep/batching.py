@@ -36,6 +36,7 @@ import warnings
 from collections.abc import Iterator
 from typing import Any
 
+from gapsweep.core.deadline import DeadlineExceeded
 from gapsweep.sweep import methods as registry
 from gapsweep.sweep.context import Context, use_gpu
 from gapsweep.sweep.execute import run_task
@@ -163,7 +164,9 @@ def _solve_step(tasks: list[Task], probs: list, who: list[tuple[int, int]], ctx:
     sp = t0.surface_params()
     start = time.perf_counter()
     if ctx._delay:
-        time.sleep(ctx._delay * len(probs))
+        from gapsweep.sweep.execute import test_delay
+
+        test_delay(ctx._delay * len(probs))
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
@@ -172,12 +175,12 @@ def _solve_step(tasks: list[Task], probs: list, who: list[tuple[int, int]], ctx:
             if any(gfmd_host_fields(tasks[i], ctx) is True for _, i in who):
                 kw["host"] = True
             if limit:
-                with limits.deadline(limit):
+                with limits.task_limit(limit):
                     results = gfmd.solve_batch(probs, **kw)
             else:
                 results = gfmd.solve_batch(probs, **kw)
-    except limits.TaskTimeout:
-        msg = f"timeout: task exceeded its time limit of {limit:g} s"
+    except (limits.TaskTimeout, DeadlineExceeded):
+        msg = limits.timeout_message(limit)
         out = {}
         for j, i in who:
             out[i] = TaskResult("failed", msg, {"wall_time": limit, "rank": ctx.rank})

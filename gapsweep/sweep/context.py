@@ -34,6 +34,7 @@ class Context:
         self._spectra: dict[tuple, Any] = {}  # discrete spectra of the cached surfaces (theory, M4)
         self._on_gpu: dict[tuple, Any] = {}  # GPU copies of the cached surfaces (GFMD with backend = "cupy")
         self._max = max_surfaces
+        self.warmed: set[tuple] = set()  # kinds of task whose method was warmed up (runner.warm_up)
         self._delay = float(os.environ.get("GAPSWEEP_TEST_DELAY", "0") or 0)
         fail = os.environ.get("GAPSWEEP_TEST_FAIL", "")
         self._fail = {float(x) for x in fail.split(",") if x.strip()}

@@ -12,6 +12,7 @@ import time
 import warnings
 from typing import Any
 
+from gapsweep.core import deadline
 from gapsweep.sweep import methods as registry
 from gapsweep.sweep.context import Context
 from gapsweep.sweep.methods.base import non_finite
@@ -20,13 +21,22 @@ from gapsweep.sweep.schema import StoreWriteError, Task, TaskResult
 __all__ = ["run_task"]
 
 
+def test_delay(seconds: float) -> None:
+    """The test hook GAPSWEEP_TEST_DELAY: a task that takes ``seconds``, as a solver would (it keeps the time
+    limit between its "iterations", gapsweep.core.deadline)."""
+    end = time.monotonic() + seconds
+    while (left := end - time.monotonic()) > 0:
+        deadline.check()
+        time.sleep(min(0.02, left))
+
+
 def run_task(t: Task, ctx: Context, prev: Any = None) -> tuple[TaskResult, Any]:
     """Run one task; never raises: an exception becomes status ``failed`` with the message.
     Returns the result and the warm-start state for the next task of a chain (or None)."""
     t0 = time.perf_counter()
     try:
         if ctx._delay:
-            time.sleep(ctx._delay)
+            test_delay(ctx._delay)
         if t.sigma0 in ctx._fail:
             raise RuntimeError(f"injected failure (GAPSWEEP_TEST_FAIL) at sigma0={t.sigma0!r}")
         with warnings.catch_warnings(record=True) as caught:

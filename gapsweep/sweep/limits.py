@@ -22,6 +22,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from gapsweep.sweep.schema import TIMEOUT_PREFIX
+
 __all__ = ["Interrupted", "Stop", "TaskTimeout", "deadline"]
 
 SIGNAL_NAMES = {signal.SIGINT: "SIGINT", signal.SIGTERM: "SIGTERM"}
@@ -90,6 +92,35 @@ class Stop:
             self._critical -= 1
         if self.mode == "raise" and not self._critical and self.signum is not None:
             raise Interrupted(self.signum)
+
+
+# A task's time limit is kept cooperatively (gapsweep.core.deadline: the solvers' loops stop between
+# iterations); the asynchronous TaskTimeout below is only a late fallback for code without such a loop (one long
+# kernel), at HARD_FACTOR times the limit plus HARD_GRACE seconds.
+HARD_FACTOR = 2.0
+HARD_GRACE = 5.0
+
+
+@contextlib.contextmanager
+def task_limit(seconds: float | None) -> Iterator[None]:
+    """The time limit of one task: cooperative at ``seconds`` (gapsweep.core.deadline), asynchronous
+    (:func:`deadline`) only at ``HARD_FACTOR * seconds + HARD_GRACE``."""
+    from gapsweep.core import deadline as coop
+
+    if not seconds:
+        yield
+        return
+    with coop.limit(seconds), deadline(HARD_FACTOR * seconds + HARD_GRACE):
+        yield
+
+
+def timeout_message(seconds: float) -> str:
+    """The message of a timed-out row; ``--resume`` runs rows with this prefix again."""
+    return f"{TIMEOUT_PREFIX} task exceeded its time limit of {seconds:g} s (run again by --resume)"
+
+
+def is_timeout(message: str) -> bool:
+    return message.startswith(TIMEOUT_PREFIX) or message.startswith(("TaskTimeout", "DeadlineExceeded"))
 
 
 @contextlib.contextmanager

@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from gapsweep.sweep import batching, budget, gpus, lease, limits, provenance, storecheck
+from gapsweep.sweep import methods as registry
 from gapsweep.sweep import spec as specmod
 from gapsweep.sweep.context import Context
 from gapsweep.sweep.execute import run_task
@@ -317,15 +318,32 @@ def _run_unit(tasks: list[Task], unit: Unit, ctx: Context, todo: set[int], limit
 
 
 def _run_limited(t: Task, ctx: Context, state: Any, limit: float) -> tuple[TaskResult, Any]:
-    msg = f"timeout: task exceeded its time limit of {limit:g} s"
+    """Run a task under ``--task-timeout``: its method is warmed up first, outside the limit (imports, JIT
+    compilation, kernel builds: a cold cache must not time out, and nothing asynchronous may interrupt a
+    compiler), then the limit is kept between the solver's iterations (limits.task_limit). A timed-out task is a
+    failed row whose message says so; ``--resume`` runs it again."""
+    warm_up(t, ctx)
+    msg = limits.timeout_message(limit)
     try:
-        with limits.deadline(limit):
+        with limits.task_limit(limit):
             res, state = run_task(t, ctx, state)
-    except TaskTimeout:  # delivered just after the task returned
+    except TaskTimeout:  # the late asynchronous fallback, delivered just after the task returned
         res, state = TaskResult("failed", msg, {"wall_time": limit, "rank": ctx.rank}), None
-    if res.status == "failed" and res.message.startswith("TaskTimeout"):
+    if res.status == "failed" and limits.is_timeout(res.message):
         res.message, state = msg, None
     return res, state
+
+
+def warm_up(t: Task, ctx: Context) -> None:
+    """The method's warm-up for this kind of task, once per process (registry: ``Method.warm_up``)."""
+    key = registry.get(t.method).warm_up_key(t)
+    if key is None or key in ctx.warmed:
+        return
+    ctx.warmed.add(key)
+    try:
+        registry.get(t.method).warm_up(t, ctx)
+    except Exception as e:  # the task itself will meet (and record) the same problem
+        log.debug("warm-up of %s failed: %s: %s", t.method, type(e).__name__, e)
 
 
 def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = False, overwrite: bool = False,

@@ -119,6 +119,9 @@ FLAG_JUMP = 1
 FLAG_DETACHED = 2
 # Columns filled by the sweep itself for every row (not by a method).
 COMMON_RESULTS = ("wall_time", "rank")
+# The message prefix of a row that ran out of its time limit (--task-timeout): such failed rows are run again by
+# --resume (a slow node or a cold cache may have caused them).
+TIMEOUT_PREFIX = "timeout:"
 # The kept fields of a GFMD task (docs/jobs.md "keep_fields", gapsweep.sweep.fields).
 FIELD_NAMES = ("gap", "pressure", "displacement", "height")
 

@@ -11,6 +11,7 @@ Two kinds of problems:
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -25,9 +26,12 @@ from gapsweep.sweep.schema import (
     RESULT_DTYPES,
     STATUS,
     TASK_DTYPE,
+    TIMEOUT_PREFIX,
     StoreError,
     row_checksum,
 )
+
+log = logging.getLogger("gapsweep.sweep.storecheck")
 
 __all__ = ["Report", "check", "incomplete_rows"]
 
@@ -165,4 +169,10 @@ def incomplete_rows(f: Any, path: str | Path) -> list[int]:
     if not rep.n_tasks:
         return []
     status = f["results"].fields("status")[...]
-    return sorted(set(np.flatnonzero(status == STATUS["pending"]).tolist()) | set(rep.rerun))
+    msg = f["results"].fields("message")[...]
+    # a row that timed out (--task-timeout) is run again: the limit may have been a slow node's or a cold cache's
+    timed_out = [i for i in np.flatnonzero(status == STATUS["failed"]).tolist()
+                 if msg[i].startswith(TIMEOUT_PREFIX.encode())]
+    if timed_out:
+        log.info("store %s: %d timed-out row(s) are run again", path, len(timed_out))
+    return sorted(set(np.flatnonzero(status == STATUS["pending"]).tolist()) | set(rep.rerun) | set(timed_out))

@@ -100,6 +100,15 @@ class Method:
         """Key of independent tasks that share an expensive input (a surface) and run together, or ""."""
         return ""
 
+    def warm_up_key(self, t: Task) -> tuple | None:
+        """Tasks with the same key share one warm-up (None: this method needs none)."""
+        return None
+
+    def warm_up(self, t: Task, ctx: Any) -> None:
+        """Import, compile and build what a task of this kind needs, on a tiny problem, before a time limit
+        starts (``--task-timeout``)."""
+        return None
+
     def provenance(self, options: dict[str, Any]) -> dict[str, Any]:
         """Run-record entries about how this method runs here (for example the SDE's engine)."""
         return {}

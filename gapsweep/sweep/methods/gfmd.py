@@ -164,6 +164,26 @@ class GFMD(Method):
     def run(self, t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
         return run_gfmd(t, ctx, prev)
 
+    def warm_up_key(self, t: Task) -> tuple | None:
+        return (t.law, t.opt("backend"), t.opt("method"), t.opt("surface.periodic") is False)
+
+    def warm_up(self, t: Task, ctx: Context) -> None:
+        """One solve of a 32 x 32 surface with the task's law, backend, minimiser and boundaries: numba's kernels
+        compile (or load from their cache), FFT plans and GPU kernels are built."""
+        from gapsweep import gfmd
+
+        use_gpu(t, ctx)
+        h = np.random.default_rng(0).standard_normal((32, 32)) * 1e-2
+        if t.opt("backend") == "cupy":
+            import cupy
+
+            h = cupy.asarray(h)
+        kw = law_params(t)
+        if t.law != "hard_wall":
+            kw["rho"] = 1e-2
+        gfmd.solve(h, sigma0=abs(t.sigma0) or 1e-2, **kw, tol=1e-4, method=t.opt("method"),
+                   backend=t.opt("backend"), max_iter=200, host=False, **boundaries(t))
+
 
 def _keep_fields(t: Task, ctx: Context, res: Any, h: np.ndarray, gap: np.ndarray, length: float) -> None:
     """Write the fields this task keeps (``[methods.gfmd] keep_fields``) beside the store (gapsweep.sweep.fields)."""
