@@ -176,6 +176,7 @@ class HybridResult:
     cost_fraction: float
     status: str
     levels: list[tuple[int, float, float]] = field(default_factory=list)
+    shift_error: float = 0.0
 
     def __iter__(self):
         return iter((self.mean_gap, self.result))
@@ -343,7 +344,7 @@ def hybrid(
             n_c *= 2
         full = max(res.iterations, 1) * n * n
         return HybridResult(g0, res, k_c * lambda_l / length, k_c, n_c, delta, est, cost, cost / full, status,
-                            levels)
+                            levels, err)
 
     zeta_c = chk.positive(zeta_c, "zeta_c")
     k_c = int(math.floor(zeta_c * length / lambda_l + 1e-9))
