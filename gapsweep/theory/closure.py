@@ -142,12 +142,12 @@ def multiscale_gap_samples(
     lambda_s: float | None = None,
     e_star: float = 1.0,
     length: float = 1.0,
-    samples: int = 2**18,
+    samples: int = 2**17,
     seed: int = 0,
     rtol: float = 0.05,
     max_cost_fraction: float = 0.1,
     tol: float = 1e-8,
-    dlnq: float = 0.02,
+    dlnq: float = 0.04,
     center: str = "pixel",
 ) -> MultiscaleGaps:
     """Gap samples [length] of the multiscale route (docs/theory.md, "Multiscale gap distribution").
@@ -198,7 +198,7 @@ def multiscale_gap_samples(
     if hyb.status not in ("converged", "rtol_not_met"):
         raise RuntimeError(f"multiscale gap distribution: the coarse GFMD solve failed (status {hyb.status!r})")
     g_pix = np.asarray(res.gap, float).ravel() - hyb.shift
-    q, pw = _shell_groups(*improved._fine_shells(h, hyb.k_c, length), dlnq)
+    q, pw = _shell_groups(*improved._Shells(h, length).fine(hyb.k_c), dlnq)
     reps = max(1, math.ceil(samples / g_pix.size))
     g = np.repeat(g_pix, reps)
     rng = np.random.default_rng(seed)

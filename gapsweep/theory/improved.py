@@ -135,6 +135,60 @@ def _shift_of_pressure(p: np.ndarray, q: np.ndarray, pw: np.ndarray, rho: float,
     return ((ez / (1.0 + ez)) ** 2) @ pw / (2.0 * rho)
 
 
+class _Shells:
+    """Every shell ``|k|^2 = const`` of one surface, computed once per call (one FFT and one sort of the grid)."""
+
+    def __init__(self, h: np.ndarray, length: float) -> None:
+        n = h.shape[0]
+        self.ht = np.fft.fft2(h - h.mean()) / h.size
+        k = np.fft.fftfreq(n, d=1.0 / n).astype(np.int64)
+        k2 = (k[:, None] ** 2 + k[None, :] ** 2).ravel()
+        # shells by integer |k|^2: a bincount (O(n^2)), not a sort
+        cnt = np.bincount(k2)
+        uk2 = np.flatnonzero(cnt)
+        self.k2 = uk2
+        self.pw = np.bincount(k2, weights=(np.abs(self.ht) ** 2).ravel())[uk2]
+        self.q = (2.0 * math.pi / length) * np.sqrt(uk2.astype(float))
+
+    def fine(self, k_c: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(|q|, summed |h~|^2)`` of the shells ``|k| > k_c``."""
+        m = self.k2 > k_c * k_c
+        return self.q[m], self.pw[m]
+
+    def coarse(self, k_c: int, n_c: int) -> np.ndarray:
+        """The modes ``|k| <= k_c`` on an ``n_c x n_c`` grid (``n_c`` up to the input grid; as coarse_surface)."""
+        n = self.ht.shape[0]
+        kc_ = np.fft.fftfreq(n_c, d=1.0 / n_c).astype(int)
+        out = self.ht[np.ix_(kc_ % n, kc_ % n)].copy()
+        out[np.hypot(kc_[:, None], kc_[None, :]) > k_c] = 0.0
+        return np.fft.ifft2(out).real * (n_c * n_c)
+
+
+def _grouped(q: np.ndarray, pw: np.ndarray, dlnq: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
+    """Shells merged in groups of width ``dlnq`` in ``ln q`` (power-weighted ``q``): for the smooth ``Delta(p)``
+    table only, where the merge changes ``(eta zeta/(1 + eta zeta))^2`` by O(dlnq^2)."""
+    if q.size == 0:
+        return q, pw
+    idx = np.floor((np.log(q) - math.log(q[0])) / dlnq).astype(np.int64)
+    w = np.bincount(idx, weights=pw)
+    wq = np.bincount(idx, weights=pw * q)
+    keep = w > 0
+    return wq[keep] / w[keep], w[keep]
+
+
+def _shift_error(p: np.ndarray, s: float, q: np.ndarray, pw: np.ndarray, rho: float, e_star: float) -> float:
+    if q.size == 0:
+        return 0.0
+    p = np.maximum(np.asarray(p, float).ravel(), 1e-300)
+    lp = np.log(p)
+    qg, pg = _grouped(q, pw)
+    # Delta is smooth in ln p: tabulate on 64 points and interpolate (the fine shells are many)
+    grid = np.linspace(lp.min(), lp.max() + 1e-12, 64)
+    d = np.interp(lp, grid, _shift_of_pressure(np.exp(grid), qg, pg, rho, e_star))
+    d0 = float(_shift_of_pressure(np.array([s]), q, pw, rho, e_star)[0])
+    return d0 - float(np.mean(p * d)) / s
+
+
 def coarse_surface(heights: ArrayLike, k_c: int, n_c: int) -> np.ndarray:
     """The modes ``|k| <= k_c`` of ``heights`` on an ``n_c x n_c`` grid (``n_c > 2 k_c``), same ``h~(q)`` (M2)."""
     h = chk.square_heights(heights)
@@ -200,17 +254,6 @@ def _lowpass(h: np.ndarray, k_c: int) -> np.ndarray:
     return np.fft.ifft2(ht).real
 
 
-def _coarse_heights(h: np.ndarray, k_c: int, n_c: int) -> np.ndarray:
-    """The resolved part of ``h`` (modes ``|k| <= k_c``) on the coarse grid; on the input grid when ``n_c`` reaches it.
-
-    Each mode is either resolved here or counted in ``unresolved_shift`` (``|k| > k_c``), never both: on the full
-    grid too the modes beyond ``k_c`` are removed (the earlier code kept them there and counted them twice).
-    """
-    if n_c < h.shape[0]:
-        return coarse_surface(h, k_c, n_c)
-    return _lowpass(h, k_c)
-
-
 def shift_error(pressure: ArrayLike, sigma0: float, heights: ArrayLike, *, k_c: int, rho: float,
                 length: float = 1.0, e_star: float = 1.0) -> float:
     """Error estimate [length] of the mean-pressure hybrid: ``Delta(sigma0) - <(p_c/sigma0) Delta(p_c)>``.
@@ -224,16 +267,9 @@ def shift_error(pressure: ArrayLike, sigma0: float, heights: ArrayLike, *, k_c: 
     """
     h = chk.square_heights(heights)
     s = chk.positive(sigma0, "sigma0")
-    p = np.maximum(np.asarray(pressure, float).ravel(), 1e-300)
+    rho = chk.positive(rho, "rho")
     q, pw = _fine_shells(h, k_c, length)
-    if q.size == 0:
-        return 0.0
-    lp = np.log(p)
-    # Delta is smooth in ln p: tabulate on 64 points and interpolate (the fine shells are many)
-    grid = np.linspace(lp.min(), lp.max() + 1e-12, 64)
-    d = np.interp(lp, grid, _shift_of_pressure(np.exp(grid), q, pw, rho, e_star))
-    d0 = float(_shift_of_pressure(np.array([s]), q, pw, rho, e_star)[0])
-    return d0 - float(np.mean(p * d)) / s
+    return _shift_error(np.asarray(pressure, float), s, q, pw, rho, e_star)
 
 
 def hybrid(
@@ -298,11 +334,14 @@ def hybrid(
     h_rms = float(np.sqrt(np.mean((h - h.mean()) ** 2)))
     kw = dict(rho=rho, e_star=e_star, length=length, tol=tol)
 
+    shells = _Shells(h, length)  # one FFT and one sort for every grid of the ladder
+
     def level(k_c: int, n_c: int, start) -> tuple[float, object, float, float]:
-        hc = _coarse_heights(h, k_c, n_c)
-        delta = unresolved_shift(s, h, k_c=k_c, rho=rho, length=length, e_star=e_star)
+        hc = shells.coarse(k_c, n_c)  # on the input grid too the modes beyond k_c are removed (no double count)
+        q, pw = shells.fine(k_c)
+        delta = float(_shift_of_pressure(np.array([s]), q, pw, rho, e_star)[0]) if q.size else 0.0
         res = gfmd.solve(hc, sigma0=s, gamma0=gamma0 * math.exp(delta / rho), initial=start, **kw)
-        err = shift_error(res.pressure, s, h, k_c=k_c, rho=rho, length=length, e_star=e_star) if delta > 0 else 0.0
+        err = _shift_error(res.pressure, s, q, pw, rho, e_star) if delta > 0 else 0.0
         log.debug("hybrid k_c=%d n_c=%d delta=%g est=%g status=%s it=%d", k_c, hc.shape[0], delta, err, res.status,
                   res.iterations)
         return float(res.mean_gap), res, delta, err
@@ -356,8 +395,8 @@ def hybrid(
     cost = res.iterations * n_c * n_c
     if local and delta > 0.0:
         iterations = chk.count(iterations, "iterations")
-        hc = _coarse_heights(h, k_c, n_c)
-        q, pw = _fine_shells(h, k_c, length)
+        hc = shells.coarse(k_c, n_c)
+        q, pw = _grouped(*shells.fine(k_c))
         for _ in range(iterations):
             lp = np.log(np.maximum(np.asarray(res.pressure, float), 1e-300))
             # Delta is smooth in ln p: tabulate on 64 points and interpolate (the fine shells are many)
