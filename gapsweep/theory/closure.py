@@ -169,7 +169,7 @@ def multiscale_gap_samples(
        ``shift_error/2`` (the overall mean is then the hybrid's mean gap); "mean" shifts all samples by one
        constant onto the hybrid's mean gap; "none" keeps them (each pixel's pressure then stays exactly
        ``p_c``). "pixel" had the smallest worst-case L1 of the three on the tuning set of
-       docs/results/gap_distribution_heldout.md (0.12 against 0.15 and 0.28), and is reported on its held-out set.
+       docs/results/predictors_tuning.md (0.10 against 0.16 and 0.28), and is reported on its held-out set.
 
     ``lambda_s``: if given, modes finer than it are removed from ``heights`` first. ``samples``: about that many
     (each pixel gets ``ceil(samples / n_c^2)``). Reproducible from ``seed``.
@@ -244,7 +244,7 @@ def gap_distribution(
     ``rtol``, ``max_cost_fraction``, ``tol``, ``dlnq``, ``center``) on ``edges`` (default: ``bins`` equal
     bins over the samples' range). Normalised over all samples, so mass outside given ``edges`` is missing
     from the density.
-    Measured against GFMD in docs/results/gap_distribution_heldout.md.
+    Measured against GFMD in docs/results/predictors_heldout.md.
     """
     ms = multiscale_gap_samples(sigma0, heights, rho=rho, gamma0=gamma0, lambda_l=lambda_l, lambda_s=lambda_s,
                                 e_star=e_star, length=length, **options)

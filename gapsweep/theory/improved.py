@@ -301,15 +301,18 @@ def hybrid(
 
     ``zeta_c="auto"``: coarse grids ``n_c = 16, 32, 64, ...`` (starting at the first with ``zeta_c >= 4``), each
     resolving ``k_c = n_c/2 - 1`` (every mode the grid carries below Nyquist), warm-started one from the other.
-    On each, ``e = shift_error`` brackets the answer: the load-weighted shift of the fine modes lies between
-    the constant one (rigid weights overestimate nothing: ``e >= 0`` is the most it can be off) and ``g_c - e``,
+    On each, ``e = shift_error`` brackets the answer: the constant shift ``Delta(sigma0)`` errs high (the pixels
+    that carry the load see a higher pressure, hence a smaller shift), the load-weighted one errs low (its rigid
+    weights ``p_c/sigma0`` ignore that the elastic body relaxes part of any height change), so ``g0`` lies in
+    ``[g_c - e, g_c]`` (as seen on the tuning set);
     so the result is the middle, ``g0 = g_c - e/2``, with the estimate ``max(e/2, |g0 - g0(previous grid)|)``
     (the second term catches the coarse grid's own error). The ladder stops at the first grid (second at least)
     where ``safety * estimate <= rtol max(|g0|, h_rms)`` (``h_rms`` the surface's own), or before the grid
     exceeds ``max_cost_fraction`` of full GFMD's cost on the input grid (``n_c <= n sqrt(max_cost_fraction/1.6)``:
     the ladder costs about 4/3 of its last grid, and coarse solves may take 1.2x the force evaluations of the
     full one): then status "rtol_not_met". ``safety = 1.5`` was chosen on the tuning set of
-    docs/results/predictors_heldout.md and is reported on its held-out set. ``rtol`` in (0, 1).
+    docs/results/predictors_tuning.md and is reported on the held-out set (predictors_heldout.md). ``rtol``
+    in (0, 1).
 
     ``local=True`` evaluates ``Delta`` at the local coarse pressure instead, ``Delta(r) = Delta(p_c(r))``, by a
     fixed point (``iterations`` more coarse solves, each warm-started): the effective law
