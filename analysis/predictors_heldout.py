@@ -118,8 +118,8 @@ def evaluate(cases: list[tuple], pressures: tuple[float, ...], dist_idx: tuple[i
                 if ref.status != "converged":
                     raise SystemExit(f"GFMD did not converge ({ref.status}) at H={hurst} rho/h={rr} p={ps}")
                 conv = math.nan
-                if ip in (0, 2):
-                    n2 = 2 * n if n <= 512 else n // 2
+                n2 = 2 * n if n <= 512 else n // 2
+                if ip in (0, 2) and n2 > 2 * zeta_s / lam_l:  # the check grid must carry q_s (M2)
                     h2 = surface.self_affine(n2, hurst, lambda_l=lam_l, lambda_s=lam_s, rms_slope=slope, seed=seed)
                     ref2 = gfmd.solve(h2, sigma0=s0, tol=1e-8, **kw)
                     conv = (ref.mean_gap - ref2.mean_gap) / max(abs(ref2.mean_gap), h_rms)
