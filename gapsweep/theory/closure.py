@@ -14,7 +14,13 @@ magnification, ``(gamma0/rho) <exp(-g/rho)> = sigma0``, i.e. ``d<exp(-g/rho)>/dz
 a)>/rho = 0`` for every distribution, which holds if and only if (for all ``P``) ``a(g, zeta) = D2(g, zeta)/rho``
 [length per unit zeta]. With ``p(g)`` replaced by ``sigma0`` this is the paper's C2 = 0 process (``D2 = rho D1``).
 The repulsion is in the response: small gaps (high local pressure) are stiff and receive little of the finer
-roughness. No parameter beyond the model's: ``C1 = H h_rms^2`` as in M5.
+roughness. No parameter beyond the model's: ``C1 = H h_rms^2 / (1 - zeta_s^(-2H))``, the continuum prefactor of
+M4 for a spectrum cut at ``zeta_s``, so that the shells add up to exactly ``h_rms^2`` (the paper's ``H h_rms^2``
+leaves the gap variance short by the factor ``1 - zeta_s^(-2H)``: 25 % at H = 0.2, zeta_s = 32; issue 21).
+
+``gap_distribution`` is the multiscale route (docs/theory.md, "Multiscale gap distribution"): GFMD on the coarse
+modes (the grid ``improved.hybrid(zeta_c="auto")`` chooses), then, under every coarse pixel, the same local-
+response process over the surface's own finer shells, started at the pixel's gap and pressure.
 
 Solved by Euler-Maruyama in ``ln zeta`` (numpy; ``n`` realisations, geometric steps ``1 + dzeta``).
 """
@@ -22,14 +28,19 @@ Solved by Euler-Maruyama in ``ln zeta`` (numpy; ``n`` realisations, geometric st
 from __future__ import annotations
 
 import itertools
+import logging
 import math
+from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.special import expit
 
 from gapsweep import _checks as chk
 
-__all__ = ["local_response_samples"]
+__all__ = ["MultiscaleGaps", "gap_distribution", "local_response_samples", "multiscale_gap_samples"]
+
+log = logging.getLogger("gapsweep.theory.closure")
 
 
 def local_response_samples(
@@ -49,7 +60,8 @@ def local_response_samples(
 ) -> np.ndarray:
     """Gap samples [length] at ``zeta_s = lambda_l/lambda_s`` of the local-response closure (module docstring).
 
-    Starts at the flat gap ``rho ln(gamma0/(rho sigma0))`` at ``zeta = 1``; ``C1 = H h_rms^2``. Steps are
+    Starts at the flat gap ``rho ln(gamma0/(rho sigma0))`` at ``zeta = 1``; ``C1 = H h_rms^2/(1 - zeta_s^(-2H))``
+    (module docstring; with it the rigid limit has the gap variance ``h_rms^2``). Steps are
     geometric, ``zeta_{k+1} = zeta_k (1 + dzeta)``; within a step ``D2`` is taken at the step's midpoint in ``zeta``
     and at the current gap (Ito). Reproducible from ``seed``. ``local=False`` takes ``p(g) = sigma0`` (the
     paper's C2 = 0 process, Gaussian, mean = the paper-form field theory): the baseline.
@@ -69,7 +81,7 @@ def local_response_samples(
     zeta_s = lambda_l / lambda_s
     steps = max(1, math.ceil(math.log(zeta_s) / math.log1p(dzeta)))
     edges = np.exp(np.linspace(0.0, math.log(zeta_s), steps + 1))
-    c1 = hurst * h_rms**2
+    c1 = hurst * h_rms**2 / -math.expm1(-2.0 * hurst * math.log(zeta_s))  # continuum prefactor (M4)
     # ln eta(g) = ln(rho q_l E*/2) - ln p(g) = ln(rho q_l E*/2) - ln(gamma0/rho) + g/rho
     base = math.log(rho * (2.0 * math.pi / lambda_l) * e_star / 2.0) - math.log(gamma0 / rho)
     rng = np.random.default_rng(seed)
@@ -85,3 +97,170 @@ def local_response_samples(
     if not np.all(np.isfinite(g)):
         raise FloatingPointError("local-response closure produced non-finite gaps")
     return g
+
+
+@dataclass
+class MultiscaleGaps:
+    """Gap samples of :func:`multiscale_gap_samples` and how they were obtained.
+
+    ``samples`` [length]; ``n_c``, ``k_c``: the coarse GFMD grid and the largest integer wave number it resolves;
+    ``shells``: groups of finer shells the process ran over; ``cost``: force evaluations x grid points of the
+    coarse solves; ``cost_fraction``: over one full GFMD run on the input grid (estimated, ``improved.hybrid``);
+    ``status``: the hybrid's ("converged", "rtol_not_met", or the coarse solve's failure); ``mean_gap``: the
+    hybrid's mean gap (its error estimate in ``mean_gap_error``).
+    """
+
+    samples: np.ndarray
+    n_c: int
+    k_c: int
+    shells: int
+    cost: float
+    cost_fraction: float
+    status: str
+    mean_gap: float
+    mean_gap_error: float
+
+
+def _shell_groups(q: np.ndarray, pw: np.ndarray, dlnq: float) -> tuple[np.ndarray, np.ndarray]:
+    """Shells merged into groups of width ``dlnq`` in ``ln q``: (power-weighted mean ``q``, summed power)."""
+    if q.size == 0:
+        return q, pw
+    idx = np.floor((np.log(q) - math.log(q[0])) / dlnq).astype(np.int64)
+    w = np.bincount(idx, weights=pw)
+    wq = np.bincount(idx, weights=pw * q)
+    keep = w > 0
+    return wq[keep] / w[keep], w[keep]
+
+
+def multiscale_gap_samples(
+    sigma0: float,
+    heights: ArrayLike,
+    *,
+    rho: float,
+    gamma0: float,
+    lambda_l: float,
+    lambda_s: float | None = None,
+    e_star: float = 1.0,
+    length: float = 1.0,
+    samples: int = 2**17,
+    seed: int = 0,
+    rtol: float = 0.05,
+    max_cost_fraction: float = 0.1,
+    tol: float = 1e-8,
+    dlnq: float = 0.04,
+    center: str = "pixel",
+    finest: bool = True,
+) -> MultiscaleGaps:
+    """Gap samples [length] of the multiscale route (docs/theory.md, "Multiscale gap distribution").
+
+    1. ``improved.hybrid(zeta_c="auto", finest=finest)`` solves GFMD on the modes ``|k| <= k_c`` with the finer
+       modes as the renormalised amplitude ``gamma0 exp(Delta/rho)``; ``finest=True`` (default) on the finest
+       coarse grid within ``max_cost_fraction`` of full GFMD's cost, because the shape of the distribution at
+       high pressure and small ``rho/h_rms`` needs it even where the mean gap has converged (``finest=False``,
+       the mean-gap criterion alone, missed L1 = 0.15 there: docs/results/predictors_heldout.md).
+       Its pixel ``r`` carries the pressure ``p_c(r)``, i.e. the
+       bare gap ``g_c(r) - Delta`` (the gap at which ``(gamma0/rho) exp(-g/rho) = p_c``).
+    2. Under every pixel the finer shells of the surface itself (``|h~|^2`` summed per group of width ``dlnq`` in
+       ``ln q``, coarse to fine) are added one group at a time with the local response of the gap they ride on
+       (M4 with the local stiffness ``p(g)/rho``, as in :func:`local_response_samples`): the variance
+       ``v = sum |h~|^2 (eta_g zeta/(1 + eta_g zeta))^2``, ``eta_g zeta = rho |q| E*/(2 p(g))``, and the drift
+       ``v/(2 rho)``, which keeps the pixel's pressure ``(gamma0/rho) <exp(-g/rho)>`` exactly (M3 identity:
+       ``<exp(-(g + a + sqrt(v) Z)/rho)> = exp(-g/rho)`` iff ``a = v/(2 rho)``). No fitted parameter.
+
+    3. Centring. The coarse solve used the mean-pressure shift ``Delta(sigma0)`` while step 2 adds each pixel's
+       local one, so the raw samples disagree with the coarse solve by the hybrid's own error. ``center``:
+       "pixel" (default) shifts each pixel's samples so that their mean is the pixel's coarse gap (the fine modes
+       have zero mean, so a pixel's fine-averaged gap is its coarse gap) less half the hybrid's bracket
+       ``shift_error/2`` (the overall mean is then the hybrid's mean gap); "mean" shifts all samples by one
+       constant onto the hybrid's mean gap; "none" keeps them (each pixel's pressure then stays exactly
+       ``p_c``). "pixel" had the smallest worst-case L1 of the three on the tuning set of
+       docs/results/predictors_tuning.md (0.10 against 0.16 and 0.28), and is reported on its held-out set.
+
+    ``lambda_s``: if given, modes finer than it are removed from ``heights`` first. ``samples``: about that many
+    (each pixel gets ``ceil(samples / n_c^2)``). Reproducible from ``seed``.
+    """
+    from gapsweep.theory import improved
+
+    h = chk.square_heights(heights)
+    s = chk.positive(sigma0, "sigma0")
+    rho = chk.positive(rho, "rho")
+    gamma0 = chk.positive(gamma0, "gamma0")
+    lambda_l = chk.positive(lambda_l, "lambda_l")
+    length = chk.positive(length, "length")
+    e_star = chk.positive(e_star, "e_star")
+    samples = chk.count(samples, "samples")
+    dlnq = chk.positive(dlnq, "dlnq")
+    if center not in ("pixel", "mean", "none"):
+        raise ValueError(f"center must be 'pixel', 'mean' or 'none', got {center!r}")
+    if lambda_s is not None:
+        lambda_s = chk.positive(lambda_s, "lambda_s")
+        if not lambda_s < lambda_l:
+            raise ValueError(f"lambda_s must be < lambda_l, got lambda_s={lambda_s!r}, lambda_l={lambda_l!r}")
+        h = improved._lowpass(h, int(math.floor(length / lambda_s + 1e-9)))
+    hyb = improved.hybrid(s, h, zeta_c="auto", rho=rho, gamma0=gamma0, lambda_l=lambda_l, length=length,
+                          e_star=e_star, tol=tol, rtol=rtol, max_cost_fraction=max_cost_fraction, finest=finest)
+    res = hyb.result
+    if hyb.status not in ("converged", "rtol_not_met"):
+        raise RuntimeError(f"multiscale gap distribution: the coarse GFMD solve failed (status {hyb.status!r})")
+    g_pix = np.asarray(res.gap, float).ravel() - hyb.shift
+    q, pw = _shell_groups(*improved._Shells(h, length).fine(hyb.k_c), dlnq)
+    reps = max(1, math.ceil(samples / g_pix.size))
+    g = np.repeat(g_pix, reps)
+    rng = np.random.default_rng(seed)
+    # ln(eta_g zeta) = ln(rho |q| E*/2) - ln p(g),  ln p(g) = ln(gamma0/rho) - g/rho  (no exp: nothing overflows)
+    base = math.log(rho * e_star / 2.0) - math.log(gamma0 / rho)
+    for qj, pj in zip(q, pw, strict=True):
+        r = expit(base + math.log(qj) + g / rho)
+        v = pj * r * r
+        g = g + v / (2.0 * rho) + np.sqrt(v) * rng.standard_normal(g.size)
+    if not np.all(np.isfinite(g)):
+        raise FloatingPointError("multiscale gap distribution produced non-finite gaps")
+    if center == "pixel":
+        # each pixel's fine-averaged gap is its coarse gap (the fine modes have zero mean), less the hybrid's
+        # correction of the mean-pressure shift (half its bracket)
+        gm = g.reshape(g_pix.size, reps)
+        gm += (g_pix + hyb.shift - 0.5 * hyb.shift_error - gm.mean(axis=1))[:, None]
+        g = gm.ravel()
+    elif center == "mean":
+        g += hyb.mean_gap - float(g.mean())  # the hybrid's bracket middle: its best estimate of the mean gap
+    log.debug("multiscale gaps: n_c=%d k_c=%d groups=%d samples=%d status=%s", hyb.n_c, hyb.k_c, q.size, g.size,
+              hyb.status)
+    return MultiscaleGaps(g, hyb.n_c, hyb.k_c, int(q.size), hyb.cost, hyb.cost_fraction, hyb.status,
+                          hyb.mean_gap, hyb.error_estimate)
+
+
+def gap_distribution(
+    sigma0: float,
+    heights: ArrayLike,
+    *,
+    rho: float,
+    gamma0: float,
+    lambda_l: float,
+    lambda_s: float | None = None,
+    e_star: float = 1.0,
+    length: float = 1.0,
+    edges: ArrayLike | None = None,
+    bins: int = 200,
+    **options,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Predicted density of GFMD's local gap [1/length] on this surface: ``(edges, density)``, edges [length].
+
+    The histogram of :func:`multiscale_gap_samples` (``options`` are passed to it: ``samples``, ``seed``,
+    ``rtol``, ``max_cost_fraction``, ``tol``, ``dlnq``, ``center``) on ``edges`` (default: ``bins`` equal
+    bins over the samples' range). Normalised over all samples, so mass outside given ``edges`` is missing
+    from the density.
+    Measured against GFMD in docs/results/predictors_heldout.md.
+    """
+    ms = multiscale_gap_samples(sigma0, heights, rho=rho, gamma0=gamma0, lambda_l=lambda_l, lambda_s=lambda_s,
+                                e_star=e_star, length=length, **options)
+    x = ms.samples
+    if edges is None:
+        bins = chk.count(bins, "bins")
+        lo, hi = float(x.min()), float(x.max())
+        e = np.linspace(lo, hi + 1e-9 * (hi - lo + abs(hi)) + 1e-300, bins + 1)  # the maximum in the last bin
+    else:
+        e = np.asarray(edges, float)
+        if e.ndim != 1 or e.size < 2 or not np.all(np.diff(e) > 0):
+            raise ValueError("edges must be a strictly increasing 1-D array of at least 2 values")
+    counts, _ = np.histogram(x, bins=e)
+    return e, counts / (x.size * np.diff(e))
