@@ -1,7 +1,8 @@
 """The sweep's methods, one plug-in module each (interface: gapsweep.sweep.methods.base; docs/architecture.md).
 
 Built-in methods, in the canonical order of task expansion: ``theory`` (field theory and Persson's theory),
-``gfmd`` (the exact solver), ``sde`` (SDE ensembles), ``fokker_planck`` (the Fokker-Planck density). A method
+``gfmd`` (the exact solver), ``sde`` (SDE ensembles), ``fokker_planck`` (the Fokker-Planck density), and the
+predictors ``hybrid`` (the mean gap to a requested accuracy) and ``multiscale`` (the gap distribution). A method
 of another package registers through the entry-point group ``gapsweep.methods``; it then follows the built-ins.
 """
 
@@ -10,7 +11,7 @@ from __future__ import annotations
 import logging
 from importlib import metadata
 
-from gapsweep.sweep.methods import fokker_planck, gfmd, sde, theory  # noqa: F401 - registers the built-ins
+from gapsweep.sweep.methods import fokker_planck, gfmd, hybrid, multiscale, sde, theory  # noqa: F401 - built-ins
 from gapsweep.sweep.methods.base import Env, Method, register, registered
 
 __all__ = ["Env", "Method", "all_methods", "get", "names", "register"]
