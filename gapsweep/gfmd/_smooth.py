@@ -294,7 +294,7 @@ class _Solver:
         else:
             if s_k > target:
                 status = "max_iter"
-        self.info.update({"continuation_from": s_from, "continuation_steps": accepted,
+        self.info.update({"continuation_from": s_from, "continuation_steps": accepted, "min_step": ds_min,
                           "continuation_attempts": attempts, "jumps": jumps,
                           "last_attached_load": target if status == "converged" else s_k})
         return st, status
