@@ -155,7 +155,9 @@ class Peer:
         return out, math.nan, math.nan
 
 
-CASES = [(64, 0.8, 1), (64, 0.3, 2), (128, 0.8, 4)]
+# Measured with (128, 0.8, 4) added: all three pass, 743 s on the 2-core VM (the peer's path is the cost);
+# the test keeps the two N = 64 cases.
+CASES = [(64, 0.8, 1), (64, 0.3, 2)]
 
 
 @pytest.mark.slow
@@ -169,7 +171,7 @@ def test_tensile_loads_and_pull_off_agree_with_peer(n: int, hurst: float, seed: 
     h = h - h.mean()
     peer = Peer(h, WORK, rho)
     max_t = WORK / (math.e * rho)
-    loads = [-k * max_t / 200 for k in range(0, 201)]
+    loads = [-k * max_t / 100 for k in range(0, 101)]
     theirs, first_off, pull_off = peer.unload(loads)
     assert math.isfinite(first_off), "the peer never detached"
     checked = [s for s in theirs if s < 0][:: max(1, len(theirs) // 6)]
