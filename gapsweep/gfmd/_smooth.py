@@ -39,7 +39,7 @@ _STALL_ENERGY = 1e-12
 # Continuation to tensile loads (docs/gfmd.md "Tensile loads"; chosen on the N = 128 surface of
 # tests/test_adhesion.py, seed 3, and reported on other seeds and sizes there and in benchmarks/bench_adhesion.py):
 _STEP_TOL = 1e-6  # residual of the intermediate loads (they only have to stay in the basin of the branch)
-_FIRST_STEP = 1 / 16  # first load step, fraction of the load scale min(|target - start|, law scale at zero load)
+_FIRST_STEP = 1 / 16  # first load step at most, fraction of the law's pressure scale at zero load
 _MIN_STEP = 1e-3  # smallest load step, same fraction: the pull-off load is bracketed to this
 _STEP_BUDGET = 4  # a step may take this many times the mean evaluations of the accepted steps before it
 _STEP_BUDGET_MIN = 200  # and at least this many
@@ -241,7 +241,8 @@ class _Solver:
         grid, law = self.grid, self.law
         span = target - s_from
         scale = min(abs(span), law.pressure_scale(0.0))
-        ds, ds_min = -scale * _FIRST_STEP, scale * _MIN_STEP
+        # first step: 1/16 of the law's scale (a load much smaller than that is reached in one step)
+        ds, ds_min = -min(abs(span), law.pressure_scale(0.0) * _FIRST_STEP), scale * _MIN_STEP
         s_k, Z_k, Z_prev, ds_prev = s_from, Z_from, None, 0.0
         accepted = jumps = attempts = 0
         st: _State | None = None
