@@ -11,7 +11,9 @@ rms slope 1, seed 1; H = 0.3 and 0.8). Stopping rule: every code is asked for th
 own measure (gapsweep: gap left in the contact and overlap outside it, over h_rms; tamaas: its
 PolonskyKeerRey error; ContactMechanics: pentol = tol h_rms, forcetol = tol sigma0); then every code's fields are
 scored by gapsweep's measure (``resid``) and the three codes' mean gap, contact area and elastic energy are
-compared, so the accuracy reached is visible next to the time; the row ``pcg@peer_resid`` times gapsweep again
+compared, so the accuracy reached is visible next to the time; ``err_vs_tight`` is each result's largest relative
+error in mean gap and elastic energy against one gapsweep solve to ``--tight`` (default 1e-12, not timed); the
+row ``pcg@peer_resid`` times gapsweep again
 with ``tol`` = the smallest residual a peer reached (equal accuracy). Times are CPU seconds of this process
 (``time.process_time``, one thread: OMP_NUM_THREADS=1, GAPSWEEP_FFT_THREADS=1) and wall seconds.
 """
@@ -144,7 +146,11 @@ def cmd_cpu(a) -> None:
             if peer_resid:  # the peers stop tighter in gapsweep's measure: also time gapsweep at their accuracy
                 res[f"{a.methods[0]}@peer_resid"] = run_gapsweep(h, s0, min(peer_resid), a.methods[0])
             ref = res[a.methods[0]]
+            # Accuracy reached: every code scored against one tight-tolerance solve (not timed).
+            tight = gfmd.solve(h, sigma0=s0, interaction="hard_wall", tol=a.tight, method="pcg", max_iter=100000)
+            tq = score(h, tight.displacement, tight.pressure)
             for code, r in res.items():
+                r["err_vs_tight"] = max(abs(r["mean_gap"] / tq["mean_gap"] - 1), abs(r["energy"] / tq["energy"] - 1))
                 row = {"H": hurst, "sigma0": s0, "n": a.n, "tol": a.tol, "code": code, **r,
                        "gap_rel_diff": abs(r["mean_gap"] - ref["mean_gap"]) / ref["mean_gap"],
                        "energy_rel_diff": abs(r["energy"] - ref["energy"]) / ref["energy"],
@@ -190,6 +196,8 @@ def main() -> None:
     c.add_argument("--hurst", type=float, nargs="+", default=[0.3, 0.8])
     c.add_argument("--sigma0", type=float, nargs="+", default=[1e-3, 1e-2, 1e-1])
     c.add_argument("--tol", type=float, default=1e-8)
+    c.add_argument("--tight", type=float, default=1e-12,
+                   help="tolerance of the reference solve every code is scored against (err_vs_tight)")
     c.add_argument("--methods", nargs="+", default=["pcg", "pk"], help="gapsweep methods; the first is the reference")
     c.add_argument("--peers", nargs="*", default=["tamaas", "contactmechanics"])
     c.add_argument("--alone", action="store_true", help="gapsweep only (no peer solves)")

@@ -34,6 +34,17 @@ from gapsweep.gfmd.interactions.base import SmoothInteraction
 METHODS = ("lbfgs",)
 log = logging.getLogger("gapsweep.gfmd")
 _DETACHED = 30.0  # every gap beyond this many ranges at a tensile load: the body has left (no equilibrium)
+# Stall detection (issue 22): evaluations without progress, and the energy change that counts as round-off.
+_STALL_WINDOW = 30
+_STALL_ENERGY = 1e-12
+# Continuation to tensile loads (docs/gfmd.md "Tensile loads"; chosen on the N = 128 surface of
+# tests/test_adhesion.py, seed 3, and reported on other seeds and sizes there and in benchmarks/bench_adhesion.py):
+_STEP_TOL = 1e-6  # residual of the intermediate loads (they only have to stay in the basin of the branch)
+_FIRST_STEP = 1 / 16  # first load step at most, fraction of the law's pressure scale at zero load
+_MIN_STEP = 1e-3  # smallest load step, same fraction: the pull-off load is bracketed to this
+_STEP_BUDGET = 4  # a step may take this many times the mean evaluations of the accepted steps before it
+_STEP_BUDGET_MIN = 200  # and at least this many
+_MAX_DEV = 1.0  # a step is on the branch while the corrector moves z less (rms) than the secant predictor did
 
 
 class _State:
@@ -115,40 +126,20 @@ def _wolfe(st: _State, D: Any, slope: float, alpha: float, c1: float = 1e-4, c2:
     return (lo, d) if lo > 0 else None
 
 
-def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: float, length: Any, tol: float,
-             method: str, backend: str, max_iter: int, initial: Any, threads: int | None, host: Any,
-             t_start: float, memory: int = 8) -> GFMDResult:
-    """Smooth ``law`` on the periodic grid ``heights`` (inputs validated by ``gfmd.solve``)."""
-    grid = Grid(heights.shape, length, backend, threads, _is_cupy(heights))
-    xp = grid.xp
-    h = grid.asarray(heights)
-    if not bool(xp.all(xp.isfinite(h))):
-        raise ValueError("heights contain NaN or inf")
-    h = h - float(h.mean())  # the gap does not depend on <h> (the body follows the surface)
-    k = (0.5 * e_star) * grid.q
-    c = law.curvature(sigma0)
-    minv = 1.0 / (k + c) if c > 0 else xp.where(k > 0, 1.0 / xp.where(k > 0, k, 1.0), 1.0)
-    p_ref = law.pressure_scale(sigma0)
-    rng = law.range()
-    if initial is None:
-        Z = xp.zeros((grid.shape[0], grid.shape[1] // 2 + 1), dtype=xp.complex128)
-        Z[0, 0] = float(h.max())  # touching the highest summit, the body flat
-    else:
-        if isinstance(initial, GFMDResult):
-            u0, g0 = initial.displacement, initial.mean_gap
-        else:
-            u0, g0 = initial
-        u0 = xp.asarray(u0, dtype=xp.float64)
-        if u0.shape != grid.shape or not bool(xp.all(xp.isfinite(u0))) or not math.isfinite(g0):
-            raise ValueError(f"initial must be a GFMDResult or (displacement of shape {grid.shape}, mean gap)")
-        Z = grid.fwd(u0 - u0.mean())
-        Z[0, 0] = float(g0)
-    st = _State(grid, law, h, k, sigma0, Z)
-    history: list[float] = []
+def _lbfgs(st: _State, minv: Any, p_ref: float, tol: float, max_iter: int, memory: int, rng: float | None,
+           history: list[float]) -> str:
+    """L-BFGS from ``st`` until ``residual <= tol`` (module docstring), at most ``max_iter`` evaluations of
+    ``st``. Returns the status; ``st`` holds the last point.
+
+    "stalled" when the residual stops moving: for ``_STALL_WINDOW`` evaluations the residual has not fallen
+    below 0.9 times its best value and the energy has not fallen by more than its round-off
+    (``_STALL_ENERGY`` relative), i.e. the steps no longer change anything (the line search returns steps at
+    round-off, issue 22), instead of spending the rest of ``max_iter`` there."""
+    grid = st.grid
     s_hist: list = []
     y_hist: list = []
     r_hist: list[float] = []
-    status = "max_iter"
+    best_res, best_f, best_at = math.inf, math.inf, 0
     with np.errstate(all="ignore"):
         while True:
             deadline.check()  # a task time limit ends the solve between iterations
@@ -157,16 +148,20 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
             res = max(math.sqrt(rr), abs(g00.real)) / p_ref
             history.append(res)
             if not math.isfinite(res):
-                status = "non_finite"
-                break
+                return "non_finite"
             if res <= tol:
-                status = "converged"
-                break
-            if sigma0 < 0 and rng is not None and float(st.g.min()) > _DETACHED * rng:
-                status = "detached"
-                break
+                return "converged"
+            if st.sigma0 < 0 and rng is not None and float(st.g.min()) > _DETACHED * rng:
+                return "detached"
             if st.nfev >= max_iter:
-                break
+                return "max_iter"
+            f = st.energy()
+            f_scale = _STALL_ENERGY * (abs(f) + abs(st.e_law) + abs(st.sigma0 * float(st.Z[0, 0].real)))
+            if res < 0.9 * best_res or best_f - f > f_scale:
+                best_res, best_f, best_at = min(res, best_res), f, st.nfev
+            elif st.nfev - best_at >= _STALL_WINDOW:
+                log.debug("stalled: residual %.3g, energy unchanged for %d evaluations", res, _STALL_WINDOW)
+                return "stalled"
             q = st.G.copy()
             alphas = []
             for s, y, r in zip(reversed(s_hist), reversed(y_hist), reversed(r_hist)):
@@ -187,13 +182,11 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
                 D = -(minv * st.G)
                 slope = grid.dot(st.G, D)
                 if not slope < 0:
-                    status = "stalled" if math.isfinite(slope) else "non_finite"
-                    break
+                    return "stalled" if math.isfinite(slope) else "non_finite"
             step = _wolfe(st, D, slope, 1.0)
             if step is None:
                 if not s_hist:
-                    status = "stalled"
-                    break
+                    return "stalled"
                 s_hist.clear(), y_hist.clear(), r_hist.clear()
                 continue
             alpha, d = step
@@ -209,7 +202,163 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
                 if len(s_hist) > memory:
                     s_hist.pop(0), y_hist.pop(0), r_hist.pop(0)
 
-        # Returned fields from the Fourier state, their residual decides (issue 9).
+
+class _Solver:
+    """One grid, surface and law; solves at any load from any start, and follows loads by continuation."""
+
+    def __init__(self, grid: Grid, law: SmoothInteraction, h: Any, e_star: float, max_iter: int,
+                 memory: int) -> None:
+        self.grid, self.law, self.h, self.max_iter, self.memory = grid, law, h, max_iter, memory
+        self.k = (0.5 * e_star) * grid.q
+        self.rng = law.range()
+        self.nfev = 0  # evaluations spent by every stage together (the result's ``iterations``)
+        self.history: list[float] = []
+        self.info: dict[str, float] = {}
+
+    def at(self, sigma0: float, Z: Any, tol: float, budget: int | None = None) -> tuple[_State, str]:
+        """Minimise at load ``sigma0`` from the surface coefficients ``Z`` (not modified) to ``tol``, with at
+        most ``budget`` evaluations (default: what is left of ``max_iter``)."""
+        xp = self.grid.xp
+        c = self.law.curvature(sigma0)
+        k = self.k
+        minv = 1.0 / (k + c) if c > 0 else xp.where(k > 0, 1.0 / xp.where(k > 0, k, 1.0), 1.0)
+        st = _State(self.grid, self.law, self.h, k, sigma0, Z.copy())
+        left = max(self.max_iter - self.nfev, 1)
+        status = _lbfgs(st, minv, self.law.pressure_scale(sigma0), tol, left if budget is None else min(budget, left),
+                        self.memory, self.rng, self.history)
+        self.nfev += st.nfev
+        return st, status
+
+    def follow(self, s_from: float, Z_from: Any, target: float, tol: float) -> tuple[_State | None, str]:
+        """Quasi-static unloading from the equilibrium ``Z_from`` at ``s_from`` to the tensile ``target``.
+
+        Each step starts from the secant predictor ``Z_k + (Z_k - Z_{k-1}) ds_k / ds_{k-1}`` and is accepted
+        when it converges (to ``_STEP_TOL``; the target itself to ``tol``) in contact and the corrector moved
+        ``z`` by at most ``_MAX_DEV`` times what the predictor did (rms): the equilibrium is on the branch it
+        started on. A rejected step is halved; steps double again while the predictor is good. At the
+        smallest step (``_MIN_STEP`` of the load scale) a converged step that jumps is accepted (a snap that
+        the quasi-static path takes too: logged, counted in ``info["jumps"]``) and a step that detaches ends
+        the branch: its last load is ``info["last_attached_load"]`` (the pull-off load to within that step),
+        and the target is then tried once from there. Returns the last state and its status."""
+        grid, law = self.grid, self.law
+        span = target - s_from
+        scale = min(abs(span), law.pressure_scale(0.0))
+        # first step: 1/16 of the law's scale (a load much smaller than that is reached in one step)
+        ds, ds_min = -min(abs(span), law.pressure_scale(0.0) * _FIRST_STEP), scale * _MIN_STEP
+        s_k, Z_k, Z_prev, ds_prev = s_from, Z_from, None, 0.0
+        accepted = jumps = attempts = 0
+        st: _State | None = None
+        status = "max_iter"
+        while s_k > target and self.nfev < self.max_iter:
+            attempts += 1
+            step = max(ds, target - s_k)
+            final = s_k + step <= target + 1e-12 * scale
+            s_new = target if final else s_k + step
+            step = s_new - s_k
+            Zp = Z_k if Z_prev is None else Z_k + (Z_k - Z_prev) * (step / ds_prev)
+            # A step on the branch converges in about as many evaluations as the steps before it; one that
+            # takes many more is leaving it (a body peeling off slowly), and is cut short and halved.
+            budget = max(_STEP_BUDGET_MIN, _STEP_BUDGET * self.nfev // (accepted + 1))
+            st, status = self.at(s_new, Zp, tol if final else max(tol, _STEP_TOL), budget)
+            ok = status == "converged"
+            dev = 0.0
+            if ok and Z_prev is not None:
+                moved = math.sqrt(max(grid.dot(Zp - Z_k, Zp - Z_k), 0.0))
+                dev = math.sqrt(max(grid.dot(st.Z - Zp, st.Z - Zp), 0.0)) / max(moved, 1e-300)
+            smallest = abs(step) <= ds_min * (1 + 1e-9)
+            if ok and (dev <= _MAX_DEV or smallest):
+                if dev > _MAX_DEV:
+                    jumps += 1
+                    log.info("continuation: jump at sigma0=%g (corrector/predictor %.3g at the smallest step)",
+                             s_new, dev)
+                Z_prev, ds_prev, Z_k, s_k = Z_k, step, st.Z, s_new
+                accepted += 1
+                ds = 2 * step if dev <= 0.25 * _MAX_DEV else step
+                if final:
+                    break
+                continue
+            if status == "non_finite" or self.nfev >= self.max_iter:
+                break
+            if smallest and status == "stalled":
+                break
+            if smallest:
+                # The branch ends between s_k and s_new (pull-off): no equilibrium connected to the contact
+                # beyond s_k. The target is tried once from s_k (fields at the target load; a converged try is
+                # an equilibrium after a jump and is reported as such); a try that does not converge within a step's
+                # budget (a body peeling off slowly) is "detached", as the continuation showed.
+                st, status = self.at(target, Z_k, tol, budget)
+                if status == "converged":
+                    jumps += 1
+                    s_k = target
+                elif status != "non_finite":
+                    status = "detached"
+                break
+            ds = 0.5 * step
+        else:
+            if s_k > target:
+                status = "max_iter"
+        self.info.update({"continuation_from": s_from, "continuation_steps": accepted, "min_step": ds_min,
+                          "continuation_attempts": attempts, "jumps": jumps,
+                          "last_attached_load": target if status == "converged" else s_k})
+        return st, status
+
+
+def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: float, length: Any, tol: float,
+             method: str, backend: str, max_iter: int, initial: Any, threads: int | None, host: Any,
+             t_start: float, memory: int = 8) -> GFMDResult:
+    """Smooth ``law`` on the periodic grid ``heights`` (inputs validated by ``gfmd.solve``).
+
+    Starts (docs/gfmd.md, "Tensile loads"): ``initial`` when given; if that run detaches or stalls at a tensile
+    load and ``initial`` is a converged result at a higher load, the load is followed down from it
+    (:meth:`_Solver.follow`). Without ``initial``: the flat body touching the highest summit, solved directly
+    at ``sigma0 >= 0``; at ``sigma0 < 0`` solved at zero load from there and unloaded to ``sigma0``."""
+    grid = Grid(heights.shape, length, backend, threads, _is_cupy(heights))
+    xp = grid.xp
+    h = grid.asarray(heights)
+    if not bool(xp.all(xp.isfinite(h))):
+        raise ValueError("heights contain NaN or inf")
+    h = h - float(h.mean())  # the gap does not depend on <h> (the body follows the surface)
+    sv = _Solver(grid, law, h, e_star, max_iter, memory)
+    step_tol = max(tol, _STEP_TOL)
+    if initial is None:
+        Z = xp.zeros((grid.shape[0], grid.shape[1] // 2 + 1), dtype=xp.complex128)
+        Z[0, 0] = float(h.max())  # touching the highest summit, the body flat
+        if sigma0 < 0:
+            st, status = sv.at(0.0, Z, step_tol)
+            if status == "converged":
+                st, status = sv.follow(0.0, st.Z, sigma0, tol)
+                assert st is not None
+        else:
+            st, status = sv.at(sigma0, Z, tol)
+    else:
+        if isinstance(initial, GFMDResult):
+            u0, g0 = initial.displacement, initial.mean_gap
+        else:
+            u0, g0 = initial
+        u0 = xp.asarray(u0, dtype=xp.float64)
+        if u0.shape != grid.shape or not bool(xp.all(xp.isfinite(u0))) or not math.isfinite(g0):
+            raise ValueError(f"initial must be a GFMDResult or (displacement of shape {grid.shape}, mean gap)")
+        Z0 = grid.fwd(u0 - u0.mean())
+        Z0[0, 0] = float(g0)
+        st, status = sv.at(sigma0, Z0, tol)
+        s_init = float(getattr(initial, "sigma0", math.nan))
+        if (status in ("detached", "stalled") and isinstance(initial, GFMDResult) and initial.converged
+                and sigma0 < 0 and s_init > sigma0 and sv.nfev < max_iter):
+            log.info("%s: %s at sigma0=%g from the initial state; following the load from %g", law.name, status,
+                     sigma0, s_init)
+            st2, status = sv.follow(s_init, Z0, sigma0, tol)
+            st = st2 if st2 is not None else st
+    return _result(sv, st, status, sigma0, e_star, length, tol, host, t_start)
+
+
+def _result(sv: _Solver, st: _State, status: str, sigma0: float, e_star: float, length: Any, tol: float,
+            host: Any, t_start: float) -> GFMDResult:
+    """The result of the state ``st`` at load ``sigma0``: fields and convergence from the Fourier state (the
+    returned fields' residual decides, issue 9)."""
+    grid, law, h, k = sv.grid, sv.law, sv.h, sv.k
+    xp = grid.xp
+    p_ref = law.pressure_scale(sigma0)
+    with np.errstate(all="ignore"):
         z = grid.inv(st.Z)
         u = z - float(st.Z[0, 0].real)
         gap = z - h
@@ -229,16 +378,16 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
     converged = fields_ok and status == "converged" and residual <= tol and load_error <= tol
     if status == "converged" and not converged:
         status = "stalled"
-    log.debug("%s: %s after %d evaluations, residual %.3g", law.name, status, st.nfev, residual)
+    log.debug("%s: %s after %d evaluations, residual %.3g", law.name, status, sv.nfev, residual)
     fields = {"gap": gap, "pressure": p, "displacement": u}
     fields.update(grid.to_host_many({k: fields[k] for k in host_fields(host)}))  # only those asked for
     gap, p, u = fields["gap"], fields["pressure"], fields["displacement"]
     grid.synchronize()
     return GFMDResult(
-        mean_gap=g0, gap=gap, pressure=p, displacement=u, iterations=st.nfev, converged=converged,
+        mean_gap=g0, gap=gap, pressure=p, displacement=u, iterations=sv.nfev, converged=converged,
         residual=residual, load_error=load_error, wall_time=time.perf_counter() - t_start, method="lbfgs",
         backend=grid.backend, status=status, sigma0=sigma0, rho=getattr(law, "rho", math.nan), e_star=e_star,
-        length=length, tol=tol, history=history, interaction=law.name, params=law.params(), contact_area=area,
+        length=length, tol=tol, history=sv.history, interaction=law.name, params=law.params(), contact_area=area,
         elastic_energy=elastic, contact_criterion=law.contact_criterion,
-        diagnostics={"pressure_scale": p_ref, "interaction_energy": e_int},
+        diagnostics={"pressure_scale": p_ref, "interaction_energy": e_int, **sv.info},
     )
