@@ -115,8 +115,6 @@ def test_graph_sees_lazy_imports():
     assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": set()}) == [["a", "b", "c"]]
 
 
-@pytest.mark.xfail(strict=True, reason="gfmd's package-internal circle (solve() lives in gfmd/__init__ and its "
-                   "modules import it back): removed when the solver branches of this round merge")
 def test_no_import_cycle():
     g = _graph()
     assert len(g) > 50

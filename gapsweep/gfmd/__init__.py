@@ -52,178 +52,24 @@ docs/gfmd.md.
 
 from __future__ import annotations
 
-import os
-import time
-from typing import Any
-
-import numpy as np
-
-# Package layout: interactions/ (the laws), _softmax (the exponential law's minimiser), _ops (array operations,
-# numba CPU kernels), _cuda (cupy GPU kernels, kernels.cu), _solvers (cg, lbfgs, fire), _result (GFMDResult).
-# _make_ops looks up _have_numba here (tests monkeypatch gfmd._have_numba); benchmarks use gfmd._Problem, _make_ops.
-from gapsweep import _checks as chk
-from gapsweep.fft import BACKENDS
-from gapsweep.gfmd import _constrained, _free, _smooth, _softmax
-from gapsweep.gfmd._cuda import _CupyOps
-from gapsweep.gfmd._ops import _have_numba, _is_cupy, _NumbaOps, _Ops
+# Package layout: interactions/ (the laws), _solve (the driver: solve), _softmax (the exponential law's
+# minimiser), _constrained (hard wall), _smooth (other laws), _free (free boundaries), _ops (array operations,
+# numba CPU kernels), _cuda (cupy GPU kernels, kernels.cu), _solvers (cg, lbfgs, fire), _common (helpers),
+# _result (GFMDResult), _path (load paths), batched (batches). This file only re-exports: no module of the
+# package imports it back. Benchmarks use gfmd._Problem and gfmd._make_ops.
+from gapsweep.gfmd import _softmax
+from gapsweep.gfmd._common import STATUSES, UnderResolvedWarning, _make_ops, _transfer_modes  # noqa: F401
+from gapsweep.gfmd._ops import _have_numba, _is_cupy  # noqa: F401
 from gapsweep.gfmd._path import LoadPath, solve_path
 from gapsweep.gfmd._result import GFMDResult
+from gapsweep.gfmd._solve import _FREE, _MINIMISERS, solve  # noqa: F401
 from gapsweep.gfmd._solvers import _half_q, _Problem  # noqa: F401 - used by benchmarks (gfmd._Problem)
-from gapsweep.gfmd.interactions import INTERACTIONS, Interaction, resolve
+from gapsweep.gfmd.batched import Problem as BatchProblem
+from gapsweep.gfmd.batched import solve_batch
+from gapsweep.gfmd.interactions import INTERACTIONS, Interaction, resolve  # noqa: F401
 
 __all__ = ["INTERACTIONS", "METHODS", "BatchProblem", "GFMDResult", "Interaction", "LoadPath",
            "UnderResolvedWarning", "solve", "solve_batch", "solve_path"]
 
 METHODS = _softmax.METHODS  # methods of the exponential law (the job-spec validator uses this list)
 DEFAULT_METHOD = _softmax.DEFAULT_METHOD
-STATUSES = ("converged", "max_iter", "non_finite", "stalled", "detached")
-
-
-class UnderResolvedWarning(UserWarning):
-    """The interaction range ``rho`` is shorter than the grid spacing (M7)."""
-
-
-# ------------------------------------------------------------------------------------------------ helpers
-def _make_ops(xp: Any, n: int) -> _Ops:
-    """Kernels for the namespace: numba on the CPU when installed, fused cupy kernels on the GPU (unless
-    ``GAPSWEEP_GENERIC_KERNELS=1``), else the generic array code."""
-    if os.environ.get("GAPSWEEP_GENERIC_KERNELS") == "1":
-        return _Ops(xp, n)
-    if xp is np:
-        return _NumbaOps(xp, n) if _have_numba() else _Ops(xp, n)
-    if xp.__name__ == "cupy":
-        return _CupyOps(xp, n)
-    return _Ops(xp, n)
-
-
-def _transfer_modes(u: np.ndarray, n: int) -> np.ndarray:
-    """Normalised half spectrum on an ``n`` grid of the displacement ``u`` given on another grid: modes that
-    both grids carry are copied, the rest set to zero (surfaces are resolution independent, M2)."""
-    m = u.shape[0]
-    full = np.fft.fft2(u) / (m * m)
-    kmax = (min(m, n) - 1) // 2  # strictly below both Nyquist frequencies
-    ks = np.r_[0 : kmax + 1, -kmax:0]
-    out = np.zeros((n, n), dtype=np.complex128)
-    out[np.ix_(ks % n, ks % n)] = full[np.ix_(ks % m, ks % m)]
-    return out[:, : n // 2 + 1]
-
-
-# load_control of a law -> (minimiser, its methods). A new law reuses one of these; no branch per law.
-_MINIMISERS: dict[str, tuple[Any, tuple[str, ...]]] = {
-    "softmax": (_softmax.minimise, _softmax.METHODS),
-    "multiplier": (_constrained.minimise, _constrained.METHODS),
-    "variable": (_smooth.minimise, _smooth.METHODS),
-}
-# Minimisers that take periodic=False (free boundaries), by load_control: the hard wall's own (its compliance
-# swapped for the free one), every smooth law (the exponential one included) on gfmd._free.
-_FREE: dict[str, tuple[Any, tuple[str, ...]]] = {
-    "multiplier": (_constrained.minimise, _constrained.METHODS),
-    "softmax": (_free.minimise, _free.METHODS),
-    "variable": (_free.minimise, _free.METHODS),
-}
-
-
-def solve(
-    heights: Any,
-    *,
-    sigma0: float,
-    interaction: str | Interaction = "exponential",
-    gamma0: float | None = None,
-    rho: float | None = None,
-    work: float | None = None,
-    e_star: float = 1.0,
-    length: float = 1.0,
-    tol: float = 1e-6,
-    method: str = "auto",
-    backend: str = "auto",
-    max_iter: int = 5000,
-    initial: GFMDResult | np.ndarray | None = None,
-    threads: int | None = None,
-    host: bool | tuple[str, ...] = True,
-    periodic: bool | None = None,
-) -> GFMDResult:
-    """Equilibrium gap of an elastic half-space on the rigid surface ``heights`` at mean pressure ``sigma0``.
-
-    ``interaction``: a law's name or an :class:`Interaction` object (docs/gfmd.md): "exponential" (default;
-    needs ``gamma0``, an energy per area, and ``rho``, a length), "hard_wall", or "adhesive" (``work``, the
-    work of adhesion per area, and ``rho``, its range). For the exponential law the reduced energy of M3
-    (module docstring) is minimised until ``residual <= tol`` and ``load_error <= tol``; the other laws'
-    convergence measures are in docs/gfmd.md. ``heights``: real ``nx x ny`` array (numpy, or cupy for the
-    GPU), units of ``length`` (a number, or ``(Lx, Ly)``); the exponential law's own minimiser needs a square
-    grid, other grids run on the generic smooth one. ``sigma0``, ``gamma0/rho`` and ``e_star`` are pressures in
-    one unit. ``method``: "auto", or "cg" (default), "lbfgs", "fire" (exponential); "mpcg" (default on the CPU;
-    coarse-to-fine start), "pcg" (default on the GPU), "pk" (hard wall); "lbfgs" (adhesive). ``backend``: "auto"
-    (cupy for a cupy array, else pyfftw when installed, else numpy), "numpy", "pyfftw" or "cupy". ``max_iter``:
-    force evaluations (hard wall: iterations) allowed.
-    ``initial``: an earlier result or a field to start from (exponential: a displacement on any grid size,
-    shared Fourier modes carried over; hard wall: a pressure; adhesive: ``(displacement, mean gap)``); default
-    for the exponential law is the linear response of M4. ``threads``: FFTW threads. ``host``: which fields of
-    a cupy run come to the host (pinned, asynchronous copies): True (all), False (none: they stay on the GPU) or
-    names such as ``("gap",)``. Warns (UnderResolvedWarning) when ``rho < length/n`` (M7, exponential law).
-
-    ``periodic``: True, the map is one period of a periodic surface (docs/model.md M1); False, a finite map on
-    an elastic half-space with free boundaries (docs/gfmd.md, "Periodic or free boundaries"): the Boussinesq
-    response of the map's pixels on a grid padded to twice the map, pressure only on the map, ``sigma0`` the
-    mean pressure over the map's own area (load = ``sigma0 Lx Ly``); every law (hard wall: its own methods;
-    exponential and adhesive: "lbfgs" on ``gfmd._free``), on the CPU and the GPU (cupy).
-    Default (None): a :class:`gapsweep.topography.Topography` passed as ``heights`` brings its own
-    ``periodic`` flag and its ``length`` (a ``length`` given here must then be left at 1.0); arrays are periodic.
-    """
-    t_start = time.perf_counter()
-    from gapsweep.topography import Topography
-
-    if isinstance(heights, Topography):
-        if length != 1.0 and tuple(np.broadcast_to(length, 2)) != tuple(heights.length):
-            raise ValueError(f"length={length!r} contradicts the Topography's own length {heights.length}; "
-                             "leave length out when passing a Topography")
-        length = tuple(heights.length)
-        periodic = heights.periodic if periodic is None else periodic
-        heights = heights.heights
-    if periodic is None:
-        periodic = True
-    if not isinstance(periodic, (bool, np.bool_)):
-        raise ValueError(f"periodic must be True or False, got {periodic!r}")
-    periodic = bool(periodic)
-    if not _is_cupy(heights):
-        if isinstance(heights, (str, bytes)) or heights is None:
-            raise TypeError(f"heights must be a 2-D real array, got {type(heights).__name__}")
-        heights = np.asarray(heights)
-        if not (np.issubdtype(heights.dtype, np.floating) or np.issubdtype(heights.dtype, np.integer)):
-            raise TypeError(f"heights must be a real array, got dtype {heights.dtype}")
-    shape = heights.shape
-    if len(shape) != 2:
-        raise ValueError(f"heights must be a 2-D array (nx x ny), got shape {shape}")
-    if min(shape) < 2:
-        raise ValueError(f"heights must be at least 2 x 2, got shape {shape}")
-    law = resolve(interaction, gamma0=gamma0, rho=rho, work=work)
-    sigma0 = law.check_load(sigma0)
-    e_star = chk.positive(e_star, "e_star")
-    if isinstance(length, (tuple, list, np.ndarray)):
-        if len(length) != 2:
-            raise ValueError(f"length must be a number or a pair (Lx, Ly), got {length!r}")
-        length = (chk.positive(length[0], "length[0]"), chk.positive(length[1], "length[1]"))
-    else:
-        length = chk.positive(length, "length")
-    tol = chk.positive(tol, "tol")
-    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
-        raise ValueError(f"max_iter must be an integer >= 1, got {max_iter!r}")
-    minimise, methods = _MINIMISERS[law.load_control] if periodic else _FREE[law.load_control]
-    if not isinstance(method, str) or method not in ("auto", *methods):
-        raise ValueError(f"method must be one of {', '.join(map(repr, ('auto', *methods)))} for interaction "
-                         f"{law.name!r}{'' if periodic else ' with periodic=False'}; got {method!r}")
-    if not isinstance(backend, str) or backend not in ("auto", *BACKENDS):
-        raise ValueError(f"backend must be one of {', '.join(map(repr, ('auto', *BACKENDS)))}; got {backend!r}")
-    if periodic:
-        return minimise(heights, law, sigma0=sigma0, e_star=e_star, length=length, tol=tol, method=method,
-                        backend=backend, max_iter=max_iter, initial=initial, threads=threads, host=host,
-                        t_start=t_start)
-    r = minimise(heights, law, sigma0=sigma0, e_star=e_star, length=length, tol=tol, method=method,
-                 backend=backend, max_iter=max_iter, initial=initial, threads=threads, host=host, t_start=t_start,
-                 periodic=False)
-    r.periodic = False
-    return r
-
-
-# Batches of problems of one grid size (gfmd/batched.py): imported last, it builds on solve and _MINIMISERS.
-from gapsweep.gfmd.batched import Problem as BatchProblem  # noqa: E402
-from gapsweep.gfmd.batched import solve_batch  # noqa: E402

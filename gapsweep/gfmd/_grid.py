@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from gapsweep.fft import available_backends, get_backend
+from gapsweep.core.fft import available_backends, get_backend
 
 
 def lengths(length: Any) -> tuple[float, float]:

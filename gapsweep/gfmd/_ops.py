@@ -96,7 +96,7 @@ def _numba_kernels() -> Any:
     global _NUMBA
     if _NUMBA is not None:
         return _NUMBA
-    from gapsweep._extras import require
+    from gapsweep.core.extras import require
 
     numba = require("numba", "the fused CPU kernels of GFMD")
 

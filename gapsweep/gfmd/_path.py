@@ -51,7 +51,7 @@ def solve_path(heights: Any, loads: Any, *, jump_area: float = 0.1, jump_factor:
     ``dg0/dsigma0`` predicts (a branch that ends: pull-off, snap into contact): logged as a warning and listed in
     ``LoadPath.jumps``. Steps must be fine enough for the secant to hold on a smooth branch. The path stops at
     the first "detached" or "non_finite" step (beyond pull-off no equilibrium exists at more tensile loads either)."""
-    from gapsweep.gfmd import solve
+    from gapsweep.gfmd._solve import solve
     from gapsweep.gfmd.interactions import resolve
 
     if "initial" in kwargs:

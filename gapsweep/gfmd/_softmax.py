@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from gapsweep.fft import available_backends, get_backend
+from gapsweep.core.fft import available_backends, get_backend
 from gapsweep.gfmd._ops import _is_cupy
 from gapsweep.gfmd._result import FIELDS, GFMDResult, host_fields
 from gapsweep.gfmd._solvers import _RUNNERS, _half_q, _Problem
@@ -25,7 +25,7 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
              t_start: float) -> GFMDResult:
     """Exponential repulsion ``law`` on the square grid ``heights`` (inputs validated by ``gfmd.solve``)."""
     host_fields(host)  # validate before any work
-    from gapsweep.gfmd import UnderResolvedWarning, _make_ops, _transfer_modes  # late: tests patch gfmd
+    from gapsweep.gfmd._common import UnderResolvedWarning, _make_ops, _transfer_modes
 
     shape = heights.shape
     lx, ly = length if isinstance(length, tuple) else (length, length)
@@ -162,7 +162,7 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
 
 def _initial_modes(initial: Any, n: int, fft: Any) -> Any:
     """Half spectrum ``u~`` of a warm start (a result or a displacement on any square grid), a new array."""
-    from gapsweep.gfmd import _transfer_modes  # late: tests patch gfmd
+    from gapsweep.gfmd._common import _transfer_modes
 
     xp = fft.xp
     u0 = initial.displacement if isinstance(initial, GFMDResult) else initial

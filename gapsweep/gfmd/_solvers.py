@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from gapsweep.core import deadline
-from gapsweep.fft import FFTBackend
+from gapsweep.core.fft import FFTBackend
 from gapsweep.gfmd._ops import _Ops
 
 

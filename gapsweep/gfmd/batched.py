@@ -32,9 +32,9 @@ from typing import Any
 
 import numpy as np
 
-from gapsweep import _checks as chk
+from gapsweep.core import checks as chk
 from gapsweep.core import deadline
-from gapsweep.fft import BACKENDS, available_backends, get_backend
+from gapsweep.core.fft import BACKENDS, available_backends, get_backend
 from gapsweep.gfmd._ops import _is_cupy
 from gapsweep.gfmd._result import FIELDS, GFMDResult, host_fields
 from gapsweep.gfmd._solvers import _half_q, _next_trial
@@ -68,7 +68,7 @@ def solve_batch(problems: Sequence[Problem], *, e_star: float = 1.0, length: flo
     """Solve ``problems`` (see the module docstring); arguments as in :func:`gapsweep.gfmd.solve`, common to all.
     ``backend``: "auto" (cupy when cupy is installed and a GPU is present, else numpy), "numpy" or "cupy";
     ``max_batch``: most problems stacked at once. Every input is validated before any work."""
-    from gapsweep.gfmd import _MINIMISERS, solve  # late: gfmd imports this module
+    from gapsweep.gfmd._solve import _MINIMISERS, solve
 
     e_star = chk.positive(e_star, "e_star")
     length = chk.positive(length, "length")
@@ -94,7 +94,7 @@ def solve_batch(problems: Sequence[Problem], *, e_star: float = 1.0, length: flo
         law = resolve(p.interaction, gamma0=p.gamma0, rho=p.rho)
         rng = law.range()
         if rng is not None and rng < length / shape[0]:
-            from gapsweep.gfmd import UnderResolvedWarning
+            from gapsweep.gfmd._common import UnderResolvedWarning
 
             dx = length / shape[0]
             # the one-by-one solver's text after the problem's index (the sweep stores it in that row)
@@ -393,7 +393,7 @@ def _softmax_batch(heights: list, laws: list, sigma0s: list[float], starts: list
         if u0.shape[0] == n:
             X[j] = ops.rfft2(xp.asarray(u0, dtype=xp.float64)[None])[0] * (1.0 / (n * n))
         else:
-            from gapsweep.gfmd import _transfer_modes
+            from gapsweep.gfmd._common import _transfer_modes
 
             X[j] = xp.asarray(_transfer_modes(u0, n))
     minv = 1.0 / (k + _col(xp, s0 / rho))

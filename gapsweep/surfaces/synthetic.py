@@ -191,7 +191,7 @@ def self_affine(
 def _irfft2_modes_gpu(n: int, kx: np.ndarray, ky: np.ndarray, coeff: np.ndarray):
     """``irfft2`` of the half spectrum holding ``coeff`` at ``(kx, ky)`` (and the ky = 0 mirrors), times ``n^2``,
     on the GPU (cupy): the same layout as the numpy branch of :func:`self_affine`."""
-    from gapsweep import _extras
+    from gapsweep.core import extras as _extras
 
     cupy = _extras.require("cupy", 'GPU surfaces (backend="cupy")')
     from cupyx.scipy.fft import get_fft_plan

@@ -186,6 +186,26 @@ def _read_surfacetopography(path: Path) -> tuple[np.ndarray, tuple[float, float]
             getattr(topo, "unit", None), bool(getattr(topo, "is_periodic", False)))
 
 
+EDGE_RATIO_LIMIT = 3.0  # edge_ratio above this: not one period of a periodic surface
+
+
+def edge_ratio(heights: Any) -> float:
+    """How far a map is from periodic (dimensionless): the rms height difference across the wrap-around edges
+    (``h[0] - h[-1]`` and ``h[:, 0] - h[:, -1]``) over the rms difference of interior neighbours, the larger of
+    the two directions. About 1 for one period of a periodic surface; ``h_rms/(g_rms dx)`` for a crop; a tilt
+    adds its full rise. 1.0 for a flat map."""
+    h = np.asarray(heights, dtype=float)
+    out = 1.0
+    for axis in (0, 1):
+        inner = float(np.sqrt(np.mean(np.diff(h, axis=axis) ** 2)))
+        wrap = float(np.sqrt(np.mean((np.take(h, 0, axis=axis) - np.take(h, -1, axis=axis)) ** 2)))
+        if inner > 0:
+            out = max(out, wrap / inner)
+        elif wrap > 0:
+            out = math.inf
+    return out
+
+
 def load(path: str | Path, *, length: Any = None, pixel_size: Any = None, unit: str | None = None,
          height_unit: str | None = None, to_unit: str | None = None, detrend: str = "mean",
          periodic: bool | None = None, format: str | None = None, key: str | None = None,
@@ -282,7 +302,6 @@ def load(path: str | Path, *, length: Any = None, pixel_size: Any = None, unit: 
     elif file_periodic is not None:
         is_periodic = bool(file_periodic)
     else:  # neither the file nor the caller says: the edges do (after detrending, so a tilt alone is not a jump)
-        from gapsweep.theory.spectrum import EDGE_RATIO_LIMIT, edge_ratio
 
         ratio = edge_ratio(h)
         is_periodic = ratio <= EDGE_RATIO_LIMIT

@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.special import expit
 
-from gapsweep import _checks as chk
+from gapsweep.core import checks as chk
 
 __all__ = ["MultiscaleGaps", "gap_distribution", "local_response_samples", "multiscale_gap_samples"]
 

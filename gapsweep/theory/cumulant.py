@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.special import logsumexp
 
-from gapsweep import _checks as chk
+from gapsweep.core import checks as chk
 from gapsweep.theory.improved import gap_fluctuations
 
 __all__ = ["next_order_term", "resummed_term", "trusted"]

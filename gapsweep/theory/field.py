@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.special import logsumexp
 
-from gapsweep import _checks as chk
+from gapsweep.core import checks as chk
 from gapsweep.theory import spectrum
 
 __all__ = [

@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.special import logsumexp
 
-from gapsweep import _checks as chk
+from gapsweep.core import checks as chk
 
 __all__ = ["HybridResult", "gap_fluctuations", "hybrid", "lme_linear", "lme_second_order", "shift_error",
            "unresolved_shift"]

@@ -32,7 +32,7 @@ from numpy.typing import ArrayLike
 from scipy.integrate import solve_ivp
 from scipy.special import erf, exp1
 
-from gapsweep import _checks as chk
+from gapsweep.core import checks as chk
 from gapsweep.theory import spectrum as spec
 
 __all__ = [
@@ -58,7 +58,7 @@ _TAIL = 7.0  # exp(-x^2) integrands are negligible (< 1e-21 relative) beyond y +
 def _map(heights, length, lambda_l, periodic, form: str) -> spec.Spectrum:
     """A map's own spectrum, always through ``spectrum.map_spectrum`` (non-periodic maps handled there; a
     Topography brings its length and periodic flag)."""
-    from gapsweep.topography import Topography
+    from gapsweep.surfaces.topography import Topography
 
     if isinstance(heights, Topography):
         return spec.map_spectrum(heights, None if length == 1.0 else length, periodic=periodic,

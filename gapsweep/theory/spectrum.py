@@ -41,7 +41,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from gapsweep import _checks as chk
+from gapsweep.core import checks as chk
+from gapsweep.surfaces.topography import EDGE_RATIO_LIMIT, edge_ratio
 
 __all__ = ["EDGE_RATIO_LIMIT", "MapSpectrum", "Spectrum", "edge_ratio", "from_heights", "heights_array", "lengths",
            "map_spectrum", "radial", "self_affine"]
@@ -51,7 +52,6 @@ log = logging.getLogger("gapsweep.theory")
 #: wrap-around neighbours are neighbours like any other (ratio about 1; one row's worth of samples, so
 #: fluctuations of tens of per cent); a crop has a jump of order ``h_rms`` there (ratio ``h_rms/(g_rms dx)``,
 #: typically 5 .. 100).
-EDGE_RATIO_LIMIT = 3.0
 
 _GL_ORDER = 20
 _PANEL = 0.5  # longest Gauss-Legendre panel in ln q
@@ -228,23 +228,6 @@ class MapSpectrum:
     periodic_mismatch: bool
 
 
-def edge_ratio(heights: ArrayLike) -> float:
-    """How far a map is from periodic (dimensionless): the rms height difference across the wrap-around edges
-    (``h[0] - h[-1]`` and ``h[:, 0] - h[:, -1]``) over the rms difference of interior neighbours, the larger of
-    the two directions. About 1 for one period of a periodic surface; ``h_rms/(g_rms dx)`` for a crop; a tilt
-    adds its full rise. 1.0 for a flat map."""
-    h = heights_array(heights)
-    out = 1.0
-    for axis in (0, 1):
-        inner = float(np.sqrt(np.mean(np.diff(h, axis=axis) ** 2)))
-        wrap = float(np.sqrt(np.mean((np.take(h, 0, axis=axis) - np.take(h, -1, axis=axis)) ** 2)))
-        if inner > 0:
-            out = max(out, wrap / inner)
-        elif wrap > 0:
-            out = math.inf
-    return out
-
-
 def _difference_power(h: np.ndarray, lx: float, ly: float) -> tuple[np.ndarray, np.ndarray, float, float]:
     """``(|q|, v)`` of every mode on the ``(nx-1) x (ny-1)`` pixels with both forward neighbours (module
     docstring): ``v = (|Dx h~|^2 + |Dy h~|^2)/|D(q)|^2``; and that sub-box's sides."""
@@ -276,7 +259,7 @@ def map_spectrum(heights: Any, length: float | tuple[float, float] | None = None
     spectrum of a map that does not look periodic logs a warning and sets ``periodic_mismatch``.
     ``form``: "discrete" (shells of equal ``|q|``, as :func:`from_heights`) or "radial" (rings of width
     ``2 pi/max(Lx, Ly)``, as :func:`radial`). ``lambda_l``: sets ``q_l`` only (default the longest side)."""
-    from gapsweep.topography import Topography  # the loader module imports nothing from here
+    from gapsweep.surfaces.topography import Topography  # the loader module imports nothing from here
 
     topo_periodic = None
     if isinstance(heights, Topography):

@@ -15,7 +15,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from gapsweep import _checks as chk
+from gapsweep.core import checks as chk
 from gapsweep.gfmd.interactions.base import SmoothInteraction
 
 __all__ = ["Adhesive"]

@@ -30,7 +30,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from gapsweep import _checks as chk
+from gapsweep.core import checks as chk
 
 __all__ = ["Interaction", "SmoothInteraction"]
 
