@@ -146,7 +146,8 @@ def test_hybrid_result_keeps_the_tuple_interface():
 
 
 @pytest.mark.parametrize("bad, match", [(dict(zeta_c="big"), "zeta_c"), (dict(zeta_c=-1.0), "zeta_c"),
-                                        (dict(rtol=1.5), "rtol"), (dict(rtol=0.0), "rtol")])
+                                        (dict(rtol=1.5), "rtol"), (dict(rtol=0.0), "rtol"),
+                                        (dict(local=True), "local")])
 def test_hybrid_bad_input(bad, match):
     h = surface.self_affine(32, 0.5, lambda_l=0.5, lambda_s=0.1, seed=2)
     kw = dict(zeta_c="auto", rho=5e-3, gamma0=1e-3, lambda_l=0.5) | bad

@@ -9,6 +9,7 @@ One module per theory (a new theory is a new file here):
 ``cumulant``    next-order cumulant terms of the field theory: an error indicator for the paper's form.
 ``improved``    improved mean-gap predictors for exponential repulsion (beyond the paper).
 ``closure``     a gap-distribution closure whose strength is fixed by the mean-pressure identity.
+                Also the multiscale gap distribution (coarse GFMD + that closure over the finer shells).
 
 The names of the original single-module ``gapsweep.theory`` (the field theory) are re-exported here, so
 ``from gapsweep import theory; theory.mean_gap(...)`` works as before.

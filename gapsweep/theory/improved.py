@@ -355,6 +355,8 @@ def hybrid(
     if isinstance(zeta_c, str):
         if zeta_c != "auto":
             raise ValueError(f"zeta_c must be a positive number or 'auto', got {zeta_c!r}")
+        if local:
+            raise ValueError("local=True needs a numeric zeta_c (zeta_c='auto' brackets the local shift instead)")
         k_max = _max_mode(h)
         k_l = length / lambda_l
         n_cap = max(32, n * math.sqrt(max_cost_fraction / 1.6))
