@@ -306,3 +306,17 @@ def test_hard_wall_generic_passes_match_numba(monkeypatch, method: str) -> None:
     b = solve(h, **kw)
     assert a.converged and b.converged and abs(a.iterations - b.iterations) <= 1
     assert abs(a.mean_gap - b.mean_gap) <= 1e-10 * a.mean_gap and a.contact_area == b.contact_area
+
+
+def test_hard_wall_load_path_reports_no_jumps():
+    """The hard wall's energy is convex (one equilibrium per load): a load path with uneven steps, where the mean
+    gap's secant extrapolation is poor, must not report jumps (issue 20 item 7; the old secant test did)."""
+    from gapsweep.gfmd import solve_path
+
+    h = self_affine(64, 0.8, lambda_l=0.25, lambda_s=1 / 16, rms_slope=1.0, seed=4)
+    loads = [1e-3, 2e-3, 1e-2, 1.1e-2, 1e-1, 1.01e-1, 0.5]
+    path = solve_path(h, loads, interaction="hard_wall", tol=1e-8, backend="numpy")
+    assert path.jumps == [] and all(r.converged for r in path.results)
+    # the same uneven steps by the exponential law (convex too): none either
+    path = solve_path(h, loads, gamma0=1e-3, rho=2e-2, tol=1e-8, backend="numpy")
+    assert path.jumps == []

@@ -46,7 +46,8 @@ def solve_path(heights: Any, loads: Any, *, jump_area: float = 0.1, jump_factor:
     """Solve at each mean pressure in ``loads`` in the given order, each warm-started from the previous
     solution (``initial=``); other keywords go to :func:`gapsweep.gfmd.solve` (``interaction`` included).
 
-    A step is a jump when the contact area changes by more than ``jump_area`` (fraction of the nominal area) or
+    For a law whose energy is not convex (adhesion), a step is a jump when the contact area changes by
+    more than ``jump_area`` (fraction of the nominal area) or
     the mean gap moves by more than ``jump_factor`` times what the previous step's secant compliance
     ``dg0/dsigma0`` predicts (a branch that ends: pull-off, snap into contact): logged as a warning and listed in
     ``LoadPath.jumps``. Steps must be fine enough for the secant to hold on a smooth branch. The path stops at
@@ -66,7 +67,7 @@ def solve_path(heights: Any, loads: Any, *, jump_area: float = 0.1, jump_factor:
     for i, s0 in enumerate(arr):
         r = solve(heights, sigma0=float(s0), interaction=law, initial=prev, **kwargs)
         path.results.append(r)
-        if prev is not None:
+        if prev is not None and not law.convex:  # a convex energy has one equilibrium per load: no jumps
             da, dg = abs(r.contact_area - prev.contact_area), abs(r.mean_gap - prev.mean_gap)
             predicted = math.inf
             if i >= 2:

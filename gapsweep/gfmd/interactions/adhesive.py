@@ -27,6 +27,7 @@ class Adhesive(SmoothInteraction):
     name: ClassVar[str] = "adhesive"
     contact_criterion: ClassVar[str] = "gap < rho (closer than the distance of the largest tensile stress)"
     allows_tensile: ClassVar[bool] = True
+    convex: ClassVar[bool] = False  # phi'' < 0 beyond g = rho: branches end (pull-off, snap-in)
 
     def __init__(self, work: float, rho: float) -> None:
         self.work = chk.positive(work, "work")

@@ -46,6 +46,8 @@ class Interaction(abc.ABC):
     contact_criterion: ClassVar[str]
     #: whether the load may be zero or tensile (sigma0 <= 0)
     allows_tensile: ClassVar[bool] = False
+    #: whether the energy is convex in the gap (then the equilibrium is unique and a load path has no jumps)
+    convex: ClassVar[bool] = True
 
     @abc.abstractmethod
     def params(self) -> dict[str, float]:
