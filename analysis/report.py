@@ -731,11 +731,21 @@ def _shown_path(path: Any, out: Path) -> str:
     p = Path(str(path))
     if not p.is_absolute():
         return str(p)
+    rel = _near_relpath(p, out.resolve().parent)
+    return rel if rel is not None else p.name
+
+
+def _near_relpath(path: Any, start: Any) -> str | None:
+    """``path`` relative to ``start`` when the two share a folder below the file system's root and the way up is
+    at most two levels; else None (a relative path through the root names the machine's layout)."""
     try:
-        rel = os.path.relpath(p, out.resolve().parent)
-    except ValueError:
-        return p.name
-    return rel if rel.count("..") <= 2 else p.name
+        common = os.path.commonpath([os.path.abspath(path), os.path.abspath(start)])
+        rel = os.path.relpath(path, start)
+    except ValueError:  # another drive
+        return None
+    if common == os.path.abspath(os.sep) or Path(common).parent == Path(common) or rel.count("..") > 2:
+        return None
+    return rel
 
 
 def _provenance_section(prov: Sequence[Mapping[str, Any]], out: Path) -> list[str]:
@@ -750,11 +760,8 @@ def _provenance_section(prov: Sequence[Mapping[str, Any]], out: Path) -> list[st
             if k in ("path", "spec", "spec_text"):
                 continue
             if k == "spec_dir" and isinstance(v, str) and os.path.isabs(v):
-                try:
-                    rel = os.path.relpath(v, store_path.resolve().parent)
-                except ValueError:  # another drive
-                    rel = ""
-                v = (f"{rel} (relative to the store)" if rel and rel.count("..") <= 2 else
+                rel = _near_relpath(v, store_path.resolve().parent)
+                v = (f"{rel} (relative to the store)" if rel is not None else
                      f"{Path(v).name}/ (the job spec's folder; not near the store)")
             rows.append({"attribute": k, "value": (json.dumps(v) if not isinstance(v, str) else v)[:300]})
         md.append(_md_table(pd.DataFrame(rows)))
