@@ -466,6 +466,10 @@ def map_fields(df: pd.DataFrame, job: str, info: Mapping[str, Any]) -> dict[str,
                 out["source"] = "the store's kept fields"
         except Exception:  # no kept fields: recompute below
             gap = None
+    if out["heights"] is None and not info.get("file"):
+        out["heights"], out["length"], why = _synthetic_heights(info, row)
+        if why:
+            out["note"] = f"Job {job}: no map figure ({why})."
     h = out["heights"]
     if gap is None and h is not None:
         if h.shape[0] > MAP_MAX_N:
@@ -487,6 +491,32 @@ def map_fields(df: pd.DataFrame, job: str, info: Mapping[str, Any]) -> dict[str,
     if gap is not None:
         out["mask"] = (pressure > 0) if (law == "hard_wall" and pressure is not None) else (gap < rho)
     return out
+
+
+def _synthetic_heights(info: Mapping[str, Any], row: Any) -> tuple[Any, float, str | None]:
+    """The self-affine surface of one row regenerated as the sweep does (``gapsweep.surface.self_affine`` with the
+    spec's ``[surface]`` keys and the row's H, seed and n), checked against the store's rms height. ``(heights,
+    length, None)`` or ``(None, nan, why not)``."""
+    n = int(row.get("n", 0))
+    if n > MAP_MAX_N:
+        return None, math.nan, f"a self-affine surface of N = {n} > {MAP_MAX_N} is not regenerated"
+    surf = dict(info.get("surface", {}))
+    kw: dict[str, Any] = {"lambda_l": float(surf.get("lambda_l", 0.25)),
+                          "lambda_s": float(surf.get("lambda_s", 2.5e-3)), "length": float(surf.get("length", 1.0)),
+                          "amplitudes": str(surf.get("amplitudes", "fixed"))}
+    norms = [k for k in ("rms_slope", "rms_height", "c0") if k in surf]
+    kw[norms[0] if norms else "rms_slope"] = float(surf[norms[0]]) if norms else 1.0
+    try:
+        from gapsweep.surfaces import synthetic
+
+        h = np.asarray(synthetic.self_affine(n, float(row["hurst"]), seed=int(row["seed"]), **kw), float)
+    except Exception as ex:
+        return None, math.nan, f"the self-affine surface could not be regenerated: {ex}"
+    h_rms = float(row.get("h_rms", math.nan))
+    if np.isfinite(h_rms) and not math.isclose(float(np.std(h)), h_rms, rel_tol=1e-6):
+        return None, math.nan, (f"the regenerated surface is not the job's (rms height {float(np.std(h)):.6g}, the "
+                                f"store's {h_rms:.6g})")
+    return h, kw["length"], None
 
 
 def fig_map(df: pd.DataFrame, *, job: str, info: Mapping[str, Any], note: str | None = None,
@@ -573,7 +603,7 @@ def plan(df: pd.DataFrame, hists: Mapping[str, tuple], phists: Mapping[str, tupl
                            + ("hard-wall theory" if law != "hard_wall" else "map not found")) + ")",
                         lambda job=job, a=a, info=info: fig_distributions(df, hists, phists, job=job,
                                                                           note=note(a, job), info=info)))
-        if info.get("heights") is not None or info.get("store"):
+        if info.get("heights") is not None or info.get("store") or not info.get("file"):
             f = map_fields(df, job, info)
             if f["note"]:
                 info.setdefault("notes", []).append(f["note"])

@@ -194,3 +194,42 @@ def test_units_attribute_parsing():
                                                                                         "pressure": None}
     assert contact.units({"units": SI}) == SI
     assert contact.units({"units": "not json"}) == {"length": None, "pressure": None}
+
+
+SYNTHETIC = """[job]
+name = "hw-synthetic"
+[grid]
+hurst = [0.7]
+sigma0 = [1e-2, 3e-2, 1e-1]
+[surface]
+lambda_l = 0.25
+lambda_s = 0.0625
+rms_slope = 1.0
+[interaction]
+kind = "hard_wall"
+[histogram]
+bins = 32
+[methods.gfmd]
+n = 64
+tol = 1e-8
+backend = "numpy"
+"""
+
+
+@pytest.mark.timeout(300)
+def test_self_affine_hard_wall_gets_persson_and_a_regenerated_map(tmp_path):
+    from gapsweep import runner, store
+
+    (tmp_path / "syn.toml").write_text(SYNTHETIC)
+    path = tmp_path / "syn.h5"
+    runner.run(tmp_path / "syn.toml", path, progress="none", mpi="off")
+    figs = _figures(path)
+    assert set(figs) == {"contact", "contact_distributions", "contact_map"}
+    _assert_bins_fit_the_axis(figs["contact_distributions"])
+    for ax in figs["contact_distributions"].axes[:2]:
+        assert len([ln for ln in ax.get_lines() if ln.get_linestyle() == "--"]) == 3
+    imgs = [ax.get_images() for ax in figs["contact_map"].axes if ax.get_label() != "<colorbar>"]
+    mask = np.asarray(imgs[1][0].get_array(), float)
+    df = store.read(path)
+    areas = df[df["method"] == "gfmd"]["contact_area"].to_numpy(float)
+    assert mask.shape == (64, 64) and np.min(np.abs(areas - mask.mean())) < 2 / 64**2
