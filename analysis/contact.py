@@ -243,7 +243,7 @@ def job_info(job: str, rows: pd.DataFrame, prov: Mapping[str, Any] | None = None
         "variant": str(theory.get("persson_variant", "persson2001")),
         "gamma": float(theory.get("persson_gamma", 0.42)),
         "tol": float(_table(raw, "methods", "gfmd").get("tol", 1e-8)),
-        "store": prov.get("path"), "heights": None, "length": math.nan, "notes": []}
+        "store": prov.get("path"), "heights": None, "length": math.nan, "notes": [], "has_spec": bool(raw)}
     if info["file"]:
         topo, why = _load_map(surf, prov, rows) if raw else (None, "the store holds no job spec")
         if topo is None:
@@ -466,7 +466,7 @@ def map_fields(df: pd.DataFrame, job: str, info: Mapping[str, Any]) -> dict[str,
                 out["source"] = "the store's kept fields"
         except Exception:  # no kept fields: recompute below
             gap = None
-    if out["heights"] is None and not info.get("file"):
+    if out["heights"] is None and not info.get("file") and info.get("has_spec"):
         out["heights"], out["length"], why = _synthetic_heights(info, row)
         if why:
             out["note"] = f"Job {job}: no map figure ({why})."
@@ -603,7 +603,7 @@ def plan(df: pd.DataFrame, hists: Mapping[str, tuple], phists: Mapping[str, tupl
                            + ("hard-wall theory" if law != "hard_wall" else "map not found")) + ")",
                         lambda job=job, a=a, info=info: fig_distributions(df, hists, phists, job=job,
                                                                           note=note(a, job), info=info)))
-        if info.get("heights") is not None or info.get("store") or not info.get("file"):
+        if info.get("heights") is not None or info.get("store") or (info.get("has_spec") and not info.get("file")):
             f = map_fields(df, job, info)
             if f["note"]:
                 info.setdefault("notes", []).append(f["note"])

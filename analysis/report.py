@@ -663,9 +663,9 @@ def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
 
     md: list[str] = [f"# {title}", ""]
     if quick:
-        md += [f"> **Warning: quick job(s) {', '.join(sorted(quick))}.** Smoke tests on reduced grids (for example "
-               "zeta_s = 16 instead of 100): their numbers check that the pipeline runs and are not for "
-               "conclusions.", ""]
+        example = " (for example zeta_s = 16 instead of 100)" if quick & set(df["job"].astype(str)) else ""
+        md += [f"> **Warning: quick job(s) {', '.join(sorted(quick))}.** Smoke tests on reduced grids{example}: their "
+               "numbers check that the pipeline runs and are not for conclusions.", ""]
     ver = _paper_verdicts(cmp, dist, matches) if matches else []
     if field_theory:  # a contact-only report says nothing about the seed paper
         md += _verdict_section(ver, matches)
@@ -691,7 +691,7 @@ def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
     if field_theory:
         md += _field_theory_sections(cmp, summary, dist, calib)
     md += _provenance_section(prov, out)
-    text = "\n".join(md) + "\n"
+    text = _strip_machine_paths("\n".join(md) + "\n", prov)
     path = out / "report.md"
     path.write_text(text)
     (out / "report.html").write_text(_md_to_html(text, title))
@@ -731,8 +731,23 @@ def _shown_path(path: Any, out: Path) -> str:
     p = Path(str(path))
     if not p.is_absolute():
         return str(p)
-    rel = _near_relpath(p, out.resolve().parent)
+    rel = _near_relpath(p, out.resolve())  # (build writes into a sibling of the final folder: the same relpath)
     return rel if rel is not None else p.name
+
+
+def _strip_machine_paths(text: str, prov: Sequence[Mapping[str, Any]]) -> str:
+    """Last guard: the folders of the job specs and stores named in free text (a row's message, an error) become
+    ``<spec dir>`` and ``<store dir>``."""
+    dirs: dict[str, str] = {}
+    for p in prov:
+        if isinstance(p.get("spec_dir"), str) and os.path.isabs(p["spec_dir"]):
+            dirs[p["spec_dir"].rstrip(os.sep)] = "<spec dir>"
+        if p.get("path"):
+            dirs.setdefault(str(Path(str(p["path"])).resolve().parent), "<store dir>")
+    for d, token in sorted(dirs.items(), key=lambda kv: -len(kv[0])):  # the longest first
+        if len(d) > 1:
+            text = text.replace(d + os.sep, token + "/").replace(d, token)
+    return text
 
 
 def _near_relpath(path: Any, start: Any) -> str | None:
