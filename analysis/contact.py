@@ -14,20 +14,34 @@ Seeds: values are averaged over seeds (a file surface has one); the tables give 
 
 from __future__ import annotations
 
+import json
+import logging
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from analysis import figures
+from gapsweep.theory import persson
 
-__all__ = ["CONTACT_LAWS", "is_contact", "plan", "summary", "tables"]
+__all__ = ["CONTACT_LAWS", "Labels", "fig_contact", "fig_distributions", "fig_map", "is_contact", "job_info",
+           "job_infos", "map_fields", "plan", "summary", "tables", "units"]
+
+log = logging.getLogger("gapsweep.analysis.contact")
 
 CONTACT_LAWS = ("hard_wall", "adhesive")
 PERSSON = {"color": "tab:purple", "ls": "-", "marker": "s", "ms": 4, "mfc": "none", "label": "Persson's theory"}
 MAX_CURVES = 5
+SYMBOLS = (
+    "Symbols of the contact figures: sigma0 applied mean pressure, E* contact modulus, g0 mean gap, A/A0 contact "
+    "area fraction, P(g) density of the gaps of the free points, P(p) density of the local pressures of the loaded "
+    "points (docs/gfmd.md). Axes are in the store's units (attribute `units`) or, without them, pressures over E* "
+    "and lengths in units of L (of the map, for a file surface). Open circles: GFMD mean over seeds with its "
+    "standard error; squares: Persson's theory with the surface's own spectrum; steps: GFMD densities on the "
+    "store's bins; dashed in the same colour: Persson's distributions (hard wall).")
 
 
 def is_contact(df: pd.DataFrame) -> pd.Series:
@@ -100,30 +114,210 @@ def summary(persson: pd.DataFrame) -> pd.DataFrame:
 
 
 # ---------------------------------------------------------------------------------------------------------
+# what a job's store says about itself: units, law, surface, Persson's parameters
+
+MAP_MAX_N = 512  # the contact map is recomputed with one solve only up to this grid (a few seconds on one core)
+
+
+def units(prov: Mapping[str, Any] | None) -> dict[str, str | None]:
+    """The store attribute ``units``: JSON ``{"length": "um" | null, "pressure": "MPa" | null}`` (a string or
+    the parsed dict of :func:`analysis.report.provenance`). Absent or null: model units (lengths in units of L,
+    pressures in units of E*)."""
+    raw = (prov or {}).get("units")
+    if isinstance(raw, bytes):
+        raw = raw.decode("utf-8", "replace")
+    if isinstance(raw, str):
+        try:
+            raw = json.loads(raw)
+        except ValueError:
+            raw = None
+    out: dict[str, str | None] = {"length": None, "pressure": None}
+    if isinstance(raw, Mapping):
+        for k in out:
+            v = raw.get(k)
+            out[k] = v.strip() if isinstance(v, str) and v.strip() else None
+    return out
+
+
+class Labels:
+    """Axis labels of one job from its units (:func:`units`). With a pressure unit, pressures are drawn as
+    stored, in that unit; without, over E* (``scale`` is what a pressure is divided by)."""
+
+    def __init__(self, u: Mapping[str, str | None], *, file_surface: bool = False) -> None:
+        self.length_unit, self.pressure_unit = u.get("length"), u.get("pressure")
+        self.model_length = "units of the map" if file_surface else "units of L"
+
+    def length(self, what: str) -> str:
+        return f"{what} [{self.length_unit}]" if self.length_unit else f"{what} ({self.model_length})"
+
+    def pressure(self, sym: str, what: str = "") -> str:
+        lead = f"{what} " if what else ""
+        return f"{lead}${sym}$ [{self.pressure_unit}]" if self.pressure_unit else f"{lead}${sym}/E^*$"
+
+    def scale(self, e_star: float) -> float:
+        return 1.0 if self.pressure_unit or not (np.isfinite(e_star) and e_star > 0) else float(e_star)
+
+    def value(self, s0: float, e_star: float) -> str:
+        """A pressure for a legend: ``sigma0 = 0.01 MPa`` or ``sigma0/E* = 0.01``."""
+        v = s0 / self.scale(e_star)
+        return (f"$\\sigma_0$ = {v:.3g} {self.pressure_unit}" if self.pressure_unit
+                else f"$\\sigma_0/E^*$ = {v:.3g}")
+
+    def gap_density(self) -> str:
+        return f"density $P(g)$ [1/{self.length_unit}]" if self.length_unit else "density $P(g)$ (per length)"
+
+    def pressure_density(self) -> str:
+        return f"density $P(p)$ [1/{self.pressure_unit}]" if self.pressure_unit else "density $E^*P(p)$"
+
+    def energy(self) -> str:
+        if self.length_unit and self.pressure_unit:
+            return f"elastic energy per area [{self.pressure_unit} {self.length_unit}]"
+        return "elastic energy per area (units of E* L)"
+
+
+def _spec(prov: Mapping[str, Any]) -> dict[str, Any]:
+    import tomllib
+
+    text = prov.get("spec_text", prov.get("spec"))
+    try:
+        return tomllib.loads(text) if isinstance(text, str) else {}
+    except ValueError:
+        return {}
+
+
+def _table(raw: Mapping[str, Any], *keys: str) -> dict[str, Any]:
+    t: Any = raw
+    for k in keys:
+        t = t.get(k, {}) if isinstance(t, Mapping) else {}
+    return dict(t) if isinstance(t, Mapping) else {}
+
+
+def _first(rows: pd.DataFrame, col: str, default: float = math.nan) -> float:
+    v = pd.to_numeric(rows[col], errors="coerce").dropna() if col in rows else pd.Series(dtype=float)
+    return float(v.iloc[0]) if len(v) else default
+
+
+def _load_map(surf: Mapping[str, Any], prov: Mapping[str, Any], rows: pd.DataFrame) -> tuple[Any, str | None]:
+    """The job's height map, loaded as the sweep does (``gapsweep.sweep.filesurface``) from the spec's surface
+    table, the path relative to the job spec (the store's ``spec_dir``, else the store's folder). ``(topo,
+    None)`` or ``(None, why not)``; never raises."""
+    from gapsweep.sweep import filesurface
+
+    path = str(surf.get("path", ""))
+    bases = [Path(str(prov["spec_dir"]))] if prov.get("spec_dir") else []
+    if prov.get("path"):
+        bases.append(Path(str(prov["path"])).parent)
+    for base in bases:
+        full = base / path
+        if not path or not full.is_file():
+            continue
+        try:
+            table, _ = filesurface.file_surface(dict(surf), base)
+            topo = filesurface.load_file_surface(table, full)
+        except Exception as e:  # the report says why instead of failing
+            why = str(e).replace(str(base.resolve()), "<spec dir>").replace(str(base), "<spec dir>")
+            return None, f"the height map `{path}` (relative to the job spec) does not load ({why})"
+        h_rms = _first(rows, "h_rms")
+        if np.isfinite(h_rms) and not math.isclose(float(np.std(topo.heights)), h_rms, rel_tol=1e-6):
+            return None, (f"the height map found at `{path}` (relative to the job spec) is not the one the job ran "
+                          f"(rms height {float(np.std(topo.heights)):.6g}, the store's {h_rms:.6g})")
+        return topo, None
+    return None, (f"the height map `{path}` (relative to the job spec) was not found next to the job spec or the "
+                  "store")
+
+
+def job_info(job: str, rows: pd.DataFrame, prov: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """What the contact figures need of one job, from its store's attributes (``prov``: one entry of
+    :func:`analysis.report.provenance`) and rows: ``units``, ``law``, the spec's Persson options, the file
+    surface's map (``heights``, ``length``; None when it cannot be found) and ``notes`` for the report."""
+    prov = prov or {}
+    raw = _spec(prov)
+    surf = _table(raw, "surface")
+    theory = _table(raw, "methods", "theory")
+    law = str(rows["interaction"].iloc[0]) if "interaction" in rows and len(rows) else \
+        str(_table(raw, "interaction").get("kind", "exponential"))
+    info: dict[str, Any] = {
+        "job": job, "units": units(prov), "law": law, "file": surf.get("kind") == "file",
+        "map_path": str(surf["path"]) if surf.get("kind") == "file" and "path" in surf else None,
+        "interaction": _table(raw, "interaction"), "surface": surf,
+        "variant": str(theory.get("persson_variant", "persson2001")),
+        "gamma": float(theory.get("persson_gamma", 0.42)),
+        "tol": float(_table(raw, "methods", "gfmd").get("tol", 1e-8)),
+        "store": prov.get("path"), "heights": None, "length": math.nan, "notes": [], "has_spec": bool(raw)}
+    if info["file"]:
+        topo, why = _load_map(surf, prov, rows) if raw else (None, "the store holds no job spec")
+        if topo is None:
+            info["notes"].append(f"Job {job}: {why}; Persson's distributions and the map are left out.")
+        else:
+            info["heights"], info["length"] = np.asarray(topo.heights, float), float(topo.length[0])
+    return info
+
+
+def _persson_kw(info: Mapping[str, Any], row: Mapping[str, Any]) -> dict[str, Any] | None:
+    """Spectrum keywords of ``gapsweep.theory.persson`` for one row: the map's own spectrum (file surface) or the
+    self-affine parameters (synthetic); None when the law is not the hard wall or the surface is unknown."""
+    if info.get("law") != "hard_wall":
+        return None
+    if info.get("file"):
+        return None if info.get("heights") is None else {"heights": info["heights"], "length": info["length"]}
+    kw = {k: float(row.get(k, math.nan)) for k in ("hurst", "lambda_l", "lambda_s", "length")}
+    if not all(np.isfinite(list(kw.values()))):
+        return None
+    surf = info.get("surface", {})
+    for k in ("rms_slope", "rms_height", "c0"):
+        if k in surf:
+            kw[k] = float(surf[k])
+    return kw
+
+
+# ---------------------------------------------------------------------------------------------------------
 # figures
 
 
 def _xscale(ax: Any, s: np.ndarray) -> None:
-    if np.all(s > 0):
+    if len(s) and np.all(s > 0):
         ax.set_xscale("log")
 
 
-def fig_contact(points: pd.DataFrame, persson: pd.DataFrame, *, job: str, note: str | None = None):
-    """Contact area, mean gap and elastic energy against the applied pressure ``sigma0/E*`` (one job, finest n):
-    GFMD (mean over seeds, standard errors where several) and Persson's theory where the job ran it."""
+def _finish(fig: Any, note: str | None) -> None:
+    """Footer line; the legends are inside the axes (placed by each figure)."""
+    fh = fig.get_figheight()
+    if note:
+        fig.text(0.5, 0.01, note, ha="center", va="bottom", fontsize=7.5, color="0.3")
+    fig.tight_layout(rect=(0, (0.26 / fh) if note else 0.0, 1, 1))
+
+
+def _legend(ax: Any, **kw: Any) -> None:
+    """A legend inside the axes (never outside the figure, whatever the length of the unit labels)."""
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(loc=kw.pop("loc", "best"), fontsize=7.5, framealpha=0.85, **kw)
+
+
+def _info(info: Mapping[str, Any] | None, job: str, rows: pd.DataFrame) -> Mapping[str, Any]:
+    return info if info is not None else job_info(job, rows)
+
+
+def fig_contact(points: pd.DataFrame, persson: pd.DataFrame, *, job: str, note: str | None = None,
+                info: Mapping[str, Any] | None = None):
+    """Contact area, mean gap and elastic energy against the applied pressure (one job, finest n): GFMD (mean
+    over seeds, standard errors where several) and Persson's theory where the job ran it. Axes in the store's
+    units (``info["units"]``) or over E* and L."""
     import matplotlib
 
     with matplotlib.rc_context(figures.STYLE):
         p = points[points["job"] == job]
         p = p[p["n"] == p["n"].max()].sort_values("sigma0")
         p = p[p["count"] > 0]
+        info = _info(info, job, p)
+        lab = Labels(info["units"], file_surface=bool(info.get("file")))
         th = persson[persson["job"] == job].sort_values("sigma0") if len(persson) else persson
-        fig, axes = figures._panels(3)
-        x = p["sigma0"].to_numpy(float) / p["e_star"].to_numpy(float)
-        for ax, col, ylabel, tcol, letter in (
-                (axes[0], "contact_area", "contact area $A/A_0$", "persson_area", "a"),
-                (axes[1], "mean_gap", "mean gap $g_0$ (units of the map)", "persson_separation", "b"),
-                (axes[2], "elastic_energy", "elastic energy per area $U_{el}/A_0$", None, "c")):
+        fig, axes = figures._panels(3, width=3.7, height=3.3)
+        ps = lab.scale(_first(p, "e_star", 1.0))
+        x = p["sigma0"].to_numpy(float) / ps
+        for ax, col, ylabel, tcol, title in (
+                (axes[0], "contact_area", "contact area $A/A_0$", "persson_area", "(a) contact area"),
+                (axes[1], "mean_gap", lab.length("mean gap $g_0$"), "persson_separation", "(b) mean gap"),
+                (axes[2], "elastic_energy", lab.energy(), None, "(c) elastic energy")):
             y = p[col].to_numpy(float)
             ax.errorbar(x, y, yerr=np.nan_to_num(p[f"{col}_sem"].to_numpy(float)), **figures.GFMD)
             jump = (p["flags"].to_numpy(int) & 1) > 0
@@ -131,14 +325,15 @@ def fig_contact(points: pd.DataFrame, persson: pd.DataFrame, *, job: str, note: 
                 ax.plot(x[jump], y[jump], ls="none", marker="x", ms=8, color="tab:red",
                         label="jump along the load path")
             if tcol and len(th):
-                ax.plot(th["sigma0"].to_numpy(float) / p["e_star"].iloc[0], th[tcol].to_numpy(float), **PERSSON)
+                ax.plot(th["sigma0"].to_numpy(float) / ps, th[tcol].to_numpy(float), **PERSSON)
             _xscale(ax, x)
-            if np.all(y[np.isfinite(y)] > 0) and col != "mean_gap":
+            if len(y) and np.all(y[np.isfinite(y)] > 0) and col != "mean_gap":
                 ax.set_yscale("log")
-            ax.set_xlabel(r"pressure $\sigma_0/E^*$")
+            ax.set_xlabel(lab.pressure(r"\sigma_0", "pressure"))
             ax.set_ylabel(ylabel)
-            ax.set_title(f"({letter}) {ylabel.split(' $')[0].split(' (')[0]}")
-        figures._finish(fig, axes, note)
+            ax.set_title(title)
+            _legend(ax)
+        _finish(fig, note)
     return fig
 
 
@@ -148,46 +343,208 @@ def _pick(keys: list[float], k: int = MAX_CURVES) -> list[float]:
     return [keys[i] for i in np.unique(np.linspace(0, len(keys) - 1, k).round().astype(int))]
 
 
+def _rows(df: pd.DataFrame, job: str) -> pd.DataFrame:
+    """Done GFMD rows of one job, finest n, first seed."""
+    g = df[(df["job"] == job) & (df["method"].astype(str) == "gfmd") & (df["status"].astype(str) == "done")]
+    return g[(g["n"] == g["n"].max()) & (g["seed"] == g["seed"].min())] if len(g) else g
+
+
 def fig_distributions(df: pd.DataFrame, hists: Mapping[str, tuple], phists: Mapping[str, tuple], *, job: str,
-                      note: str | None = None):
-    """Gap density (the free points; the contact atom at g = 0 in the legend) and pressure density (p/sigma0 for
-    compressive loads; the free-surface atom at p = 0 in the legend) of one job's GFMD rows (finest n, first
-    seed), up to five pressures."""
+                      note: str | None = None, info: Mapping[str, Any] | None = None):
+    """Gap density of the free points and pressure density of the loaded points of one job's GFMD rows (finest
+    n, first seed, up to five pressures), with Persson's distributions (hard wall: ``gapsweep.theory.persson``
+    ``gap_distribution`` and ``pressure_distribution``, the surface's own spectrum) dashed in the same colour.
+
+    Both densities are drawn as steps on the store's own bins, on linear axes of gap and pressure: the store
+    bins linearly (equal bins from the smallest to the largest value), so a log pressure axis would stretch the
+    first bin over decades, and re-binning onto log bins cannot resolve below one stored bin. The pressure
+    density spans decades, so its density axis is logarithmic. The atoms (g = 0: the hard wall's contact; p = 0:
+    the free surface) are not densities; they are in the report's contact table."""
     import matplotlib
+    from matplotlib.lines import Line2D
 
     with matplotlib.rc_context(figures.STYLE):
-        g = df[(df["job"] == job) & (df["method"].astype(str) == "gfmd") & (df["status"].astype(str) == "done")]
-        g = g[(g["n"] == g["n"].max()) & (g["seed"] == g["seed"].min())] if len(g) else g
+        g = _rows(df, job)
+        info = _info(info, job, g)
+        lab = Labels(info["units"], file_surface=bool(info.get("file")))
         loads = _pick(sorted(set(g["sigma0"].astype(float))))
-        fig, axes = figures._panels(2)
+        fig, axes = figures._panels(2, width=4.6, height=3.6)
         cmap = matplotlib.colormaps["viridis"]
-        scale = bool(len(loads)) and min(loads) > 0
+        drawn_p, pmax, gmax, failed = False, [], [], []
         for i, s0 in enumerate(loads):
             row = g[np.isclose(g["sigma0"].to_numpy(float), s0, rtol=1e-9, atol=0.0)].iloc[0]
-            col = cmap(i / max(len(loads) - 1, 1))
+            col = cmap(0.9 * i / max(len(loads) - 1, 1))
             tid = row["task_id"]
+            e_star = float(row.get("e_star", 1.0)) if np.isfinite(row.get("e_star", np.nan)) else 1.0
+            ps = lab.scale(e_star)
+            kw = _persson_kw(info, row) if s0 > 0 else None
             if tid in hists:
                 e, d, _ = hists[tid]
-                atom = float(row.get("contact_atom", math.nan))
-                lab = f"$\\sigma_0$ = {s0:g}" + (f" (atom g=0: {atom:.3f})" if math.isfinite(atom) else "")
-                axes[0].stairs(d, e, color=col, label=lab)
-                axes[0].plot(0.5 * (e[1:] + e[:-1]), d, ls="none", marker=".", ms=2, color=col)
+                axes[0].stairs(d, e, color=col, label=lab.value(s0, e_star))
+                if np.isfinite(d).any():
+                    gmax.append(float(np.nanmax(d)))
+                if kw is not None:
+                    u = np.linspace(0.0, float(e[-1]), 400)
+                    try:
+                        dens, _ = persson.gap_distribution(u, s0, gamma=info["gamma"], e_star=e_star, **kw)
+                        axes[0].plot(u, dens, color=col, ls="--", lw=1.0)
+                        drawn_p = True
+                    except Exception as ex:  # a theory that cannot be evaluated is named, not fatal
+                        failed.append(f"gap distribution at sigma0 = {s0:g}: {ex}")
             if tid in phists:
-                e, d, atom = phists[tid]
-                f = s0 if scale else 1.0
-                axes[1].stairs(d * f, e / f, color=col, label=f"_p{i}")
-                axes[1].plot(0.5 * (e[1:] + e[:-1]) / f, d * f, ls="none", marker=".", ms=2, color=col,
-                             label=f"p=0 atom at $\\sigma_0$ = {s0:g}: {atom:.3f}" if atom > 0 else f"_q{i}")
-        axes[0].set_xlabel("gap $g$ (units of the map)")
-        axes[0].set_ylabel("density $P(g)$ of the free points")
+                e, d, _atom = phists[tid]
+                axes[1].stairs(d * ps, e / ps, color=col, label=lab.value(s0, e_star))
+                pos = d[d > 0]
+                if len(pos):
+                    pmax.append((float(pos.min() * ps), float(pos.max() * ps)))
+                if kw is not None:
+                    p = np.linspace(max(float(e[0]), 0.0), float(e[-1]), 400)
+                    try:
+                        dens = persson.pressure_distribution(p, s0, variant=info["variant"], e_star=e_star, **kw)
+                        axes[1].plot(p / ps, np.where(dens * ps > 0, dens * ps, np.nan), color=col, ls="--", lw=1.0)
+                        drawn_p = True
+                    except Exception as ex:
+                        failed.append(f"pressure distribution at sigma0 = {s0:g}: {ex}")
+        if failed:
+            log.warning("Persson's distributions of job %s: %s", job, "; ".join(failed))
+        axes[0].set_xlabel(lab.length("gap $g$"))
+        axes[0].set_ylabel(lab.gap_density() + " of the free points")
         axes[0].set_title("(a) gap distribution")
-        if scale:  # compressive loads: the pressures span decades (contact spots at low load)
-            axes[1].set_xscale("log")
-            axes[1].set_yscale("log")
-        axes[1].set_xlabel(r"local pressure $p/\sigma_0$" if scale else r"local pressure $p/E^*$")
-        axes[1].set_ylabel("density of the loaded points")
+        if gmax:  # Persson's gap density diverges (integrably) at g = 0: the GFMD data set the scale
+            axes[0].set_ylim(0.0, 1.15 * max(gmax))
+        axes[1].set_yscale("log")
+        if pmax:  # down to one sample per bin (the store's resolution), at most eight decades
+            top = max(x[1] for x in pmax)
+            axes[1].set_ylim(max(0.5 * min(x[0] for x in pmax), top * 1e-8), top * 3)
+        axes[1].set_xlabel(lab.pressure("p", "local pressure"))
+        axes[1].set_ylabel(lab.pressure_density() + " of the loaded points")
         axes[1].set_title("(b) pressure distribution")
-        figures._finish(fig, axes, note)
+        _legend(axes[0])
+        style = [Line2D([], [], color="k", lw=1.4, label="GFMD (steps: the store's bins)")]
+        if drawn_p:
+            style.append(Line2D([], [], color="k", ls="--", lw=1.0, label="Persson's theory"))
+        axes[1].legend(handles=style, loc="upper right", fontsize=7.5, framealpha=0.85)
+        _finish(fig, note)
+    return fig
+
+
+def _map_row(df: pd.DataFrame, job: str) -> Any:
+    """The load of the contact map: a compressive GFMD load whose contact area is nearest 15 % (a map with
+    separate spots and clusters), else the first done row."""
+    g = _rows(df, job)
+    if g.empty:
+        return None
+    c = g[g["sigma0"].astype(float) > 0] if (g["sigma0"].astype(float) > 0).any() else g
+    a = pd.to_numeric(c["contact_area"], errors="coerce").to_numpy(float) if "contact_area" in c else \
+        np.full(len(c), np.nan)
+    k = int(np.nanargmin(np.abs(a - 0.15))) if np.isfinite(a).any() else 0
+    return c.iloc[k]
+
+
+def map_fields(df: pd.DataFrame, job: str, info: Mapping[str, Any]) -> dict[str, Any]:
+    """Height map and contact mask of one job at the load of :func:`_map_row`: the kept fields of that task when
+    the store has them, else one ``gapsweep.gfmd.solve`` on the map (N <= ``MAP_MAX_N``), else the height
+    map alone. ``{"heights", "length", "mask", "row", "source", "note"}`` (``heights`` None: nothing to draw)."""
+    row = _map_row(df, job)
+    out: dict[str, Any] = {"heights": info.get("heights"), "length": info.get("length"), "mask": None, "row": row,
+                           "source": "", "note": None}
+    if row is None:
+        return out
+    law, rho = info.get("law"), float(row.get("rho", math.nan))
+    gap = pressure = None
+    if info.get("store"):
+        try:  # kept fields (docs/jobs.md keep_fields), when the store has them for this task
+            from gapsweep import store as gstore
+
+            kept = gstore.open_fields(info["store"], [str(row["task_id"]).split(":")[-1]])
+            ds = next(iter(kept.values()), None)
+            if ds is not None and "gap" in ds:
+                gap = np.asarray(ds["gap"].values, float)
+                pressure = np.asarray(ds["pressure"].values, float) if "pressure" in ds else None
+                if "height" in ds:
+                    out["heights"] = np.asarray(ds["height"].values, float)
+                out["source"] = "the store's kept fields"
+        except Exception:  # no kept fields: recompute below
+            gap = None
+    if out["heights"] is None and not info.get("file") and info.get("has_spec"):
+        out["heights"], out["length"], why = _synthetic_heights(info, row)
+        if why:
+            out["note"] = f"Job {job}: no map figure ({why})."
+    h = out["heights"]
+    if gap is None and h is not None:
+        if h.shape[0] > MAP_MAX_N:
+            out["note"] = (f"Job {job}: the contact map is not drawn (N = {h.shape[0]} > {MAP_MAX_N}: one solve "
+                           "would not be cheap; keep the fields of one task with `[methods.gfmd] keep_fields`).")
+        else:
+            from gapsweep import gfmd
+
+            kw: dict[str, Any] = {}
+            if law == "adhesive":
+                kw = {"work": float(info["interaction"].get("work", math.nan)), "rho": rho}
+            try:
+                r = gfmd.solve(h, sigma0=float(row["sigma0"]), interaction=law, e_star=float(row.get("e_star", 1.0)),
+                               length=float(out["length"]), tol=float(info.get("tol", 1e-8)), backend="numpy", **kw)
+                gap, pressure = np.asarray(r.gap, float), np.asarray(r.pressure, float)
+                out["source"] = "one solve with gapsweep.gfmd.solve (cold start)"
+            except Exception as ex:
+                out["note"] = f"Job {job}: the contact map could not be recomputed ({ex})."
+    if gap is not None:
+        out["mask"] = (pressure > 0) if (law == "hard_wall" and pressure is not None) else (gap < rho)
+    return out
+
+
+def _synthetic_heights(info: Mapping[str, Any], row: Any) -> tuple[Any, float, str | None]:
+    """The self-affine surface of one row regenerated as the sweep does (``gapsweep.surface.self_affine`` with the
+    spec's ``[surface]`` keys and the row's H, seed and n), checked against the store's rms height. ``(heights,
+    length, None)`` or ``(None, nan, why not)``."""
+    n = int(row.get("n", 0))
+    if n > MAP_MAX_N:
+        return None, math.nan, f"a self-affine surface of N = {n} > {MAP_MAX_N} is not regenerated"
+    surf = dict(info.get("surface", {}))
+    kw: dict[str, Any] = {"lambda_l": float(surf.get("lambda_l", 0.25)),
+                          "lambda_s": float(surf.get("lambda_s", 2.5e-3)), "length": float(surf.get("length", 1.0)),
+                          "amplitudes": str(surf.get("amplitudes", "fixed"))}
+    norms = [k for k in ("rms_slope", "rms_height", "c0") if k in surf]
+    kw[norms[0] if norms else "rms_slope"] = float(surf[norms[0]]) if norms else 1.0
+    try:
+        from gapsweep.surfaces import synthetic
+
+        h = np.asarray(synthetic.self_affine(n, float(row["hurst"]), seed=int(row["seed"]), **kw), float)
+    except Exception as ex:
+        return None, math.nan, f"the self-affine surface could not be regenerated: {ex}"
+    h_rms = float(row.get("h_rms", math.nan))
+    if np.isfinite(h_rms) and not math.isclose(float(np.std(h)), h_rms, rel_tol=1e-6):
+        return None, math.nan, (f"the regenerated surface is not the job's (rms height {float(np.std(h)):.6g}, the "
+                                f"store's {h_rms:.6g})")
+    return h, kw["length"], None
+
+
+def fig_map(df: pd.DataFrame, *, job: str, info: Mapping[str, Any], note: str | None = None,
+            fields: Mapping[str, Any] | None = None):
+    """The height map (a) and the contact map at one load (b, black: in contact by the law's criterion)."""
+    import matplotlib
+
+    f = fields if fields is not None else map_fields(df, job, info)
+    with matplotlib.rc_context({**figures.STYLE, "axes.grid": False}):
+        lab = Labels(info["units"], file_surface=bool(info.get("file")))
+        two = f["mask"] is not None
+        fig, axes = figures._panels(2 if two else 1, width=3.9, height=3.5)
+        h, length = f["heights"], float(f["length"])
+        ext = (0.0, length, 0.0, length)
+        im = axes[0].imshow(h.T, origin="lower", extent=ext, cmap="viridis", interpolation="nearest")
+        fig.colorbar(im, ax=axes[0], fraction=0.046, pad=0.03).set_label(lab.length("height $h$"))
+        axes[0].set_title("(a) height map" + (f": {info['map_path']}" if info.get("map_path") else ""), fontsize=9)
+        for ax in axes:
+            ax.set_xlabel(lab.length("$x$"))
+            ax.set_ylabel(lab.length("$y$"))
+        if two:
+            row = f["row"]
+            m = np.asarray(f["mask"], bool)
+            axes[1].imshow(m.T, origin="lower", extent=ext, cmap="Greys", vmin=0, vmax=1, interpolation="nearest")
+            e_star = float(row.get("e_star", 1.0))
+            axes[1].set_title(f"(b) contact at {lab.value(float(row['sigma0']), e_star)}: $A/A_0$ = {m.mean():.3f}",
+                              fontsize=9)
+        _finish(fig, " | ".join(x for x in (note, f"contact map: {f['source']}" if two else "") if x))
     return fig
 
 
@@ -204,10 +561,23 @@ def _note(a: pd.DataFrame, job: str, quick: bool) -> str:
     return " | ".join(parts)
 
 
+def job_infos(df: pd.DataFrame, prov: Sequence[Mapping[str, Any]] = ()) -> dict[str, dict[str, Any]]:
+    """:func:`job_info` of every contact job of ``df`` (``prov`` matched by the store's ``job_name``)."""
+    by_job = {str(p.get("job_name", "")): p for p in prov}
+    cdf = df[is_contact(df)] if len(df) else df
+    return {job: job_info(job, cdf[cdf["job"] == job], by_job.get(job, {}))
+            for job in sorted(set(cdf["job"].astype(str)))} if len(cdf) else {}
+
+
 def plan(df: pd.DataFrame, hists: Mapping[str, tuple], phists: Mapping[str, tuple], points: pd.DataFrame,
-         persson: pd.DataFrame, quick: set[str] | frozenset[str] = frozenset()) -> list[tuple[str, str, Any]]:
-    """``[(name, caption, make)]`` of the contact figures, per contact job with finished GFMD rows."""
+         persson: pd.DataFrame, quick: set[str] | frozenset[str] = frozenset(),
+         infos: Mapping[str, Mapping[str, Any]] | None = None) -> list[tuple[str, str, Any]]:
+    """``[(name, caption, make)]`` of the contact figures, per contact job with finished GFMD rows: the
+    quantities against pressure, the distributions, and the height and contact maps (file surfaces). ``infos``:
+    :func:`job_infos` (built here without the stores' attributes when None); map notes are added to each
+    job's ``notes``."""
     out: list[tuple[str, str, Any]] = []
+    infos = dict(infos) if infos is not None else job_infos(df)
 
     def note(a: pd.DataFrame, job: str) -> str:
         return _note(a, job, job in quick)
@@ -216,15 +586,33 @@ def plan(df: pd.DataFrame, hists: Mapping[str, tuple], phists: Mapping[str, tupl
         p = points[(points["job"] == job) & (points["count"] > 0)]
         if p.empty:
             continue
+        a = df[df["job"] == job]
+        info = infos.get(job) or job_info(job, a)
         law = str(p["interaction"].iloc[0])
         tag = "".join(c if c.isalnum() else "_" for c in job) or "store"
         has_p = len(persson) and (persson["job"] == job).any()
-        a = df[df["job"] == job]
         out.append((f"contact_{tag}", f"Contact area, mean gap and elastic energy against pressure, {law} (job "
                     f"{job}{'; GFMD and Persson side by side' if has_p else ''})",
-                    lambda job=job, a=a: fig_contact(points, persson, job=job, note=note(a, job))))
+                    lambda job=job, a=a, info=info: fig_contact(points, persson, job=job, note=note(a, job),
+                                                                info=info)))
         tids = set(a[a["method"].astype(str) == "gfmd"]["task_id"])
         if tids & set(hists) or tids & set(phists):
-            out.append((f"contact_distributions_{tag}", f"Gap and pressure distributions, {law} (job {job})",
-                        lambda job=job, a=a: fig_distributions(df, hists, phists, job=job, note=note(a, job))))
+            overlay = law == "hard_wall" and (not info.get("file") or info.get("heights") is not None)
+            out.append((f"contact_distributions_{tag}", f"Gap and pressure distributions, {law} (job {job}; "
+                        + ("Persson's theory dashed" if overlay else "no Persson overlay: "
+                           + ("hard-wall theory" if law != "hard_wall" else "map not found")) + ")",
+                        lambda job=job, a=a, info=info: fig_distributions(df, hists, phists, job=job,
+                                                                          note=note(a, job), info=info)))
+        if info.get("heights") is not None or info.get("store") or (info.get("has_spec") and not info.get("file")):
+            f = map_fields(df, job, info)
+            if f["note"]:
+                info.setdefault("notes", []).append(f["note"])
+            if f["heights"] is not None:
+                r = f["row"]
+                cap = f"Height map{' and contact map' if f['mask'] is not None else ''}, {law} (job {job}"
+                if f["mask"] is not None:
+                    cap += f"; contact at sigma0 = {float(r['sigma0']):g}, {f['source']}"
+                out.append((f"contact_map_{tag}", cap + ")",
+                            lambda job=job, a=a, info=info, f=f: fig_map(df, job=job, info=info, note=note(a, job),
+                                                                         fields=f)))
     return out

@@ -32,8 +32,11 @@ def _write_pressure_trend(out: Path) -> None:
 
     from analysis import compare
 
-    cmp = pd.read_csv(out / "theory_vs_gfmd.csv")
-    compare.pressure_trend(cmp).to_csv(out / "pressure_trend.csv", index=False)
+    if not (out / "theory_vs_gfmd.csv").is_file():  # contact-only stores: no field theory, no trend (no empty CSV)
+        return
+    trend = compare.pressure_trend(pd.read_csv(out / "theory_vs_gfmd.csv"))
+    if len(trend):
+        trend.to_csv(out / "pressure_trend.csv", index=False)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -60,7 +63,8 @@ def main(argv: list[str] | None = None) -> int:
     path = report.main(stores, args.out)
     _write_pressure_trend(Path(args.out))
     logger.info("report: %s", path)
-    logger.info("%s", (Path(args.out) / "verdicts.md").read_text())
+    if (Path(args.out) / "verdicts.md").is_file():
+        logger.info("%s", (Path(args.out) / "verdicts.md").read_text())
     return 0
 
 

@@ -498,7 +498,14 @@ def _panel_points(fig: Any) -> list[int]:
     """Finite data points drawn in each panel (lines, markers, error bars, scatter): 0 means a blank panel."""
     out = []
     for ax in fig.axes:
+        if ax.get_label() == "<colorbar>":
+            continue
         k = 0
+        for im in ax.get_images():  # maps: finite pixels
+            k += int(np.isfinite(np.asarray(im.get_array(), dtype=float)).sum())
+        for pa in ax.patches:  # steps (stairs): finite bin values
+            if hasattr(pa, "get_data"):
+                k += int(np.isfinite(np.asarray(pa.get_data().values, dtype=float)).sum())
         for ln in ax.get_lines():
             y = np.asarray(ln.get_ydata(), dtype=float)
             k += int(np.isfinite(y).sum())
@@ -625,20 +632,21 @@ def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
     where = sorted({(k[1], k[2], k[3], k[6]) for k in hagg if k[0] in ("sde", "fokker_planck")})
     calib, models = compare.calibrate_c2(hagg, keys=where) if where else (pd.DataFrame(), {})
     dist = compare.histogram_distances({**hagg, **models})
+    field_theory = len(df) > 0  # rows of the exponential law: the field-theory tables, figures and the paper's claims
+    # A table without rows is not written (a contact-only store gets no field-theory CSV files).
     for name, frame in (("status", status), ("mean_gap", agg), ("theory_vs_gfmd", cmp), ("agreement_points", points),
                         ("agreement_summary", summary), ("hist_distances", dist), ("calibration", calib),
-                        ("histograms", _hist_long({**hagg, **models}))):
-        frame.to_csv(out / f"{name}.csv", index=False)
-    if len(cdf):
-        for name, frame in (("contact", cpoints), ("contact_vs_persson", cpersson),
-                            ("contact_vs_persson_summary", csummary)):
+                        ("histograms", _hist_long({**hagg, **models})), ("contact", cpoints),
+                        ("contact_vs_persson", cpersson), ("contact_vs_persson_summary", csummary)):
+        if len(frame):
             frame.to_csv(out / f"{name}.csv", index=False)
 
-    quick = quick_jobs(df, prov)
-    matches = paper_matches(df, agg, hagg, quick)
-    plan = plan_figures(agg, {**hagg, **models}, points, matches, quick)
+    quick = quick_jobs(pd.concat([df, cdf]) if len(cdf) else df, prov)
+    matches = paper_matches(df, agg, hagg, quick) if field_theory else {}
+    plan = plan_figures(agg, {**hagg, **models}, points, matches, quick) if field_theory else []
+    infos = contact.job_infos(cdf, prov) if len(cdf) else {}
     if len(cdf):
-        plan = contact.plan(cdf, hists, phists or {}, cpoints, cpersson, quick) + plan
+        plan = contact.plan(cdf, hists, phists or {}, cpoints, cpersson, quick, infos) + plan
     omitted = plan[MAX_FIGURES:]
     made: list[dict[str, Any]] = []
     for name, cap, make in plan[:MAX_FIGURES]:
@@ -649,15 +657,18 @@ def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
             continue
         figures.save(fig, out, name)
         made.append({"figure": name, "caption": cap, "panels": len(pts), "min_points": min(pts)})
-    pd.DataFrame(made, columns=["figure", "caption", "panels", "min_points"]).to_csv(out / "figures.csv", index=False)
+    if made:
+        pd.DataFrame(made, columns=["figure", "caption", "panels", "min_points"]).to_csv(out / "figures.csv",
+                                                                                        index=False)
 
     md: list[str] = [f"# {title}", ""]
     if quick:
-        md += [f"> **Warning: quick job(s) {', '.join(sorted(quick))}.** Smoke tests on reduced grids (for example "
-               "zeta_s = 16 instead of 100): their numbers check that the pipeline runs and are not for "
-               "conclusions.", ""]
+        example = " (for example zeta_s = 16 instead of 100)" if quick & set(df["job"].astype(str)) else ""
+        md += [f"> **Warning: quick job(s) {', '.join(sorted(quick))}.** Smoke tests on reduced grids{example}: their "
+               "numbers check that the pipeline runs and are not for conclusions.", ""]
     ver = _paper_verdicts(cmp, dist, matches) if matches else []
-    md += _verdict_section(ver, matches)
+    if field_theory:  # a contact-only report says nothing about the seed paper
+        md += _verdict_section(ver, matches)
     md += ["## Tasks", "", "Rows per method and status. Failed, not converged, pending and invalid rows are counted "
            "here and in every table, never averaged in.", "", _md_table(status)]
     bad = df[df["status"].isin(["failed", "not_converged"])]
@@ -665,7 +676,9 @@ def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
         cols = [c for c in ("task_id", "method", "status", "hurst", "rho", "sigma0", "seed", "n", "message")
                 if c in bad]
         md += [f"{len(bad)} failed or unconverged tasks (first 20):", "", _md_table(bad, cols, 20)]
-    md += ["## Figures", "", SYMBOLS, ""]
+    md += ["## Figures", "", SYMBOLS if field_theory else contact.SYMBOLS, ""]
+    if len(cdf) and field_theory:
+        md += [contact.SYMBOLS, ""]
     if not made:
         md += ["_No figure: the stores hold no finished GFMD, theory or histogram result yet._", ""]
     for f in made:
@@ -674,8 +687,25 @@ def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
         md += [f"_{len(omitted)} more figures were not drawn (at most {MAX_FIGURES}): "
                + ", ".join(n for n, _, _ in omitted) + "._", ""]
     if len(cdf):
-        md += _contact_section(cpoints, cpersson, csummary)
-    md += ["## Theory against GFMD", "",
+        md += _contact_section(cpoints, cpersson, csummary, infos)
+    if field_theory:
+        md += _field_theory_sections(cmp, summary, dist, calib)
+    md += _provenance_section(prov, out)
+    text = _strip_machine_paths("\n".join(md) + "\n", prov)
+    path = out / "report.md"
+    path.write_text(text)
+    (out / "report.html").write_text(_md_to_html(text, title))
+    if field_theory:
+        (out / "verdicts.md").write_text("\n".join(["# Verdicts on the paper's claims", "",
+                                                    *_verdict_section(ver, matches)[2:]]) + "\n")
+    log.debug("report: %d figures into %s", len(made), out)
+    return path
+
+
+def _field_theory_sections(cmp: pd.DataFrame, summary: pd.DataFrame, dist: pd.DataFrame,
+                           calib: pd.DataFrame) -> list[str]:
+    """Markdown of the field theory against GFMD and of the gap distributions (exponential-law jobs)."""
+    md = ["## Theory against GFMD", "",
            "rel err = (theory - GFMD)/|GFMD|; red err = (theory - GFMD)/h_rms; uncertainties are standard errors over "
            "seeds (n/a with one seed). Full table: `theory_vs_gfmd.csv`.", ""]
     md.append(_md_table(cmp[cmp["form"] == "paper"] if len(cmp) else cmp,
@@ -692,28 +722,84 @@ def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
            "density at the C2 fitted to each merged GFMD histogram by gapsweep.calibrate (Wasserstein-1; method "
            "`fp_calibrated`). L1 in 0..2, KS in 0..1, W1 over h_rms; l1_below: g below the GFMD mean gap.", "",
            _md_table(dist), "", "Calibration:", "", _md_table(calib)]
-    md += ["## Provenance", ""]
+    return md
+
+
+def _shown_path(path: Any, out: Path) -> str:
+    """A store's path as the report shows it: relative to the report's folder when that is short and does not
+    climb far, else the file name (never an absolute machine path)."""
+    p = Path(str(path))
+    if not p.is_absolute():
+        return str(p)
+    rel = _near_relpath(p, out.resolve())  # (build writes into a sibling of the final folder: the same relpath)
+    return rel if rel is not None else p.name
+
+
+def _strip_machine_paths(text: str, prov: Sequence[Mapping[str, Any]]) -> str:
+    """Last guard: the folders of the job specs and stores named in free text (a row's message, an error) become
+    ``<spec dir>`` and ``<store dir>``."""
+    dirs: dict[str, str] = {}
     for p in prov:
-        md += [f"### {p.get('path', '?')}", ""]
-        rows = [{"attribute": k, "value": (json.dumps(v) if not isinstance(v, str) else v)[:300]}
-                for k, v in p.items() if k not in ("path", "spec", "spec_text")]
+        if isinstance(p.get("spec_dir"), str) and os.path.isabs(p["spec_dir"]):
+            dirs[p["spec_dir"].rstrip(os.sep)] = "<spec dir>"
+        if p.get("path"):
+            dirs.setdefault(str(Path(str(p["path"])).resolve().parent), "<store dir>")
+    for d, token in sorted(dirs.items(), key=lambda kv: -len(kv[0])):  # the longest first
+        if len(d) > 1:
+            text = text.replace(d + os.sep, token + "/").replace(d, token)
+    return text
+
+
+def _near_relpath(path: Any, start: Any) -> str | None:
+    """``path`` relative to ``start`` when the two share a folder below the file system's root and the way up is
+    at most two levels; else None (a relative path through the root names the machine's layout)."""
+    try:
+        common = os.path.commonpath([os.path.abspath(path), os.path.abspath(start)])
+        rel = os.path.relpath(path, start)
+    except ValueError:  # another drive
+        return None
+    if common == os.path.abspath(os.sep) or Path(common).parent == Path(common) or rel.count("..") > 2:
+        return None
+    return rel
+
+
+def _provenance_section(prov: Sequence[Mapping[str, Any]], out: Path) -> list[str]:
+    """The stores' attributes. Paths are relative: the store's to the report, ``spec_dir`` to the store's folder
+    (where the job spec's own relative paths, such as a height map's, start)."""
+    md = ["## Provenance", ""]
+    for p in prov:
+        store_path = Path(str(p.get("path", "?")))
+        md += [f"### {_shown_path(store_path, out)}", ""]
+        rows = []
+        for k, v in p.items():
+            if k in ("path", "spec", "spec_text"):
+                continue
+            if k == "spec_dir" and isinstance(v, str) and os.path.isabs(v):
+                rel = _near_relpath(v, store_path.resolve().parent)
+                v = (f"{rel} (relative to the store)" if rel is not None else
+                     f"{Path(v).name}/ (the job spec's folder; not near the store)")
+            rows.append({"attribute": k, "value": (json.dumps(v) if not isinstance(v, str) else v)[:300]})
         md.append(_md_table(pd.DataFrame(rows)))
         spec_text = p.get("spec_text", p.get("spec"))
         if isinstance(spec_text, str) and spec_text.strip():
             md += ["Job spec:", "", "```toml", spec_text.rstrip(), "```", ""]
-    text = "\n".join(md) + "\n"
-    path = out / "report.md"
-    path.write_text(text)
-    (out / "report.html").write_text(_md_to_html(text, title))
-    (out / "verdicts.md").write_text("\n".join(["# Verdicts on the paper's claims", "",
-                                                *_verdict_section(ver, matches)[2:]]) + "\n")
-    log.debug("report: %d figures into %s", len(made), out)
-    return path
+    return md
 
 
-def _contact_section(points: pd.DataFrame, persson: pd.DataFrame, summ: pd.DataFrame) -> list[str]:
-    """Markdown of the contact section (hard wall, adhesion): the GFMD quantities and Persson side by side."""
-    md = ["## Contact: hard wall and adhesion", "",
+def _contact_section(points: pd.DataFrame, persson: pd.DataFrame, summ: pd.DataFrame,
+                     infos: Mapping[str, Mapping[str, Any]] | None = None) -> list[str]:
+    """Markdown of the contact section (hard wall, adhesion): the GFMD quantities and Persson side by side, and
+    what could not be drawn (a height map not found, a contact map not recomputed)."""
+    notes = [n for i in (infos or {}).values() for n in i.get("notes", [])]
+    md = ["## Contact: hard wall and adhesion", ""]
+    if notes:
+        md += [*(f"- {n}" for n in notes), ""]
+    for job, i in sorted((infos or {}).items()):
+        u = i.get("units", {})
+        md += [f"Units of job {job}: lengths in " + (u.get("length") or
+               ("units of the map" if i.get("file") else "units of L")) + ", pressures in "
+               + (u.get("pressure") or "units of E*") + ".", ""]
+    md += [
           "GFMD per pressure (mean over the done rows of each pressure; `count` rows, `not_done` others): contact "
           "area (fraction of the nominal area, by the law's criterion, docs/gfmd.md), elastic energy per area, mean "
           "gap, the hard wall's contact atom at g = 0 (apart from the gap histogram) and the free-surface atom at "

@@ -353,7 +353,8 @@ def test_quick_jobs_end_to_end(tmp_path):
     verdicts = (out / "verdicts.md").read_text()
     rows = [r for r in verdicts.splitlines() if r.startswith("| ") and not r.startswith(("| claim", "| ---"))]
     assert rows and all("(quick job: not a conclusion)" in r or "| not evaluated |" in r for r in rows), rows
-    assert "## Provenance" in text and str(stores[0]) in text
+    # the stores by their paths relative to the report (here: next to it), never the machine's absolute path
+    assert "## Provenance" in text and f"### ../{stores[0].name}" in text and str(tmp_path) not in text
     agg = pd.read_csv(out / "mean_gap.csv")
     assert (agg["source"] == "gfmd").any() and (agg["source"] == "theory:paper").any()
     # Every figure got its own job's data (no "no data" panel): each quick job name appears in the tables.
