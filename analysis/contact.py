@@ -217,10 +217,14 @@ def _load_map(surf: Mapping[str, Any], prov: Mapping[str, Any], rows: pd.DataFra
         except Exception as e:  # the report says why instead of failing
             why = str(e).replace(str(base.resolve()), "<spec dir>").replace(str(base), "<spec dir>")
             return None, f"the height map `{path}` (relative to the job spec) does not load ({why})"
-        h_rms = _first(rows, "h_rms")
-        if np.isfinite(h_rms) and not math.isclose(float(np.std(topo.heights)), h_rms, rel_tol=1e-6):
+        # the store's h_rms is the map's own (map_spectrum, right for its boundaries): the same map gives it again
+        from gapsweep.theory.spectrum import map_spectrum
+
+        topo.periodic = bool(table.get("periodic", topo.periodic))
+        h_rms, mine = _first(rows, "h_rms"), map_spectrum(topo.heights, topo.length, periodic=topo.periodic).h_rms
+        if np.isfinite(h_rms) and not math.isclose(mine, h_rms, rel_tol=1e-6):
             return None, (f"the height map found at `{path}` (relative to the job spec) is not the one the job ran "
-                          f"(rms height {float(np.std(topo.heights)):.6g}, the store's {h_rms:.6g})")
+                          f"(rms height {mine:.6g}, the store's {h_rms:.6g})")
         return topo, None
     return None, (f"the height map `{path}` (relative to the job spec) was not found next to the job spec or the "
                   "store")
@@ -249,7 +253,8 @@ def job_info(job: str, rows: pd.DataFrame, prov: Mapping[str, Any] | None = None
         if topo is None:
             info["notes"].append(f"Job {job}: {why}; Persson's distributions and the map are left out.")
         else:
-            info["heights"], info["length"] = np.asarray(topo.heights, float), float(topo.length[0])
+            info["heights"], info["length"] = np.asarray(topo.heights, float), tuple(map(float, topo.length))
+            info["periodic"] = bool(topo.periodic)
     return info
 
 
@@ -259,7 +264,8 @@ def _persson_kw(info: Mapping[str, Any], row: Mapping[str, Any]) -> dict[str, An
     if info.get("law") != "hard_wall":
         return None
     if info.get("file"):
-        return None if info.get("heights") is None else {"heights": info["heights"], "length": info["length"]}
+        return None if info.get("heights") is None else {"heights": info["heights"], "length": info["length"],
+                                                         "periodic": info.get("periodic", True)}
     kw = {k: float(row.get(k, math.nan)) for k in ("hurst", "lambda_l", "lambda_s", "length")}
     if not all(np.isfinite(list(kw.values()))):
         return None
@@ -482,8 +488,11 @@ def map_fields(df: pd.DataFrame, job: str, info: Mapping[str, Any]) -> dict[str,
             if law == "adhesive":
                 kw = {"work": float(info["interaction"].get("work", math.nan)), "rho": rho}
             try:
+                length = out["length"]
+                length = tuple(map(float, length)) if isinstance(length, (tuple, list)) else float(length)
                 r = gfmd.solve(h, sigma0=float(row["sigma0"]), interaction=law, e_star=float(row.get("e_star", 1.0)),
-                               length=float(out["length"]), tol=float(info.get("tol", 1e-8)), backend="numpy", **kw)
+                               length=length, tol=float(info.get("tol", 1e-8)), backend="numpy",
+                               periodic=bool(info.get("periodic", True)), **kw)
                 gap, pressure = np.asarray(r.gap, float), np.asarray(r.pressure, float)
                 out["source"] = "one solve with gapsweep.gfmd.solve (cold start)"
             except Exception as ex:
@@ -529,8 +538,9 @@ def fig_map(df: pd.DataFrame, *, job: str, info: Mapping[str, Any], note: str | 
         lab = Labels(info["units"], file_surface=bool(info.get("file")))
         two = f["mask"] is not None
         fig, axes = figures._panels(2 if two else 1, width=3.9, height=3.5)
-        h, length = f["heights"], float(f["length"])
-        ext = (0.0, length, 0.0, length)
+        h, length = f["heights"], f["length"]
+        lx, ly = (float(length[0]), float(length[1])) if isinstance(length, (tuple, list)) else (float(length),) * 2
+        ext = (0.0, lx, 0.0, ly)  # a rectangular map keeps its aspect
         im = axes[0].imshow(h.T, origin="lower", extent=ext, cmap="viridis", interpolation="nearest")
         fig.colorbar(im, ax=axes[0], fraction=0.046, pad=0.03).set_label(lab.length("height $h$"))
         axes[0].set_title("(a) height map" + (f": {info['map_path']}" if info.get("map_path") else ""), fontsize=9)
