@@ -53,8 +53,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="ranks sharing one GPU, for the GPU-memory check (default 1)")
 
     s = sub.add_parser("run", help="run a job into a store (serial, or under mpiexec as an MPI task farm)")
-    s.add_argument("job", help="job spec (TOML)")
-    s.add_argument("--store", required=True, help="HDF5 store path ({i} and {n} are replaced by the shard)")
+    s.add_argument("job", nargs="+", help="job spec(s) (TOML); several run one after the other in one launch "
+                                          "(start-up paid once), each into its own --store")
+    s.add_argument("--store", required=True, action="append",
+                   help="HDF5 store path ({i} and {n} are replaced by the shard); once per job, in order")
     s.add_argument("--resume", action="store_true", help="finish the pending tasks of an existing store")
     s.add_argument("--overwrite", action="store_true", help="replace an existing store")
     s.add_argument("--shard", help="i/n: run shard i of n (0-based), or 'slurm' (SLURM_ARRAY_TASK_ID/COUNT)")
@@ -182,20 +184,29 @@ def _dispatch(args: argparse.Namespace) -> int:
         return 0
     if args.command == "run":
         from gapsweep.sweep import runner
+        from gapsweep.sweep import spec as specmod
 
-        s = runner.run(args.job, args.store, resume=args.resume, overwrite=args.overwrite,
-                       shard=runner.parse_shard(args.shard), writer=args.writer, progress=args.progress,
-                       coordinator_works=args.coordinator_works, mpi=args.mpi, break_lease=args.break_lease,
-                       task_timeout=args.task_timeout, batch=args.batch, ranks_per_gpu=args.ranks_per_gpu)
-        if s["rank"] == 0 and args.progress != "none":
-            print(f"{s['store']}: {s['mode']}, {s['todo']} of {s['tasks']} tasks run: {s['done']} done, "
-                  f"{s['failed']} failed, {s['not_converged']} not converged")
-        if s["todo"] and s["failed"] == s["todo"]:
-            if s["rank"] == 0:
-                print(f"gapsweep: every task of this run failed ({s['failed']}); see `gapsweep status "
-                      f"{s['store']}`", file=sys.stderr)
-            return 3
-        return 0
+        if len(args.store) != len(args.job):
+            raise ValueError(f"--store: give one store per job, in order ({len(args.job)} job(s), "
+                             f"{len(args.store)} store(s))")
+        if len(args.job) > 1:  # every spec is validated before the first job runs
+            for job in args.job:
+                specmod.load(job)
+        rc = 0
+        for job, store in zip(args.job, args.store):
+            s = runner.run(job, store, resume=args.resume, overwrite=args.overwrite,
+                           shard=runner.parse_shard(args.shard), writer=args.writer, progress=args.progress,
+                           coordinator_works=args.coordinator_works, mpi=args.mpi, break_lease=args.break_lease,
+                           task_timeout=args.task_timeout, batch=args.batch, ranks_per_gpu=args.ranks_per_gpu)
+            if s["rank"] == 0 and args.progress != "none":
+                print(f"{s['store']}: {s['mode']}, {s['todo']} of {s['tasks']} tasks run: {s['done']} done, "
+                      f"{s['failed']} failed, {s['not_converged']} not converged")
+            if s["todo"] and s["failed"] == s["todo"]:
+                if s["rank"] == 0:
+                    print(f"gapsweep: every task of this run failed ({s['failed']}); see `gapsweep status "
+                          f"{s['store']}`", file=sys.stderr)
+                rc = 3
+        return rc
     if args.command == "status":
         from gapsweep.sweep import store
 

@@ -284,3 +284,38 @@ def test_sde_device_histogram_path_matches_host_path(tmp_path, monkeypatch):
     w_a = 12 * sd / (32 * sde_method.SDE_SUB_BINS)
     assert abs(auto.mean_gap - exact.mean_gap) <= w_a / 2
     assert abs(auto.gap_std - exact.gap_std) <= w_a / 2 + w_a / 12**0.5
+
+
+@pytest.mark.parametrize("ranks", [1, 2])
+def test_several_jobs_in_one_launch(tmp_path, ranks):
+    """`gapsweep run JOB1 JOB2 --store S1 --store S2` (issue 22 item 6: start-up paid once): each store equals
+    that of its job run alone; a job list whose second spec is invalid runs nothing."""
+    root = Path(__file__).resolve().parents[1]
+    jobs = [root / "jobs" / "test_theory.toml", root / "tests" / "faults" / "jobs" / "hist.toml"]
+    env = {**os.environ, "OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
+           "OMPI_MCA_rmaps_base_oversubscribe": "1"}
+    base = [sys.executable, "-m", "gapsweep", "run"]
+    if ranks > 1:
+        import shutil
+
+        if shutil.which("mpiexec") is None:
+            pytest.skip("no mpiexec")
+        base = ["mpiexec", "-n", str(ranks), *base]
+    both = [str(tmp_path / "a.h5"), str(tmp_path / "b.h5")]
+    p = subprocess.run([*base, *map(str, jobs), "--store", both[0], "--store", both[1], "--progress", "none"],
+                       env=env, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    for job, s in zip(jobs, both):
+        alone = tmp_path / f"alone-{Path(s).name}"
+        runner.run(job, alone, progress="none", mpi="off")
+        assert store.diff(s, alone) == []
+    bad = tmp_path / "bad.toml"
+    bad.write_text(jobs[0].read_text().replace("rms_slope = 1.0", "rms_slope = -1.0"))
+    p = subprocess.run([sys.executable, "-m", "gapsweep", "run", str(jobs[0]), str(bad), "--store",
+                        str(tmp_path / "c.h5"), "--store", str(tmp_path / "d.h5"), "--mpi", "off"],
+                       env=env, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 2 and "surface.rms_slope" in p.stderr
+    assert not (tmp_path / "c.h5").exists() and not (tmp_path / "d.h5").exists()
+    p = subprocess.run([sys.executable, "-m", "gapsweep", "run", str(jobs[0]), str(jobs[1]), "--store",
+                        str(tmp_path / "c.h5"), "--mpi", "off"], env=env, capture_output=True, text=True, timeout=60)
+    assert p.returncode == 2 and "one store per job" in p.stderr
