@@ -185,7 +185,10 @@ def to_dataset(path: str | Path, *, n: int | None = None, c2: float | None = Non
 def export_netcdf(path: str | Path, out: str | Path, *, overwrite: bool = False, **kw: Any) -> Path:
     """Write :func:`to_dataset` of the store ``path`` to the netCDF4 file ``out`` (written to a temporary name
     and moved into place: never half-written). Refuses to replace ``out`` unless ``overwrite``."""
+    from gapsweep.sweep.outputs import guard_file_output
+
     outp = Path(out)
+    guard_file_output(outp, [path], "export --out")  # never the store itself nor another store (issue 19)
     if outp.exists() and not overwrite:
         raise FileExistsError(f"export --out {outp}: exists (pass --overwrite to replace it)")
     ds = to_dataset(path, **kw)

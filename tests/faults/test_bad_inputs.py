@@ -191,3 +191,107 @@ def test_plan_refuses_what_will_not_fit(tmp_path):
     p = gs("plan", job)
     one_line_error(p, "per rank", "more than this machine")
     assert p.returncode == 1
+
+
+# --- issue 19 item 1: no command deletes or replaces a store it was not asked to write --------------------------
+
+@pytest.fixture(scope="module")
+def report_dir(refs, tmp_path_factory) -> Path:
+    """A report of the theory store (written once; cases copy it)."""
+    d = tmp_path_factory.mktemp("rep") / "report"
+    p = gs("report", refs["theory"], "--out", d)
+    assert p.returncode == 0, p.stderr
+    return d
+
+
+def _copy_report(src: Path, dst: Path) -> Path:
+    import shutil
+
+    shutil.copytree(src, dst, dirs_exist_ok=True)
+    return dst
+
+
+REPORT_TRAPS = ["store-in-out", "store-below-out", "other-store-in-out", "kept-fields-in-out", "no-manifest"]
+
+
+@pytest.mark.parametrize("case", REPORT_TRAPS)
+def test_report_overwrite_keeps_stores(tmp_path, refs, report_dir, case):
+    """``report --out DIR --overwrite`` where DIR holds (or lies above) a store, a kept-fields folder or a report
+    without manifest: refused with a one-line error naming DIR, and every byte of the folder is kept (the old
+    code deleted the folder, the store with it)."""
+    d = _copy_report(report_dir, tmp_path / "d")
+    inp = refs["theory"]
+    if case == "store-in-out":
+        inp = d / "s.h5"
+    elif case == "store-below-out":
+        (d / "sub").mkdir()
+        inp = d / "sub" / "s.h5"
+    elif case == "other-store-in-out":
+        (d / "other.h5").write_bytes(refs["hist"].read_bytes())
+    elif case == "kept-fields-in-out":
+        (d / "s.h5.fields").mkdir()
+        (d / "s.h5.fields" / "f.npz").write_bytes(b"kept")
+    else:
+        (d / ".gapsweep-report.json").unlink()
+    if inp != refs["theory"]:
+        inp.write_bytes(refs["theory"].read_bytes())
+    before = {q: q.read_bytes() for q in d.rglob("*") if q.is_file()}
+    p = gs("report", inp, "--out", d, "--overwrite")
+    one_line_error(p, f"report --out {d}")
+    assert {q: q.read_bytes() for q in d.rglob("*") if q.is_file()} == before
+
+
+def test_report_overwrite_replaces_its_own(tmp_path, refs, report_dir):
+    """The counterpart: a folder holding only the previous report (its manifest) is replaced, and the new
+    manifest lists exactly the files there."""
+    import json
+
+    d = _copy_report(report_dir, tmp_path / "d")
+    (d / "report.md").write_text("stale")
+    p = gs("report", refs["theory"], "--out", d, "--overwrite")
+    assert p.returncode == 0, p.stderr
+    assert (d / "report.md").read_text() == (report_dir / "report.md").read_text()
+    listed = json.loads((d / ".gapsweep-report.json").read_text())["files"]
+    assert sorted(listed) == sorted(q.name for q in d.iterdir() if q.name != ".gapsweep-report.json")
+
+
+EXPORT_TRAPS = ["out-is-input", "out-is-hardlink-of-input", "out-is-symlink-to-input", "out-is-other-store",
+                "out-is-folder"]
+
+
+@pytest.mark.parametrize("case", EXPORT_TRAPS)
+def test_export_never_replaces_a_store(tmp_path, refs, case):
+    """``export STORE --out X --overwrite`` where X is the store (by any path) or another store or a folder:
+    refused, nothing replaced (the old code replaced the store by its netCDF view)."""
+    import os
+
+    s = tmp_path / "s.h5"
+    s.write_bytes(refs["theory"].read_bytes())
+    out = {"out-is-input": s, "out-is-hardlink-of-input": tmp_path / "link.nc",
+           "out-is-symlink-to-input": tmp_path / "sym.nc", "out-is-other-store": tmp_path / "other.nc",
+           "out-is-folder": tmp_path / "s.h5.fields"}[case]
+    if case == "out-is-hardlink-of-input":
+        os.link(s, out)
+    elif case == "out-is-symlink-to-input":
+        out.symlink_to(s)
+    elif case == "out-is-other-store":
+        out.write_bytes(refs["hist"].read_bytes())
+    elif case == "out-is-folder":
+        out.mkdir()
+    before = refs["theory"].read_bytes()
+    p = gs("export", s, "--out", out, "--overwrite")
+    one_line_error(p, "export --out", str(out))
+    assert s.read_bytes() == before
+    if case == "out-is-other-store":
+        assert out.read_bytes() == refs["hist"].read_bytes()
+    assert not list(tmp_path.glob(".*tmp*"))
+
+
+def test_export_overwrite_replaces_its_own(tmp_path, refs):
+    out = tmp_path / "s.nc"
+    assert gs("export", refs["theory"], "--out", out).returncode == 0
+    first = out.read_bytes()
+    out.write_bytes(b"not the export")
+    p = gs("export", refs["theory"], "--out", out, "--overwrite")
+    assert p.returncode == 0, p.stderr
+    assert out.read_bytes()[:8] == first[:8] == b"\x89HDF\r\n\x1a\n"
