@@ -425,6 +425,8 @@ def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list
             with stop.critical():
                 st = _open_store(path, mode, tasks, attrs, spec.histogram["bins"], comm if wmode == "mpio" else None,
                                  rank, run_id)
+                if held is not None:  # the file opened is the one leased (issue 19: keyed by device and inode)
+                    held.bind(path)
                 runs = json.loads(st.f.attrs.get("runs", "[]"))
                 st.set_attrs({"runs": json.dumps([*runs, record])}, flush=True)  # survives a kill -9
         if os.environ.get("GAPSWEEP_TEST_ABORT_RANK", "") == str(rank):
