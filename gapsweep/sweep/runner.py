@@ -182,6 +182,9 @@ def plan(job: str | Path | specmod.JobSpec, shard: tuple[int, int] | None = None
 
 def _store_path(path: str | Path, shard: tuple[int, int] | None) -> Path:
     p = str(path)
+    if shard is None and ("{i}" in p or "{n}" in p):  # else a file literally named x{i}.h5 (issue 19)
+        raise ValueError(f"--store {p}: {{i}} and {{n}} are filled in only with --shard i/n; pass --shard or "
+                         "name the store without them")
     if shard is not None:
         p = p.replace("{i}", str(shard[0])).replace("{n}", str(shard[1]))
     return Path(p)

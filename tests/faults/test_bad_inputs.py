@@ -295,3 +295,81 @@ def test_export_overwrite_replaces_its_own(tmp_path, refs):
     p = gs("export", refs["theory"], "--out", out, "--overwrite")
     assert p.returncode == 0, p.stderr
     assert out.read_bytes()[:8] == first[:8] == b"\x89HDF\r\n\x1a\n"
+
+
+# --- issue 19 item 10: unreadable inputs are one-line errors naming the file ------------------------------------
+
+FILE_JOB = THEORY_JOB.parent / "contact_file.toml"
+
+
+def _file_job(tmp_path: Path, surface_lines: str) -> Path:
+    text = FILE_JOB.read_text()
+    start = text.index("[surface]")
+    end = text.index("\n[", start + 1)
+    job = tmp_path / "job.toml"
+    job.write_text(text[:start] + "[surface]\n" + surface_lines + text[end:])
+    return job
+
+
+MAPS = [
+    ("npy-empty", "map.npy", lambda p: p.write_bytes(b""), "", ["map.npy", "empty"]),
+    ("npy-truncated", "map.npy", lambda p: p.write_bytes(__import__("numpy").lib.format.magic(1, 0) + b"\x10"),
+     "", ["map.npy", ".npy file"]),
+    ("npz-missing-key", "map.npz",
+     lambda p: __import__("numpy").savez(p, heights=__import__("numpy").zeros((8, 8))), 'key = "z"\n',
+     ["map.npz", "no array 'z'", "heights"]),
+    ("npz-not-a-zip", "map.npz", lambda p: p.write_bytes(b"PK\x03\x04 not really"), "", ["map.npz", ".npz"]),
+]
+
+
+@pytest.mark.parametrize("case,name,make,extra,needles", MAPS, ids=[m[0] for m in MAPS])
+def test_bad_height_map(tmp_path, case, name, make, extra, needles):
+    """An empty or truncated .npy, a .npz without the key asked for or not a zip: `plan` and `run` fail with
+    one line naming the file and the problem, exit 2, nothing written (EOFError/KeyError tracebacks before)."""
+    make(tmp_path / name)
+    job = _file_job(tmp_path, f'kind = "file"\npath = "{name}"\npixel_size = 0.5\n{extra}')
+    for cmd in (["plan", job], ["run", job, "--store", tmp_path / "s.h5", "--mpi", "off"]):
+        p = gs(*cmd, timeout=60)
+        err = one_line_error(p, "surface.path", *needles)
+        assert p.returncode == 2, err
+    assert not (tmp_path / "s.h5").exists()
+
+
+def test_store_with_non_json_runs(tmp_path, refs):
+    """A store whose `runs` attribute is not JSON: status, resume and merge name the file and the attribute
+    (a bare JSONDecodeError, not naming the file, before); the store is not changed by the attempt."""
+    import h5py
+
+    s = tmp_path / "s.h5"
+    s.write_bytes(refs["theory"].read_bytes())
+    with h5py.File(s, "r+") as f:
+        f.attrs["runs"] = "{not json"
+    before = s.read_bytes()
+    for cmd in (["status", s], ["run", THEORY_JOB, "--store", s, "--resume", "--mpi", "off"],
+                ["merge", s, "--out", tmp_path / "m.h5"]):
+        p = gs(*cmd, timeout=60)
+        one_line_error(p, str(s), "'runs'", "JSON")
+    assert s.read_bytes() == before
+    assert not (tmp_path / "m.h5").exists()
+
+
+@pytest.mark.parametrize("pattern", ["x{i}.h5", "x{n}.h5", "x{i}of{n}.h5"])
+def test_shard_pattern_without_shard(tmp_path, pattern):
+    """A store path with {i}/{n} but no --shard is refused (a file literally named x{i}.h5 was created)."""
+    p = gs("run", THEORY_JOB, "--store", tmp_path / pattern, "--mpi", "off", timeout=60)
+    err = one_line_error(p, "--store", "--shard", pattern)
+    assert p.returncode == 2, err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_merge_spec_error_names_the_shard(tmp_path, refs):
+    """A shard whose stored spec no longer validates: the merge names that shard."""
+    import h5py
+
+    s = tmp_path / "shard0.h5"
+    s.write_bytes(refs["theory"].read_bytes())
+    with h5py.File(s, "r+") as f:
+        f.attrs["spec_text"] = f.attrs["spec_text"].replace("hurst = [0.3, 0.8]", "hurst = [0.3, 1.5]")
+    p = gs("merge", s, "--out", tmp_path / "m.h5")
+    one_line_error(p, "merge", str(s), "grid.hurst[1]")
+    assert not (tmp_path / "m.h5").exists()
