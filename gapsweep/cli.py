@@ -116,9 +116,16 @@ def _setup_logging(verbose: bool, quiet: bool) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
-    _setup_logging(args.verbose, args.quiet)
-    code = _main(args)
+    from gapsweep.sweep import limits
+
+    # signals from here on: recorded for a run (its Stop acts on them), raised for the other commands
+    old = limits.install_early(defer_all=True)
+    try:
+        args = _parser().parse_args(argv)
+        _setup_logging(args.verbose, args.quiet)
+        code = _main(args)
+    finally:
+        limits.restore_early(old)
     from gapsweep.sweep import store
 
     if store.io_failed():  # HDF5 may crash in its exit handlers after a failed write: leave without them
@@ -130,12 +137,23 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main(args: argparse.Namespace) -> int:
     from gapsweep.core.extras import MissingExtraError
+    from gapsweep.sweep import limits
     from gapsweep.sweep.limits import Interrupted
     from gapsweep.sweep.spec import SpecError
 
     try:
+        # run/demo: a signal is recorded and the run's Stop adopts it (the store records the interruption);
+        # merge, report, export...: raised at once, their clean-up removes temporary files and the lease
+        limits.install_early(defer_all=args.command in ("run", "demo"))
         rc = _dispatch(args)
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit
+        late = limits.take_pending()  # a signal no run adopted (a run with nothing to do), or one swallowed
+        if late is not None:           # inside HDF5 while the command went on to complete
+            e = Interrupted(late)
+            what = ("before its run started work; nothing was run" if args.command in ("run", "demo") else
+                    "where it could not stop (inside HDF5); the command completed")
+            print(f"gapsweep: {args.command} {e} {what}", file=sys.stderr)
+            return e.exit_code
         return rc
     except BrokenPipeError:
         # The reader (e.g. `| head`) is gone: no traceback, no "Broken pipe" at exit.
@@ -146,6 +164,12 @@ def _main(args: argparse.Namespace) -> int:
         print(f"gapsweep: {e}", file=sys.stderr)
         return 1
     except Interrupted as e:
+        limits.take_pending()  # reported here
+        if args.command not in ("run", "demo"):
+            what = "; its temporary files and lease removed, no output replaced" if args.command in (
+                "merge", "report", "export") else ""
+            print(f"gapsweep: {args.command} {e}{what}", file=sys.stderr)
+            return e.exit_code
         c = e.counts
         print(f"gapsweep: run {e}: {c.get('done', 0)} done, {c.get('failed', 0)} failed, "
               f"{c.get('not_converged', 0)} not converged in this run; recorded as interrupted, finish with "

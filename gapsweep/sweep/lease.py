@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from gapsweep.sweep import provenance
+from gapsweep.sweep import limits, provenance
 
 __all__ = ["Lease", "LeaseError", "acquire", "identity_path", "lease_path", "read"]
 
@@ -133,10 +133,11 @@ class Lease:
     break_lease: bool = False
 
     def release(self) -> None:
-        if self.ident is not None:
-            _release_file(self.ident, self.run_id)
-            self.ident = None
-        _release_file(self.path, self.run_id)
+        with limits.deferred():  # a signal here must not leave half the lease behind
+            if self.ident is not None:
+                _release_file(self.ident, self.run_id)
+                self.ident = None
+            _release_file(self.path, self.run_id)
 
     def bind(self, store: str | Path) -> None:
         """Check the store's identity again (after it was opened, created or replaced): hold the identity lease
@@ -237,16 +238,17 @@ def acquire(store: str | Path, *, break_lease: bool = False, purpose: str = "run
     run_id = uuid.uuid4().hex[:12]
     info = {"host": socket.gethostname(), "pid": os.getpid(), "proc_start": _proc_start(os.getpid()),
             "run_id": run_id, "started": provenance.now(), "purpose": purpose}
-    _take(p, info, store, break_lease, None)
-    held = Lease(p, run_id, None, info, break_lease)
-    try:
-        reg = _registry()
-        if not reg.is_dir():
-            with contextlib.suppress(OSError):  # shared by the users of this host, like /tmp
-                reg.mkdir(parents=True, exist_ok=True)
-                reg.chmod(0o1777)
-        held.bind(store)
-    except BaseException:
-        held.release()
-        raise
+    with limits.deferred():  # a signal between creating the lease file and owning it would leave it stale
+        _take(p, info, store, break_lease, None)
+        held = Lease(p, run_id, None, info, break_lease)
+        try:
+            reg = _registry()
+            if not reg.is_dir():
+                with contextlib.suppress(OSError):  # shared by the users of this host, like /tmp
+                    reg.mkdir(parents=True, exist_ok=True)
+                    reg.chmod(0o1777)
+            held.bind(store)
+        except BaseException:
+            held.release()
+            raise
     return held
