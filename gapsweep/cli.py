@@ -2,7 +2,8 @@
 
 Exit codes: 0 success, 1 a task-independent error (a run that cannot start, a store that cannot be read or
 merged, a write error, a missing optional dependency, an output that exists), 2 an invalid job spec or argument
-(nothing is written), 3 a run in which every task failed, 130 / 143 a run stopped by SIGINT / SIGTERM (recorded
+(nothing is written), 3 a run in which every task failed, 4 ``status --finished`` of a store with pending
+tasks, 130 / 143 a run stopped by SIGINT / SIGTERM (recorded
 as interrupted; finish it with --resume), 141 the reader of standard output went away (``gapsweep ... | head``).
 
 The library logs through ``logging.getLogger("gapsweep")``; :func:`main` attaches one stderr handler to it
@@ -76,6 +77,9 @@ def _parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("status", help="summarise a running or finished store")
     s.add_argument("store", help="HDF5 store written by `gapsweep run`")
+    s.add_argument("--finished", action="store_true",
+                   help="only check that no task is pending: exit 0, or 4 with one line saying how many are and "
+                        "how the last run ended (the Slurm merge job names unfinished shards with it)")
 
     s = sub.add_parser("merge", help="merge shard stores of one job into one store")
     s.add_argument("shards", nargs="+", help="shard stores of one job (same spec)")
@@ -216,6 +220,8 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "status":
         from gapsweep.sweep import store
 
+        if args.finished:
+            return _finished(args.store)
         print(store.status(args.store))
         return 0
     if args.command == "merge":
@@ -242,6 +248,27 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "demo":
         return _demo(args)
     raise AssertionError(args.command)  # pragma: no cover
+
+
+def _finished(path: str) -> int:
+    """``status --finished``: 0 when every task of the store has a finished row, else 4 and one line naming the
+    store, the pending count and how its last run ended (interrupted by a signal, stopped by an error, or
+    still running / killed)."""
+    import json
+
+    from gapsweep.sweep import store
+
+    df = store.read(path)
+    pending = int((df.status == "pending").sum())
+    if not pending:
+        return 0
+    runs = json.loads(store.read_attrs(path).get("runs", "[]"))
+    last = runs[-1] if runs else {}
+    how = (f"interrupted by {last['interrupted']}" if last.get("interrupted") else
+           f"stopped: {last['stopped']}" if last.get("stopped") else
+           "finished" if last.get("finished") else "never finished (killed, or still running)")
+    print(f"gapsweep: store {path}: {pending} of {len(df)} tasks pending; its last run {how}", file=sys.stderr)
+    return 4
 
 
 def _demo(args: argparse.Namespace) -> int:
