@@ -139,6 +139,24 @@ class Lease:
                 self.ident = None
             _release_file(self.path, self.run_id)
 
+    def mark_interrupted(self) -> None:
+        """Say in the lease files that this run has recorded its interruption in the store: if the process is
+        then killed before it can release them (Open MPI's mpiexec SIGKILLs its ranks 1 s after forwarding a
+        signal), the next run takes the lease over without --break-lease -- the holder is gone and said so."""
+        with limits.deferred():
+            for p in (self.path, self.ident):
+                if p is None:
+                    continue
+                try:
+                    info = json.loads(p.read_text())
+                    if info.get("run_id") != self.run_id:
+                        continue
+                    tmp = p.with_name(p.name + f".mark-{self.run_id}")
+                    tmp.write_text(json.dumps({**info, "interrupted": True}))
+                    os.replace(tmp, p)
+                except (OSError, ValueError) as e:
+                    log.warning("lease %s: cannot mark it interrupted (%s)", p, e)
+
     def bind(self, store: str | Path) -> None:
         """Check the store's identity again (after it was opened, created or replaced): hold the identity lease
         of the file now at ``store``; raise :class:`LeaseError` when another run holds that file."""
@@ -205,6 +223,9 @@ def _take(p: Path, info: dict[str, Any], store: str | Path, break_lease: bool, m
             elif old["alive"] is True:
                 raise LeaseError(f"store {store} is in use by {describe(old)}{via}; wait for it to finish or "
                                  f"stop it (lease file {p})") from None
+            elif old["alive"] is False and old.get("interrupted"):
+                log.info("taking over the lease of %s: %s recorded its interruption in the store", store,
+                         describe(old))
             elif not break_lease:
                 raise LeaseError(f"store {store} is leased by {describe(old)}{via}: if that run is really gone, "
                                  f"pass --break-lease (lease file {p})") from None

@@ -70,6 +70,7 @@ class Stop:
         self.mode = mode
         self.signum: int | None = None
         self.stop_file = stop_file
+        self.on_request: Any = None  # called once with the signal number when a farm starts stopping
         self._critical = 0
         self._old: dict[int, Any] = {}
 

@@ -373,3 +373,12 @@ def test_merge_spec_error_names_the_shard(tmp_path, refs):
     p = gs("merge", s, "--out", tmp_path / "m.h5")
     one_line_error(p, "merge", str(s), "grid.hurst[1]")
     assert not (tmp_path / "m.h5").exists()
+
+
+def test_demo_never_replaces_another_jobs_store(tmp_path, refs):
+    """``demo --out DIR`` where DIR/demo.h5 is another job's store: refused naming it, the store unchanged (the
+    old demo replaced any store there whose spec was not the demo's)."""
+    (tmp_path / "demo.h5").write_bytes(refs["theory"].read_bytes())
+    p = gs("demo", "--out", tmp_path, timeout=120)
+    one_line_error(p, "demo --out", "test-theory", "not the demo's")
+    assert (tmp_path / "demo.h5").read_bytes() == refs["theory"].read_bytes()
