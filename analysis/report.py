@@ -855,16 +855,39 @@ def _verdict_section(ver: Sequence[Mapping[str, str]], matches: Mapping[str, Map
             "refute a claim.", "", _md_table(pd.DataFrame(ver), ["claim", "verdict", "evidence"])]
 
 
+MANIFEST = ".gapsweep-report.json"
+
+
+def _foreign(out: Path) -> list[str]:
+    """Entries of an existing report folder that its manifest does not list (empty: the folder holds only a
+    previous report, which ``--overwrite`` may replace). Without a manifest every entry is foreign."""
+    try:
+        listed = set(json.loads((out / MANIFEST).read_text())["files"])
+    except (OSError, ValueError, KeyError, TypeError):
+        listed = set()
+    return sorted(str(q.relative_to(out)) for q in out.rglob("*")
+                  if q.name != MANIFEST and str(q.relative_to(out)) not in listed
+                  and not (q.is_dir() and not q.is_symlink()
+                           and any(x.startswith(f"{q.relative_to(out)}/") for x in listed)))
+
+
 def main(store_paths: Sequence[str | Path] | str | Path, out_dir: str | Path, *, overwrite: bool = True) -> Path:
     """Build the report of one or more stores into ``out_dir`` (CLI: ``gapsweep report STORE... --out DIR``).
 
     The report is written into a fresh sibling folder and moved into place at the end, so a failure leaves no
-    half-written report. An existing ``out_dir`` holding a report is replaced when ``overwrite`` (the CLI asks
-    for ``--overwrite``); a non-empty folder that holds no report is never replaced."""
+    half-written report. The folder carries a manifest (``.gapsweep-report.json``) of the files the report
+    wrote: an existing ``out_dir`` is replaced when ``overwrite`` (the CLI asks for ``--overwrite``) only if it
+    holds nothing but the files of that manifest -- a store, a shard, kept fields or anything else put there
+    (or a folder above an input store) is never deleted (issue 19: ``--overwrite`` once deleted the store)."""
     import shutil
     import tempfile
 
     out = Path(out_dir)
+    paths = list(store_paths) if not isinstance(store_paths, (str, Path)) else [store_paths]
+    for s in paths:
+        if Path(s).exists() and out.exists() and _inside(Path(s), out):
+            raise FileExistsError(f"report --out {out}: holds the input store {s}; a report never replaces its "
+                                  "inputs, choose another folder")
     if out.exists():
         if not out.is_dir():
             raise FileExistsError(f"report --out {out}: exists and is not a folder")
@@ -873,16 +896,46 @@ def main(store_paths: Sequence[str | Path] | str | Path, out_dir: str | Path, *,
                 raise FileExistsError(f"report --out {out}: a non-empty folder without a report; choose another")
             if not overwrite:
                 raise FileExistsError(f"report --out {out}: a report exists there (pass --overwrite to replace it)")
-    df, hists, prov = load(store_paths if not isinstance(store_paths, (str, Path)) else [store_paths])
+            if not (out / MANIFEST).is_file():
+                raise FileExistsError(
+                    f"report --out {out}: the report there has no manifest {MANIFEST} (an older gapsweep wrote it, "
+                    "or it is not a report), so what --overwrite would delete cannot be told apart from other "
+                    "files: remove the folder yourself or choose another")
+            foreign = sorted(_foreign(out), key=lambda x: (not _is_hdf5(out / x), x))  # stores named first
+            if foreign:
+                raise FileExistsError(
+                    f"report --out {out}: holds {len(foreign)} file(s) the previous report did not write (e.g. "
+                    f"{foreign[0]}; its manifest {MANIFEST} does not list them); --overwrite replaces only a "
+                    "report's own files: move them or choose another folder")
+    df, hists, prov = load(paths)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    old = tmp.with_name(tmp.name + ".old")
     try:
-        build(df, hists, tmp, prov, phists=load_pressure(store_paths if not isinstance(store_paths, (str, Path))
-                                                         else [store_paths]))
+        build(df, hists, tmp, prov, phists=load_pressure(paths))
+        files = sorted(str(q.relative_to(tmp)) for q in tmp.rglob("*") if q.is_file())
+        (tmp / MANIFEST).write_text(json.dumps({"files": files, "written": pd.Timestamp.utcnow().isoformat()},
+                                               indent=1))
         if out.exists():
-            shutil.rmtree(out)
+            os.replace(out, old)  # checked above: only the previous report's files
         os.replace(tmp, out)
+        shutil.rmtree(old, ignore_errors=True)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
+        if old.exists() and not out.exists():
+            os.replace(old, out)
         raise
     return out / "report.md"
+
+
+def _inside(child: Path, parent: Path) -> bool:
+    c, p = child.resolve(), parent.resolve()
+    return c == p or p in c.parents
+
+
+def _is_hdf5(path: Path) -> bool:
+    try:
+        with path.open("rb") as fh:
+            return fh.read(8) == b"\x89HDF\r\n\x1a\n"
+    except OSError:
+        return False

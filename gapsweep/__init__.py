@@ -21,9 +21,37 @@ from __future__ import annotations
 import importlib
 import importlib.abc
 import importlib.machinery
+import os
 import sys
 
 __version__ = "0.2.0"
+
+
+def _numba_cache_dir() -> None:
+    """Point numba's on-disk cache (the GFMD CPU kernels are ``cache=True``) at a per-user folder before numba is
+    imported: ``$NUMBA_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/gapsweep/numba`` (``~/.cache/gapsweep/numba``),
+    else ``<tmp>/gapsweep-numba-<uid>``. Without it numba writes ``*.nbi``/``*.nbc`` into the source tree's
+    ``__pycache__`` (issue 19): a read-only or shared install, and another user's files in a checkout."""
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return
+    import tempfile
+
+    home = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    uid = os.getuid() if hasattr(os, "getuid") else 0
+    for d in (os.path.join(home, "gapsweep", "numba"),
+              os.path.join(tempfile.gettempdir(), f"gapsweep-numba-{uid}")):
+        try:
+            os.makedirs(d, exist_ok=True)
+        except OSError:
+            continue
+        if os.access(d, os.W_OK | os.X_OK):
+            os.environ["NUMBA_CACHE_DIR"] = d
+            if "numba" in sys.modules:  # imported before gapsweep: its config has read the environment already
+                sys.modules["numba"].config.CACHE_DIR = d
+            return
+
+
+_numba_cache_dir()
 
 # stable public name -> the module it lives in
 STABLE_NAMES: dict[str, str] = {

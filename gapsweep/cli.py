@@ -2,7 +2,8 @@
 
 Exit codes: 0 success, 1 a task-independent error (a run that cannot start, a store that cannot be read or
 merged, a write error, a missing optional dependency, an output that exists), 2 an invalid job spec or argument
-(nothing is written), 3 a run in which every task failed, 130 / 143 a run stopped by SIGINT / SIGTERM (recorded
+(nothing is written), 3 a run in which every task failed, 4 ``status --finished`` of a store with pending
+tasks, 130 / 143 a run stopped by SIGINT / SIGTERM (recorded
 as interrupted; finish it with --resume), 141 the reader of standard output went away (``gapsweep ... | head``).
 
 The library logs through ``logging.getLogger("gapsweep")``; :func:`main` attaches one stderr handler to it
@@ -80,6 +81,9 @@ def _parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("status", help="summarise a running or finished store")
     s.add_argument("store", help="HDF5 store written by `gapsweep run`")
+    s.add_argument("--finished", action="store_true",
+                   help="only check that no task is pending: exit 0, or 4 with one line saying how many are and "
+                        "how the last run ended (the Slurm merge job names unfinished shards with it)")
 
     s = sub.add_parser("merge", help="merge shard stores of one job into one store")
     s.add_argument("shards", nargs="+", help="shard stores of one job (same spec)")
@@ -124,9 +128,16 @@ def _setup_logging(verbose: bool, quiet: bool) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
-    _setup_logging(args.verbose, args.quiet)
-    code = _main(args)
+    from gapsweep.sweep import limits
+
+    # signals from here on: recorded for a run (its Stop acts on them), raised for the other commands
+    old = limits.install_early(defer_all=True)
+    try:
+        args = _parser().parse_args(argv)
+        _setup_logging(args.verbose, args.quiet)
+        code = _main(args)
+    finally:
+        limits.restore_early(old)
     from gapsweep.sweep import store
 
     if store.io_failed():  # HDF5 may crash in its exit handlers after a failed write: leave without them
@@ -138,12 +149,23 @@ def main(argv: list[str] | None = None) -> int:
 
 def _main(args: argparse.Namespace) -> int:
     from gapsweep.core.extras import MissingExtraError
+    from gapsweep.sweep import limits
     from gapsweep.sweep.limits import Interrupted
     from gapsweep.sweep.spec import SpecError
 
     try:
+        # run/demo: a signal is recorded and the run's Stop adopts it (the store records the interruption);
+        # merge, report, export...: raised at once, their clean-up removes temporary files and the lease
+        limits.install_early(defer_all=args.command in ("run", "demo"))
         rc = _dispatch(args)
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit
+        late = limits.take_pending()  # a signal no run adopted (a run with nothing to do), or one swallowed
+        if late is not None:           # inside HDF5 while the command went on to complete
+            e = Interrupted(late)
+            what = ("before its run started work; nothing was run" if args.command in ("run", "demo") else
+                    "where it could not stop (inside HDF5); the command completed")
+            print(f"gapsweep: {args.command} {e} {what}", file=sys.stderr)
+            return e.exit_code
         return rc
     except BrokenPipeError:
         # The reader (e.g. `| head`) is gone: no traceback, no "Broken pipe" at exit.
@@ -154,6 +176,12 @@ def _main(args: argparse.Namespace) -> int:
         print(f"gapsweep: {e}", file=sys.stderr)
         return 1
     except Interrupted as e:
+        limits.take_pending()  # reported here
+        if args.command not in ("run", "demo"):
+            what = "; its temporary files and lease removed, no output replaced" if args.command in (
+                "merge", "report", "export") else ""
+            print(f"gapsweep: {args.command} {e}{what}", file=sys.stderr)
+            return e.exit_code
         c = e.counts
         print(f"gapsweep: run {e}: {c.get('done', 0)} done, {c.get('failed', 0)} failed, "
               f"{c.get('not_converged', 0)} not converged in this run; recorded as interrupted, finish with "
@@ -210,6 +238,8 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "status":
         from gapsweep.sweep import store
 
+        if args.finished:
+            return _finished(args.store)
         print(store.status(args.store))
         return 0
     if args.command == "merge":
@@ -237,6 +267,27 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "demo":
         return _demo(args)
     raise AssertionError(args.command)  # pragma: no cover
+
+
+def _finished(path: str) -> int:
+    """``status --finished``: 0 when every task of the store has a finished row, else 4 and one line naming the
+    store, the pending count and how its last run ended (interrupted by a signal, stopped by an error, or
+    still running / killed)."""
+    import json
+
+    from gapsweep.sweep import store
+
+    df = store.read(path)
+    pending = int((df.status == "pending").sum())
+    if not pending:
+        return 0
+    runs = json.loads(store.read_attrs(path).get("runs", "[]"))
+    last = runs[-1] if runs else {}
+    how = (f"interrupted by {last['interrupted']}" if last.get("interrupted") else
+           f"stopped: {last['stopped']}" if last.get("stopped") else
+           "finished" if last.get("finished") else "never finished (killed, or still running)")
+    print(f"gapsweep: store {path}: {pending} of {len(df)} tasks pending; its last run {how}", file=sys.stderr)
+    return 4
 
 
 def _demo(args: argparse.Namespace) -> int:

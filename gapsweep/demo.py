@@ -83,6 +83,15 @@ def run(job: str | Path, out_dir: str | Path = "out") -> dict[str, Any]:
     try:
         runner.run(job, path, resume=True)
     except runner.RunError:  # a demo store of an older demo spec: start again
+        # ... but only a demo store: another job's store (or a damaged file) there is never replaced (issue 19)
+        try:
+            other = store.read_attrs(path).get("job_name")
+        except Exception as e:
+            raise runner.RunError(f"demo --out {out}: {path} exists and is not a demo store ({e}); choose "
+                                  "another --out") from None
+        if other != runner._load(job).name:
+            raise runner.RunError(f"demo --out {out}: {path} is a store of job {other!r}, not the demo's; "
+                                  "choose another --out") from None
         log.info("%s holds another job spec: replacing it", path)
         runner.run(job, path, overwrite=True)
     df = store.read(path)

@@ -164,3 +164,21 @@ def test_mpi_job(cluster, single, tmp_path):
     assert (out / "test_mixed.h5").exists(), logs
     assert store.diff(out / "test_mixed.h5", single) == [], logs
     assert '"mpi_size": 2' in store.read_attrs(out / "test_mixed.h5")["runs"]
+
+
+def test_failed_shards_merge_runs_and_names_them(cluster, tmp_path):
+    """Issue 19 item 13: every shard fails (a write error injected through the submitted environment). The
+    merge, chained with afterany, still runs -- nothing stays queued (afterok waited forever) -- and its log
+    names the unfinished shards; the site options and the setup hook are accepted by a real sbatch."""
+    env = dict(cluster, GAPSWEEP=_gapsweep(), GAPSWEEP_TEST_WRITE_ERROR="3", GAPSWEEP_SETUP="echo site-hook",
+               GAPSWEEP_PARTITION="debug", GAPSWEEP_TIME="00:20:00", GAPSWEEP_MERGE_TIME="00:05:00")
+    out = tmp_path / "out"
+    p = subprocess.run(["bash", str(ROOT / "slurm" / "submit.sh"), str(JOB), str(out), "--shards", "2",
+                        "--mem", "500M"], env=env, capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert p.returncode == 0, p.stdout + p.stderr
+    words = p.stdout.split()
+    array_id, merge_id = words[words.index("array") + 1], words[words.index("merge") + 1]
+    _wait(env, [array_id, merge_id])
+    log = (out / "test_mixed.merge.out").read_text()
+    assert "site-hook" in log
+    assert "2 of 2 shard(s) missing or unfinished" in log and "shard 0" in log and "shard 1" in log, log

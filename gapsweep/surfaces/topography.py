@@ -172,6 +172,30 @@ def _grid_from_points(xyz: np.ndarray, path: Path) -> tuple[np.ndarray, tuple[fl
     return h, (dx, dy)
 
 
+def _read_numpy(path: Path, fmt: str, key: str | None) -> np.ndarray:
+    """A ``.npy`` array or one ``.npz`` member; an empty, truncated or foreign file or a missing key is a
+    ValueError naming the file (numpy raises EOFError, BadZipFile or KeyError, which read as tracebacks)."""
+    import zipfile
+
+    try:
+        if fmt == "npy":
+            return np.load(path, allow_pickle=False)
+        with np.load(path, allow_pickle=False) as z:
+            names = list(z.keys())
+            if key is None and len(names) != 1:
+                raise ValueError(f"{path}: holds {names}; pass key= to choose the height map")
+            if key is not None and key not in names:
+                raise ValueError(f"{path}: has no array {key!r} (key); it holds {names}")
+            return z[key if key is not None else names[0]]
+    except (EOFError, OSError, zipfile.BadZipFile, UnicodeError) as e:
+        what = "empty (0 bytes)" if path.stat().st_size == 0 else f"unreadable ({type(e).__name__}: {e})"
+        raise ValueError(f"{path}: not a .{fmt} file: {what}") from None
+    except ValueError as e:
+        if str(e).startswith(str(path)):
+            raise
+        raise ValueError(f"{path}: not a readable .{fmt} file ({e})") from None
+
+
 def _read_surfacetopography(path: Path) -> tuple[np.ndarray, tuple[float, float] | None, str | None, bool]:
     try:
         from SurfaceTopography import read_topography
@@ -230,14 +254,8 @@ def load(path: str | Path, *, length: Any = None, pixel_size: Any = None, unit: 
     file_size = file_unit = None
     file_periodic = None
     file_pixel = None
-    if fmt == "npy":
-        h = np.load(p, allow_pickle=False)
-    elif fmt == "npz":
-        with np.load(p, allow_pickle=False) as z:
-            names = list(z.keys())
-            if key is None and len(names) != 1:
-                raise ValueError(f"{p}: holds {names}; pass key= to choose the height map")
-            h = z[key if key is not None else names[0]]
+    if fmt in ("npy", "npz"):
+        h = _read_numpy(p, fmt, key)
     elif fmt in ("text", "xyz"):
         h = _read_text(p, delimiter)
         # Three columns and no explicit format="text": an x,y,z point list (a 3-wide height grid is rare).

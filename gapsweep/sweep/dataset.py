@@ -248,7 +248,10 @@ def apply_units(ds: Any, units: Mapping[str, str | None]) -> Any:
 def export_netcdf(path: str | Path, out: str | Path, *, overwrite: bool = False, **kw: Any) -> Path:
     """Write :func:`to_dataset` of the store ``path`` to the netCDF4 file ``out`` (written to a temporary name
     and moved into place: never half-written). Refuses to replace ``out`` unless ``overwrite``."""
+    from gapsweep.sweep.outputs import guard_file_output
+
     outp = Path(out)
+    guard_file_output(outp, [path], "export --out")  # never the store itself nor another store (issue 19)
     if outp.exists() and not overwrite:
         raise FileExistsError(f"export --out {outp}: exists (pass --overwrite to replace it)")
     ds = to_dataset(path, **kw)

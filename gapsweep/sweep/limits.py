@@ -7,6 +7,14 @@
   ranks, where a rank leaving the task farm abruptly would hang the others) it only records the request; the
   farm drains (no new work, the tasks in flight finish) and every rank ends cleanly. A file ``<store>.stop``
   is a stop request too (what the Slurm scripts create when Slurm signals the time limit).
+* :func:`install_early` (the CLI, first thing) closes the start-up window (issue 19): before it, SIGTERM killed
+  the process outright and SIGINT raised anywhere, so a signal in the first half-second left a stale lease and a
+  run not recorded as interrupted. For ``run`` the early handler only *records* the signal; the run's
+  :class:`Stop` adopts it when installed, opens the store, records the run as interrupted and exits 130/143.
+  For the other commands (merge, report, export) it raises :class:`Interrupted` at once -- their ``finally``
+  blocks remove temporary files and release the lease -- except inside :func:`deferred` (a lease being
+  created or released). Only the *first* signal acts: a second one in a row (an impatient user, a launcher
+  that forwards to the process group and to each rank) must not cut the clean-up of the first.
 * :func:`deadline` bounds one task's wall time: on the main thread with ``SIGALRM``, on another thread by
   raising :class:`TaskTimeout` asynchronously in it. Either is delivered when the task next runs Python code
   (a single long C call finishes first).
@@ -24,9 +32,16 @@ from typing import Any
 
 from gapsweep.sweep.schema import TIMEOUT_PREFIX
 
-__all__ = ["Interrupted", "Stop", "TaskTimeout", "deadline"]
+__all__ = ["Interrupted", "Stop", "TaskTimeout", "deadline", "deferred", "install_early", "restore_early",
+           "take_pending"]
 
 SIGNAL_NAMES = {signal.SIGINT: "SIGINT", signal.SIGTERM: "SIGTERM"}
+
+_received: int | None = None  # the first SIGINT/SIGTERM this process got through one of our handlers
+_pending: int | None = None  # ... not yet acted on (deferred, or recorded for the run's Stop to adopt)
+_defer = 0  # depth of deferred() blocks
+_defer_all = False  # the run command: record only, the run's Stop acts on it
+_raised: int | None = None  # raised by the early handler; cleared by whoever reports the Interrupted (the CLI)
 
 
 class Interrupted(BaseException):
@@ -57,18 +72,29 @@ class Stop:
         self.mode = mode
         self.signum: int | None = None
         self.stop_file = stop_file
+        self.on_request: Any = None  # called once with the signal number when a farm starts stopping
         self._critical = 0
         self._old: dict[int, Any] = {}
 
     def _handler(self, signum: int, frame: Any) -> None:
-        self.signum = signum
-        if self.mode == "raise" and not self._critical:
+        global _received
+        first = self.signum is None
+        if first:
+            self.signum = signum
+        if _received is None:
+            _received = signum
+        if self.mode == "raise" and not self._critical and first:
             raise Interrupted(signum)
 
     def install(self) -> Stop:
+        """Take over SIGINT/SIGTERM; a signal recorded by the early handler is adopted (acted on at the next
+        check: the end of the first store write in raise mode, the farm's next round in flag mode)."""
+        global _pending
         if threading.current_thread() is threading.main_thread():
             for s in SIGNAL_NAMES:
                 self._old[s] = signal.signal(s, self._handler)
+        if _pending is not None and self.signum is None:
+            self.signum, _pending = _pending, None
         return self
 
     def restore(self) -> None:
@@ -121,6 +147,76 @@ def timeout_message(seconds: float) -> str:
 
 def is_timeout(message: str) -> bool:
     return message.startswith(TIMEOUT_PREFIX) or message.startswith(("TaskTimeout", "DeadlineExceeded"))
+
+
+def _early(signum: int, frame: Any) -> None:
+    global _received, _pending
+    if _received is not None:  # a second signal: the first one's clean-up is under way
+        return
+    _received = signum
+    if _defer_all or _defer:
+        _pending = signum
+        return
+    _raise(signum)
+
+
+def _raise(signum: int) -> None:
+    """Raise Interrupted, remembering it: C code (HDF5 inside h5py) may swallow an exception raised in a signal
+    handler, and then the command must still not pass for uninterrupted (:func:`take_pending`)."""
+    global _raised
+    _raised = signum
+    raise Interrupted(signum)
+
+
+def install_early(*, defer_all: bool) -> dict[int, Any]:
+    """Handle SIGINT/SIGTERM from the start of the process (module docstring). ``defer_all``: only record
+    (the run command, whose :class:`Stop` adopts the signal); else raise :class:`Interrupted` outside
+    :func:`deferred` blocks -- at once if a signal was recorded before this call."""
+    global _defer_all, _pending
+    _defer_all = defer_all
+    old: dict[int, Any] = {}
+    if threading.current_thread() is threading.main_thread():
+        for s in SIGNAL_NAMES:
+            old[s] = signal.signal(s, _early)
+    if not defer_all and not _defer and _pending is not None:
+        s, _pending = _pending, None
+        _raise(s)
+    return old
+
+
+def restore_early(old: dict[int, Any]) -> None:
+    """Put back the handlers :func:`install_early` replaced and forget its state (``cli.main`` called in a
+    process that goes on, e.g. a test). Where those were our own (``python -m gapsweep``: the process is about
+    to exit, its clean-up done) further signals are ignored, so a late one cannot turn exit 143 into a kill."""
+    global _received, _pending, _defer_all, _raised
+    for s, h in old.items():
+        signal.signal(s, signal.SIG_IGN if h is _early else h)
+    _received = _pending = _raised = None
+    _defer_all = False
+
+
+def take_pending() -> int | None:
+    """A signal the early handler recorded and no run adopted, or raised and nobody reported (swallowed in C
+    code): the command exits 128 + it. Clears both."""
+    global _pending, _raised
+    s = _pending if _pending is not None else _raised
+    _pending = _raised = None
+    return s
+
+
+@contextlib.contextmanager
+def deferred() -> Iterator[None]:
+    """A few statements that a signal must not cut (a lease file created but not yet owned, or being
+    removed): the early handler's Interrupted is raised at the end of the block instead."""
+    global _defer, _pending
+    _defer += 1
+    try:
+        yield
+    finally:
+        _defer -= 1
+    if not _defer and not _defer_all and _pending is not None:
+        s, _pending = _pending, None
+        _raise(s)
 
 
 @contextlib.contextmanager

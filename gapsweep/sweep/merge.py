@@ -64,7 +64,10 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
     shas = {m["spec_sha256"] for m in metas}
     if len(shas) != 1:
         raise StoreError(f"merge: shards come from different job specs ({len(shas)} spec hashes)")
-    js = specmod.loads(metas[0]["spec_text"], base=metas[0].get("spec_dir") or None)
+    try:
+        js = specmod.loads(metas[0]["spec_text"], base=metas[0].get("spec_dir") or None)
+    except specmod.SpecError as e:  # name the shard whose spec it is (issue 19)
+        raise StoreError(f"merge: shard {shards[0]}: its job spec is not valid: {e}") from None
     tasks = tasksmod.expand(js)
     index = {t.task_id: i for i, t in enumerate(tasks)}
     runs = []
@@ -133,6 +136,8 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
         try:
             st = Store.create(tmp, tasks, attrs, bins)
             try:
+                if os.environ.get("GAPSWEEP_TEST_MERGE_DELAY"):  # test hook: a signal while the output is written
+                    __import__("time").sleep(float(os.environ["GAPSWEEP_TEST_MERGE_DELAY"]))
                 if len(tasks):
                     st.f["histograms/edges"][...] = edges
                     st.f["histograms/density"][...] = dens

@@ -199,6 +199,9 @@ def _check_resources(tasks: list[Task], ranks_per_gpu: int = 1) -> list[str]:
 
 def _store_path(path: str | Path, shard: tuple[int, int] | None) -> Path:
     p = str(path)
+    if shard is None and ("{i}" in p or "{n}" in p):  # else a file literally named x{i}.h5 (issue 19)
+        raise ValueError(f"--store {p}: {{i}} and {{n}} are filled in only with --shard i/n; pass --shard or "
+                         "name the store without them")
     if shard is not None:
         p = p.replace("{i}", str(shard[0])).replace("{n}", str(shard[1]))
     return Path(p)
@@ -465,11 +468,15 @@ def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list
             with stop.critical():
                 st = _open_store(path, mode, tasks, attrs, spec.histogram["bins"], comm if wmode == "mpio" else None,
                                  rank, run_id)
+                if held is not None:  # the file opened is the one leased (issue 19: keyed by device and inode)
+                    held.bind(path)
                 runs = json.loads(st.f.attrs.get("runs", "[]"))
                 st.set_attrs({"runs": json.dumps([*runs, record])}, flush=True)  # survives a kill -9
         if os.environ.get("GAPSWEEP_TEST_ABORT_RANK", "") == str(rank):
             raise RuntimeError(f"injected error on rank {rank} (GAPSWEEP_TEST_ABORT_RANK)")
         prog = Progress(len(todo), progress if rank == 0 else "none")
+        if comm is not None and rank == 0 and wmode == "rank0":  # issue 19: mpiexec's 1-s grace, see below
+            stop.on_request = lambda sig: _mark_interrupted(st, record, prog, held, sig)
         if comm is None:
             for k in work:
                 for i, res in _run_unit(tasks, units[k], ctx, todo, task_timeout, stop):
@@ -532,6 +539,26 @@ def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list
         if st is not None and comm is None:
             _abandon(st)
     return summary
+
+
+def _mark_interrupted(st: Store, record: dict[str, Any], prog: Progress, held: lease.Lease | None,
+                      signum: int) -> None:
+    """Rank 0 (rank-0 writer) as the farm starts stopping: record the interruption now, and mark the lease.
+    Open MPI's mpiexec forwards SIGINT/SIGTERM to the ranks and SIGKILLs them 1 s later
+    (``odls_base_sigkill_timeout``), usually before the tasks in flight finish; the store then still says
+    interrupted, and the next run takes the dead run's lease over without --break-lease. A clean end
+    rewrites the record with the final counts and releases the lease as usual. (Under mpio the attribute
+    write is collective and cannot be done by rank 0 alone.)"""
+    try:
+        budget.probe_growth(st.path)  # a metadata write only where the file can grow
+        runs = json.loads(st.f.attrs.get("runs", "[]"))
+        runs[-1] = {**record, **_interrupted(signum, dict(prog.count))}
+        st.set_attrs({"runs": json.dumps(runs)}, flush=True)
+    except (OSError, StoreError) as e:
+        log.warning("%s: cannot record the interruption early (%s)", st.path, e)
+        return
+    if held is not None:
+        held.mark_interrupted()
 
 
 def _interrupted(signum: int, counts: dict[str, int]) -> dict[str, Any]:
@@ -682,7 +709,7 @@ def _coordinate(comm: Any, tasks: list[Task], units: list[Unit], work: list[int]
     while active or local_alive:
         progressed = False
         now = time.monotonic()
-        if not stopping and now >= next_check:
+        if not stopping and (now >= next_check or stop.signum is not None):
             next_check = now + 0.5
             if stop.requested():
                 stopping = True
@@ -690,6 +717,8 @@ def _coordinate(comm: Any, tasks: list[Task], units: list[Unit], work: list[int]
                     q.clear()
                 log.warning("stop requested (%s): finishing the tasks in flight",
                             limits.SIGNAL_NAMES.get(stop.signum, stop.signum))
+                if stop.on_request is not None:
+                    stop.on_request(stop.signum)
         while active and comm.Iprobe(source=MPI.ANY_SOURCE, tag=MPI.ANY_TAG, status=status):
             src, tag = status.Get_source(), status.Get_tag()
             msg = comm.recv(source=src, tag=tag)

@@ -11,6 +11,7 @@ Two kinds of problems:
 
 from __future__ import annotations
 
+import json
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -83,6 +84,11 @@ def check(f: Any, path: str | Path) -> Report:
     for name in ("spec_text", "spec_sha256"):
         if name not in f.attrs:
             _fail(path, f"attribute {name!r} missing (damaged or partial store)")
+    try:  # the run records: a JSON list (a bad one made every later run fail with a bare JSON error)
+        if not isinstance(json.loads(f.attrs.get("runs", "[]")), list):
+            raise ValueError("not a list")
+    except (ValueError, TypeError) as e:
+        _fail(path, f"attribute 'runs' is not a JSON list of run records ({e}): damaged; repair or remove it")
     for name in ("tasks", "results", "histograms/edges", "histograms/density"):
         if name not in f:
             _fail(path, f"dataset /{name} missing (damaged or partial store)")

@@ -251,3 +251,194 @@ def test_export_theory_with_surface_h_rms_and_gaussian_amplitudes(tmp_path):
     a = ds["theory_paper"].isel(seed=0).values
     b = ds["theory_paper"].isel(seed=1).values
     assert not np.allclose(a, b, rtol=1e-9, atol=0.0)
+
+
+# --- issue 19 item 1: no command deletes or replaces a store it was not asked to write --------------------------
+
+@pytest.fixture(scope="module")
+def report_dir(refs, tmp_path_factory) -> Path:
+    """A report of the theory store (written once; cases copy it)."""
+    d = tmp_path_factory.mktemp("rep") / "report"
+    p = gs("report", refs["theory"], "--out", d)
+    assert p.returncode == 0, p.stderr
+    return d
+
+
+def _copy_report(src: Path, dst: Path) -> Path:
+    import shutil
+
+    shutil.copytree(src, dst, dirs_exist_ok=True)
+    return dst
+
+
+REPORT_TRAPS = ["store-in-out", "store-below-out", "other-store-in-out", "kept-fields-in-out", "no-manifest"]
+
+
+@pytest.mark.parametrize("case", REPORT_TRAPS)
+def test_report_overwrite_keeps_stores(tmp_path, refs, report_dir, case):
+    """``report --out DIR --overwrite`` where DIR holds (or lies above) a store, a kept-fields folder or a report
+    without manifest: refused with a one-line error naming DIR, and every byte of the folder is kept (the old
+    code deleted the folder, the store with it)."""
+    d = _copy_report(report_dir, tmp_path / "d")
+    inp = refs["theory"]
+    if case == "store-in-out":
+        inp = d / "s.h5"
+    elif case == "store-below-out":
+        (d / "sub").mkdir()
+        inp = d / "sub" / "s.h5"
+    elif case == "other-store-in-out":
+        (d / "other.h5").write_bytes(refs["hist"].read_bytes())
+    elif case == "kept-fields-in-out":
+        (d / "s.h5.fields").mkdir()
+        (d / "s.h5.fields" / "f.npz").write_bytes(b"kept")
+    else:
+        (d / ".gapsweep-report.json").unlink()
+    if inp != refs["theory"]:
+        inp.write_bytes(refs["theory"].read_bytes())
+    before = {q: q.read_bytes() for q in d.rglob("*") if q.is_file()}
+    p = gs("report", inp, "--out", d, "--overwrite")
+    one_line_error(p, f"report --out {d}")
+    assert {q: q.read_bytes() for q in d.rglob("*") if q.is_file()} == before
+
+
+def test_report_overwrite_replaces_its_own(tmp_path, refs, report_dir):
+    """The counterpart: a folder holding only the previous report (its manifest) is replaced, and the new
+    manifest lists exactly the files there."""
+    import json
+
+    d = _copy_report(report_dir, tmp_path / "d")
+    (d / "report.md").write_text("stale")
+    p = gs("report", refs["theory"], "--out", d, "--overwrite")
+    assert p.returncode == 0, p.stderr
+    assert (d / "report.md").read_text() == (report_dir / "report.md").read_text()
+    listed = json.loads((d / ".gapsweep-report.json").read_text())["files"]
+    assert sorted(listed) == sorted(q.name for q in d.iterdir() if q.name != ".gapsweep-report.json")
+
+
+EXPORT_TRAPS = ["out-is-input", "out-is-hardlink-of-input", "out-is-symlink-to-input", "out-is-other-store",
+                "out-is-folder"]
+
+
+@pytest.mark.parametrize("case", EXPORT_TRAPS)
+def test_export_never_replaces_a_store(tmp_path, refs, case):
+    """``export STORE --out X --overwrite`` where X is the store (by any path) or another store or a folder:
+    refused, nothing replaced (the old code replaced the store by its netCDF view)."""
+    import os
+
+    s = tmp_path / "s.h5"
+    s.write_bytes(refs["theory"].read_bytes())
+    out = {"out-is-input": s, "out-is-hardlink-of-input": tmp_path / "link.nc",
+           "out-is-symlink-to-input": tmp_path / "sym.nc", "out-is-other-store": tmp_path / "other.nc",
+           "out-is-folder": tmp_path / "s.h5.fields"}[case]
+    if case == "out-is-hardlink-of-input":
+        os.link(s, out)
+    elif case == "out-is-symlink-to-input":
+        out.symlink_to(s)
+    elif case == "out-is-other-store":
+        out.write_bytes(refs["hist"].read_bytes())
+    elif case == "out-is-folder":
+        out.mkdir()
+    before = refs["theory"].read_bytes()
+    p = gs("export", s, "--out", out, "--overwrite")
+    one_line_error(p, "export --out", str(out))
+    assert s.read_bytes() == before
+    if case == "out-is-other-store":
+        assert out.read_bytes() == refs["hist"].read_bytes()
+    assert not list(tmp_path.glob(".*tmp*"))
+
+
+def test_export_overwrite_replaces_its_own(tmp_path, refs):
+    out = tmp_path / "s.nc"
+    assert gs("export", refs["theory"], "--out", out).returncode == 0
+    first = out.read_bytes()
+    out.write_bytes(b"not the export")
+    p = gs("export", refs["theory"], "--out", out, "--overwrite")
+    assert p.returncode == 0, p.stderr
+    assert out.read_bytes()[:8] == first[:8] == b"\x89HDF\r\n\x1a\n"
+
+
+# --- issue 19 item 10: unreadable inputs are one-line errors naming the file ------------------------------------
+
+FILE_JOB = THEORY_JOB.parent / "contact_file.toml"
+
+
+def _file_job(tmp_path: Path, surface_lines: str) -> Path:
+    text = FILE_JOB.read_text()
+    start = text.index("[surface]")
+    end = text.index("\n[", start + 1)
+    job = tmp_path / "job.toml"
+    job.write_text(text[:start] + "[surface]\n" + surface_lines + text[end:])
+    return job
+
+
+MAPS = [
+    ("npy-empty", "map.npy", lambda p: p.write_bytes(b""), "", ["map.npy", "empty"]),
+    ("npy-truncated", "map.npy", lambda p: p.write_bytes(__import__("numpy").lib.format.magic(1, 0) + b"\x10"),
+     "", ["map.npy", ".npy file"]),
+    ("npz-missing-key", "map.npz",
+     lambda p: __import__("numpy").savez(p, heights=__import__("numpy").zeros((8, 8))), 'key = "z"\n',
+     ["map.npz", "no array 'z'", "heights"]),
+    ("npz-not-a-zip", "map.npz", lambda p: p.write_bytes(b"PK\x03\x04 not really"), "", ["map.npz", ".npz"]),
+]
+
+
+@pytest.mark.parametrize("case,name,make,extra,needles", MAPS, ids=[m[0] for m in MAPS])
+def test_bad_height_map(tmp_path, case, name, make, extra, needles):
+    """An empty or truncated .npy, a .npz without the key asked for or not a zip: `plan` and `run` fail with
+    one line naming the file and the problem, exit 2, nothing written (EOFError/KeyError tracebacks before)."""
+    make(tmp_path / name)
+    job = _file_job(tmp_path, f'kind = "file"\npath = "{name}"\npixel_size = 0.5\n{extra}')
+    for cmd in (["plan", job], ["run", job, "--store", tmp_path / "s.h5", "--mpi", "off"]):
+        p = gs(*cmd, timeout=60)
+        err = one_line_error(p, "surface.path", *needles)
+        assert p.returncode == 2, err
+    assert not (tmp_path / "s.h5").exists()
+
+
+def test_store_with_non_json_runs(tmp_path, refs):
+    """A store whose `runs` attribute is not JSON: status, resume and merge name the file and the attribute
+    (a bare JSONDecodeError, not naming the file, before); the store is not changed by the attempt."""
+    import h5py
+
+    s = tmp_path / "s.h5"
+    s.write_bytes(refs["theory"].read_bytes())
+    with h5py.File(s, "r+") as f:
+        f.attrs["runs"] = "{not json"
+    before = s.read_bytes()
+    for cmd in (["status", s], ["run", THEORY_JOB, "--store", s, "--resume", "--mpi", "off"],
+                ["merge", s, "--out", tmp_path / "m.h5"]):
+        p = gs(*cmd, timeout=60)
+        one_line_error(p, str(s), "'runs'", "JSON")
+    assert s.read_bytes() == before
+    assert not (tmp_path / "m.h5").exists()
+
+
+@pytest.mark.parametrize("pattern", ["x{i}.h5", "x{n}.h5", "x{i}of{n}.h5"])
+def test_shard_pattern_without_shard(tmp_path, pattern):
+    """A store path with {i}/{n} but no --shard is refused (a file literally named x{i}.h5 was created)."""
+    p = gs("run", THEORY_JOB, "--store", tmp_path / pattern, "--mpi", "off", timeout=60)
+    err = one_line_error(p, "--store", "--shard", pattern)
+    assert p.returncode == 2, err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_merge_spec_error_names_the_shard(tmp_path, refs):
+    """A shard whose stored spec no longer validates: the merge names that shard."""
+    import h5py
+
+    s = tmp_path / "shard0.h5"
+    s.write_bytes(refs["theory"].read_bytes())
+    with h5py.File(s, "r+") as f:
+        f.attrs["spec_text"] = f.attrs["spec_text"].replace("hurst = [0.3, 0.8]", "hurst = [0.3, 1.5]")
+    p = gs("merge", s, "--out", tmp_path / "m.h5")
+    one_line_error(p, "merge", str(s), "grid.hurst[1]")
+    assert not (tmp_path / "m.h5").exists()
+
+
+def test_demo_never_replaces_another_jobs_store(tmp_path, refs):
+    """``demo --out DIR`` where DIR/demo.h5 is another job's store: refused naming it, the store unchanged (the
+    old demo replaced any store there whose spec was not the demo's)."""
+    (tmp_path / "demo.h5").write_bytes(refs["theory"].read_bytes())
+    p = gs("demo", "--out", tmp_path, timeout=120)
+    one_line_error(p, "demo --out", "test-theory", "not the demo's")
+    assert (tmp_path / "demo.h5").read_bytes() == refs["theory"].read_bytes()

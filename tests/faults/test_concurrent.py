@@ -80,3 +80,60 @@ def test_second_run_during_mpi_run_refused(tmp_path, refs, writer):
     rc, _, err = finish(first, timeout=120)
     assert rc == 0, err
     assert store.diff(path, refs["theory"]) == []
+
+
+def _bind_file(src, dst) -> bool:
+    """Bind-mount the file ``src`` at ``dst`` (another mount path of one file); False where not permitted."""
+    import os
+    import subprocess
+
+    if os.geteuid() != 0:
+        return False
+    dst.touch()
+    return subprocess.run(["mount", "--bind", str(src), str(dst)], capture_output=True).returncode == 0
+
+
+@pytest.mark.parametrize("locking", ["default", "FALSE"])
+@pytest.mark.parametrize("how", ["symlink", "symlinked-folder", "hardlink", "bind-mount"])
+def test_second_run_through_another_path_refused(tmp_path, refs, how, locking):
+    """Issue 19 item 6: a second run through a symlink, a hard link or a bind mount of the same store is refused
+    (the lease is keyed by the file: resolved path and device/inode), with HDF5 locking on or off; the first
+    run finishes to the uninterrupted result. The old lease, keyed by the path as typed, let the hard link and
+    the bind mount run beside the first (done rows went back to pending)."""
+    import subprocess
+
+    path = tmp_path / "s.h5"
+    kw = {"GAPSWEEP_TEST_DELAY": "0.1"}
+    if locking == "FALSE":
+        kw["HDF5_USE_FILE_LOCKING"] = "FALSE"
+    first = gs_popen("run", JOBS["theory"], "--store", path, "--mpi", "off", "--progress", "none", **kw)
+    mounted = None
+    try:
+        assert wait_done(path, 3, first) >= 3
+        if how == "symlink":
+            other = tmp_path / "link.h5"
+            other.symlink_to(path)
+        elif how == "symlinked-folder":
+            (tmp_path / "alias").symlink_to(tmp_path)
+            other = tmp_path / "alias" / "s.h5"
+        elif how == "hardlink":
+            other = tmp_path / "hard.h5"
+            other.hardlink_to(path)
+        else:
+            other = tmp_path / "mnt.h5"
+            if not _bind_file(path, other):
+                first.kill()
+                first.wait()
+                pytest.skip("bind mounts need root and mount permission")
+            mounted = other
+        p = gs("run", JOBS["theory"], "--store", other, "--mpi", "off", "--resume", "--progress", "none", **kw)
+        assert first.poll() is None  # the premise: the first run was still writing
+        one_line_error(p, "in use by", "alive")
+    finally:
+        if mounted is not None:
+            subprocess.run(["umount", str(mounted)], check=False)
+    rc, _, err = finish(first)
+    assert rc == 0, err
+    assert store.diff(path, refs["theory"]) == []
+    assert lease.read(path) is None and lease.identity_path(path) is not None
+    assert not lease.identity_path(path).exists()  # released with the path lease

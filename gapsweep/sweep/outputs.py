@@ -1,0 +1,75 @@
+"""Guards for the files a command writes (issue 19, item 1): no command deletes or replaces a store, a shard, a
+kept-fields folder or any input it was not asked to write.
+
+``--overwrite`` means "replace the file this command wrote before", never "replace whatever sits at that path":
+a netCDF export onto its own input, or onto another store, would turn the only copy of the results into a view
+of them. Stores are recognised by content (an HDF5 file whose ``format`` attribute is the store's), not by name,
+so a store named ``x.nc`` is protected too.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Iterable
+from pathlib import Path
+
+from gapsweep.sweep.schema import FORMAT
+
+__all__ = ["HDF5_SIGNATURE", "guard_file_output", "inside", "is_store", "same_file"]
+
+log = logging.getLogger("gapsweep.sweep.outputs")
+
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def same_file(a: str | Path, b: str | Path) -> bool:
+    """Whether two paths name one file (symlinks, hard links, other mount paths included)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def inside(child: str | Path, parent: str | Path) -> bool:
+    """Whether ``child`` is ``parent`` or lies (resolved, through symlinks) anywhere below it."""
+    c, p = Path(child).resolve(), Path(parent).resolve()
+    return c == p or p in c.parents
+
+
+def is_store(path: str | Path) -> bool:
+    """Whether ``path`` is a gapsweep store: an HDF5 file carrying the store's format attribute. An HDF5 file
+    that cannot be opened counts as a store (it may be one being written or damaged; replacing it is not ours
+    to decide)."""
+    p = Path(path)
+    try:
+        with p.open("rb") as fh:
+            head = fh.read(8)
+    except OSError:
+        return False
+    if head != HDF5_SIGNATURE:
+        return False
+    import h5py
+
+    try:
+        with h5py.File(p, "r", locking=False) as f:
+            return f.attrs.get("format") == FORMAT
+    except Exception:  # unreadable HDF5: be safe
+        return True
+
+
+def guard_file_output(out: str | Path, inputs: Iterable[str | Path], what: str) -> None:
+    """Refuse (``FileExistsError`` naming ``what`` and the path) to replace an input, a folder or a store by
+    the file ``out``; anything else may be replaced (``--overwrite``, the caller's check)."""
+    o = Path(out)
+    for i in inputs:
+        if same_file(o, i) or (not o.exists() and Path(i).resolve() == o.resolve()):
+            raise FileExistsError(f"{what} {o}: is the input {i}; an output never replaces its input, choose "
+                                  "another file")
+    if not o.exists():
+        return
+    if o.is_dir():
+        raise FileExistsError(f"{what} {o}: is a folder (a store's kept fields or another); name a file")
+    if is_store(o):
+        raise FileExistsError(f"{what} {o}: is a gapsweep store (HDF5 with format {FORMAT!r}); --overwrite "
+                              "never replaces a store, choose another file")
