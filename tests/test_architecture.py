@@ -240,3 +240,14 @@ def test_a_new_method_is_one_file(tmp_path, monkeypatch):
     finally:
         base._REGISTRY.pop("paper_only", None)
     assert "paper_only" not in methods.names()
+
+
+def test_signal_handlers_install_before_heavy_imports():
+    """`python -m gapsweep` installs its SIGINT/SIGTERM handlers (gapsweep.sweep.limits) before numpy, h5py or
+    the solvers load, so a signal during start-up is handled (docs/reliability.md)."""
+    import subprocess
+    import sys
+
+    code = "import sys, gapsweep.sweep.limits; print(sorted(m for m in ('numpy', 'h5py', 'numba') if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60).stdout.strip()
+    assert out == "[]", out

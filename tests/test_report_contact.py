@@ -34,10 +34,14 @@ def stores(tmp_path_factory):
 
 
 def _copy(src: Path, dst: Path, **attrs) -> Path:
+    """A copy of a store with attributes set (None: removed -- a store of model units, no `units`)."""
     shutil.copy(src, dst)
     with h5py.File(dst, "r+") as f:
         for k, v in attrs.items():
-            f.attrs[k] = v
+            if v is None:
+                f.attrs.pop(k, None)
+            else:
+                f.attrs[k] = v
     return dst
 
 
@@ -93,7 +97,7 @@ def _assert_legends_inside(fig) -> None:
 @pytest.mark.parametrize("law", ["hard_wall", "adhesive"])
 @pytest.mark.parametrize("units", [None, SI])
 def test_figures_bins_legends_and_units(stores, tmp_path, law, units):
-    path = stores[law] if units is None else _copy(stores[law], tmp_path / "si.h5", units=json.dumps(units))
+    path = _copy(stores[law], tmp_path / "s.h5", units=None if units is None else json.dumps(units))
     figs = _figures(path)
     dist = figs["contact_distributions"]
     _assert_bins_fit_the_axis(dist)

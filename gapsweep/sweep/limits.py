@@ -30,8 +30,6 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from gapsweep.sweep.schema import TIMEOUT_PREFIX
-
 __all__ = ["Interrupted", "Stop", "TaskTimeout", "deadline", "deferred", "install_early", "restore_early",
            "take_pending"]
 
@@ -142,11 +140,15 @@ def task_limit(seconds: float | None) -> Iterator[None]:
 
 def timeout_message(seconds: float) -> str:
     """The message of a timed-out row; ``--resume`` runs rows with this prefix again."""
+    from gapsweep.sweep.schema import TIMEOUT_PREFIX  # here, not at the top: this module loads before numpy
+
     return f"{TIMEOUT_PREFIX} task exceeded its time limit of {seconds:g} s (run again by --resume)"
 
 
 def is_timeout(message: str) -> bool:
-    return message.startswith(TIMEOUT_PREFIX) or message.startswith(("TaskTimeout", "DeadlineExceeded"))
+    from gapsweep.sweep.schema import TIMEOUT_PREFIX
+
+    return message.startswith((TIMEOUT_PREFIX, "TaskTimeout", "DeadlineExceeded"))
 
 
 def _early(signum: int, frame: Any) -> None:
