@@ -228,8 +228,6 @@ def _to_format1(path: Path) -> None:
         for k in old.dtype.names:
             old[k] = r[k]
         del f["results"], f["histograms/pressure_edges"], f["histograms/pressure_density"]
-        if "checksums" in f:  # format 3's row checksums did not exist in format 1
-            del f["checksums"]
         f.create_dataset("results", data=old)
         f.attrs["format_version"] = 1
 

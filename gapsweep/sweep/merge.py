@@ -16,8 +16,8 @@ import numpy as np
 from gapsweep.sweep import lease, provenance, storecheck
 from gapsweep.sweep import spec as specmod
 from gapsweep.sweep import tasks as tasksmod
-from gapsweep.sweep.schema import CHECKSUMS, PRESSURE_HIST, STATUS, STATUS_NAMES, VOLATILE, StoreError
-from gapsweep.sweep.store import Store, _same, checksums, empty_results, open_read, read_attrs, upgrade_results
+from gapsweep.sweep.schema import PRESSURE_HIST, STATUS, STATUS_NAMES, VOLATILE, StoreError
+from gapsweep.sweep.store import Store, _same, empty_results, open_read, read_attrs, seal, upgrade_results
 
 __all__ = ["CONFLICT_CHOICES", "merge"]
 
@@ -143,8 +143,8 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
                     st.f["histograms/density"][...] = dens
                     st.f[PRESSURE_HIST[0]][...] = pedges
                     st.f[PRESSURE_HIST[1]][...] = pdens
-                    st.f["results"][...] = results
-                    st.f[CHECKSUMS][...] = checksums(st.f["tasks"][...], results, bins, edges, dens, pedges, pdens)
+                    # rows of a format-1/2 shard get their checksum here; format-3 rows are checked above
+                    st.f["results"][...] = seal(st.f["tasks"][...], results, bins, edges, dens, pedges, pdens)
                 st.f.attrs["finished"] = provenance.now()
             finally:
                 st.close()

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -217,7 +218,8 @@ def make_task(method: str, hurst: float, rho: float, sigma0: float, seed: int, n
 # the store's layout (docs/store.md)
 
 FORMAT = "gapsweep-store"
-# 3: per-row checksums (/checksums); 2: the issue-12 columns and pressure histograms; 1: the first format
+# 3: per-row checksums (column checksum) and error_estimate; 2: the issue-12 columns and pressure histograms;
+# 1: the first format
 FORMAT_VERSION = 3
 MESSAGE_LEN = 240
 
@@ -230,20 +232,22 @@ RESULT_DTYPE = np.dtype(
     [("status", "i1"), ("message", f"S{MESSAGE_LEN}")]
     + [(k, "f8") for k in FLOAT_RESULTS]
     + [(k, "i8") for k in INT_RESULTS]
+    + [("checksum", "u8")]  # format 3: the row's checksum (row_checksum), written in the same write as the row
 )
 # The results table of format 1 (stores written before the issue-12 columns); such stores still open and read.
 NEW_IN_V2 = ("contact_area", "elastic_energy", "contact_atom", "pressure_atom", "mean_gap_persson", "flags")
-NEW_IN_V3 = ("error_estimate",)
+NEW_IN_V3 = ("error_estimate", "checksum")
 RESULT_DTYPE_V2 = np.dtype([(k, RESULT_DTYPE.fields[k][0]) for k in RESULT_DTYPE.names if k not in NEW_IN_V3])
 RESULT_DTYPE_V1 = np.dtype([(k, RESULT_DTYPE.fields[k][0]) for k in RESULT_DTYPE_V2.names if k not in NEW_IN_V2])
 RESULT_DTYPES = (RESULT_DTYPE, RESULT_DTYPE_V2, RESULT_DTYPE_V1)
 PRESSURE_HIST = ("histograms/pressure_edges", "histograms/pressure_density")
-# Format 3: one checksum per row over its task parameters, its result row and its four histogram rows, written
-# after the row's payload and status (0: not written). A row whose bytes no longer match is "damaged".
-CHECKSUMS = "checksums"
-CHECKSUM_DTYPE = np.dtype("u8")
-# Columns that differ between two runs of the same job by nature (compare stores without them).
-VOLATILE = ("wall_time", "rank")
+# Format 3: each results row carries a checksum over its task parameters, itself (checksum field zero) and its
+# four histogram rows; written with the row, after its payload. A finished row whose bytes no longer match is
+# "damaged" (docs/store.md "Checksums").
+CHECKSUM = "checksum"
+# Columns that differ between two runs of the same job by nature (compare stores without them); the checksum
+# covers the wall time, so it differs with it.
+VOLATILE = ("wall_time", "rank", "checksum")
 
 
 class StoreError(RuntimeError):
@@ -254,11 +258,17 @@ class StoreWriteError(StoreError):
     """Writing to a store failed (full disk, file-size limit, I/O error); rows written before are intact."""
 
 
-def row_checksum(parts: Sequence[np.ndarray | np.void]) -> int:
-    """Checksum of one store row: BLAKE2b (8 bytes) over the raw bytes of its parts in order -- the ``/tasks``
-    row, the ``/results`` row and the gap and pressure histogram rows (edges, density) exactly as stored. Never
-    0 (0 marks a row whose checksum was not written)."""
-    h = hashlib.blake2b(digest_size=8)
-    for a in parts:
-        h.update(np.asarray(a).tobytes())
-    return int.from_bytes(h.digest(), "little") or 1
+def row_checksum(task: np.void, result: np.void, hists: Sequence[np.ndarray]) -> int:
+    """Checksum of one store row: CRC-32 over the raw bytes of its ``/tasks`` row, its ``/results`` row without
+    the ``checksum`` field, and its gap and pressure histogram rows (edges, density) exactly as stored, with bit
+    32 set (so never 0: 0 marks a row whose checksum was never written). A CRC catches every flip of up to 32
+    adjacent bits and any other change with probability 1 - 2^-32, at a few microseconds per row (the cost of a
+    cryptographic hash would show in sweeps of small tasks: docs/benchmarks.md, "Row checksums")."""
+    c = zlib.crc32(task.tobytes())
+    rb = result.tobytes()
+    off = result.dtype.fields[CHECKSUM][1]  # the checksum's own 8 bytes are left out
+    c = zlib.crc32(rb[off + 8:], zlib.crc32(rb[:off], c))
+    for a in hists:  # float64 rows as stored; contiguous arrays are read in place (buffer protocol)
+        c = zlib.crc32(a if isinstance(a, np.ndarray) and a.dtype == np.float64 and a.flags.c_contiguous
+                       else np.ascontiguousarray(a, dtype=np.float64), c)
+    return c | (1 << 32)

@@ -39,8 +39,7 @@ import numpy as np
 
 from gapsweep.sweep import lease, storecheck
 from gapsweep.sweep.schema import (  # noqa: F401 - the store's layout, re-exported as in version 0.1
-    CHECKSUM_DTYPE,
-    CHECKSUMS,
+    CHECKSUM,
     FLOAT_RESULTS,
     FORMAT,
     FORMAT_VERSION,
@@ -200,19 +199,26 @@ def result_row(res: TaskResult, dtype: np.dtype = RESULT_DTYPE) -> np.ndarray:
     return row
 
 
-def checksums(tasks: np.ndarray, results: np.ndarray, bins: int, edges: np.ndarray | None = None,
-              density: np.ndarray | None = None, pedges: np.ndarray | None = None,
-              pdensity: np.ndarray | None = None) -> np.ndarray:
-    """Row checksums (:func:`gapsweep.sweep.schema.row_checksum`) of whole tables; histograms not given are the
-    all-NaN rows of a store's creation."""
-    n = len(tasks)
+def seal(tasks: np.ndarray, results: np.ndarray, bins: int, edges: np.ndarray | None = None,
+         density: np.ndarray | None = None, pedges: np.ndarray | None = None,
+         pdensity: np.ndarray | None = None) -> np.ndarray:
+    """``results`` (format 3) with every row's ``checksum`` set (:func:`gapsweep.sweep.schema.row_checksum`);
+    histograms not given are the all-NaN rows of a store's creation. Modifies and returns ``results``."""
     nan_e, nan_d = np.full(bins + 1, np.nan), np.full(bins, np.nan)
-    out = np.empty(n, dtype=CHECKSUM_DTYPE)
-    for i in range(n):
-        out[i] = row_checksum((tasks[i], results[i],
-                               nan_e if edges is None else edges[i], nan_d if density is None else density[i],
-                               nan_e if pedges is None else pedges[i], nan_d if pdensity is None else pdensity[i]))
-    return out
+    for i in range(len(tasks)):
+        results[CHECKSUM][i] = row_checksum(tasks[i], results[i], (
+            nan_e if edges is None else edges[i], nan_d if density is None else density[i],
+            nan_e if pedges is None else pedges[i], nan_d if pdensity is None else pdensity[i]))
+    return results
+
+
+def reseal(f: h5py.File) -> None:
+    """Recompute the checksums of every row of an open format-3 store from its bytes (tests and tools that
+    rewrite rows on purpose, e.g. a shard with other results; never used on a store whose damage must show)."""
+    g = f["histograms"]
+    r = f["results"][...]
+    f["results"][...] = seal(f["tasks"][...], r, g["density"].shape[1], g["edges"][...], g["density"][...],
+                             g["pressure_edges"][...], g["pressure_density"][...])
 
 
 def _locking_kw() -> dict[str, Any]:
@@ -234,12 +240,18 @@ class Store:
         self._pedges = f[PRESSURE_HIST[0]] if PRESSURE_HIST[0] in f else None
         self._pdensity = f[PRESSURE_HIST[1]] if PRESSURE_HIST[1] in f else None
         self._rdtype = self._res.dtype
-        # format 3: each row's checksum, written after its payload and status (the task rows are its first part)
-        self._ck = f[CHECKSUMS] if CHECKSUMS in f else None
-        self._task_rows = f["tasks"][...] if self._ck is not None and f["tasks"].shape[0] else None
+        # format 3: each row carries its checksum (over its task row, itself and its histograms); which rows hold
+        # histograms now, so that a row without one writes none (its NaN rows are already what is stored)
+        self._ck = CHECKSUM in (self._rdtype.names or ())
+        n = self._res.shape[0]
+        self._task_rows = f["tasks"][...] if self._ck and n else None
+        self._has_hist = (np.isfinite(self._edges[:, 0]) if n else np.zeros(0, bool)) if self._ck else None
+        self._has_phist = (np.isfinite(self._pedges[:, 0]) if n else np.zeros(0, bool)) \
+            if self._ck and self._pedges is not None else None
         self.parallel = comm is not None
         self.n_tasks = self._res.shape[0]
         self.bins = self._density.shape[1]
+        self._nan_rows = (np.full(self.bins + 1, np.nan), np.full(self.bins, np.nan))  # a row without histogram
 
     @classmethod
     def create(cls, path: str | Path, tasks: Sequence[Task], attrs: dict[str, Any], bins: int, *,
@@ -267,13 +279,11 @@ class Store:
             g.create_dataset("density", shape=(n, bins), dtype="f8", fillvalue=np.nan, dcpl=_early())
             g.create_dataset("pressure_edges", shape=(n, bins + 1), dtype="f8", fillvalue=np.nan, dcpl=_early())
             g.create_dataset("pressure_density", shape=(n, bins), dtype="f8", fillvalue=np.nan, dcpl=_early())
-            dc = f.create_dataset(CHECKSUMS, shape=(n,), dtype=CHECKSUM_DTYPE, fillvalue=0, dcpl=_early())
             if comm is None or comm.rank == 0:
                 if n:
-                    rows, res = task_rows(tasks), empty_results(n)
+                    rows = task_rows(tasks)
                     dt[...] = rows
-                    dr[...] = res
-                    dc[...] = checksums(rows, res, bins)
+                    dr[...] = seal(rows, empty_results(n), bins)
             f.flush()
             if comm is not None:
                 comm.Barrier()
@@ -337,26 +347,32 @@ class Store:
             self._write(i, res, flush)
 
     def _write(self, i: int, res: TaskResult, flush: bool) -> None:
-        ck = self._ck is not None
-        nan_e, nan_d = np.full(self.bins + 1, np.nan), np.full(self.bins, np.nan)
+        ck = self._ck
+        nan_e, nan_d = self._nan_rows
         hist = (np.asarray(res.hist[0], dtype=np.float64), np.asarray(res.hist[1], dtype=np.float64)) \
             if res.hist is not None else (nan_e, nan_d)
         phist = (np.asarray(res.phist[0], dtype=np.float64), np.asarray(res.phist[1], dtype=np.float64)) \
             if res.phist is not None else (nan_e, nan_d)
         try:
-            # a checksummed row writes every part, so that its checksum covers exactly what is stored (a row run
-            # again keeps no histogram of an earlier run)
-            if res.hist is not None or ck:
+            # A checksummed row's histograms on disk must be what its checksum covers: a row without one writes
+            # NaN rows only where an earlier run of it left a histogram (else the creation's NaN rows are there).
+            wrote = False
+            if res.hist is not None or (ck and self._has_hist[i]):
                 self._edges[i], self._density[i] = hist
-            if self._pedges is not None and (res.phist is not None or ck):
+                wrote = True
+            if self._pedges is not None and (res.phist is not None or (ck and self._has_phist[i])):
                 self._pedges[i], self._pdensity[i] = phist
-            if flush and not self.parallel and (res.hist is not None or res.phist is not None or ck):
+                wrote = True
+            if flush and not self.parallel and wrote:
                 self.f.flush()
             self._inject()
             row = result_row(res, self._rdtype)[0]
+            if ck:  # the checksum travels in the row's own write, after the payload
+                row[CHECKSUM] = row_checksum(self._task_rows[i], row, (*hist, *phist))
+                self._has_hist[i] = res.hist is not None
+                if self._has_phist is not None:
+                    self._has_phist[i] = res.phist is not None
             self._res[i] = row
-            if ck:  # after the payload and the status: a row whose checksum is stale or missing is damaged
-                self._ck[i] = row_checksum((self._task_rows[i], row, *hist, *phist))
             if flush and not self.parallel:
                 self.f.flush()
         except (OSError, RuntimeError) as e:

@@ -21,7 +21,7 @@ import numpy as np
 
 from gapsweep.sweep import methods as registry
 from gapsweep.sweep.schema import (
-    CHECKSUMS,
+    CHECKSUM,
     FORMAT,
     PRESSURE_HIST,
     RESULT_DTYPES,
@@ -140,9 +140,9 @@ def check(f: Any, path: str | Path) -> Report:
     edges_ok = np.all(np.isfinite(e[...]), axis=1)
     bad = done & (~np.isfinite(mean_gap) | (needs_hist & ~(hist_ok & edges_ok)))
     rep.done_incomplete = np.flatnonzero(bad).tolist()
-    rep.checksums = CHECKSUMS in f
+    rep.checksums = CHECKSUM in (r.dtype.names or ())
     if rep.checksums and not all(has_p):
-        _fail(path, f"/{CHECKSUMS} present without the pressure histograms it covers (damaged or partial store)")
+        _fail(path, "row checksums present without the pressure histograms they cover (damaged or partial store)")
     if rep.checksums:
         rep.damaged = _damaged(f, path, n)
     return rep
@@ -150,13 +150,8 @@ def check(f: Any, path: str | Path) -> Report:
 
 def _damaged(f: Any, path: Any, n: int) -> list[int]:
     """Finished rows whose stored checksum does not match the checksum of their bytes (a changed value,
-    parameter, histogram or status byte, swapped rows), or whose checksum was never written (a crash between a
-    row's status and its checksum)."""
-    ck = f[CHECKSUMS]
-    if not hasattr(ck, "dtype") or ck.shape != (n,):
-        _fail(path, f"/{CHECKSUMS} is not a table of {n} row checksums (damaged store)")
+    parameter, histogram or status byte, swapped rows)."""
     try:
-        stored = ck[...]
         t, r = f["tasks"][...], f["results"][...]
         e, d = f["histograms/edges"][...], f["histograms/density"][...]
         pe, pd = f[PRESSURE_HIST[0]][...], f[PRESSURE_HIST[1]][...]
@@ -166,7 +161,7 @@ def _damaged(f: Any, path: Any, n: int) -> list[int]:
     # leaves one with a stale checksum): it runs again anyway and is not reported; every other row must match.
     pending = STATUS["pending"]
     return [i for i in range(n) if int(r[i]["status"]) != pending
-            and int(stored[i]) != row_checksum((t[i], r[i], e[i], d[i], pe[i], pd[i]))]
+            and int(r[i][CHECKSUM]) != row_checksum(t[i], r[i], (e[i], d[i], pe[i], pd[i]))]
 
 
 def incomplete_rows(f: Any, path: str | Path) -> list[int]:

@@ -17,16 +17,14 @@ from .conftest import gs, one_line_error
 def _set(path, i, **cols):
     """Give row ``i`` other results, as another run of the shard would have written them (checksums resealed:
     a conflict between two valid rows, not a damaged row)."""
-    from gapsweep.sweep.store import checksums
+    from gapsweep.sweep.store import reseal
 
     with h5py.File(path, "r+") as h:
         r = h["results"][...]
         for k, v in cols.items():
             r[k][i] = v
         h["results"][...] = r
-        g = h["histograms"]
-        h["checksums"][...] = checksums(h["tasks"][...], r, g["density"].shape[1], g["edges"][...],
-                                        g["density"][...], g["pressure_edges"][...], g["pressure_density"][...])
+        reseal(h)
 
 
 @pytest.fixture

@@ -47,7 +47,7 @@ def names() -> tuple[str, ...]:
 
 def get(name: str) -> Method:
     """The method plug-in ``name``; ``KeyError`` naming the registered methods otherwise."""
-    reg = all_methods()
+    reg = registered() if _loaded else all_methods()
     if name not in reg:
         raise KeyError(f"no sweep method {name!r}; registered: {', '.join(reg)}")
     return reg[name]

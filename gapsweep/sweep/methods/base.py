@@ -121,6 +121,7 @@ class Method:
 
 
 _REGISTRY: dict[str, Method] = {}
+_ORDERED: tuple[tuple, dict[str, Method]] | None = None
 
 
 def register(cls: type[Method]) -> type[Method]:
@@ -141,9 +142,13 @@ def register(cls: type[Method]) -> type[Method]:
 
 
 def registered() -> dict[str, Method]:
-    """The methods registered so far, in registration order (use gapsweep.sweep.methods.all_methods, which
+    """The methods registered so far, in canonical order (use gapsweep.sweep.methods.all_methods, which
     loads the built-in and third-party plug-ins first)."""
-    return {m.name: m for m in sorted(_REGISTRY.values(), key=lambda m: (m.order, m.name))}
+    global _ORDERED
+    key = tuple(_REGISTRY.items())
+    if _ORDERED is None or _ORDERED[0] != key:  # sorted once per change of the registry (this runs per task)
+        _ORDERED = (key, {m.name: m for m in sorted(_REGISTRY.values(), key=lambda m: (m.order, m.name))})
+    return _ORDERED[1]
 
 
 # ---------------------------------------------------------------------------------------------------------
