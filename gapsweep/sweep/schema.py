@@ -112,8 +112,9 @@ FLOAT_RESULTS = (
     "residual", "load_error", "wall_time", "gap_std", "gap_min", "gap_max",
     # issue 12 (store format 2): quantities of every law, Persson's theory (docs/store.md)
     "contact_area", "elastic_energy", "contact_atom", "pressure_atom", "mean_gap_persson",
-    # format 3: a predictor's own estimate of its error in mean_gap (same unit; NaN: no estimate)
-    "error_estimate",
+    # format 3: a predictor's own estimate of its error in mean_gap (same unit; NaN: no estimate); adhesion at
+    # tensile loads: the most tensile load at which the solve stayed attached (the pull-off bracket)
+    "error_estimate", "last_attached_load",
 )
 INT_RESULTS = ("iterations", "count", "rank", "flags")
 # Bits of the ``flags`` column (GFMD rows; 0 = none, -1 = not a GFMD row): a jump along the load path (adhesion)
@@ -236,7 +237,7 @@ RESULT_DTYPE = np.dtype(
 )
 # The results table of format 1 (stores written before the issue-12 columns); such stores still open and read.
 NEW_IN_V2 = ("contact_area", "elastic_energy", "contact_atom", "pressure_atom", "mean_gap_persson", "flags")
-NEW_IN_V3 = ("error_estimate", "checksum")
+NEW_IN_V3 = ("error_estimate", "last_attached_load", "checksum")
 RESULT_DTYPE_V2 = np.dtype([(k, RESULT_DTYPE.fields[k][0]) for k in RESULT_DTYPE.names if k not in NEW_IN_V3])
 RESULT_DTYPE_V1 = np.dtype([(k, RESULT_DTYPE.fields[k][0]) for k in RESULT_DTYPE_V2.names if k not in NEW_IN_V2])
 RESULT_DTYPES = (RESULT_DTYPE, RESULT_DTYPE_V2, RESULT_DTYPE_V1)

@@ -66,7 +66,8 @@ class GFMD(Method):
     order = 1
     keys = ("n", "tol", "max_iter", "method", "backend", "warm_start", "order", "keep_fields")
     columns = ("mean_gap", "h_rms", "g_rms", "residual", "load_error", "iterations", "gap_std", "gap_min",
-               "gap_max", "contact_area", "elastic_energy", "contact_atom", "pressure_atom", "flags", "count")
+               "gap_max", "contact_area", "elastic_energy", "contact_atom", "pressure_atom", "flags", "count",
+               "last_attached_load")
     histogram = True
     variables = {  # noqa: RUF012 - read-only table
         "mean_gap": ("gfmd_mean_gap", "mean gap g0 by GFMD", LENGTH),
@@ -87,6 +88,9 @@ class GFMD(Method):
                           "surface)", {"units": "1"}),
         "flags": ("gfmd_flags", "load-path flags: 1 jump from the previous step, 2 detached (adhesion)",
                   {"units": "1"}),
+        "last_attached_load": ("gfmd_last_attached_load", "adhesion: the most tensile load at which the direct "
+                               "solve's continuation from zero load stayed attached (pull-off bracket)",
+                               {"units": "1", "reference_unit": "E*"}),
     }
     select = "n"
     extra_target = ("gapsweep.gfmd", "solve", ("heights", "sigma0", "gamma0", "rho", "e_star", "length", "tol",
@@ -270,7 +274,9 @@ def gfmd_row(t: Task, ctx: Context, res: Any, prev: Any = None) -> tuple[TaskRes
          "residual": float(res.residual), "load_error": float(getattr(res, "load_error", math.nan)),
          "iterations": int(res.iterations), "gap_std": float(xp.std(gap)), "gap_min": float(xp.min(gap)),
          "gap_max": float(xp.max(gap)), "contact_area": float(getattr(res, "contact_area", math.nan)),
-         "elastic_energy": float(getattr(res, "elastic_energy", math.nan)), "flags": 0}
+         "elastic_energy": float(getattr(res, "elastic_energy", math.nan)), "flags": 0,
+         # adhesion at a tensile load: where continuation from zero load stayed attached (the pull-off bracket)
+         "last_attached_load": float(getattr(res, "diagnostics", {}).get("last_attached_load", math.nan))}
     ok = bool(res.converged) and math.isfinite(v["mean_gap"])
     status = "done" if ok else "not_converged"
     msg = "" if ok else f"gfmd: {getattr(res, 'status', 'not converged')} (residual {v['residual']:.3g})"
