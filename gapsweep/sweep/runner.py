@@ -224,11 +224,12 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
                            f"~{budget.human(size)} needed); nothing was written") from None
         return "create", list(range(len(tasks)))
     try:
-        with open_read(path) as f:
+        with open_read(path, check=False) as f:
+            report = storecheck.check(f, path)  # once: it reads and checksums every row
             sha, shard = f.attrs.get("spec_sha256"), f.attrs.get("shard")
             ids = [x.decode() for x in f["tasks"].fields("task_id")[...]] if f["tasks"].shape[0] else []
-            todo = storecheck.incomplete_rows(f, path)
-            damaged = set(storecheck.check(f, path).damaged)
+            todo = storecheck.incomplete_rows(f, path, report)
+            damaged = set(report.damaged)
     except (OSError, StoreError) as e:
         raise RunError(f"{e}; pass --overwrite to replace it") from None
     if isinstance(sha, bytes):

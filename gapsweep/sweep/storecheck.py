@@ -164,9 +164,10 @@ def _damaged(f: Any, path: Any, n: int) -> list[int]:
             and int(r[i][CHECKSUM]) != row_checksum(t[i], r[i], (e[i], d[i], pe[i], pd[i]))]
 
 
-def incomplete_rows(f: Any, path: str | Path) -> list[int]:
-    """Rows that ``--resume`` must (re)run: pending, unknown status, or done without a complete result."""
-    rep = check(f, path)
+def incomplete_rows(f: Any, path: str | Path, rep: Report | None = None) -> list[int]:
+    """Rows that ``--resume`` must (re)run: pending, unknown status, done without a complete result, damaged, or
+    timed out. ``rep``: this file's :func:`check`, if the caller has it (the check reads every table)."""
+    rep = check(f, path) if rep is None else rep
     if not rep.n_tasks:
         return []
     status = f["results"].fields("status")[...]

@@ -121,17 +121,6 @@ class MultiscaleGaps:
     mean_gap_error: float
 
 
-def _shell_groups(q: np.ndarray, pw: np.ndarray, dlnq: float) -> tuple[np.ndarray, np.ndarray]:
-    """Shells merged into groups of width ``dlnq`` in ``ln q``: (power-weighted mean ``q``, summed power)."""
-    if q.size == 0:
-        return q, pw
-    idx = np.floor((np.log(q) - math.log(q[0])) / dlnq).astype(np.int64)
-    w = np.bincount(idx, weights=pw)
-    wq = np.bincount(idx, weights=pw * q)
-    keep = w > 0
-    return wq[keep] / w[keep], w[keep]
-
-
 def multiscale_gap_samples(
     sigma0: float,
     heights: ArrayLike,
@@ -203,7 +192,7 @@ def multiscale_gap_samples(
     if hyb.status not in ("converged", "rtol_not_met"):
         raise RuntimeError(f"multiscale gap distribution: the coarse GFMD solve failed (status {hyb.status!r})")
     g_pix = np.asarray(res.gap, float).ravel() - hyb.shift
-    q, pw = _shell_groups(*improved._Shells(h, length).fine(hyb.k_c), dlnq)
+    q, pw = improved._grouped(*improved._Shells(h, length).fine(hyb.k_c), dlnq)
     reps = max(1, math.ceil(samples / g_pix.size))
     g = np.repeat(g_pix, reps)
     rng = np.random.default_rng(seed)

@@ -165,8 +165,9 @@ class _Shells:
 
 
 def _grouped(q: np.ndarray, pw: np.ndarray, dlnq: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
-    """Shells merged in groups of width ``dlnq`` in ``ln q`` (power-weighted ``q``): for the smooth ``Delta(p)``
-    table only, where the merge changes ``(eta zeta/(1 + eta zeta))^2`` by O(dlnq^2)."""
+    """Shells merged in groups of width ``dlnq`` in ``ln q``: (power-weighted mean ``q``, summed power). Used by the
+    smooth ``Delta(p)`` table (the merge changes ``(eta zeta/(1 + eta zeta))^2`` by O(dlnq^2)) and by the multiscale
+    gap samples of ``theory.closure``."""
     if q.size == 0:
         return q, pw
     idx = np.floor((np.log(q) - math.log(q[0])) / dlnq).astype(np.int64)
