@@ -112,10 +112,13 @@ class SlabFFT:
     ``rfft2(a)``: ``a`` the rank's rows ``(n_rows_local, ny)`` (real) -> the rank's columns of the half
     spectrum, ``(n_cols_local, nx)`` complex (layout ``[ky, kx]``). ``irfft2(A)``: the inverse (unscaled sum, the
     real field of the coefficients ``A``). ``backend``: "numpy" (CPU, mpi4py Alltoallv) or "cupy" (one GPU per
-    rank, NCCL). Each call is collective: every rank must call it in the same order."""
+    rank, NCCL). ``chunk``: the 1-D transforms run over chunks of at most this many elements. Each call is
+    collective: every rank must call it in the same order. Memory: the send and receive buffers (each the size of
+    the rank's spectrum) and the result; the input is not modified."""
 
-    def __init__(self, shape: tuple[int, int], comm: Any, backend: str = "numpy") -> None:
+    def __init__(self, shape: tuple[int, int], comm: Any, backend: str = "numpy", chunk: int = 1 << 26) -> None:
         self.size, self.rank = check_comm(comm)
+        self.chunk = int(chunk)  # elements per chunk of 1-D transforms (64 Mi complex = 1 GiB by default)
         nx, ny = (int(v) for v in shape)
         self.shape = (nx, ny)
         self.nyh = ny // 2 + 1
@@ -143,7 +146,7 @@ class SlabFFT:
             from gapsweep.core.extras import require
 
             self.xp = require("cupy", "distributed GFMD on GPUs")
-            self._nccl = _nccl_comm(comm, self.size, self.rank)
+            self._nccl = _nccl_comm(comm, self.size, self.rank) if self.size > 1 else None
         else:
             self.xp = np
             self._nccl = None
@@ -155,6 +158,9 @@ class SlabFFT:
         self.exchanges += 1
         sd = np.concatenate([[0], np.cumsum(scounts)[:-1]]).astype(np.int64)
         rd = np.concatenate([[0], np.cumsum(rcounts)[:-1]]).astype(np.int64)
+        if self.size == 1:
+            self.xp.copyto(recv, send)
+            return
         if self._nccl is None:
             sf, rf = send.view(np.float64), recv.view(np.float64)
             self.comm.Alltoallv([sf, (2 * np.asarray(scounts), 2 * sd)], [rf, (2 * np.asarray(rcounts), 2 * rd)])
@@ -162,20 +168,28 @@ class SlabFFT:
         _nccl_alltoall(self.xp, self._nccl, self.rank, self.size, send, sd, scounts, recv, rd, rcounts)
 
     # ------------------------------------------------------------------ transforms
+    def _chunks(self, rows: int, length: int) -> list[slice]:
+        """Row chunks of at most ``chunk`` elements (1-D transforms of a chunk at a time: FFT plans and their work
+        areas stay chunk-sized, and no intermediate grid-sized array is formed)."""
+        step = max(1, self.chunk // max(length, 1))
+        return [slice(i, min(i + step, rows)) for i in range(0, rows, step)]
+
     def rfft2(self, a: Any) -> Any:
         """Unnormalised forward transform of the rank's rows ``a`` (``real_shape``) -> ``spec_shape``."""
         xp = self.xp
+        nx, ny = self.shape
         if tuple(a.shape) != self.real_shape:
             raise ValueError(f"rank {self.rank}: expected rows of shape {self.real_shape}, got {tuple(a.shape)}")
-        b = xp.fft.rfft(a, axis=1)  # (nr, nyh)
         send = xp.empty(self.nr * self.nyh, dtype=xp.complex128)
-        off = 0
-        for s, cs in enumerate(self.cols):  # block for rank s: its columns, transposed (nc_s, nr)
-            n = self._f_send[s]
-            send[off:off + n].reshape(self._ncs[s], self.nr)[...] = b[:, cs].T
-            off += n
-        del b
-        recv = xp.empty(self.nc * self.shape[0], dtype=xp.complex128)
+        offs = np.concatenate([[0], np.cumsum(self._f_send)]).astype(np.int64)
+        blocks = [send[offs[s]:offs[s + 1]].reshape(self._ncs[s], self.nr) for s in range(self.size)]
+        for ch in self._chunks(self.nr, ny):  # rfft along y of a chunk of rows, its columns into the blocks
+            b = xp.fft.rfft(a[ch], axis=1)
+            for s, cs in enumerate(self.cols):  # block for rank s: its columns, transposed (nc_s, nr)
+                blocks[s][:, ch] = b[:, cs].T
+            del b
+        del blocks
+        recv = xp.empty(self.nc * nx, dtype=xp.complex128)
         self._alltoall(send, self._f_send, recv, self._f_recv)
         del send
         out = xp.empty(self.spec_shape, dtype=xp.complex128)
@@ -185,24 +199,28 @@ class SlabFFT:
             out[:, rs] = recv[off:off + n].reshape(self.nc, self._nrs[s])
             off += n
         del recv
-        return xp.fft.fft(out, axis=1)
+        for ch in self._chunks(self.nc, nx):  # fft along x of a chunk of the rank's columns
+            out[ch] = xp.fft.fft(out[ch], axis=1)
+        return out
 
     def irfft2(self, A: Any, norm: str = "forward") -> Any:
         """Inverse of :meth:`rfft2`: the rank's rows of the real field. ``norm="forward"`` (default): the unscaled
         sum (``irfft2(rfft2(a)) = nx ny a``, gapsweep.core.fft's convention); ``"backward"``: numpy's ``irfft2``
         (scaled by ``1/(nx ny)``, the same operations as ``numpy.fft.irfft2``: ifft along x, then irfft along y)."""
         xp = self.xp
+        nx, ny = self.shape
         if tuple(A.shape) != self.spec_shape:
             raise ValueError(f"rank {self.rank}: expected spectrum columns of shape {self.spec_shape}, "
                              f"got {tuple(A.shape)}")
-        c = xp.fft.ifft(A, axis=1, norm=norm)  # (nc, nx)
-        send = xp.empty(self.nc * self.shape[0], dtype=xp.complex128)
-        off = 0
-        for s, rs in enumerate(self.rows):  # block for rank s: its rows (nc, nr_s)
-            n = self._f_recv[s]
-            send[off:off + n].reshape(self.nc, self._nrs[s])[...] = c[:, rs]
-            off += n
-        del c
+        send = xp.empty(self.nc * nx, dtype=xp.complex128)
+        offs = np.concatenate([[0], np.cumsum(self._f_recv)]).astype(np.int64)
+        blocks = [send[offs[s]:offs[s + 1]].reshape(self.nc, self._nrs[s]) for s in range(self.size)]
+        for ch in self._chunks(self.nc, nx):  # ifft along x of a chunk of columns, its rows into the blocks
+            c = xp.fft.ifft(A[ch], axis=1, norm=norm)
+            for s, rs in enumerate(self.rows):  # block for rank s: its rows (nc, nr_s)
+                blocks[s][ch] = c[:, rs]
+            del c
+        del blocks
         recv = xp.empty(self.nr * self.nyh, dtype=xp.complex128)
         self._alltoall(send, self._f_recv, recv, self._f_send)
         del send
@@ -213,7 +231,10 @@ class SlabFFT:
             b[:, cs] = recv[off:off + n].reshape(self._ncs[s], self.nr).T
             off += n
         del recv
-        return xp.fft.irfft(b, n=self.shape[1], axis=1, norm=norm)
+        out = xp.empty(self.real_shape, dtype=xp.float64)
+        for ch in self._chunks(self.nr, self.nyh):  # irfft along y of a chunk of rows
+            out[ch] = xp.fft.irfft(b[ch], n=ny, axis=1, norm=norm)
+        return out
 
     # ------------------------------------------------------------------ wave vectors
     def wavenumbers(self) -> tuple[Any, Any]:
@@ -244,14 +265,23 @@ class SlabFFT:
 
 
 # ---------------------------------------------------------------------------------------------- NCCL (GPUs)
+_NCCL: dict[tuple, Any] = {}
+
+
 def _nccl_comm(comm: Any, size: int, rank: int) -> Any:
-    """An NCCL communicator over the ranks of ``comm`` (one GPU per rank, the current cupy device); the unique id
-    travels over ``comm``."""
+    """An NCCL communicator over the ranks of ``comm`` (one GPU per rank, the current cupy device), made once per
+    communicator and device and kept for the process (creating one takes a collective set-up); the unique id
+    travels over ``comm``. Collective the first time."""
+    import cupy
     from cupy.cuda import nccl
 
-    uid = nccl.get_unique_id() if rank == 0 else None
-    uid = comm.bcast(uid, root=0)
-    return nccl.NcclCommunicator(size, uid, rank)
+    handle = comm.py2f() if hasattr(comm, "py2f") else id(comm)
+    key = (handle, size, rank, cupy.cuda.Device().id)
+    if key not in _NCCL:
+        uid = nccl.get_unique_id() if rank == 0 else None
+        uid = comm.bcast(uid, root=0)
+        _NCCL[key] = nccl.NcclCommunicator(size, uid, rank)
+    return _NCCL[key]
 
 
 def _nccl_alltoall(cupy: Any, nc: Any, rank: int, size: int, send: Any, sd: Any, scounts: list[int], recv: Any,

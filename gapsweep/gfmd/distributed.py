@@ -221,23 +221,73 @@ class _SlabOps:
         return tuple(self.red.sum(self._l(G, D), self._l(kD, X), self._l(kD, D)))
 
 
-class _SlabProblem(_Problem):
-    """:class:`_Problem` on one rank's slabs: the same state and line search, the stiffness and preconditioner
-    on the rank's spectrum columns."""
+class _SlabCupyOps(_SlabOps):
+    """:class:`_SlabOps` on GPUs: every pass one fused cupy kernel without grid-sized temporaries (the weighted
+    Parseval sums reduce each spectrum row on the device, then the few row sums are weighted)."""
 
-    def __init__(self, h, x0, *, sigma0: float, rho: float, e_star: float, grid: SlabGrid, ops: _SlabOps) -> None:
+    def __init__(self, xp: Any, red: Reducer, w: Any, owner: bool) -> None:
+        super().__init__(xp, red, w, owner)
+        self.w1 = xp.ascontiguousarray(w.ravel())
+        red_k, ew = xp.ReductionKernel, xp.ElementwiseKernel
+        self._rdot = red_k("complex128 a, complex128 b", "float64 y", "a.real() * b.real() + a.imag() * b.imag()",
+                           "a + b", "y = a", "0", "gapsweep_slab_rdot")
+        self._rkdot = red_k("complex128 a, complex128 b, float64 k", "float64 y",
+                            "k * (a.real() * b.real() + a.imag() * b.imag())", "a + b", "y = a", "0",
+                            "gapsweep_slab_rkdot")
+        self._m1 = red_k("float64 e, float64 d", "float64 y", "e * d", "a + b", "y = a", "0", "gapsweep_slab_m1")
+        self._m2 = red_k("float64 e, float64 d", "float64 y", "e * d * d", "a + b", "y = a", "0", "gapsweep_slab_m2")
+        self._grad = ew("float64 k, complex128 X, complex128 E, float64 c", "complex128 G", "G = k * X - c * E",
+                        "gapsweep_slab_grad")
+        self._axpy = ew("float64 a, complex128 x", "complex128 y", "y = y + a * x", "gapsweep_slab_axpy")
+        self._dir = ew("float64 beta, float64 minv, complex128 G", "complex128 D", "D = beta * D - minv * G",
+                       "gapsweep_slab_dir")
+
+    def _l(self, a, b) -> float:
+        return float(self.w1 @ self._rdot(a, b, axis=1))
+
+    def _lk(self, a, b, k) -> float:
+        return float(self.w1 @ self._rkdot(a, b, k, axis=1))
+
+    def _moments(self, e, d) -> tuple[float, float]:
+        return float(self._m1(e, d)), float(self._m2(e, d))
+
+    def grad(self, X, E, c: float, k, G) -> None:
+        self._grad(k, X, E, float(c), G)
+        if self.owner:
+            G[0, 0] = 0.0
+
+    def axpy(self, y, a: float, x) -> None:
+        self._axpy(float(a), x, y)
+
+    def cg_dots(self, G, G_old, minv) -> tuple[float, float]:
+        s = self.red.sum(self._lk(G, G, minv), self._lk(G, G_old, minv) if G_old is not None else 0.0)
+        return s[0], s[1]
+
+    def cg_update(self, G, minv, D, beta: float, k, X) -> tuple[float, float, float]:
+        self._dir(float(beta), minv, G, D)
+        return tuple(self.red.sum(self._l(G, D), self._lk(D, X, k), self._lk(D, D, k)))
+
+
+class _SlabProblem(_Problem):
+    """:class:`_Problem` on one rank's slabs: the same state and line search, the stiffness ``k`` and the
+    preconditioner on the rank's spectrum columns. ``h`` is the caller's surface (not copied); its mean
+    ``h_shift`` is subtracted inside the pass that forms ``W``."""
+
+    def __init__(self, h, x0, *, sigma0: float, rho: float, k: Any, h_shift: float, grid: SlabGrid,
+                 ops: _SlabOps) -> None:
         xp = grid.xp
         self.xp, self.n, self.fft, self.ops = xp, grid.shape[0], grid.slab, ops
         self.sigma0, self.rho = sigma0, rho
-        self.k = 0.5 * e_star * grid.q
-        self.minv = 1.0 / (self.k + sigma0 / rho)
+        self.k = k
+        self.minv = k + sigma0 / rho
+        xp.reciprocal(self.minv, out=self.minv)
         if grid.owner:
             self.minv[0, 0] = 0.0
         self.h = h
         self.X = x0
         if grid.owner:
             self.X[0, 0] = 0.0
-        self.W = (h - self.fft.irfft2(self.X)) * (1.0 / rho)
+        self.W = _centred(h, self.fft.irfft2(self.X), h_shift, rho)
         self.Wt = xp.empty_like(self.W)
         self.e = xp.empty_like(self.W)
         self.et = xp.empty_like(self.W)
@@ -258,37 +308,42 @@ def _softmax(h, law: Any, grid: SlabGrid, *, sigma0: float, e_star: float, tol: 
     """The exponential law (``gfmd._softmax``'s algorithm) on slabs; returns ``(scalars, fields)``."""
     xp, slab = grid.xp, grid.slab
     rho, n2 = law.rho, grid.size
-    h_shift = grid.mean(h)
-    h = h - h_shift
-    ops = _SlabOps(xp, grid.red, grid._w, grid.owner)
-    k = 0.5 * e_star * grid.q
-    if initial is None:
-        x0 = slab.rfft2(h) * ((1.0 / n2) * (sigma0 / rho) / (k + sigma0 / rho))  # linear response of M4
+    h_shift = grid.mean(h)  # h is not copied: its mean is taken out where W is formed
+    ops = (_SlabOps if xp is np else _SlabCupyOps)(xp, grid.red, grid._w, grid.owner)
+    k, grid.q = grid.q, None  # E* q/2 in the grid's |q| array (this grid serves this solve only)
+    k *= 0.5 * e_star
+    if initial is None:  # linear response of M4 (the q = 0 mode of the uncentred h is dropped: <u> = 0)
+        x0 = slab.rfft2(h)
+        x0 *= (1.0 / n2) * (sigma0 / rho) / (k + sigma0 / rho)
     else:
         x0 = xp.asarray(slab.rfft2(_initial_field(initial, "displacement", grid)) * (1.0 / n2), dtype=xp.complex128)
     history: list[float] = []
     with np.errstate(all="ignore"):
-        pb = _SlabProblem(h, x0, sigma0=sigma0, rho=rho, e_star=e_star, grid=grid, ops=ops)
+        pb = _SlabProblem(h, x0, sigma0=sigma0, rho=rho, k=k, h_shift=h_shift, grid=grid, ops=ops)
         del x0
         status = _RUNNERS[method](pb, tol, max_iter, history)
         nfev = pb.nfev
         u = slab.irfft2(pb.X)
-        pb.X = pb.G = pb.G_old = pb.Wt = pb.et = None
-        w = (h - u) * (1.0 / rho)
+        pb.X = pb.G = pb.G_old = pb.Wt = pb.et = pb.minv = pb.W = None
+        w = _centred(h, u, h_shift, rho)
         e = pb.e
         m = grid.amax(w)
         S, _, _ = ops.expstats(w, m, e)
         lse = m + math.log(S / n2) if S > 0 else math.nan
         g0 = law.mean_gap(lse, sigma0)
-        p = e * (sigma0 * n2 / S) if S > 0 else e * math.nan
-        gap = (g0 - h_shift) - rho * w
+        e *= sigma0 * n2 / S if S > 0 else math.nan
+        p = e
+        gap = w
+        gap *= -rho
+        gap += g0 - h_shift  # g = g0 + u - h with the caller's h (mean included), in w's memory
+        del w
         U = grid.fwd(u)
         F = k * U - grid.fwd(p)
         grid.set_mode0(F, 0.0)
         residual = math.sqrt(max(grid.dot(F, F), 0.0)) / sigma0
         elastic = 0.5 * grid.dot(U, k * U)
         del F, U
-        area = grid.count(law.contact(gap + h_shift, p)) / n2
+        area = grid.count(law.contact(gap + h_shift, p)) / n2  # the law's criterion on the centred gap
         load_error = abs(grid.mean(p) / sigma0 - 1.0)
     fields_ok = math.isfinite(g0) and grid.all_finite(gap) and grid.all_finite(p)
     if not fields_ok:
@@ -300,6 +355,14 @@ def _softmax(h, law: Any, grid: SlabGrid, *, sigma0: float, e_star: float, tol: 
                    load_error=load_error, method=method, status=status, history=history, contact_area=area,
                    elastic_energy=elastic, diagnostics={"running_residual": history[-1] if history else math.inf})
     return scalars, {"gap": gap, "pressure": p, "displacement": u}
+
+
+def _centred(h: Any, u: Any, h_shift: float, rho: float) -> Any:
+    """``W = (h - <h> - u) / rho`` as a new array (one temporary-free pass chain)."""
+    w = h - u
+    w -= h_shift
+    w *= 1.0 / rho
+    return w
 
 
 def _initial_field(initial: Any, name: str, grid: SlabGrid) -> Any:

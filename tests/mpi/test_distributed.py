@@ -42,7 +42,7 @@ def _run(ranks: int, out: Path) -> dict:
 def test_distributed_equals_single_process(tmp_path, ranks):
     d = _run(ranks, tmp_path / "out.json")
     assert d["ranks"] == ranks
-    assert len(d["transform"]) == 4
+    assert len(d["transform"]) == 8
     for t in d["transform"]:
         assert t["forward"] <= 1e-12 and t["inverse"] <= 1e-12, t
     assert [s["identical"] for s in d["surface"]] == [True, True]
