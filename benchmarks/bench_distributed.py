@@ -285,8 +285,9 @@ def scaling(out: Path, subs: dict, sizes: list[int], iters: int) -> None:
                 save(out)
 
 
-def challenge(out: Path, subs: dict, n: int, rms_slope: float, exp_iter: int, adh_iter: int, tol: float) -> None:
-    c = CHALLENGE
+def challenge(out: Path, subs: dict, n: int, rms_slope: float, exp_iter: int, adh_iter: int, tol: float,
+              lambda_s: float) -> None:
+    c = dict(CHALLENGE, lambda_s=lambda_s)
     ranks = 4 if 4 in subs else max(subs)
 
     def run(sub, n, law, max_iter):
@@ -320,14 +321,16 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", required=True, type=Path)
     ap.add_argument("--quick", action="store_true", help="correctness at N=1024 on 2 GPUs only (seconds)")
+    ap.add_argument("--quick-n", type=int, default=1024, help="grid of the correctness checks")
     ap.add_argument("--accuracy-sizes", type=int, nargs="*", default=[4096, 8192])
     ap.add_argument("--sizes", type=int, nargs="*", default=[16384, 32768], help="strong-scaling grids")
-    ap.add_argument("--scaling-iter", type=int, default=40)
+    ap.add_argument("--scaling-iter", type=int, default=30)
     ap.add_argument("--big", type=int, default=65536)
-    ap.add_argument("--big-iter", type=int, default=800, help="force evaluations allowed, exponential at --big")
-    ap.add_argument("--adhesive-iter", type=int, default=300, help="force evaluations allowed, adhesion at --big")
+    ap.add_argument("--big-iter", type=int, default=500, help="force evaluations allowed, exponential at --big")
+    ap.add_argument("--adhesive-iter", type=int, default=200, help="force evaluations allowed, adhesion at --big")
     ap.add_argument("--big-tol", type=float, default=1e-6)
     ap.add_argument("--rms-slope", type=float, default=1.0)
+    ap.add_argument("--lambda-s", type=float, default=CHALLENGE["lambda_s"], help="short cut-off (um)")
     ap.add_argument("--skip-big", action="store_true")
     args = ap.parse_args()
 
@@ -346,12 +349,13 @@ def main() -> None:
             subs[p] = WORLD.Split(0 if RANK < p else MPI.UNDEFINED, RANK)
     t0 = time.perf_counter()
     log(f"{SIZE} ranks, GPUs {names}")
-    quick(args.out, subs)
+    quick(args.out, subs, args.quick_n)
     if not args.quick:
         accuracy(args.out, subs, args.accuracy_sizes)
         scaling(args.out, subs, args.sizes, args.scaling_iter)
         if not args.skip_big:
-            challenge(args.out, subs, args.big, args.rms_slope, args.big_iter, args.adhesive_iter, args.big_tol)
+            challenge(args.out, subs, args.big, args.rms_slope, args.big_iter, args.adhesive_iter, args.big_tol,
+                      args.lambda_s)
     RESULTS["total_wall_s"] = time.perf_counter() - t0
     save(args.out)
     log(f"done in {RESULTS['total_wall_s']:.1f} s -> {args.out}")

@@ -158,15 +158,8 @@ class _SlabOps:
 
     def __init__(self, xp: Any, red: Reducer, w: Any, owner: bool) -> None:
         self.xp, self.red, self.w, self.owner = xp, red, w, owner
-        self._wdot = None
-        if xp is not np:  # one fused reduction, no temporaries (cupy)
-            self._wdot = xp.ReductionKernel(
-                "complex128 a, complex128 b, float64 w", "float64 y",
-                "w * (a.real() * b.real() + a.imag() * b.imag())", "a + b", "y = a", "0", "gapsweep_slab_wdot")
 
     def _l(self, a, b) -> float:
-        if self._wdot is not None:
-            return float(self._wdot(a, b, self.w))
         return float(self.xp.sum(self.w * (a.real * b.real + a.imag * b.imag)))
 
     def dot(self, a, b) -> float:
@@ -516,7 +509,7 @@ def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interact
     if not grid.all_finite(h):
         raise ValueError("heights contain NaN or inf")
     rng = law.range()
-    if rng is not None and rng < min(lx / shape[0], ly / shape[1]) and law.name == "exponential":
+    if rng is not None and rng < min(lx / shape[0], ly / shape[1]) and law.name == "exponential" and red.rank == 0:
         from gapsweep.gfmd._common import UnderResolvedWarning
 
         warnings.warn(f"rho/dx = {rng / (lx / shape[0]):.3g} < 1: the interaction range is under-resolved",
