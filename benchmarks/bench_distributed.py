@@ -7,6 +7,9 @@ Run (Python 3.12, cupy, NCCL, mpi4py, Open MPI; from the repository root):
     export NCCL_NVLS_ENABLE=0 NVSHMEM_DISABLE_NVLS=1
     PYTHONPATH=. mpiexec -n 2 python benchmarks/bench_distributed.py --quick --out /tmp/dist_quick.json   # ~30 s
     PYTHONPATH=. mpiexec -n 4 python benchmarks/bench_distributed.py --out benchmarks/results/distributed/h200x4.json
+    # adhesion at 65536^2 needs ~28 arrays of a GPU's rows (L-BFGS, 8 pairs): 8 GPUs of 141 GB
+    PYTHONPATH=. mpiexec -n 8 python benchmarks/bench_distributed.py --only-big --big-ranks 8 --big-laws adhesive \
+        --lbfgs-memory 5 --out benchmarks/results/distributed/h200x8_adhesive.json
 
 (as root add ``--allow-run-as-root``; each rank takes GPU ``local rank % device count``, or set
 CUDA_VISIBLE_DEVICES per rank). ``--quick``: correctness only, N = 1024 on 2 GPUs against one GPU (transform,
@@ -56,7 +59,7 @@ from gapsweep import gfmd  # noqa: E402
 from gapsweep.core import fft as core_fft  # noqa: E402
 from gapsweep.core.fft import get_backend  # noqa: E402
 from gapsweep.core.slab import SlabFFT  # noqa: E402
-from gapsweep.gfmd import _solvers  # noqa: E402
+from gapsweep.gfmd import _solvers, distributed  # noqa: E402
 from gapsweep.gfmd._cuda import solve_memory as single_gpu_memory  # noqa: E402
 from gapsweep.gfmd.distributed import solve_memory  # noqa: E402
 from gapsweep.surfaces.synthetic import self_affine, self_affine_rows  # noqa: E402
@@ -286,13 +289,12 @@ def scaling(out: Path, subs: dict, sizes: list[int], iters: int) -> None:
 
 
 def challenge(out: Path, subs: dict, n: int, rms_slope: float, exp_iter: int, adh_iter: int, tol: float,
-              lambda_s: float) -> None:
+              lambda_s: float, ranks: int, pairs: int, laws: tuple[str, ...]) -> None:
     c = dict(CHALLENGE, lambda_s=lambda_s)
-    ranks = 4 if 4 in subs else max(subs)
 
     def run(sub, n, law, max_iter):
         fresh()
-        est = solve_memory((n, n), sub.Get_size(), law)["bytes_per_rank"]
+        est = solve_memory((n, n), sub.Get_size(), law, memory=pairs)["bytes_per_rank"]
         free = free_bytes(sub)
         if est > 0.97 * free:
             return {"skipped": True, "estimate_bytes_per_gpu": est, "free_bytes_per_gpu": free}
@@ -302,15 +304,19 @@ def challenge(out: Path, subs: dict, n: int, rms_slope: float, exp_iter: int, ad
                              length=c["length"], rms_slope=rms_slope, seed=1, backend="cupy")
         sync(sub)
         t_surface = time.perf_counter() - t0
-        params = dict(gamma0=c["work"]) if law == "exponential" else dict(work=c["work"])
-        r = gfmd.solve(h, comm=sub, interaction=law, rho=c["rho"], sigma0=c["sigma0"], e_star=c["e_star"],
-                       length=c["length"], tol=tol, max_iter=max_iter, host=False, **params)
+        params = dict(gamma0=c["work"]) if law == "exponential" else dict(work=c["work"], memory=pairs)
+        r = distributed.solve(h, comm=sub, interaction=law, rho=c["rho"], sigma0=c["sigma0"], e_star=c["e_star"],
+                              length=c["length"], tol=tol, max_iter=max_iter, host=False, **params)
         return {"skipped": False, "surface_s": t_surface, **summary(r), "s_per_evaluation": r.wall_time / r.iterations,
                 "peak_bytes_per_gpu": peak(sub), "estimate_bytes_per_gpu": est, "mean_gap_nm": 1e3 * r.mean_gap,
                 "dx_nm": 1e3 * c["length"] / n, "rho_over_dx": c["rho"] / (c["length"] / n)}
 
-    info = dict(constants=c, rms_slope=rms_slope, tol=tol, units="um, MPa")
-    case(out, "challenge exponential", ranks, subs, lambda sub: run(sub, n, "exponential", exp_iter), n=n, **info)
+    info = dict(constants=c, rms_slope=rms_slope, tol=tol, units="um, MPa", lbfgs_memory=pairs)
+    if "exponential" in laws:
+        case(out, "challenge exponential", ranks, subs, lambda sub: run(sub, n, "exponential", exp_iter), n=n,
+             **info)
+    if "adhesive" not in laws:
+        return
     res = case(out, "challenge adhesive", ranks, subs, lambda sub: run(sub, n, "adhesive", adh_iter), n=n, **info)
     if res and res.get("skipped"):
         case(out, "challenge adhesive", ranks, subs, lambda sub: run(sub, n // 2, "adhesive", adh_iter), n=n // 2,
@@ -332,6 +338,10 @@ def main() -> None:
     ap.add_argument("--rms-slope", type=float, default=1.0)
     ap.add_argument("--lambda-s", type=float, default=CHALLENGE["lambda_s"], help="short cut-off (um)")
     ap.add_argument("--skip-big", action="store_true")
+    ap.add_argument("--only-big", action="store_true", help="only the challenge cases (after the quick checks)")
+    ap.add_argument("--big-ranks", type=int, default=4, help="GPUs of the challenge cases (4, or 8 on 8 GPUs)")
+    ap.add_argument("--big-laws", nargs="+", default=["exponential", "adhesive"], choices=["exponential", "adhesive"])
+    ap.add_argument("--lbfgs-memory", type=int, default=8, help="L-BFGS pairs of the adhesive solves")
     args = ap.parse_args()
 
     local = int(os.environ.get("OMPI_COMM_WORLD_LOCAL_RANK", os.environ.get("MPI_LOCALRANKID", RANK)))
@@ -344,18 +354,20 @@ def main() -> None:
                     "nccl": cupy.cuda.nccl.get_version() if hasattr(cupy.cuda, "nccl") else None,
                     "python": sys.version.split()[0], "numpy": np.__version__})
     subs = {}
-    for p in (1, 2, 4):
+    for p in sorted({1, 2, 4, args.big_ranks}):
         if p <= SIZE:
             subs[p] = WORLD.Split(0 if RANK < p else MPI.UNDEFINED, RANK)
     t0 = time.perf_counter()
     log(f"{SIZE} ranks, GPUs {names}")
     quick(args.out, subs, args.quick_n)
     if not args.quick:
-        accuracy(args.out, subs, args.accuracy_sizes)
-        scaling(args.out, subs, args.sizes, args.scaling_iter)
+        if not args.only_big:
+            accuracy(args.out, subs, args.accuracy_sizes)
+            scaling(args.out, subs, args.sizes, args.scaling_iter)
         if not args.skip_big:
             challenge(args.out, subs, args.big, args.rms_slope, args.big_iter, args.adhesive_iter, args.big_tol,
-                      args.lambda_s)
+                      args.lambda_s, args.big_ranks if args.big_ranks in subs else max(subs), args.lbfgs_memory,
+                      tuple(args.big_laws))
     RESULTS["total_wall_s"] = time.perf_counter() - t0
     save(args.out)
     log(f"done in {RESULTS['total_wall_s']:.1f} s -> {args.out}")

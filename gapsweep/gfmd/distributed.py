@@ -460,7 +460,7 @@ def _global_shape(h: Any, red: Reducer, comm: Any) -> tuple[int, int]:
 def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interaction = "exponential",
           gamma0: float | None = None, rho: float | None = None, work: float | None = None, e_star: float = 1.0,
           length: Any = 1.0, tol: float = 1e-6, method: str = "auto", backend: str = "auto", max_iter: int = 5000,
-          initial: Any = None, host: bool | tuple[str, ...] = True) -> SlabResult:
+          initial: Any = None, host: bool | tuple[str, ...] = True, memory: int = 8) -> SlabResult:
     """Periodic equilibrium of docs/model.md M3 (and the hard wall and adhesion of docs/gfmd.md) with the grid
     split over the ranks of ``comm``: ``h_local`` is this rank's rows ``heights[slab_rows(nx, comm)]`` (numpy, or
     cupy for one GPU per rank; units of ``length``). Collective: every rank calls it with the same arguments.
@@ -468,7 +468,9 @@ def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interact
     grids; rectangles "lbfgs" on the smooth minimiser, as one process does); adhesive "lbfgs"; hard wall "pcg"
     (default), "pk" ("mpcg"'s coarse levels are not distributed). Returns a :class:`SlabResult`: global scalars
     on every rank, this rank's rows of the fields. ``initial``: a :class:`SlabResult` of the same grid (or this
-    rank's rows of a displacement; hard wall: of a pressure; adhesive: ``(displacement rows, mean gap)``)."""
+    rank's rows of a displacement; hard wall: of a pressure; adhesive: ``(displacement rows, mean gap)``).
+    ``memory``: pairs kept by the smooth laws' L-BFGS (adhesion; 8 as on one process; each pair costs two arrays
+    of the rank's spectrum, see :func:`solve_memory`)."""
     t_start = time.perf_counter()
     check_comm(comm)
     red = Reducer(comm)
@@ -489,6 +491,8 @@ def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interact
     tol = chk.positive(tol, "tol")
     if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
         raise ValueError(f"max_iter must be an integer >= 1, got {max_iter!r}")
+    if isinstance(memory, bool) or not isinstance(memory, (int, np.integer)) or memory < 1:
+        raise ValueError(f"memory must be an integer >= 1 (L-BFGS pairs), got {memory!r}")
     control = law.load_control
     square = shape[0] == shape[1] and lx == ly
     if control == "softmax" and not square:
@@ -526,7 +530,7 @@ def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interact
         init = initial
         if isinstance(initial, GFMDResult):
             init = (_initial_field(initial, "displacement", grid), initial.mean_gap)
-        r = _smooth.minimise(h, law, initial=init, **common)
+        r = _smooth.minimise(h, law, initial=init, memory=memory, **common)
     else:
         from gapsweep.gfmd import _constrained
 
@@ -549,14 +553,15 @@ def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interact
         rows=grid.slab.row, **scalars)
 
 
-def solve_memory(shape: tuple[int, int], ranks: int, interaction: str = "exponential") -> dict[str, float]:
+def solve_memory(shape: tuple[int, int], ranks: int, interaction: str = "exponential",
+                 memory: int = 8) -> dict[str, float]:
     """Estimated peak memory per rank (bytes) of :func:`solve`: the minimiser's grid-sized arrays on the rank's
     slabs plus the transform's scratch (send and receive buffers and one FFT output). Counted from the code
     (docs/gfmd.md, "One solve over several processes"), ``A`` = one float64 field of the rank's rows:
     exponential CG 10 A (h, W, Wt, e, et; X, G, G_old, D; k and M^-1 half an array each) + the line search's
-    real-space direction 1 A + temporaries of the array passes 1 A; adhesive L-BFGS (memory 8) 28 A; hard wall
-    pcg 12 A; transform scratch 3 A."""
+    real-space direction 1 A + temporaries of the array passes 1 A; adhesive L-BFGS 12 A + 2 A per pair kept
+    (``memory``, 8: 28 A); hard wall pcg 12 A; transform scratch 3 A."""
     nx, ny = (int(v) for v in shape)
     a = 8.0 * math.ceil(nx / ranks) * ny
-    arrays = {"exponential": 12.0, "adhesive": 28.0, "hard_wall": 12.0}[interaction]
+    arrays = {"exponential": 12.0, "adhesive": 12.0 + 2.0 * memory, "hard_wall": 12.0}[interaction]
     return {"bytes_per_rank": (arrays + 3.0) * a, "array_bytes": a, "arrays": arrays, "scratch_arrays": 3.0}
