@@ -90,8 +90,8 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
     """Hard wall ``law`` on the grid ``heights`` (inputs validated by ``gfmd.solve``): periodic, or a finite map
     with free boundaries (``periodic=False``: :class:`FreeGrid`'s compliance, the same iteration). ``grid``: a
     prepared grid (a distributed one: gapsweep.gfmd.distributed; "mpcg" is not offered there)."""
-    if grid is None:
-        grid = (Grid if periodic else FreeGrid)(heights.shape, length, backend, threads, _is_cupy(heights))
+    grid = grid if grid is not None else (Grid if periodic else FreeGrid)(heights.shape, length, backend, threads,
+                                                                          _is_cupy(heights))
     if method == "auto":
         method = DEFAULT_METHOD_GPU if grid.backend == "cupy" else DEFAULT_METHOD
     xp = grid.xp

@@ -457,6 +457,26 @@ def _global_shape(h: Any, red: Reducer, comm: Any) -> tuple[int, int]:
     return nx, ny
 
 
+def _options(law: Interaction, shape: tuple[int, int], box: tuple[float, float], method: Any, backend: Any,
+             on_gpu: bool, max_iter: Any, memory: Any) -> tuple[str, str, str]:
+    """Checked ``(load control, method, backend)`` of a distributed solve."""
+    for name, v in (("max_iter", max_iter), ("memory", memory)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
+    control = law.load_control
+    if control == "softmax" and not (shape[0] == shape[1] and box[0] == box[1]):
+        control = "variable"  # as one process: the exponential law on rectangles runs on the smooth minimiser
+    methods = METHODS[control]
+    if not isinstance(method, str) or method not in ("auto", *methods):
+        raise ValueError(f"method must be one of {', '.join(map(repr, ('auto', *methods)))} for interaction "
+                         f"{law.name!r} in a distributed solve; got {method!r}")
+    method = DEFAULT[control] if method == "auto" else method
+    backend = ("cupy" if on_gpu else "numpy") if backend == "auto" else backend
+    if backend not in ("numpy", "cupy"):
+        raise ValueError(f"backend must be 'auto', 'numpy' or 'cupy' in a distributed solve; got {backend!r}")
+    return control, method, backend
+
+
 def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interaction = "exponential",
           gamma0: float | None = None, rho: float | None = None, work: float | None = None, e_star: float = 1.0,
           length: Any = 1.0, tol: float = 1e-6, method: str = "auto", backend: str = "auto", max_iter: int = 5000,
@@ -489,23 +509,7 @@ def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interact
     e_star = chk.positive(e_star, "e_star")
     lx, ly = (chk.positive(v, "length") for v in np.broadcast_to(np.asarray(length, dtype=float), 2))
     tol = chk.positive(tol, "tol")
-    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
-        raise ValueError(f"max_iter must be an integer >= 1, got {max_iter!r}")
-    if isinstance(memory, bool) or not isinstance(memory, (int, np.integer)) or memory < 1:
-        raise ValueError(f"memory must be an integer >= 1 (L-BFGS pairs), got {memory!r}")
-    control = law.load_control
-    square = shape[0] == shape[1] and lx == ly
-    if control == "softmax" and not square:
-        control = "variable"  # as one process: the exponential law on rectangles runs on the smooth minimiser
-    methods = METHODS[control]
-    if not isinstance(method, str) or method not in ("auto", *methods):
-        raise ValueError(f"method must be one of {', '.join(map(repr, ('auto', *methods)))} for interaction "
-                         f"{law.name!r} in a distributed solve; got {method!r}")
-    method = DEFAULT[control] if method == "auto" else method
-    if backend == "auto":
-        backend = "cupy" if on_gpu else "numpy"
-    if backend not in ("numpy", "cupy"):
-        raise ValueError(f"backend must be 'auto', 'numpy' or 'cupy' in a distributed solve; got {backend!r}")
+    control, method, backend = _options(law, shape, (lx, ly), method, backend, on_gpu, max_iter, memory)
     host_fields(host)
     length = lx if lx == ly and not isinstance(length, (tuple, list, np.ndarray)) else (lx, ly)
     grid = SlabGrid(shape, (lx, ly), comm, backend)
