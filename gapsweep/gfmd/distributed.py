@@ -512,6 +512,9 @@ def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interact
     control, method, backend = _options(law, shape, (lx, ly), method, backend, on_gpu, max_iter, memory)
     host_fields(host)
     length = lx if lx == ly and not isinstance(length, (tuple, list, np.ndarray)) else (lx, ly)
+    if backend == "cupy":
+        kind = {"softmax": "exponential", "variable": "adhesive", "multiplier": "hard_wall"}[control]
+        _check_gpu_memory(shape, red, kind, memory)
     grid = SlabGrid(shape, (lx, ly), comm, backend)
     h = grid.asarray(h_local)
     if not grid.all_finite(h):
@@ -555,6 +558,21 @@ def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interact
         gamma0=getattr(law, "gamma0", math.nan), e_star=e_star, length=length, tol=tol, interaction=law.name,
         params=law.params(), contact_criterion=law.contact_criterion, comm=comm, global_shape=shape,
         rows=grid.slab.row, **scalars)
+
+
+def _check_gpu_memory(shape: tuple[int, int], red: Reducer, interaction: str, memory: int) -> None:
+    """Refuse, on every rank, a GPU solve whose :func:`solve_memory` estimate exceeds the free memory of the
+    fullest GPU (an out-of-memory error on one rank would leave the others waiting in a collective)."""
+    import cupy
+
+    est = solve_memory(shape, red.size, interaction, memory=memory)
+    free = float(cupy.cuda.runtime.memGetInfo()[0]) + float(cupy.get_default_memory_pool().free_bytes())
+    free = red.min(free)
+    need = est["bytes_per_rank"] - est["array_bytes"]  # the caller's rows are on the GPU already
+    if need > free:
+        raise MemoryError(f"a distributed {interaction} solve of {shape[0]} x {shape[1]} on {red.size} GPUs needs "
+                          f"about {need / 1e9:.3g} GB per GPU beyond the surface (gfmd.distributed.solve_memory), "
+                          f"the fullest GPU has {free / 1e9:.3g} GB free: use more GPUs")
 
 
 def solve_memory(shape: tuple[int, int], ranks: int, interaction: str = "exponential",
