@@ -269,7 +269,8 @@ def submit(job: str | Path, out_dir: str | Path, *, shards: int | None = None, m
     if shards and len(chunks) > 1:
         sub.notes.append(f"{shards} shards in {len(chunks)} arrays (MaxArraySize = {max_array})")
     env = dict(os.environ)
-    sub.env = {"GAPSWEEP": _gapsweep_cmd(env), "GAPSWEEP_REQUEUE": str(requeue_max)}
+    sub.env = {"GAPSWEEP": _gapsweep_cmd(env), "GAPSWEEP_REQUEUE": str(requeue_max),
+               "GAPSWEEP_SIGNAL_LEAD": str(signal_lead)}
     if site.setup:
         sub.env["GAPSWEEP_SETUP"] = site.setup
     common = ["--parsable", *site.args(), "--requeue", f"--signal=B:USR1@{signal_lead}",
