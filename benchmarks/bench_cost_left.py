@@ -56,7 +56,7 @@ def main() -> None:
     job = Path(args.job).resolve()
     with tempfile.TemporaryDirectory() as d:
         path = Path(d) / "s.h5"
-        rc1, t1 = _run(job, path, stop_after=args.stop_after)
+        rc1, _ = _run(job, path, stop_after=args.stop_after)
         if rc1 == 0:
             raise SystemExit(f"the job finished within {args.stop_after} s: give a smaller --stop-after")
         est = costleft.cost_left(path)
@@ -70,7 +70,7 @@ def main() -> None:
         "job": str(job.relative_to(ROOT)) if job.is_relative_to(ROOT) else str(job),
         "tasks": int(est["tasks"]), "stopped_after_s": args.stop_after, "first_run_exit": rc1,
         "remaining_rows": int(len(left)), "estimate_core_s": est["core_seconds"], "estimate_gpu_s": est["gpu_seconds"],
-        "estimated_eta_s": est["eta_s"], "measured_remaining_s": measured, "resume_wall_s": t2,
+        "estimated_eta_s": est["eta_s"], "measured_remaining_s": measured, "resume_wall_s": t2, "resume_exit": rc2,
         "relative_error": (est["core_seconds"] + est["gpu_seconds"] - measured) / measured if measured else None,
         "calibration": est["calibration"],
     }

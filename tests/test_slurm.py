@@ -207,6 +207,7 @@ def _ids(stdout: str) -> list[str]:
     return [*w[w.index("array") + 1].split(","), w[w.index("merge") + 1]]
 
 
+@pytest.mark.slow
 def test_time_limit_requeue_completes_nothing_lost(cluster, tmp_path):
     """One shard of 24 tasks of ~2.2 s (53 s of work) under a 1-minute limit, warned 20 s before it: the run
     stops cleanly at the warning and the job requeues itself (same job id), resuming the store, until it is

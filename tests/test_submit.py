@@ -28,7 +28,9 @@ echo "$((1000 + n));cluster"
 """,
     "scontrol": """#!/bin/bash
 echo "$@" >> "$SB_DIR/scontrol.log"
-if [ "$1 $2" = "show config" ]; then printf 'MaxArraySize            = %s\\nMaxJobCount             = 10000\\n' "${FAKE_MAX_ARRAY:-1001}"; fi
+if [ "$1 $2" = "show config" ]; then
+  printf 'MaxArraySize            = %s\\nMaxJobCount             = 10000\\n' "${FAKE_MAX_ARRAY:-1001}"
+fi
 """,
     "squeue": """#!/bin/bash
 if [[ " $* " == *" -r "* ]]; then for ((k = 0; k < ${FAKE_USER_JOBS:-0}; k++)); do echo "$((500 + k))"; done
