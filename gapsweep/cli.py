@@ -287,18 +287,7 @@ def _dispatch(args: argparse.Namespace) -> int:
                 rc = 3
         return rc
     if args.command == "status":
-        from gapsweep.sweep import store
-
-        if args.finished:
-            return _finished(args.store)
-        from gapsweep.sweep import costleft
-
-        if args.json:
-            print(json.dumps(costleft.summary(args.store), indent=1, sort_keys=True))
-            return 0
-        print(store.status(args.store))
-        print("\n".join(costleft.describe(costleft.cost_left(args.store))))
-        return 0
+        return _status(args)
     if args.command in ("submit", "requeue"):
         return _slurm(args)
     if args.command == "merge":
@@ -326,6 +315,26 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "demo":
         return _demo(args)
     raise AssertionError(args.command)  # pragma: no cover
+
+
+def _status(args: argparse.Namespace) -> int:
+    """``gapsweep status``: the store's summary and the cost left (``--json``: both as JSON; ``--finished``: the
+    merge job's check). The cost left needs the store's spec; a store whose spec no longer loads (a moved height
+    map) still gets its summary, with the reason instead of the cost."""
+    from gapsweep.sweep import costleft, store
+    from gapsweep.sweep.spec import SpecError
+
+    if args.finished:
+        return _finished(args.store)
+    if args.json:
+        print(json.dumps(costleft.summary(args.store), indent=1, sort_keys=True, default=str))
+        return 0
+    print(store.status(args.store))
+    try:
+        print("\n".join(costleft.describe(costleft.cost_left(args.store))))
+    except (SpecError, OSError) as e:
+        print(f"cost left: unknown ({e})")
+    return 0
 
 
 def _slurm(args: argparse.Namespace) -> int:

@@ -457,6 +457,20 @@ def reusable_rows(sources: Sequence[str | Path], path: Path, tasks: list[Task], 
     return out
 
 
+def _reused_record(reused: dict[int, tuple[str, Any, tuple]] | None) -> dict[str, Any]:
+    """The run record's ``reused`` entry: rows copied per source store (nothing when none was)."""
+    if not reused:
+        return {}
+    srcs = sorted({v[0] for v in reused.values()})
+    return {"reused": {s: sum(1 for v in reused.values() if v[0] == s) for s in srcs}}
+
+
+def _copy_reused(st: Store, reused: dict[int, tuple[str, Any, tuple]] | None) -> None:
+    """Write the rows taken from other stores (rank 0, which alone has them)."""
+    for i, (_src, row, hists) in sorted((reused or {}).items()):
+        st.copy_row(i, row, hists)
+
+
 def _stop_file(path: Path) -> Path:
     return path.with_name(path.name + ".stop")
 
@@ -504,9 +518,7 @@ def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list
                   "writer": wmode, "mode": mode, "todo": len(todo_list), "run_id": run_id,
                   **(provenance.run_extras(spec, gpu_ranks=gpu_ranks, batch=gpu_opts[0],
                                            batch_units=sum(u.kind == "batch" for u in units)) if rank == 0 else {})}
-        if reused:
-            record["reused"] = {src: sum(1 for v in reused.values() if v[0] == src)
-                                for src in sorted({v[0] for v in reused.values()})}
+        record.update(_reused_record(reused))
         if comm is not None:
             attrs, record = comm.bcast((attrs, record), root=0)
         ctx = Context(rank=rank, gpu=gpu)
@@ -521,8 +533,7 @@ def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list
                     held.bind(path)
                 runs = json.loads(st.f.attrs.get("runs", "[]"))
                 st.set_attrs({"runs": json.dumps([*runs, record])}, flush=True)  # survives a kill -9
-                for i, (_src, row, hists) in sorted((reused or {}).items()):  # rank 0 only has them
-                    st.copy_row(i, row, hists)
+                _copy_reused(st, reused)
         if os.environ.get("GAPSWEEP_TEST_ABORT_RANK", "") == str(rank):
             raise RuntimeError(f"injected error on rank {rank} (GAPSWEEP_TEST_ABORT_RANK)")
         prog = Progress(len(todo), progress if rank == 0 else "none")
