@@ -22,6 +22,9 @@ FAKES = {
     "sbatch": """#!/bin/bash
 n=$(( $(cat "$SB_DIR/count" 2>/dev/null || echo 0) + 1 ))
 echo "$n" > "$SB_DIR/count"
+if [ "$n" = "${FAKE_FAIL_AT:-0}" ]; then
+  echo "sbatch: error: Batch job submission failed: QOSMaxSubmitJobPerUserLimit" >&2; exit 1
+fi
 printf '%s\\n' "$@" > "$SB_DIR/call$n.args"
 echo "${GAPSWEEP_SHARDS:-}|${GAPSWEEP_SHARD_OFFSET:-}|${GAPSWEEP_REQUEUE:-}" > "$SB_DIR/call$n.env"
 echo "$((1000 + n));cluster"
@@ -120,6 +123,15 @@ def test_max_submit_jobs_refused_with_reason(tmp_path, fake):
     assert not (fake / "count").exists()
     p = _submit(fake, tmp_path, "--shards", "2", FAKE_MAXSUBMIT="6", FAKE_USER_JOBS="3")
     assert p.returncode == 0, p.stderr
+
+
+def test_sbatch_failure_names_what_was_submitted(tmp_path, fake):
+    """The merge's sbatch fails after the array was queued: exit 1 with sbatch's reason and the array's id to
+    cancel; nothing else is submitted."""
+    p = _submit(fake, tmp_path, "--shards", "2", FAKE_FAIL_AT="2")
+    assert p.returncode == 1
+    assert "QOSMaxSubmitJobPerUserLimit" in p.stderr and "already submitted: 1001" in p.stderr, p.stderr
+    assert "scancel 1001" in p.stderr
 
 
 @pytest.mark.parametrize("args", [["--shards", "0"], ["--shards", "2", "--max-running", "0"],

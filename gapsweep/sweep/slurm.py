@@ -297,20 +297,26 @@ def submit(job: str | Path, out_dir: str | Path, *, shards: int | None = None, m
         return sub
     out.mkdir(parents=True, exist_ok=True)
     jenv = {**env, **sub.env}
-    ids = []
-    for c in sub.commands:
-        e = jenv
-        if c[0] == "env":  # the shard count and offset of this array
-            e = {**jenv, **dict(x.split("=", 1) for x in c[1:3])}
-            c = c[3:]
-        ids.append(_sbatch(c, e))
-    if mpi:
-        sub.mpi = ids[0]
-        return sub
-    sub.arrays = ids
-    mc = _merge_cmd(site, sub.key, ids, out, name, pattern, shards, here)
-    sub.commands.append(mc)
-    sub.merge = _sbatch(mc, jenv)
+    ids: list[str] = []
+    try:
+        for c in sub.commands:
+            e = jenv
+            if c[0] == "env":  # the shard count and offset of this array
+                e = {**jenv, **dict(x.split("=", 1) for x in c[1:3])}
+                c = c[3:]
+            ids.append(_sbatch(c, e))
+        if mpi:
+            sub.mpi = ids[0]
+            return sub
+        sub.arrays = ids
+        mc = _merge_cmd(site, sub.key, ids, out, name, pattern, shards, here)
+        sub.commands.append(mc)
+        sub.merge = _sbatch(mc, jenv)
+    except SubmitError as e:
+        if ids:  # part of the submission is queued: say which, so that it can be cancelled or completed
+            raise SubmitError(f"{e}; already submitted: {' '.join(ids)} (scancel {' '.join(ids)} to withdraw "
+                              "them)") from None
+        raise
     return sub
 
 
