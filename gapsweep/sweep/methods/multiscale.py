@@ -6,7 +6,9 @@ of a full GFMD run's cost.
 Spec keys (``[methods.multiscale]``): those of ``[methods.hybrid]`` (``n``, ``rtol``, ``max_cost_fraction``,
 ``tol``) and ``samples`` (default 2^17). Columns: ``mean_gap`` (the hybrid's), ``error_estimate`` (its estimate),
 ``gap_std``, ``gap_min``, ``gap_max`` of the samples, ``h_rms``, ``g_rms``, ``count`` and the gap histogram over
-the job's bins. Exponential repulsion on a self-affine surface only.
+the job's bins. A row is ``not_converged`` where the hybrid misses ``rtol`` or the distribution's self-check
+(``l1_estimate`` above 0.15, docs/theory.md "Multiscale gap distribution") fails; the message says which.
+Exponential repulsion on a self-affine surface only.
 """
 
 from __future__ import annotations
@@ -73,5 +75,6 @@ class Multiscale(Method):
         v = {"mean_gap": float(ms.mean_gap), "error_estimate": float(ms.mean_gap_error), "h_rms": h_rms,
              "g_rms": g_rms, "gap_std": float(g.std()), "gap_min": float(g.min()), "gap_max": float(g.max())}
         ok = ms.status == "converged" and bool(np.all(np.isfinite(g)))
-        msg = "" if ok else f"multiscale: {ms.status} (mean-gap estimate {ms.mean_gap_error:.3g})"
+        msg = "" if ok else (f"multiscale: {ms.status} (mean-gap estimate {ms.mean_gap_error:.3g}, estimated L1 to "
+                             f"GFMD {ms.l1_estimate:.3g})")
         return TaskResult("done" if ok else "not_converged", msg, v, hist(t, g)), None
