@@ -323,8 +323,8 @@ def hybrid(
         E = safety max(e/2, |g0 - g0(previous grid)|) + shift_fraction Delta(sigma0) + floor max(|g0|, h_rms)
 
     (the change catches the coarse grid's own error; ``Delta`` is the unresolved shells' linear-response shift,
-    whose own error, largest at high pressure where both the bracket and the change vanish, reached 0.28 Delta at
-    sigma0 = E* g_rms; the floor covers the coarse solves' tolerance). ``safety = 1.5``, ``shift_fraction =
+    whose own error, largest at high pressure where both the bracket and the change vanish, was 0.28 Delta at one
+    tuning point at sigma0 = E* g_rms; the floor covers the coarse solves' tolerance). ``safety = 1.5``, ``shift_fraction =
     0.25``, ``floor = 2e-3`` (``h_rms`` the surface's own). The ladder stops at the first grid (second at least)
     where ``E <= rtol max(|g0|, h_rms)``, or before the grid exceeds ``max_cost_fraction`` of full GFMD's cost on
     the input grid (``n_c <= n sqrt(max_cost_fraction/1.6)``: the ladder costs about 4/3 of its last grid, and
