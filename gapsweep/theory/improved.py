@@ -324,11 +324,12 @@ def hybrid(
 
     (the change catches the coarse grid's own error; ``Delta`` is the unresolved shells' linear-response shift,
     whose own error, largest at high pressure where both the bracket and the change vanish, was 0.28 Delta at one
-    tuning point at sigma0 = E* g_rms; the floor covers the coarse solves' tolerance). ``safety = 1.5``, ``shift_fraction =
-    0.25``, ``floor = 2e-3`` (``h_rms`` the surface's own). The ladder stops at the first grid (second at least)
-    where ``E <= rtol max(|g0|, h_rms)``, or before the grid exceeds ``max_cost_fraction`` of full GFMD's cost on
-    the input grid (``n_c <= n sqrt(max_cost_fraction/1.6)``: the ladder costs about 4/3 of its last grid, and
-    coarse solves may take 1.2x the force evaluations of the full one): then status "rtol_not_met". ``rtol``
+    tuning point at sigma0 = E* g_rms; the floor covers the coarse solves' tolerance). ``safety = 1.5``,
+    ``shift_fraction = 0.25``, ``floor = 2e-3`` (``h_rms`` the surface's own). The ladder stops at the first
+    grid (second at least) where ``E <= rtol max(|g0|, h_rms)``, or before the grid exceeds ``max_cost_fraction``
+    of full GFMD's cost on the input grid (``n_c <= n sqrt(max_cost_fraction/1.6)``: the ladder costs about 4/3
+    of its last grid, and coarse solves may take 1.2x the force evaluations of the full one): then status
+    "rtol_not_met". ``rtol``
     in (0, 1). ``finest=True`` climbs the ladder to the finest grid the budget allows whatever the estimate (for
     the gap distribution, whose shape needs the resolution even where the mean gap does not).
 
