@@ -40,6 +40,7 @@ from gapsweep.core.deadline import DeadlineExceeded
 from gapsweep.sweep import methods as registry
 from gapsweep.sweep.context import Context, use_gpu
 from gapsweep.sweep.execute import run_task
+from gapsweep.sweep.farm import DeviceFault, device_fault
 from gapsweep.sweep.methods.base import non_finite as _non_finite
 from gapsweep.sweep.methods.gfmd import gfmd_host_fields, gfmd_row
 from gapsweep.sweep.schema import StoreWriteError, Task, TaskResult, Unit
@@ -186,9 +187,12 @@ def _solve_step(tasks: list[Task], probs: list, who: list[tuple[int, int]], ctx:
             out[i] = TaskResult("failed", msg, {"wall_time": limit, "rank": ctx.rank})
             state[j] = None
         return out
-    except StoreWriteError:
+    except (StoreWriteError, DeviceFault):
         raise
     except Exception as e:  # e.g. one bad input: one task at a time, so that only its row fails
+        why = device_fault(e)
+        if why:  # the device failed, not the batch: every task of the unit runs elsewhere
+            raise DeviceFault(why) from e
         log.info("batch step failed as a whole (%s: %s): its tasks run one by one", type(e).__name__, e)
         out = {}
         for j, i in who:
@@ -211,9 +215,11 @@ def _solve_step(tasks: list[Task], probs: list, who: list[tuple[int, int]], ctx:
             bad = _non_finite(res) if res.status == "done" else []
             if bad:  # never store a NaN as success
                 res.status, res.message, nxt = "failed", f"non-finite result: {', '.join(bad)}", None
-        except StoreWriteError:
+        except (StoreWriteError, DeviceFault):
             raise
         except Exception as e:
+            if device_fault(e):
+                raise DeviceFault(device_fault(e)) from e
             res, nxt = TaskResult("failed", f"{type(e).__name__}: {e}"), None
         res.values["wall_time"] = share + time.perf_counter() - t1
         res.values["rank"] = ctx.rank

@@ -1,0 +1,240 @@
+"""The farm's scheduling rules (gapsweep.sweep.farm), in-process: no MPI, no GPU, no subprocess. Each test
+drives a Farm with events as the runner would and checks the dispatches against the rules of the module
+docstring (docs/architecture.md, "The farm")."""
+
+from __future__ import annotations
+
+import pytest
+
+from gapsweep.sweep.farm import DeviceFault, Farm, Worker, device_fault
+
+# units 0..5, largest first; 0, 1, 3 need a GPU
+GPU = [True, True, False, True, False, False]
+
+
+def farm(workers: dict[int, Worker], order=range(6), gpu=GPU) -> Farm:
+    return Farm(gpu, list(order), workers)
+
+
+def test_gpu_worker_takes_gpu_units_first_cpu_worker_cpu_units_only():
+    f = farm({1: Worker(gpu=0), 2: Worker()})
+    assert f.request(2) == [(2, 2)]  # the first CPU unit, although 0 and 1 are larger
+    assert f.request(1) == [(1, 0)]
+    assert f.request(1) == [(1, 1)]
+    assert f.request(1) == [(1, 3)]
+    assert f.request(1) == [(1, 4)]  # no GPU unit left: the GPU worker helps with the CPU units
+    assert f.request(2) == [(2, 5)]
+    assert f.workers[2].state == "busy"
+    # nothing queued; worker 1 has nothing in flight that 2 could run: 2 stops, 1 then stops too
+    assert f.request(2) == [(2, None)]
+    assert f.request(1) == [(1, None)]
+    assert not f.busy() and f.left == [] and f.no_gpu == ""
+
+
+def test_coordinator_thread_takes_from_the_tail():
+    f = farm({0: Worker(tail=True), 1: Worker()}, gpu=[False] * 6)
+    assert f.request(0) == [(0, 5)]
+    assert f.request(1) == [(1, 0)]
+    assert f.request(0) == [(0, 4)]
+
+
+def test_without_any_gpu_worker_any_worker_takes_gpu_units():
+    f = farm({1: Worker(), 2: Worker()})
+    assert [f.request(1), f.request(2)] == [[(1, 0)], [(2, 1)]]
+
+
+def test_device_fault_requeues_for_another_gpu_worker_and_skips_recorded_rows():
+    f = farm({1: Worker(gpu=0), 2: Worker(gpu=1), 3: Worker()})
+    assert f.request(1) == [(1, 0)]
+    assert f.request(2) == [(2, 1)]
+    f.row(0, 10)  # unit 0 recorded one row before its device failed
+    assert f.fault(1, "CUDARuntimeError: cudaErrorDevicesUnavailable") == [(1, 2)]  # 1 goes on with CPU work
+    assert f.workers[1].lost and not f.workers[1].has_gpu
+    assert f.queue[0] == 0 and f.skip(0) == frozenset({10})  # back at the head, its recorded row skipped
+    assert f.request(2) == [(2, 0)]  # the other GPU worker takes it
+    assert f.request(3) == [(3, 4)]
+    assert f.request(1) == [(1, 5)]
+    assert f.request(2) == [(2, 3)]
+    assert f.faults == [(1, 0, "CUDARuntimeError: cudaErrorDevicesUnavailable")]
+
+
+def test_worker_waits_while_a_unit_it_could_run_is_in_flight():
+    """GPU worker 2 finds the queue empty while worker 1 runs a GPU unit: it waits (the unit may come back),
+    takes it when 1's device fails, and everybody stops once it is done."""
+    f = farm({1: Worker(gpu=0), 2: Worker(gpu=1)}, order=[0], gpu=[True])
+    assert f.request(1) == [(1, 0)]
+    assert f.request(2) == []
+    assert f.workers[2].state == "waiting"
+    # 1 (a CPU worker now) can run nothing queued or in flight: it stops; 2 takes the unit back
+    assert f.fault(1, "out of memory") == [(1, None), (2, 0)]
+    assert f.workers[1].state == "stopped" and f.workers[2].state == "busy"
+    assert f.request(2) == [(2, None)]
+    assert not f.busy()
+
+
+def test_cpu_worker_stops_while_only_gpu_units_are_in_flight():
+    f = farm({1: Worker(gpu=0), 2: Worker()}, order=[0, 1], gpu=[True, True])
+    assert f.request(1) == [(1, 0)]
+    assert f.request(2) == [(2, None)]  # GPU units only: a CPU worker is not needed
+
+
+def test_no_gpu_left_leaves_gpu_units_pending_and_finishes_cpu_units():
+    f = farm({1: Worker(gpu=0), 2: Worker()})
+    assert f.request(2) == [(2, 2)]
+    assert f.request(1) == [(1, 0)]
+    f.row(0, 7)
+    out = f.fault(1, "CUDARuntimeError: cudaErrorDevicesUnavailable: all CUDA-capable devices are busy")
+    assert sorted(f.left) == [0, 1, 3] and f.skip(0) == frozenset({7})
+    assert f.no_gpu.startswith("no GPU left (GPU 0: CUDARuntimeError")
+    assert out == [(1, 4)]  # the CPU units still run
+    assert [f.request(2), f.request(1)] == [[(2, 5)], [(1, None)]]
+    assert f.request(2) == [(2, None)] and not f.busy()
+
+
+def test_stop_request_empties_the_queue_and_a_late_fault_is_not_requeued():
+    f = farm({1: Worker(gpu=0), 2: Worker(gpu=1), 3: Worker()})
+    assert f.request(1) == [(1, 0)]
+    assert f.request(3) == [(3, 2)]
+    assert f.stop() == []  # nobody waits yet
+    assert f.request(2) == [(2, None)]
+    assert f.fault(1, "out of memory") == [(1, None)]
+    assert 0 not in f.queue and len(f.queue) == 0
+    assert f.request(3) == [(3, None)] and not f.busy()
+
+
+@pytest.mark.parametrize("exc, fault", [
+    (type("CUDARuntimeError", (RuntimeError,), {})("cudaErrorDevicesUnavailable: all CUDA-capable devices are "
+                                                    "busy or unavailable"), True),
+    (type("OutOfMemoryError", (MemoryError,), {})("Out of memory allocating 1,073,741,824 bytes"), True),
+    (type("CUDADriverError", (RuntimeError,), {})("CUDA_ERROR_CONTEXT_IS_DESTROYED: context is destroyed"), True),
+    (type("CudaSupportError", (ImportError,), {})("Error at driver init"), True),
+    (RuntimeError("cudaErrorMpsMaxClientsReached: maximum number of clients reached"), True),
+    (DeviceFault("injected"), True),
+    (type("CUDARuntimeError", (RuntimeError,), {})("cudaErrorInvalidValue: invalid argument"), False),
+    (MemoryError("host memory"), False),
+    (ValueError("sigma0 must be > 0"), False),
+    (RuntimeError("the solver diverged"), False),
+])
+def test_device_fault_classification(exc, fault):
+    assert bool(device_fault(exc)) is fault
+    if fault:
+        assert type(exc).__name__ in device_fault(exc)
+
+
+def test_device_fault_found_in_the_cause_chain():
+    try:
+        try:
+            raise type("CUDARuntimeError", (RuntimeError,), {})("cudaErrorMemoryAllocation: out of memory")
+        except RuntimeError as inner:
+            raise ValueError("while making the histogram") from inner
+    except ValueError as e:
+        assert device_fault(e).startswith("CUDARuntimeError: cudaErrorMemoryAllocation")
+
+
+# ---------------------------------------------------------------------------------------------------------
+# the runner with a fake GPU (tests/fakegpu.py), in-process: serial runs
+
+
+@pytest.fixture
+def fakegpu(monkeypatch, tmp_path):
+    """The test-only method ``fakegpu`` registered for this test (removed after it), one visible GPU, the job."""
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    from gapsweep.sweep.methods import base
+
+    mod = sys.modules.get("fakegpu")
+    if mod is None:
+        spec = importlib.util.spec_from_file_location("fakegpu", Path(__file__).with_name("fakegpu.py"))
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules["fakegpu"] = mod
+        spec.loader.exec_module(mod)
+    else:
+        base.register(mod.FakeGPU)
+    mod._ran.clear()
+    monkeypatch.setenv("GAPSWEEP_TEST_GPUS", "1")
+    monkeypatch.delenv("FAKEGPU_BROKEN", raising=False)
+    job = tmp_path / "farm.toml"
+    job.write_text(mod.JOB)
+    yield job
+    base._REGISTRY.pop("fakegpu", None)
+
+
+def _expected(df):
+    """fakegpu's closed form along each chain (pressures in decreasing order)."""
+    import math
+
+    out = {}
+    for _, c in df[df.method == "fakegpu"].groupby(["hurst", "rho", "seed"]):
+        g = 0.0
+        for r in c.sort_values("sigma0", ascending=False).itertuples():
+            g = g + math.log(r.sigma0) * (r.seed + 1) + r.hurst * r.rho  # as fakegpu adds
+            out[r.task_id] = g
+    return out
+
+
+def test_serial_run_with_a_working_gpu(fakegpu, tmp_path):
+    from gapsweep import runner, store
+
+    s = runner.run(fakegpu, tmp_path / "s.h5", mpi="off", progress="none")
+    assert s["pending"] == 0 and s["unfinished"] == 0 and s["failed"] == 0
+    df = store.read(tmp_path / "s.h5")
+    assert set(df.status) == {"done"} and (df.method == "fakegpu").sum() == 16
+    want = _expected(df)
+    got = df[df.method == "fakegpu"].set_index("task_id").mean_gap
+    assert all(got[k] == v for k, v in want.items())
+
+
+def test_serial_device_fault_leaves_gpu_rows_pending_then_resume_completes(fakegpu, tmp_path, monkeypatch, caplog):
+    """The GPU fails at its second task: the first row of that chain stays done, every other GPU row pending,
+    every CPU row done, one 'no GPU left' line, the run record says why; --resume with a working GPU finishes
+    the store, equal to an undisturbed run."""
+    import json
+    import logging
+
+    from gapsweep import runner, store
+
+    ref = tmp_path / "ref.h5"
+    runner.run(fakegpu, ref, mpi="off", progress="none")
+    path = tmp_path / "s.h5"
+    monkeypatch.setenv("FAKEGPU_BROKEN", "0@1")
+    with caplog.at_level(logging.WARNING, logger="gapsweep"):
+        s = runner.run(fakegpu, path, mpi="off", progress="none")
+    assert s["done"] == s["todo"] - 15 and s["pending"] == 15 and s["failed"] == 0 and s["unfinished"] == 15
+    df = store.read(path)
+    assert (df[df.method == "theory"].status == "done").all()
+    gpu = df[df.method == "fakegpu"]
+    assert (gpu.status == "done").sum() == 1 and (gpu.status == "pending").sum() == 15
+    lines = [r.getMessage() for r in caplog.records if "no GPU left" in r.getMessage()]
+    assert len(lines) == 1 and "cudaErrorDevicesUnavailable" in lines[0] and "15 GPU task(s) left pending" in lines[0]
+    run = json.loads(store.read_attrs(path)["runs"])[-1]
+    assert "no GPU left" in run["stopped"] and run["pending"] == 15 and "GPU 0" in run["device_faults"][0]
+    text = store.status(path)
+    assert "pending: 15 row(s)" in text and "--resume" in text
+    monkeypatch.delenv("FAKEGPU_BROKEN")
+    s = runner.run(fakegpu, path, mpi="off", progress="none", resume=True)
+    assert s["todo"] == 15 and s["done"] == 15 and s["unfinished"] == 0
+    assert store.diff(path, ref) == []
+
+
+def test_cli_exit_codes_partial_failure_and_pending(fakegpu, tmp_path, monkeypatch, capsys):
+    """Exit 5 (documented in docs/running.md) for a run that leaves rows failed or pending, with one line naming
+    the counts; 3 stays 'every task failed'; 0 only when every row is done."""
+    from gapsweep import cli
+
+    path = tmp_path / "s.h5"
+    monkeypatch.setenv("FAKEGPU_BROKEN", "0")
+    assert cli.main(["run", str(fakegpu), "--store", str(path), "--mpi", "off", "--progress", "none"]) == 5
+    err = capsys.readouterr().err
+    assert "16 row(s) not done (0 failed, 16 pending)" in err and "--resume" in err
+    monkeypatch.delenv("FAKEGPU_BROKEN")
+    monkeypatch.setenv("GAPSWEEP_TEST_FAIL", "1.0")  # the first pressure of every GPU chain fails
+    assert cli.main(["run", str(fakegpu), "--store", str(path), "--resume", "--mpi", "off"]) == 5
+    err = capsys.readouterr().err
+    assert "(4 failed, 0 pending)" in err
+    # nothing left to run, but the store keeps failed rows: still not 0
+    monkeypatch.delenv("GAPSWEEP_TEST_FAIL")
+    assert cli.main(["run", str(fakegpu), "--store", str(path), "--resume", "--mpi", "off"]) == 5
+    ok = tmp_path / "ok.h5"
+    assert cli.main(["run", str(fakegpu), "--store", str(ok), "--mpi", "off", "--progress", "none"]) == 0
