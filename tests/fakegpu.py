@@ -8,6 +8,8 @@ of its chain's earlier steps, so it does not depend on which worker ran it.
 Device faults are injected by the test through ``FAKEGPU_BROKEN`` (read here, in the test's plug-in):
 ``"1"`` -- the device of GPU 1 refuses every task (``cudaErrorDevicesUnavailable``, as a full MPS server
 does); ``"1@2"`` -- GPU 1 fails at its third task (after two rows of a chain are recorded); ``"0,1"`` -- both.
+``FAKEGPU_BARRIER=DIR`` makes the schedule deterministic where a test needs it: a task on GPU 1 first creates
+``DIR/gpu1``, and a task on GPU 0 waits for that file (at most 60 s), so GPU 1 surely holds a unit.
 
 Run as a script it is ``gapsweep`` with the plug-in registered (how the MPI tests launch it):
 ``mpiexec -n 3 python tests/fakegpu.py run JOB --store S``.
@@ -18,10 +20,11 @@ from __future__ import annotations
 import math
 import os
 import sys
+import time
+from pathlib import Path
 
 from gapsweep.sweep.methods.base import Method, grid_tasks, register
 from gapsweep.sweep.schema import TaskResult
-
 
 # theory (CPU units) beside fakegpu (4 GPU chains of 4 tasks)
 JOB = """
@@ -61,6 +64,19 @@ def _broken() -> dict[int, int]:
 _ran: dict[int, int] = {}
 
 
+def _barrier(gpu: int) -> None:
+    d = os.environ.get("FAKEGPU_BARRIER")
+    if not d:
+        return
+    flag = Path(d, "gpu1")
+    if gpu == 1:
+        flag.touch()
+    elif gpu == 0:
+        end = time.monotonic() + 60
+        while not flag.exists() and time.monotonic() < end:
+            time.sleep(0.01)
+
+
 @register
 class FakeGPU(Method):
     name = "fakegpu"
@@ -80,6 +96,7 @@ class FakeGPU(Method):
     def run(self, t, ctx, prev):
         if ctx.gpu is None:
             raise AssertionError("a GPU task ran on a worker without a GPU")
+        _barrier(ctx.gpu)
         broken = _broken()
         if ctx.gpu in broken:
             n = _ran.get(ctx.gpu, 0)

@@ -238,3 +238,85 @@ def test_cli_exit_codes_partial_failure_and_pending(fakegpu, tmp_path, monkeypat
     assert cli.main(["run", str(fakegpu), "--store", str(path), "--resume", "--mpi", "off"]) == 5
     ok = tmp_path / "ok.h5"
     assert cli.main(["run", str(fakegpu), "--store", str(ok), "--mpi", "off", "--progress", "none"]) == 0
+
+
+# ---------------------------------------------------------------------------------------------------------
+# layout of a node (gapsweep plan) and no CUDA context outside the GPU workers
+
+
+@pytest.mark.parametrize("node, job, want", [
+    ((4, 64, 48, 200), None, (64, 4, 59, False)),  # 4 GPUs, 64 cores: coordinator, 4 GPU workers, 59 CPU ranks
+    ((4, 64, 48, 16), None, (21, 4, 16, False)),  # no more CPU ranks than CPU units
+    ((4, 64, 2, 0), None, (3, 2, 0, False)),  # no more GPU workers than GPU units
+    ((0, 64, 0, 100), None, (64, 0, 63, False)),  # a CPU node
+    ((2, 2, 10, 10), None, (2, 2, 0, True)),  # 2 cores: the coordinator works (and drives GPU 0)
+    ((0, 2, 0, 1), None, (1, 0, 1, True)),  # one unit: one process
+])
+def test_layout(node, job, want):
+    from gapsweep.sweep.gpus import layout
+
+    lay = layout(*node)
+    assert (lay.ranks, lay.gpu_workers, lay.cpu_workers, lay.coordinator_works) == want
+    assert lay.ranks == lay.gpu_workers + lay.cpu_workers + (0 if lay.coordinator_works else 1)
+
+
+def test_layout_args_name_the_coordinator_only_where_the_default_differs():
+    from gapsweep.sweep.gpus import Layout
+
+    assert Layout(64, 4, 59, False).args() == "mpiexec -n 64 --bind-to none gapsweep run ..."
+    assert Layout(4, 1, 2, False).args().endswith("--coordinator-works no")
+    assert Layout(1, 0, 1, True).args().startswith("gapsweep run")
+
+
+class Touched(BaseException):
+    """Raised by the stand-in cupy: something imported or used it (not caught by `except Exception`)."""
+
+
+@pytest.fixture
+def no_cupy(monkeypatch):
+    """cupy replaced by a module whose every use raises Touched; budget.gpu_memory_total likewise."""
+    import sys
+    import types
+
+    from gapsweep.sweep import budget
+
+    class Bomb(types.ModuleType):
+        def __getattr__(self, name):
+            raise Touched(f"cupy.{name}")
+
+    monkeypatch.setitem(sys.modules, "cupy", Bomb("cupy"))
+    monkeypatch.setattr(budget, "gpu_memory_total", lambda: (_ for _ in ()).throw(Touched("gpu_memory_total")))
+
+
+def test_plan_and_a_coordinators_work_touch_no_cuda(fakegpu, no_cupy, monkeypatch, tmp_path):
+    """`plan` and a run's start (the resource check, the run record with the SDE engine on CUDA) read GPUs only
+    through nvidia-smi: cupy is never used and no CUDA context made (issue 26: 0.25 s per rank, serially)."""
+    from gapsweep import runner
+    from gapsweep.sweep import gpus, provenance
+    from gapsweep.sweep import spec as specmod
+
+    monkeypatch.setenv("GAPSWEEP_TEST_GPUS", "4")
+    monkeypatch.setattr(gpus, "query", lambda: [{"index": str(i), "uuid": f"GPU-{i}", "name": "NVIDIA H200",
+                                                 "memory": 150 * 10**9} for i in range(4)])
+    text = runner.plan(fakegpu)
+    assert "4 GPU(s) (NVIDIA H200, 150.0 GB)" in text and "1 GPU worker(s)" not in text
+    assert "layout here:" in text and "4 GPU worker(s)" in text
+    sde = specmod.loads(open(fakegpu).read() + "[methods.sde]\nsamples = 1000\ndevice = \"cuda\"\n")
+    extras = provenance.run_extras(sde, gpu_ranks=[None, 0], batch="off", batch_units=0)
+    assert extras["sde_engine"] in ("cuda", "warp")
+    s = runner.run(fakegpu, tmp_path / "s.h5", mpi="off", progress="none")
+    assert s["unfinished"] == 0
+
+
+def test_gpu_memory_check_reads_nvidia_smi(fakegpu, monkeypatch):
+    """A GPU job that does not fit the visible GPUs' memory (from nvidia-smi) is refused before anything runs."""
+    import sys
+
+    from gapsweep import runner
+    from gapsweep.sweep import gpus
+
+    fake = sys.modules["fakegpu"].FakeGPU
+    monkeypatch.setattr(fake, "gpu_memory", lambda self, t: 30e9, raising=False)
+    monkeypatch.setattr(gpus, "query", lambda: [{"index": "0", "uuid": "GPU-0", "name": "small", "memory": 16 * 2**30}])
+    with pytest.raises(runner.RunError, match=r"GPU tasks need ~30.5 GB per GPU, more than this GPU's 17.2 GB"):
+        runner.plan(fakegpu)

@@ -23,9 +23,10 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
+from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["assign", "memory", "query", "rank_gpu", "visible_count"]
+__all__ = ["Layout", "assign", "layout", "memory", "query", "rank_gpu", "visible_count"]
 
 
 def visible_count() -> int:
@@ -113,3 +114,40 @@ def rank_gpu(comm: Any, coordinator_works: bool, per_gpu: int = 1) -> int | None
             return None
         local -= 1  # node-local ranks are ordered by world rank, so world rank 0 is local rank 0 here
     return assign(local, n, per_gpu)
+
+
+@dataclass(frozen=True)
+class Layout:
+    """A farm layout for one node (docs/running.md, "Which layout"): ``ranks`` MPI ranks, of which ``gpu_workers``
+    drive one GPU each and ``cpu_workers`` run CPU units; rank 0 coordinates (and works itself only where
+    ``coordinator_works``)."""
+
+    ranks: int
+    gpu_workers: int
+    cpu_workers: int
+    coordinator_works: bool
+
+    def args(self) -> str:
+        """The mpiexec and gapsweep options that give this layout."""
+        if self.ranks == 1:
+            return "gapsweep run (one process, no mpiexec)"
+        extra = "" if self.coordinator_works == (self.ranks <= 4) else (
+            " --coordinator-works " + ("yes" if self.coordinator_works else "no"))
+        bind = " --bind-to none" if self.gpu_workers else ""
+        return f"mpiexec -n {self.ranks}{bind} gapsweep run ...{extra}"
+
+
+def layout(n_gpus: int, cores: int, gpu_units: int, cpu_units: int) -> Layout:
+    """The layout to pick on a node of ``n_gpus`` GPUs and ``cores`` cores for a job of ``gpu_units`` GPU units and
+    ``cpu_units`` CPU units: one GPU worker per GPU (capped by the GPU units; one process and one CUDA context
+    per GPU, no MPS needed), one rank per remaining core for the CPU units (capped by their count), and a
+    coordinator that only coordinates; on up to 4 cores the coordinator works too, and one worker is a single
+    process. Without a visible GPU, GPU units get no worker (they need a GPU node)."""
+    g = min(n_gpus, gpu_units) if n_gpus > 0 else 0
+    if cores <= 4:  # a small machine: the coordinator works too (the default up to 4 ranks)
+        p = max(g, min(cores, g + cpu_units), 1)
+        return Layout(p, g, p - g, True)
+    c = max(0, min(cores - g - 1, cpu_units))
+    if g + c <= 1:  # one worker: a single process does it all (serial run)
+        return Layout(1, g, 1 - g, True)
+    return Layout(1 + g + c, g, c, False)

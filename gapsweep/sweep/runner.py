@@ -169,6 +169,7 @@ def plan(job: str | Path | specmod.JobSpec, shard: tuple[int, int] | None = None
                  "wall (rough model, see docs/jobs.md)")
     size = budget.store_bytes(len(tasks), spec.histogram["bins"], len(spec.text))
     lines.extend(_check_resources(tasks, ranks_per_gpu))
+    lines.extend(_propose(units))
     lines.append(f"  store ~{budget.human(size)}")
     if store is not None:
         path = _store_path(store, shard)
@@ -177,6 +178,27 @@ def plan(job: str | Path | specmod.JobSpec, shard: tuple[int, int] | None = None
         if size > free:
             raise RunError(f"store {path}: needs ~{budget.human(size)}, only {budget.human(free)} free there")
     return "\n".join(lines)
+
+
+def _propose(units: list[Unit]) -> list[str]:
+    """The plan's lines about this node (GPUs from nvidia-smi or CUDA_VISIBLE_DEVICES, no CUDA context; cores)
+    and the layout to pick for the job here (gapsweep.sweep.gpus.layout)."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # pragma: no cover - not Linux
+        cores = os.cpu_count() or 1
+    n = gpus.visible_count()
+    found = gpus.query()
+    names = sorted({f"{g['name']}, {budget.human(g['memory'])}" for g in found}) if len(found) == n else []
+    gpu_units = sum(u.gpu for u in units)
+    lay = gpus.layout(n, cores, gpu_units, len(units) - gpu_units)
+    out = [f"  this node: {cores} core(s), {n} GPU(s)" + (f" ({'; '.join(names)})" if names else "")]
+    if gpu_units and not n:
+        out.append(f"  {gpu_units} GPU unit(s) but no GPU visible here: run the job on a GPU node")
+    out.append(f"  layout here: {lay.ranks} rank(s) -- {lay.gpu_workers} GPU worker(s) (one per GPU), "
+               f"{lay.cpu_workers} CPU worker(s)" + ("" if lay.ranks == 1 else ", rank 0 coordinates")
+               + f": {lay.args()} (docs/running.md, \"Which layout\")")
+    return out
 
 
 def _check_resources(tasks: list[Task], ranks_per_gpu: int = 1) -> list[str]:
