@@ -80,6 +80,9 @@ def _parser() -> argparse.ArgumentParser:
                         "the sweep, docs/benchmarks.md), auto (GPU chains with n <= 1024) or all (CPU backends too)")
     s.add_argument("--ranks-per-gpu", type=int, default=1, metavar="K",
                    help="ranks of a node that share one GPU (default 1: ranks beyond the GPU count work CPU units)")
+    s.add_argument("--lookahead", type=int, default=4, metavar="N",
+                   help="GPU units a GPU worker holds beyond the one it runs; their surfaces are made on N host "
+                        "threads while the GPU works (default 4; 0: none)")
 
     s = sub.add_parser("status", help="summarise a running or finished store")
     s.add_argument("store", help="HDF5 store written by `gapsweep run`")
@@ -264,7 +267,8 @@ def _run(args: argparse.Namespace) -> int:
         s = runner.run(job, store, resume=args.resume, overwrite=args.overwrite,
                        shard=runner.parse_shard(args.shard), writer=args.writer, progress=args.progress,
                        coordinator_works=args.coordinator_works, mpi=args.mpi, break_lease=args.break_lease,
-                       task_timeout=args.task_timeout, batch=args.batch, ranks_per_gpu=args.ranks_per_gpu)
+                       task_timeout=args.task_timeout, batch=args.batch, ranks_per_gpu=args.ranks_per_gpu,
+                       lookahead=args.lookahead)
         if s["rank"] == 0 and args.progress != "none":
             print(f"{s['store']}: {s['mode']}, {s['todo']} of {s['tasks']} tasks run: {s['done']} done, "
                   f"{s['failed']} failed, {s['not_converged']} not converged")

@@ -20,14 +20,14 @@ def test_gpu_worker_takes_gpu_units_first_cpu_worker_cpu_units_only():
     f = farm({1: Worker(gpu=0), 2: Worker()})
     assert f.request(2) == [(2, 2)]  # the first CPU unit, although 0 and 1 are larger
     assert f.request(1) == [(1, 0)]
-    assert f.request(1) == [(1, 1)]
-    assert f.request(1) == [(1, 3)]
-    assert f.request(1) == [(1, 4)]  # no GPU unit left: the GPU worker helps with the CPU units
-    assert f.request(2) == [(2, 5)]
-    assert f.workers[2].state == "busy"
-    # nothing queued; worker 1 has nothing in flight that 2 could run: 2 stops, 1 then stops too
-    assert f.request(2) == [(2, None)]
-    assert f.request(1) == [(1, None)]
+    assert f.request(1, 0) == [(1, 1)]
+    assert f.request(1, 1) == [(1, 3)]
+    assert f.request(1, 3) == [(1, 4)]  # no GPU unit left: the GPU worker helps with the CPU units
+    assert f.request(2, 2) == [(2, 5)]
+    assert f.workers[2].state == "busy" and f.workers[2].units == [5]
+    # nothing queued; worker 1 holds nothing that 2 could run: 2 stops, 1 then stops too
+    assert f.request(2, 5) == [(2, None)]
+    assert f.request(1, 4) == [(1, None)]
     assert not f.busy() and f.left == [] and f.no_gpu == ""
 
 
@@ -35,12 +35,32 @@ def test_coordinator_thread_takes_from_the_tail():
     f = farm({0: Worker(tail=True), 1: Worker()}, gpu=[False] * 6)
     assert f.request(0) == [(0, 5)]
     assert f.request(1) == [(1, 0)]
-    assert f.request(0) == [(0, 4)]
+    assert f.request(0, 5) == [(0, 4)]
 
 
 def test_without_any_gpu_worker_any_worker_takes_gpu_units():
     f = farm({1: Worker(), 2: Worker()})
     assert [f.request(1), f.request(2)] == [[(1, 0)], [(2, 1)]]
+
+
+def test_units_ahead_for_gpu_workers_after_every_worker_holds_one():
+    f = farm({1: Worker(gpu=0, ahead=2), 2: Worker(gpu=1, ahead=2), 3: Worker(ahead=2)})
+    assert f.request(1) == [(1, 0), (1, 1), (1, 3)]  # the one it runs and two ahead (GPU units first)
+    assert f.request(2) == [(2, 2), (2, 4), (2, 5)]  # no GPU unit left: CPU units, one to run and two ahead
+    assert f.request(3) == [(3, None)]  # nothing for a CPU worker, and only GPU units could come back
+    assert f.request(1, 0) == []  # nothing queued: 1 keeps running what it holds
+    assert f.workers[1].units == [1, 3] and f.workers[1].unit == 1
+
+
+def test_a_cpu_worker_holds_one_unit():
+    f = farm({1: Worker(ahead=3)}, gpu=[False] * 6)
+    assert f.request(1) == [(1, 0)]
+
+
+def test_a_worker_holding_nothing_is_served_before_units_ahead():
+    f = farm({1: Worker(gpu=0, ahead=3), 2: Worker(gpu=1, ahead=3)}, order=[0, 1, 2], gpu=[True] * 3)
+    f.workers[2].started = True  # asked already, its request is being handled in the same dispatch
+    assert sorted(f.request(1)) == [(1, 0), (1, 2), (2, 1)]
 
 
 def test_device_fault_requeues_for_another_gpu_worker_and_skips_recorded_rows():
@@ -49,13 +69,23 @@ def test_device_fault_requeues_for_another_gpu_worker_and_skips_recorded_rows():
     assert f.request(2) == [(2, 1)]
     f.row(0, 10)  # unit 0 recorded one row before its device failed
     assert f.fault(1, "CUDARuntimeError: cudaErrorDevicesUnavailable") == [(1, 2)]  # 1 goes on with CPU work
-    assert f.workers[1].lost and not f.workers[1].has_gpu
+    assert f.workers[1].lost and not f.workers[1].has_gpu and f.workers[1].epoch == 1
     assert f.queue[0] == 0 and f.skip(0) == frozenset({10})  # back at the head, its recorded row skipped
-    assert f.request(2) == [(2, 0)]  # the other GPU worker takes it
+    assert f.request(2, 1) == [(2, 0)]  # the other GPU worker takes it
     assert f.request(3) == [(3, 4)]
-    assert f.request(1) == [(1, 5)]
-    assert f.request(2) == [(2, 3)]
+    assert f.request(1, 2) == [(1, 5)]
+    assert f.request(2, 0) == [(2, 3)]
     assert f.faults == [(1, 0, "CUDARuntimeError: cudaErrorDevicesUnavailable")]
+
+
+def test_device_fault_requeues_every_unit_held_in_order():
+    f = farm({1: Worker(gpu=0, ahead=2), 2: Worker(gpu=1)}, order=[0, 1, 3, 2], gpu=GPU)
+    assert f.request(1) == [(1, 0), (1, 1), (1, 3)]
+    assert f.request(2) == [(2, 2)]
+    # 1 (a CPU worker now) can run none of them: it stops; they wait at the head of the queue for 2
+    assert f.fault(1, "out of memory") == [(1, None)]
+    assert list(f.queue) == [0, 1, 3]
+    assert f.request(2, 2) == [(2, 0)]
 
 
 def test_worker_waits_while_a_unit_it_could_run_is_in_flight():
@@ -65,10 +95,10 @@ def test_worker_waits_while_a_unit_it_could_run_is_in_flight():
     assert f.request(1) == [(1, 0)]
     assert f.request(2) == []
     assert f.workers[2].state == "waiting"
-    # 1 (a CPU worker now) can run nothing queued or in flight: it stops; 2 takes the unit back
-    assert f.fault(1, "out of memory") == [(1, None), (2, 0)]
+    # 1 (a CPU worker now) can run nothing queued or held elsewhere: it stops; 2 takes the unit back
+    assert f.fault(1, "out of memory") == [(2, 0), (1, None)]
     assert f.workers[1].state == "stopped" and f.workers[2].state == "busy"
-    assert f.request(2) == [(2, None)]
+    assert f.request(2, 0) == [(2, None)]
     assert not f.busy()
 
 
@@ -87,8 +117,8 @@ def test_no_gpu_left_leaves_gpu_units_pending_and_finishes_cpu_units():
     assert sorted(f.left) == [0, 1, 3] and f.skip(0) == frozenset({7})
     assert f.no_gpu.startswith("no GPU left (GPU 0: CUDARuntimeError")
     assert out == [(1, 4)]  # the CPU units still run
-    assert [f.request(2), f.request(1)] == [[(2, 5)], [(1, None)]]
-    assert f.request(2) == [(2, None)] and not f.busy()
+    assert [f.request(2, 2), f.request(1, 4)] == [[(2, 5)], [(1, None)]]
+    assert f.request(2, 5) == [(2, None)] and not f.busy()
 
 
 def test_stop_request_empties_the_queue_and_a_late_fault_is_not_requeued():
@@ -99,7 +129,7 @@ def test_stop_request_empties_the_queue_and_a_late_fault_is_not_requeued():
     assert f.request(2) == [(2, None)]
     assert f.fault(1, "out of memory") == [(1, None)]
     assert 0 not in f.queue and len(f.queue) == 0
-    assert f.request(3) == [(3, None)] and not f.busy()
+    assert f.request(3, 2) == [(3, None)] and not f.busy()
 
 
 @pytest.mark.parametrize("exc, fault", [
@@ -320,3 +350,26 @@ def test_gpu_memory_check_reads_nvidia_smi(fakegpu, monkeypatch):
     monkeypatch.setattr(gpus, "query", lambda: [{"index": "0", "uuid": "GPU-0", "name": "small", "memory": 16 * 2**30}])
     with pytest.raises(runner.RunError, match=r"GPU tasks need ~30.5 GB per GPU, more than this GPU's 17.2 GB"):
         runner.plan(fakegpu)
+
+
+def test_prefetched_surface_is_the_same_bits():
+    """A surface made ahead on a host thread (Context.prefetch) is the one made on the spot, bit for bit, and is
+    used (not made twice)."""
+    import numpy as np
+
+    from gapsweep import spec as specmod
+    from gapsweep.sweep.context import Context
+    from gapsweep.sweep.tasks import expand
+
+    job = __import__("pathlib").Path(__file__).resolve().parents[1] / "jobs" / "test_theory.toml"
+    t = next(x for x in expand(specmod.load(job)) if x.n > 0)
+    ctx = Context()
+    ctx.ahead(2)
+    try:
+        ctx.prefetch(t, 256)
+        assert len(ctx._ahead) == 1
+        h = ctx.surface(t, 256)
+        assert not ctx._ahead and ctx.surface(t, 256) is h
+    finally:
+        ctx.close()
+    assert np.array_equal(h, Context().surface(t, 256))

@@ -12,17 +12,21 @@ Pure logic -- no MPI, no GPU, no I/O -- so that every rule is tested in-process 
   unless no worker had a GPU at the start, then any worker takes any unit (a GPU task then meets the missing
   GPU itself and records it).
 * **Device faults are not task failures** (:func:`device_fault`): the worker's device is given up (it goes on as
-  a CPU worker), its unit goes back to the head of the queue, and the rows of that unit already recorded are
-  skipped when the unit runs again (:meth:`Farm.skip`). When no GPU worker is left, the GPU units still queued
+  a CPU worker), the units it holds go back to the head of the queue, units sent to it before the fault are
+  stale (``Worker.epoch``), and the rows already recorded are skipped when a unit runs again
+  (:meth:`Farm.skip`). When no GPU worker is left, the GPU units still queued
   are taken out (:attr:`Farm.left`: their rows stay pending) and :attr:`Farm.no_gpu` says why in one line.
+* **Units ahead.** A GPU worker may hold ``ahead`` units beyond the one it runs (``--lookahead``), so that
+  their host-side inputs (surfaces) are made on host threads while its GPU works; a worker that holds nothing
+  is always served first. After a device fault it holds one unit at a time, as every CPU worker does.
 * **A worker waits rather than leaves** while a GPU unit it could run is in flight elsewhere (that unit comes
   back if the device fails); it is told to stop once nothing it could run is queued or could come back.
 * **A stop request** (signal, stop file) empties the queue; units in flight finish; a unit whose device fails
   after that is not queued again.
 
-States of a worker: ``idle`` (not yet asked), ``waiting`` (asked, nothing for it now), ``busy`` (one unit in
-flight), ``stopped`` (told to leave). Its GPU: ``gpu`` (the device index, None for a CPU worker) and ``lost``
-(why the device was given up; "" while it works).
+States of a worker: ``idle`` (not yet asked), ``waiting`` (asked, holds nothing), ``busy`` (holds units: the
+one it runs and those ahead), ``stopped`` (told to leave). Its GPU: ``gpu`` (the device index, None for a CPU
+worker) and ``lost`` (why the device was given up; "" while it works).
 """
 
 from __future__ import annotations
@@ -84,22 +88,34 @@ class Worker:
 
     gpu: int | None = None  # the GPU it drives (None: a CPU worker)
     tail: bool = False  # takes units from the tail of the queue (the coordinator's own worker)
+    ahead: int = 0  # units a GPU worker holds beyond the one it runs (their inputs are made while it runs)
     lost: str = ""  # why its GPU was given up (a device fault); "" while it has one or never had one
-    unit: int | None = None  # the unit in flight
-    waiting: bool = False
+    units: list[int] = field(default_factory=list)  # held: the one it runs first, then the ones ahead
+    started: bool = False  # it has asked for work
     stopped: bool = False
+    epoch: int = 0  # counts its device faults: a unit sent before the last one is stale
 
     @property
     def has_gpu(self) -> bool:
         return self.gpu is not None and not self.lost
 
     @property
+    def cap(self) -> int:
+        """Units it may hold: 1, plus ``ahead`` while it has a GPU."""
+        return 1 + (self.ahead if self.has_gpu else 0)
+
+    @property
+    def unit(self) -> int | None:
+        """The unit it runs (the first it holds), or None."""
+        return self.units[0] if self.units else None
+
+    @property
     def state(self) -> str:
         if self.stopped:
             return "stopped"
-        if self.unit is not None:
+        if self.units:
             return "busy"
-        return "waiting" if self.waiting else "idle"
+        return "waiting" if self.started else "idle"
 
 
 @dataclass
@@ -125,10 +141,12 @@ class Farm:
         self.any_gpu = any(w.gpu is not None for w in self.workers.values())
 
     # -- events ---------------------------------------------------------------------------------------------
-    def request(self, wid: int) -> list[tuple[int, int | None]]:
-        """Worker ``wid`` asks for work (it has none in flight)."""
+    def request(self, wid: int, done: int | None = None) -> list[tuple[int, int | None]]:
+        """Worker ``wid`` asks for work: its first request (``done`` None), or after finishing unit ``done``."""
         w = self.workers[wid]
-        w.unit, w.waiting = None, True
+        if done is not None and done in w.units:
+            w.units.remove(done)
+        w.started = True
         return self.dispatch()
 
     def row(self, k: int, i: int) -> None:
@@ -136,19 +154,21 @@ class Farm:
         self.recorded.setdefault(k, set()).add(i)
 
     def fault(self, wid: int, reason: str) -> list[tuple[int, int | None]]:
-        """Worker ``wid``'s device failed while it ran its unit: the device is given up, the unit goes back to
-        the head of the queue (not after a stop request); the worker then asks again as a CPU worker."""
+        """Worker ``wid``'s device failed while it ran its first unit: the device is given up, every unit it
+        holds goes back to the head of the queue in its order (not after a stop request), units sent to it
+        before are stale (``epoch``), and it asks again as a CPU worker (no message needed)."""
         w = self.workers[wid]
-        k, w.unit = w.unit, None
+        held, w.units = w.units, []
         w.lost = reason or "device fault"
+        w.epoch += 1
         self.faults.append((wid, w.gpu, w.lost))
-        if k is not None and not self.stopping:
-            self.queue.appendleft(k)
-        w.waiting = True
+        if not self.stopping:
+            self.queue.extendleft(reversed(held))
+        w.started = True
         return self.dispatch()
 
     def stop(self) -> list[tuple[int, int | None]]:
-        """A stop request: nothing more is handed out; the units in flight finish."""
+        """A stop request: nothing more is handed out; the units held finish."""
         self.stopping = True
         self.queue.clear()
         return self.dispatch()
@@ -170,20 +190,24 @@ class Farm:
 
     # -- the rules ------------------------------------------------------------------------------------------
     def dispatch(self) -> list[tuple[int, int | None]]:
-        """Serve the waiting workers (in id order): a unit each where one fits, a stop where nothing it could
-        run is queued or in flight."""
+        """Serve the workers that asked (in id order): first a unit to each that holds none, then units ahead
+        to GPU workers up to their ``cap``; a stop to one that holds nothing where nothing it could run is
+        queued or may come back."""
         self._check_gpus()
         out: list[tuple[int, int | None]] = []
-        for wid in sorted(self.workers):
+        live = [wid for wid in sorted(self.workers) if self.workers[wid].started and not self.workers[wid].stopped]
+        for first in (True, False):
+            for wid in live:
+                w = self.workers[wid]
+                while (not w.units if first else len(w.units) < w.cap) and (k := self._pick(w)) is not None:
+                    w.units.append(k)
+                    out.append((wid, k))
+                    if first:
+                        break
+        for wid in live:
             w = self.workers[wid]
-            if not w.waiting:
-                continue
-            k = self._pick(w)
-            if k is not None:
-                w.unit, w.waiting = k, False
-                out.append((wid, k))
-            elif self.stopping or not self._may_come(w):
-                w.waiting, w.stopped = False, True
+            if not w.units and (self.stopping or not self._may_come(w)):
+                w.stopped = True
                 out.append((wid, None))
         return out
 
@@ -203,9 +227,9 @@ class Farm:
         return k
 
     def _may_come(self, w: Worker) -> bool:
-        """A GPU unit ``w`` could run is in flight (it comes back if that worker's device fails)."""
-        return any(o is not w and o.unit is not None and self.gpu_units[o.unit] and self.can_run(w, o.unit)
-                   for o in self.workers.values())
+        """A GPU unit ``w`` could run is held by another worker (it comes back if that worker's device fails)."""
+        return any(o is not w and self.gpu_units[k] and self.can_run(w, k) for o in self.workers.values()
+                   for k in o.units)
 
     def _check_gpus(self) -> None:
         """No GPU worker left: take the queued GPU units out (their rows stay pending) and say why, once."""

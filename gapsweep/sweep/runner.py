@@ -27,6 +27,7 @@ import socket
 import sys
 import threading
 import time
+from collections import deque
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -38,7 +39,7 @@ from gapsweep.sweep import methods as registry
 from gapsweep.sweep import spec as specmod
 from gapsweep.sweep.context import Context
 from gapsweep.sweep.execute import run_task
-from gapsweep.sweep.farm import DeviceFault, Farm, Worker
+from gapsweep.sweep.farm import DeviceFault, Farm, Worker, device_fault
 from gapsweep.sweep.fields import fields_dir, remove_fields
 from gapsweep.sweep.limits import Interrupted, TaskTimeout
 from gapsweep.sweep.schema import STATUS, Task, TaskResult, Unit
@@ -379,7 +380,8 @@ def warm_up(t: Task, ctx: Context) -> None:
 def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = False, overwrite: bool = False,
         shard: tuple[int, int] | None = None, writer: str = "auto", progress: str = "auto",
         coordinator_works: str = "auto", mpi: str = "auto", break_lease: bool = False,
-        task_timeout: float | None = None, batch: str = "off", ranks_per_gpu: int = 1) -> dict[str, Any]:
+        task_timeout: float | None = None, batch: str = "off", ranks_per_gpu: int = 1, lookahead: int = 4,
+        ) -> dict[str, Any]:
     """Run a job into a store (serially or as an MPI task farm). Returns a summary dict on every rank.
 
     ``writer``: auto | mpio | rank0 (env ``GAPSWEEP_WRITER`` overrides auto); ``progress``: auto | bar | log |
@@ -387,7 +389,8 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     ``break_lease``: take over the lease of a run that is gone; ``task_timeout``: per-task wall-time limit [s];
     ``batch``: off (default: one solve at a time, faster in the sweep) | auto (GFMD chains batched on GPU ranks,
     gapsweep.batching) | all (also CPU backends: for tests and comparisons); ``ranks_per_gpu``: ranks sharing
-    one GPU (gapsweep.gpus).
+    one GPU (gapsweep.gpus); ``lookahead``: GPU units a GPU worker holds beyond the one it runs, their surfaces
+    made on as many host threads while its GPU works (0: none; docs/architecture.md, "The farm").
 
     Raises :class:`RunError` when the run cannot start or a write fails (rows finished before stay done),
     :class:`~gapsweep.limits.Interrupted` after a clean stop on SIGINT/SIGTERM or a ``<store>.stop`` file (the
@@ -400,6 +403,8 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     if batch not in batching.MODES:
         raise ValueError(f"--batch: expected one of {', '.join(batching.MODES)}, got {batch!r}")
     gpus.assign(None, 0, ranks_per_gpu)  # validates ranks_per_gpu
+    if isinstance(lookahead, bool) or not isinstance(lookahead, int) or not 0 <= lookahead <= 64:
+        raise ValueError(f"--lookahead: expected an integer in [0, 64], got {lookahead!r}")
     spec = _load(job)
     comm = _comm(mpi)
     rank, size = (comm.rank, comm.size) if comm is not None else (0, 1)
@@ -432,7 +437,7 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
         raise decision
     try:
         return _execute(spec, comm, rank, size, tasks, units, path, shard_text, decision, writer, progress,
-                        coordinator_works, task_timeout, held, (batch, ranks_per_gpu))
+                        coordinator_works, task_timeout, held, (batch, ranks_per_gpu, lookahead))
     finally:
         if held is not None:
             held.release()
@@ -460,7 +465,7 @@ def _writer_mode(comm: Any, writer: str) -> str:
 
 def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list[Task], units: list[Unit],
              path: Path, shard_text: str, decision: tuple, writer: str, progress: str, coordinator_works: str,
-             task_timeout: float | None, held: lease.Lease | None, gpu_opts: tuple[str, int] = ("auto", 1),
+             task_timeout: float | None, held: lease.Lease | None, gpu_opts: tuple = ("auto", 1, 0),
              ) -> dict[str, Any]:
     mode, todo_list, old_failed, _ = decision
     summary: dict[str, Any] = {"store": str(path), "tasks": len(tasks), "todo": len(todo_list), "mode": mode,
@@ -496,6 +501,8 @@ def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list
         raise
     finally:
         r.stop.restore()
+        if r.ctx is not None:
+            r.ctx.close()
         if r.st is not None and comm is None:
             _abandon(r.st)
     return summary
@@ -506,12 +513,13 @@ class _Run:
 
     def __init__(self, spec: specmod.JobSpec, comm: Any, tasks: list[Task], units: list[Unit], path: Path,
                  shard_text: str, decision: tuple, wmode: str, progress: str, coordinator_works: str,
-                 limit: float | None, held: lease.Lease | None, gpu_opts: tuple[str, int]) -> None:
+                 limit: float | None, held: lease.Lease | None, gpu_opts: tuple) -> None:
         self.spec, self.comm, self.tasks, self.units, self.path = spec, comm, tasks, units, path
         self.shard_text, self.wmode, self.progress, self.limit, self.held = shard_text, wmode, progress, limit, held
         self.rank, self.size = (comm.rank, comm.size) if comm is not None else (0, 1)
         self.mode, self.todo_list, self.old_failed, self.run_id = decision
-        self.batch, self.per_gpu = gpu_opts
+        self.batch, self.per_gpu, self.lookahead = gpu_opts
+        self.ctx: Context | None = None
         # rank 0 works (in a thread, beside coordinating) when asked, or by default with few ranks
         self.works = comm is None or coordinator_works == "yes" or (coordinator_works == "auto" and self.size <= 4)
         self.stop = limits.Stop("raise" if comm is None else "flag", _stop_file(path)).install()
@@ -539,6 +547,8 @@ class _Run:
             attrs, record = comm.bcast((attrs, record), root=0)
         self.record = record
         self.ctx = Context(rank=rank, gpu=self.gpu)
+        if self.gpu is not None:
+            self.ctx.ahead(self.lookahead)  # host threads for the surfaces of the units held ahead
         self.ctx.fields_dir = _fields_dir(self.path)  # kept GFMD fields, if the spec asks (gapsweep.dataset)
         self.todo = set(self.todo_list)
         self.work = [k for k, u in enumerate(self.units) if any(i in self.todo for i in u.tasks)]
@@ -614,9 +624,28 @@ class _Run:
                        "--resume") from None
 
     def units_of(self, k: int, skip: frozenset[int]) -> Iterator[tuple[int, TaskResult]]:
-        """Rows of unit ``k`` (its wanted tasks but ``skip``, already recorded by a worker whose device failed)."""
+        """Rows of unit ``k`` (its wanted tasks but ``skip``, already recorded by a worker whose device failed).
+        A device fault outside a task (a batch's surfaces moving to the GPU) raises DeviceFault too."""
         todo = self.todo - skip if skip else self.todo
-        return _run_unit(self.tasks, self.units[k], self.ctx, todo, self.limit, self.stop)
+        try:
+            yield from _run_unit(self.tasks, self.units[k], self.ctx, todo, self.limit, self.stop)
+        except (DeviceFault, StoreError, Interrupted):
+            raise
+        except Exception as e:
+            why = device_fault(e)
+            if why:
+                raise DeviceFault(why) from e
+            raise
+
+    def prefetch(self, k: int) -> None:
+        """A GPU unit just held: its surfaces start on the host threads (``ahead``) while the GPU works."""
+        u = self.units[k]
+        if not (u.gpu and self.gpu is not None):
+            return
+        for i in u.tasks:
+            t = self.tasks[i]
+            if t.n > 0 and i in self.todo:
+                self.ctx.prefetch(t, t.n)
 
     def ended(self, farm: Farm) -> None:
         """The coordinator, once every worker has left: what the run's record must say about devices."""
@@ -745,10 +774,17 @@ def _fault(rank: int, gpu: int | None, e: BaseException) -> str:
 
 def _serial(r: _Run) -> None:
     """One process: the farm with one worker (a device fault leaves the GPU units pending, the CPU units run)."""
-    farm = Farm([u.gpu for u in r.units], r.work, {0: Worker(gpu=r.gpu)})
+    farm = Farm([u.gpu for u in r.units], r.work, {0: Worker(gpu=r.gpu, ahead=r.lookahead)})
+    held: deque = deque()
     sends = farm.request(0)
-    while sends and sends[0][1] is not None:
-        k = sends[0][1]
+    while True:
+        for _, k in sends:
+            if k is not None:
+                held.append(k)
+                r.prefetch(k)
+        if not held:
+            break
+        k = held.popleft()
         try:
             for i, res in r.units_of(k, farm.skip(k)):
                 with r.stop.critical():
@@ -758,10 +794,37 @@ def _serial(r: _Run) -> None:
                 if r.stop.requested():  # the stop file (a signal raises by itself)
                     raise Interrupted(r.stop.signum)
         except DeviceFault as e:
+            held.clear()
             sends = farm.fault(0, _fault(0, r.gpu, e))
             continue
-        sends = farm.request(0)
+        sends = farm.request(0, k)
     r.ended(farm)
+
+
+class _Held:
+    """The units a worker holds (the one it runs, then those ahead), as sent by the coordinator: ``(unit, rows
+    to skip, epoch)``; a unit of an earlier epoch (sent before this worker's last device fault) is stale and
+    dropped. ``get(block)`` returns the next message from the coordinator (None: nothing arrived)."""
+
+    def __init__(self, r: _Run, get: Any) -> None:
+        self.r, self.get, self.units, self.epoch, self.done = r, get, deque(), 0, False
+
+    def next(self) -> tuple[int, frozenset[int]] | None:
+        """The next unit to run (waiting for one while none is held), or None: leave the farm."""
+        while not self.done:
+            msg = self.get(not self.units)
+            if msg is None and self.units:  # nothing more arrived: run what is held
+                break
+            if msg is None:  # the coordinator's stop (it sends one only to a worker that holds nothing)
+                self.done = True
+            elif msg[2] == self.epoch:
+                self.units.append(msg[:2])
+                self.r.prefetch(msg[0])
+        return self.units.popleft() if self.units else None
+
+    def fault(self) -> None:
+        self.units.clear()
+        self.epoch += 1
 
 
 class _Local:
@@ -776,31 +839,42 @@ class _Local:
         self.thread = threading.Thread(target=self._main, name="gapsweep-rank0-worker", daemon=True)
         self.thread.start()
 
+    def _get(self, block: bool) -> Any:
+        if block:
+            return self.inbox.get()
+        try:
+            return self.inbox.get_nowait()
+        except queue.Empty:
+            return None
+
     def _main(self) -> None:
+        held = _Held(self.r, self._get)
         try:
             self.events.put((TAG_READY, None))
-            while (msg := self.inbox.get()) is not None:
+            while (msg := held.next()) is not None:
                 try:
-                    for item in self.r.units_of(*msg):
-                        self.events.put((TAG_ROW, item))
+                    for i, res in self.r.units_of(*msg):
+                        self.events.put((TAG_ROW, (msg[0], i, res)))
                 except DeviceFault as e:
+                    held.fault()
                     self.events.put((TAG_FAULT, _fault(0, self.r.gpu, e)))
-                self.events.put((TAG_READY, None))
+                    continue
+                self.events.put((TAG_READY, msg[0]))
         except BaseException as e:  # surfaced on the main thread, which aborts the job
             self.events.put((TAG_ERROR, e))
 
 
 def _coordinate(r: _Run) -> None:
     """Rank 0: run the farm (gapsweep.sweep.farm) -- answer requests from the queue, write rows sent by workers
-    (rank0 writer), put the unit of a failed device back, track progress. A stop request (signal, stop file, a
-    worker's TAG_STOP) empties the queue: the units in flight finish, then every worker leaves. Protocol:
+    (rank0 writer), put the units of a failed device back, track progress. A stop request (signal, stop file, a
+    worker's TAG_STOP) empties the queue: the units held finish, then every worker leaves. Protocol:
     docs/architecture.md, "The farm"."""
     from mpi4py import MPI
 
     comm = r.comm
-    workers = {w: Worker(gpu=r.gpu_of[w]) for w in range(1, comm.size)}
+    workers = {w: Worker(gpu=r.gpu_of[w], ahead=r.lookahead) for w in range(1, comm.size)}
     if r.works:
-        workers[0] = Worker(gpu=r.gpu_of[0], tail=True)
+        workers[0] = Worker(gpu=r.gpu_of[0], tail=True, ahead=r.lookahead)
     farm = Farm([u.gpu for u in r.units], r.work, workers)
     local = _Local(r) if r.works else None
     status = MPI.Status()
@@ -845,15 +919,15 @@ def _stop_check(r: _Run, farm: Farm) -> list[tuple[int, int | None]]:
 def _on_message(r: _Run, farm: Farm, src: int, tag: int, msg: Any) -> list[tuple[int, int | None]]:
     """One message of worker ``src`` (0: the coordinator's own thread); returns the farm's dispatches."""
     if tag == TAG_ROW:
-        i, res = msg
-        farm.row(farm.workers[src].unit, i)
+        k, i, res = msg
+        farm.row(k, i)
         # rank0 writer: rank 0 writes every row; mpio: workers wrote theirs, rank 0 writes its own.
         if r.st is not None and (r.wmode != "mpio" or src == 0):
             r.st.write(i, res)
         r.prog.update(res)
         return []
     if tag == TAG_READY:
-        return farm.request(src)
+        return farm.request(src, msg)
     if tag == TAG_FAULT:
         return farm.fault(src, msg)
     if tag == TAG_STOP and r.stop.signum is None:
@@ -863,9 +937,9 @@ def _on_message(r: _Run, farm: Farm, src: int, tag: int, msg: Any) -> list[tuple
 
 
 def _send(r: _Run, farm: Farm, local: _Local | None, sends: list[tuple[int, int | None]]) -> None:
-    """Hand out the farm's dispatches: ``(unit, rows to skip)`` or None (leave the farm)."""
+    """Hand out the farm's dispatches: ``(unit, rows to skip, epoch)`` or None (leave the farm)."""
     for wid, k in sends:
-        msg = None if k is None else (k, farm.skip(k))
+        msg = None if k is None else (k, farm.skip(k), farm.workers[wid].epoch)
         if wid == 0:
             local.inbox.put(msg)
         else:
@@ -873,25 +947,35 @@ def _send(r: _Run, farm: Farm, local: _Local | None, sends: list[tuple[int, int 
 
 
 def _work(r: _Run) -> None:
-    """Worker rank: ask for a unit, run it, write (mpio) or send (rank0 writer) each row as it finishes. A
-    device fault is reported (TAG_FAULT) instead of rows: the coordinator gives the unit to another worker and
+    """Worker rank: ask for work, run the units it is sent (holding some ahead on a GPU worker), write (mpio)
+    or send (rank0 writer) each row as it finishes, and say when a unit is done (TAG_READY). A device fault is
+    reported (TAG_FAULT) instead of rows: the coordinator gives the units this rank held to other workers and
     this rank only CPU units from then on. A signal to this rank is passed on to rank 0 (TAG_STOP), which stops
     handing out work."""
     comm, told = r.comm, False
+
+    def get(block: bool) -> Any:
+        if block or comm.Iprobe(source=0, tag=TAG_WORK):
+            return comm.recv(source=0, tag=TAG_WORK)
+        return None
+
+    held = _Held(r, get)
     comm.send(None, dest=0, tag=TAG_READY)
-    while (msg := comm.recv(source=0, tag=TAG_WORK)) is not None:
+    while (msg := held.next()) is not None:
         try:
             for i, res in r.units_of(*msg):
                 if r.wmode == "mpio":
                     r.st.write(i, res)
                     res = TaskResult(res.status, "", {})  # rank 0 only counts it
-                comm.send((i, res), dest=0, tag=TAG_ROW)
+                comm.send((msg[0], i, res), dest=0, tag=TAG_ROW)
         except DeviceFault as e:
+            held.fault()
             comm.send(_fault(r.rank, r.gpu, e), dest=0, tag=TAG_FAULT)
+            continue
         if r.stop.signum is not None and not told:
             comm.send(r.stop.signum, dest=0, tag=TAG_STOP)
             told = True
-        comm.send(None, dest=0, tag=TAG_READY)
+        comm.send(msg[0], dest=0, tag=TAG_READY)
 
 
 def _fields_dir(store: str | Path) -> Path:

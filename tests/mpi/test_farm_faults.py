@@ -76,8 +76,8 @@ def test_one_gpu_fails_no_row_lost(tmp_path, job, writer):
     finished on GPU 0 (the two recorded rows kept); the store equals the one-GPU store; exit 0."""
     spec, ref = job
     path = tmp_path / "s.h5"
-    p = fake(4, "run", spec, "--store", path, "--writer", writer, "--progress", "log", FAKEGPU_BROKEN="1@2",
-             FAKEGPU_BARRIER=str(tmp_path))
+    p = fake(4, "run", spec, "--store", path, "--writer", writer, "--progress", "log", "--lookahead", "0",
+             FAKEGPU_BROKEN="1@2", FAKEGPU_BARRIER=str(tmp_path))
     assert p.returncode == 0, p.stdout + p.stderr
     from gapsweep import store
 
@@ -114,6 +114,30 @@ def test_no_gpu_left_rows_pending_exit_5_then_resume(tmp_path, job, writer):
     assert "no GPU left" in st.stdout  # the run record says how the run ended
     assert fake(1, "status", path, "--finished").returncode == 4
     p = fake(3, "run", spec, "--store", path, "--writer", writer, "--resume")
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert store.diff(path, ref) == []
+
+
+@pytest.mark.parametrize("writer", WRITERS)
+def test_gpus_fail_mid_run_with_units_held_ahead(tmp_path, job, writer):
+    """4 ranks, coordinator only coordinating: GPU workers 1 and 2 hold units ahead (--lookahead 2) and each
+    device fails at its fourth task, wherever the schedule puts it: every row is done with its undisturbed
+    value or pending, none failed or lost; exit 5; --resume completes the one-GPU store."""
+    spec, ref = job
+    path = tmp_path / "s.h5"
+    p = fake(4, "run", spec, "--store", path, "--writer", writer, "--coordinator-works", "no", "--lookahead", "2",
+             FAKEGPU_BROKEN="0@3,1@3")
+    from gapsweep import store
+
+    df, want = store.read(path), store.read(ref)
+    assert (df.status != "failed").all()
+    done = df.status == "done"
+    assert df[done].mean_gap.equals(want[done].mean_gap)
+    pending = int((~done).sum())
+    assert pending > 0 and set(df[~done].method) == {"fakegpu"}
+    assert p.returncode == 5 and p.stderr.count("no GPU left") == 1, p.stdout + p.stderr
+    assert f"{pending} row(s) not done (0 failed, {pending} pending)" in p.stderr
+    p = fake(4, "run", spec, "--store", path, "--writer", writer, "--resume")
     assert p.returncode == 0, p.stdout + p.stderr
     assert store.diff(path, ref) == []
 
