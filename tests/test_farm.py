@@ -369,7 +369,9 @@ def test_prefetched_surface_is_the_same_bits():
         ctx.prefetch(t, 256)
         assert len(ctx._ahead) == 1
         h = ctx.surface(t, 256)
-        assert not ctx._ahead and ctx.surface(t, 256) is h
+        assert not ctx._ahead and ctx.surface(t, 256) is h and t.n > 0
+        rms = ctx.surface_rms(t, 256)
     finally:
         ctx.close()
-    assert np.array_equal(h, Context().surface(t, 256))
+    fresh = Context()
+    assert np.array_equal(h, fresh.surface(t, 256)) and rms == fresh.surface_rms(t, 256)

@@ -156,6 +156,14 @@ def run_batch(tasks: list[Task], unit: Unit, ctx: Context, todo: set[int], limit
             return
 
 
+def _failed(e: Exception) -> TaskResult:
+    """The failed row of an exception -- unless it is a device fault, which raises DeviceFault (gapsweep.farm)."""
+    why = device_fault(e)
+    if why:
+        raise DeviceFault(why) from e
+    return TaskResult("failed", f"{type(e).__name__}: {e}")
+
+
 def _solve_step(tasks: list[Task], probs: list, who: list[tuple[int, int]], ctx: Context, backend: str,
                 limit: float | None, state: dict[int, Any], limits: Any) -> dict[int, TaskResult]:
     """One chain step of a batch: rows of its tasks, and the next warm starts in ``state``."""
@@ -189,10 +197,8 @@ def _solve_step(tasks: list[Task], probs: list, who: list[tuple[int, int]], ctx:
         return out
     except (StoreWriteError, DeviceFault):
         raise
-    except Exception as e:  # e.g. one bad input: one task at a time, so that only its row fails
-        why = device_fault(e)
-        if why:  # the device failed, not the batch: every task of the unit runs elsewhere
-            raise DeviceFault(why) from e
+    except Exception as e:  # e.g. one bad input: one task at a time, so that only its row fails (a device fault
+        # raises DeviceFault from run_task there, and the farm runs the unit elsewhere)
         log.info("batch step failed as a whole (%s: %s): its tasks run one by one", type(e).__name__, e)
         out = {}
         for j, i in who:
@@ -218,9 +224,7 @@ def _solve_step(tasks: list[Task], probs: list, who: list[tuple[int, int]], ctx:
         except (StoreWriteError, DeviceFault):
             raise
         except Exception as e:
-            if device_fault(e):
-                raise DeviceFault(device_fault(e)) from e
-            res, nxt = TaskResult("failed", f"{type(e).__name__}: {e}"), None
+            res, nxt = _failed(e), None
         res.values["wall_time"] = share + time.perf_counter() - t1
         res.values["rank"] = ctx.rank
         out[i] = res

@@ -49,7 +49,10 @@ class Context:
         h = self._surfaces.get(key)
         if h is None:
             fut = self._ahead.pop(key, None)
-            h = fut.result() if fut is not None else _make_surface(t, n, sp)
+            if fut is not None:
+                h, self._rms[key] = fut.result()
+            else:
+                h = _make_surface(t, n, sp)
             self._surfaces[key] = h
             while len(self._surfaces) > self._max:
                 old = self._surfaces.popitem(last=False)[0]
@@ -61,14 +64,14 @@ class Context:
         return h
 
     def prefetch(self, t: Task, n: int) -> None:
-        """Start making the surface of ``t`` on a host thread (:meth:`ahead` threads), so that it is ready when
-        a task needs it: a GPU worker's host work overlaps its GPU's. The same function makes it, so the heights
-        are the same bits. No-op without threads, or when it is cached or on its way."""
+        """Start making the surface of ``t`` and its rms values on a host thread (:meth:`ahead` threads), so that
+        they are ready when a task needs them: a GPU worker's host work overlaps its GPU's. The same functions
+        make them, so they are the same bits. No-op without threads, or when it is cached or on its way."""
         if self._pool is None:
             return
         key = self._key(t, n, t.surface_params())
         if key not in self._surfaces and key not in self._ahead:
-            self._ahead[key] = self._pool.submit(_make_surface, t, n, t.surface_params())
+            self._ahead[key] = self._pool.submit(_surface_and_rms, t, n, t.surface_params())
 
     def ahead(self, threads: int) -> None:
         """Use ``threads`` host threads for :meth:`prefetch` (0: none)."""
@@ -88,19 +91,11 @@ class Context:
         """``(h_rms, g_rms)`` of :meth:`surface` (M2), computed once per cached surface (``g_rms`` costs an FFT).
         A measured map's come from its spectrum taken right for its boundaries (``theory.spectrum.map_spectrum``:
         a non-periodic map's edge jump is no roughness)."""
-        from gapsweep.surfaces import synthetic as surface
-
         sp = t.surface_params()
         h = self.surface(t, n)
         key = self._key(t, n, sp)
         if key not in self._rms:
-            if sp.get("kind") == "file":
-                from gapsweep.theory.spectrum import map_spectrum
-
-                ms = map_spectrum(h, sp["length"], periodic=sp.get("periodic", True))
-                self._rms[key] = (ms.h_rms, ms.g_rms)
-            else:
-                self._rms[key] = (surface.rms_height(h), surface.rms_slope(h, sp["length"]))
+            self._rms[key] = _rms(h, sp)
         return self._rms[key]
 
     def spectrum(self, t: Task, n: int) -> Any:
@@ -147,6 +142,23 @@ def _make_surface(t: Task, n: int, sp: dict[str, Any]) -> np.ndarray:
         h = surface.self_affine(n, t.hurst, seed=t.seed, **sp)
     h.setflags(write=False)
     return h
+
+
+def _rms(h: np.ndarray, sp: dict[str, Any]) -> tuple[float, float]:
+    """``(h_rms, g_rms)`` of heights ``h`` (see Context.surface_rms)."""
+    if sp.get("kind") == "file":
+        from gapsweep.theory.spectrum import map_spectrum
+
+        ms = map_spectrum(h, sp["length"], periodic=sp.get("periodic", True))
+        return ms.h_rms, ms.g_rms
+    from gapsweep.surfaces import synthetic as surface
+
+    return surface.rms_height(h), surface.rms_slope(h, sp["length"])
+
+
+def _surface_and_rms(t: Task, n: int, sp: dict[str, Any]) -> tuple[np.ndarray, tuple[float, float]]:
+    h = _make_surface(t, n, sp)
+    return h, _rms(h, sp)
 
 
 def moments(t: Task, ctx: Context) -> tuple[float, float]:

@@ -565,6 +565,8 @@ class _Run:
         self.prog = Progress(len(self.todo), self.progress if rank == 0 else "none")
         if comm is not None and rank == 0 and self.wmode == "rank0":  # issue 19: mpiexec's 1-s grace, see below
             self.stop.on_request = lambda sig: _mark_interrupted(self.st, record, self.prog, self.held, sig)
+        if rank == 0:  # when the farm starts (wall clock): start-up = this minus the launch (benchmarks)
+            record["farm_started_unix"] = round(time.time(), 3)
         if rank == 0 and comm is not None and need_gpu:
             ngpu = sum(g is not None for g in self.gpu_of)
             log.info("farm: %d ranks: %d GPU worker(s), %d CPU worker(s), coordinator %s", self.size, ngpu,
@@ -804,14 +806,20 @@ def _serial(r: _Run) -> None:
 class _Held:
     """The units a worker holds (the one it runs, then those ahead), as sent by the coordinator: ``(unit, rows
     to skip, epoch)``; a unit of an earlier epoch (sent before this worker's last device fault) is stale and
-    dropped. ``get(block)`` returns the next message from the coordinator (None: nothing arrived)."""
+    dropped. ``get(block)`` returns the next message from the coordinator (None: nothing arrived);
+    ``release(unit)`` hands a unit back unrun (after a stop request: its rows stay pending)."""
 
-    def __init__(self, r: _Run, get: Any) -> None:
-        self.r, self.get, self.units, self.epoch, self.done = r, get, deque(), 0, False
+    def __init__(self, r: _Run, get: Any, release: Any) -> None:
+        self.r, self.get, self.release = r, get, release
+        self.units: deque = deque()
+        self.epoch, self.done = 0, False
 
     def next(self) -> tuple[int, frozenset[int]] | None:
         """The next unit to run (waiting for one while none is held), or None: leave the farm."""
         while not self.done:
+            if self.units and self.r.stop.requested():  # stopping: only the unit in progress finishes
+                while self.units:
+                    self.release(self.units.popleft()[0])
             msg = self.get(not self.units)
             if msg is None and self.units:  # nothing more arrived: run what is held
                 break
@@ -848,7 +856,7 @@ class _Local:
             return None
 
     def _main(self) -> None:
-        held = _Held(self.r, self._get)
+        held = _Held(self.r, self._get, lambda k: self.events.put((TAG_READY, k)))
         try:
             self.events.put((TAG_READY, None))
             while (msg := held.next()) is not None:
@@ -959,7 +967,7 @@ def _work(r: _Run) -> None:
             return comm.recv(source=0, tag=TAG_WORK)
         return None
 
-    held = _Held(r, get)
+    held = _Held(r, get, lambda k: comm.send(k, dest=0, tag=TAG_READY))
     comm.send(None, dest=0, tag=TAG_READY)
     while (msg := held.next()) is not None:
         try:
