@@ -144,6 +144,7 @@ def test_stop_request_empties_the_queue_and_a_late_fault_is_not_requeued():
     (MemoryError("host memory"), False),
     (ValueError("sigma0 must be > 0"), False),
     (RuntimeError("the solver diverged"), False),
+    (RuntimeError("Warp CUDA error 2: out of memory (in function alloc_device)"), True),
 ])
 def test_device_fault_classification(exc, fault):
     assert bool(device_fault(exc)) is fault

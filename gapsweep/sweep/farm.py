@@ -76,7 +76,9 @@ def device_fault(e: BaseException) -> str:
     while cur is not None and id(cur) not in seen:
         seen.add(id(cur))
         text = f"{type(cur).__name__}: {cur}"
-        if type(cur).__name__ in _FAULT_TYPES or any(code in text for code in _FAULT_CODES):
+        low = text.lower()
+        if type(cur).__name__ in _FAULT_TYPES or any(code in text for code in _FAULT_CODES) or (
+                "cuda" in low and "out of memory" in low):  # e.g. warp's "CUDA error 2: out of memory"
             return text.splitlines()[0][:300]
         cur = cur.__cause__ or cur.__context__
     return ""
