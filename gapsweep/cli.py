@@ -271,7 +271,8 @@ def _run(args: argparse.Namespace) -> int:
                        lookahead=args.lookahead)
         if s["rank"] == 0 and args.progress != "none":
             print(f"{s['store']}: {s['mode']}, {s['todo']} of {s['tasks']} tasks run: {s['done']} done, "
-                  f"{s['failed']} failed, {s['not_converged']} not converged")
+                  f"{s['failed']} failed, {s['not_converged']} not converged"
+                  + (f", {s['pending']} left pending" if s.get("pending") else ""))
         code = _run_code(s)
         rc = rc or code
     return rc
