@@ -93,6 +93,9 @@ class FakeGPU(Method):
     def needs_gpu(self, t):
         return True
 
+    def gpu_memory(self, t):
+        return 1e6  # so that `plan` and `run` check the GPUs' memory
+
     def run(self, t, ctx, prev):
         if ctx.gpu is None:
             raise AssertionError("a GPU task ran on a worker without a GPU")

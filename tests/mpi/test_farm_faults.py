@@ -43,6 +43,8 @@ def fake(n: int, *args, **env: str) -> subprocess.CompletedProcess:
     """``gapsweep ARGS`` with the fake GPU method, under ``mpiexec -n n`` (n = 1: one process, no MPI)."""
     e = {k: v for k, v in os.environ.items() if not k.startswith(("GAPSWEEP_TEST_", "FAKEGPU_"))}
     e.update(ENV, PYTHONPATH=os.pathsep.join([str(ROOT), e.get("PYTHONPATH", "")]), **env)
+    if e.pop("FAKE_UNSET_CUDA", None):  # every GPU of the node visible: nvidia-smi says which
+        e.pop("CUDA_VISIBLE_DEVICES", None)
     cmd = [sys.executable, str(FAKE), *map(str, args)]
     if n > 1:
         cmd = ["mpiexec", "-n", str(n), *cmd]
@@ -149,3 +151,32 @@ def test_partial_failure_exits_nonzero(tmp_path, job):
     p = fake(3, "run", spec, "--store", path, GAPSWEEP_TEST_FAIL="1.0")
     assert p.returncode == 5, p.stdout + p.stderr
     assert "row(s) not done (6 failed, 0 pending)" in p.stderr
+
+
+@pytest.mark.parametrize("ranks", [2, 4])
+def test_gpus_looked_up_once_per_node_whatever_the_rank_count(tmp_path, job, ranks):
+    """Start-up does not grow with the rank count: rank 0 reads the GPUs' memory and one rank per node counts
+    the GPUs, through nvidia-smi (no CUDA context), 2 ranks or 4. A fake nvidia-smi on PATH logs its calls."""
+    spec, ref = job
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    calls = tmp_path / "calls"
+    smi = bin_dir / "nvidia-smi"
+    smi.write_text(f"""#!/bin/sh
+echo "$@" >> {calls}
+case "$*" in
+  -L*) echo "GPU 0: Fake (UUID: GPU-0)"; echo "GPU 1: Fake (UUID: GPU-1)";;
+  *) echo "0, GPU-0, Fake, 81559"; echo "1, GPU-1, Fake, 81559";;
+esac
+""")
+    smi.chmod(0o755)
+    path = tmp_path / "s.h5"
+    p = fake(ranks, "run", spec, "--store", path, GAPSWEEP_TEST_GPUS="",
+             PATH=f"{bin_dir}{os.pathsep}{os.environ['PATH']}", FAKE_UNSET_CUDA="1")
+    assert p.returncode == 0, p.stdout + p.stderr
+    # rank 0's memory check (plan's and run's) and one GPU count for the node
+    assert calls.read_text().splitlines() == ["--query-gpu=index,uuid,name,memory.total --format=csv,noheader,nounits",
+                                              "-L"]
+    from gapsweep import store
+
+    assert _runs(path)[-1]["gpus"][:2] == [0, 1] and store.diff(path, ref) == []
