@@ -376,3 +376,14 @@ def test_prefetched_surface_is_the_same_bits():
         ctx.close()
     fresh = Context()
     assert np.array_equal(h, fresh.surface(t, 256)) and rms == fresh.surface_rms(t, 256)
+
+
+def test_without_gpu_workers_a_device_fault_does_not_loop():
+    """No worker had a GPU: GPU units go to any worker; one whose device fails takes no more; when none is left
+    the GPU units are left pending (no endless requeue to the same worker)."""
+    f = farm({1: Worker(), 2: Worker()}, order=[0, 1, 2], gpu=[True, True, False])
+    assert [f.request(1), f.request(2)] == [[(1, 0)], [(2, 1)]]
+    assert f.fault(1, "cudaErrorNoDevice: no CUDA-capable device is detected") == [(1, 2)]
+    assert f.fault(2, "cudaErrorNoDevice: no CUDA-capable device is detected") == [(2, None)]
+    assert sorted(f.left) == [0, 1] and f.no_gpu.startswith("no GPU left (worker 1: cudaErrorNoDevice")
+    assert f.request(1, 2) == [(1, None)] and not f.busy()

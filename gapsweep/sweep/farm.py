@@ -10,7 +10,7 @@ Pure logic -- no MPI, no GPU, no I/O -- so that every rule is tested in-process 
 * **GPU units go to GPU workers** (a worker whose ``gpu`` is set and whose device has not failed): a GPU worker
   takes the first GPU unit, and a CPU unit only when no GPU unit is left. A CPU worker takes CPU units only --
   unless no worker had a GPU at the start, then any worker takes any unit (a GPU task then meets the missing
-  GPU itself and records it).
+  GPU itself: a failed row, or a device fault after which that worker takes no GPU unit).
 * **Device faults are not task failures** (:func:`device_fault`): the worker's device is given up (it goes on as
   a CPU worker), the units it holds go back to the head of the queue, units sent to it before the fault are
   stale (``Worker.epoch``), and the rows already recorded are skipped when a unit runs again
@@ -181,7 +181,11 @@ class Farm:
         return frozenset(self.recorded.get(k, ()))
 
     def can_run(self, w: Worker, k: int) -> bool:
-        return not self.gpu_units[k] or w.has_gpu or not self.any_gpu
+        return not self.gpu_units[k] or self._gpu_capable(w)
+
+    def _gpu_capable(self, w: Worker) -> bool:
+        """``w`` may run GPU units: it has a GPU -- or no worker had one and its device has not failed."""
+        return w.has_gpu or (not self.any_gpu and not w.lost)
 
     def busy(self) -> bool:
         """Some worker has not been told to stop."""
@@ -235,7 +239,7 @@ class Farm:
 
     def _check_gpus(self) -> None:
         """No GPU worker left: take the queued GPU units out (their rows stay pending) and say why, once."""
-        if not self.any_gpu or self.gpu_workers():
+        if any(self._gpu_capable(w) and not w.stopped for w in self.workers.values()):
             return
         gone = [k for k in self.queue if self.gpu_units[k]]
         if not gone:
@@ -243,5 +247,9 @@ class Farm:
         self.queue = deque(k for k in self.queue if not self.gpu_units[k])
         self.left.extend(gone)
         if not self.no_gpu:
-            why = "; ".join(f"GPU {g}: {r}" for _, g, r in self.faults) or "no GPU worker"
+            why = "; ".join(f"{_who(w, g)}: {r}" for w, g, r in self.faults) or "no GPU worker"
             self.no_gpu = f"no GPU left ({why})"
+
+
+def _who(wid: int, gpu: int | None) -> str:
+    return f"GPU {gpu}" if gpu is not None else f"worker {wid}"
