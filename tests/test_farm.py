@@ -45,11 +45,23 @@ def test_without_any_gpu_worker_any_worker_takes_gpu_units():
 
 def test_units_ahead_for_gpu_workers_after_every_worker_holds_one():
     f = farm({1: Worker(gpu=0, ahead=2), 2: Worker(gpu=1, ahead=2), 3: Worker(ahead=2)})
-    assert f.request(1) == [(1, 0), (1, 1), (1, 3)]  # the one it runs and two ahead (GPU units first)
-    assert f.request(2) == [(2, 2), (2, 4), (2, 5)]  # no GPU unit left: CPU units, one to run and two ahead
-    assert f.request(3) == [(3, None)]  # nothing for a CPU worker, and only GPU units could come back
-    assert f.request(1, 0) == []  # nothing queued: 1 keeps running what it holds
-    assert f.workers[1].units == [1, 3] and f.workers[1].unit == 1
+    # the one it runs, and one ahead: GPU units 1 and 3 are queued, one is left for the other GPU worker
+    assert f.request(1) == [(1, 0), (1, 1)]
+    assert f.request(2) == [(2, 3)]  # no GPU unit left to hold ahead (CPU units are not held ahead)
+    assert f.request(3) == [(3, 2)]
+    assert f.request(1, 0) == []  # CPU units are not held ahead
+    assert f.workers[1].units == [1] and f.workers[1].unit == 1
+
+
+def test_units_ahead_leave_one_for_every_other_gpu_worker_and_only_where_ok():
+    workers = {w: Worker(gpu=w, ahead=4) for w in range(4)}
+    f = farm(workers, order=range(16), gpu=[True] * 16)
+    assert [k for _, k in f.request(0)] == [0, 1, 2, 3, 4]  # 11 remain for the 3 others
+    f = farm({w: Worker(gpu=w, ahead=4) for w in range(4)}, order=range(6), gpu=[True] * 6)
+    assert [k for _, k in f.request(0)] == [0, 1, 2]  # 3 remain, one for each of the others
+    assert [k for _, k in f.request(1)] == [3]
+    f = Farm([True] * 4, range(4), {0: Worker(gpu=0, ahead=4)}, ahead_ok=[True, False, True, False])
+    assert [k for _, k in f.request(0)] == [0, 2]  # 1 and 3 have nothing to make ahead: taken one at a time
 
 
 def test_a_cpu_worker_holds_one_unit():
@@ -58,9 +70,9 @@ def test_a_cpu_worker_holds_one_unit():
 
 
 def test_a_worker_holding_nothing_is_served_before_units_ahead():
-    f = farm({1: Worker(gpu=0, ahead=3), 2: Worker(gpu=1, ahead=3)}, order=[0, 1, 2], gpu=[True] * 3)
+    f = farm({1: Worker(gpu=0, ahead=3), 2: Worker(gpu=1, ahead=3)}, order=[0, 1, 2, 3], gpu=[True] * 4)
     f.workers[2].started = True  # asked already, its request is being handled in the same dispatch
-    assert sorted(f.request(1)) == [(1, 0), (1, 2), (2, 1)]
+    assert f.request(1) == [(1, 0), (2, 1), (1, 2)]  # 3 stays queued for 2's next request
 
 
 def test_device_fault_requeues_for_another_gpu_worker_and_skips_recorded_rows():
@@ -80,12 +92,11 @@ def test_device_fault_requeues_for_another_gpu_worker_and_skips_recorded_rows():
 
 def test_device_fault_requeues_every_unit_held_in_order():
     f = farm({1: Worker(gpu=0, ahead=2), 2: Worker(gpu=1)}, order=[0, 1, 3, 2], gpu=GPU)
-    assert f.request(1) == [(1, 0), (1, 1), (1, 3)]
-    assert f.request(2) == [(2, 2)]
-    # 1 (a CPU worker now) can run none of them: it stops; they wait at the head of the queue for 2
-    assert f.fault(1, "out of memory") == [(1, None)]
-    assert list(f.queue) == [0, 1, 3]
-    assert f.request(2, 2) == [(2, 0)]
+    assert f.request(1) == [(1, 0), (1, 1)]  # one ahead: GPU unit 3 is left for worker 2
+    assert f.request(2) == [(2, 3)]
+    assert f.fault(1, "out of memory") == [(1, 2)]  # 1 (CPU now) takes the CPU unit
+    assert list(f.queue) == [0, 1]  # both units it held, at the head, in their order
+    assert f.request(2, 3) == [(2, 0)]
 
 
 def test_worker_waits_while_a_unit_it_could_run_is_in_flight():

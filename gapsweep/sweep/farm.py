@@ -16,9 +16,11 @@ Pure logic -- no MPI, no GPU, no I/O -- so that every rule is tested in-process 
   stale (``Worker.epoch``), and the rows already recorded are skipped when a unit runs again
   (:meth:`Farm.skip`). When no GPU worker is left, the GPU units still queued
   are taken out (:attr:`Farm.left`: their rows stay pending) and :attr:`Farm.no_gpu` says why in one line.
-* **Units ahead.** A GPU worker may hold ``ahead`` units beyond the one it runs (``--lookahead``), so that
-  their host-side inputs (surfaces) are made on host threads while its GPU works; a worker that holds nothing
-  is always served first. After a device fault it holds one unit at a time, as every CPU worker does.
+* **Units ahead.** A GPU worker may hold ``ahead`` GPU units beyond the one it runs (``--lookahead``), so that
+  their host-side inputs (surfaces) are made on host threads while its GPU works -- only units that have such
+  inputs (``ahead_ok``), and only while more GPU units are queued than there are other GPU workers; a worker
+  that holds nothing is always served first. After a device fault it holds one unit at a time, as every CPU
+  worker does.
 * **A worker waits rather than leaves** while a GPU unit it could run is in flight elsewhere (that unit comes
   back if the device fails); it is told to stop once nothing it could run is queued or could come back.
 * **A stop request** (signal, stop file) empties the queue; units in flight finish; a unit whose device fails
@@ -125,8 +127,9 @@ class Farm:
     """The coordinator's view of the farm: the queue, the workers and what came back (see the module doc).
 
     ``gpu_units[k]``: unit ``k`` needs a GPU; ``order``: the units to run, largest first; ``workers``: worker id
-    -> :class:`Worker`. Each event method returns the dispatches it made possible: ``(worker id, unit)`` to send
-    (``unit`` None: tell that worker to stop)."""
+    -> :class:`Worker`; ``ahead_ok[k]``: unit ``k`` may be held ahead (default: every unit). Each event method
+    returns the dispatches it made possible: ``(worker id, unit)`` to send (``unit`` None: tell that worker to
+    stop)."""
 
     gpu_units: Sequence[bool]
     order: Iterable[int]
@@ -137,9 +140,12 @@ class Farm:
     no_gpu: str = ""  # the one line that says so
     faults: list[tuple[int, int | None, str]] = field(default_factory=list)  # (worker, its GPU, reason)
     stopping: bool = False
+    ahead_ok: Sequence[bool] | None = None  # unit k may be held ahead (its inputs are made ahead); None: all
 
     def __post_init__(self) -> None:
         self.queue = deque(self.order)
+        if self.ahead_ok is None:
+            self.ahead_ok = [True] * len(self.gpu_units)
         self.any_gpu = any(w.gpu is not None for w in self.workers.values())
 
     # -- events ---------------------------------------------------------------------------------------------
@@ -202,14 +208,16 @@ class Farm:
         self._check_gpus()
         out: list[tuple[int, int | None]] = []
         live = [wid for wid in sorted(self.workers) if self.workers[wid].started and not self.workers[wid].stopped]
-        for first in (True, False):
-            for wid in live:
-                w = self.workers[wid]
-                while (not w.units if first else len(w.units) < w.cap) and (k := self._pick(w)) is not None:
-                    w.units.append(k)
-                    out.append((wid, k))
-                    if first:
-                        break
+        for wid in live:  # one unit to each worker that holds none
+            w = self.workers[wid]
+            if not w.units and (k := self._pick(w)) is not None:
+                w.units.append(k)
+                out.append((wid, k))
+        for wid in live:  # then units ahead, while that leaves a GPU unit for every other GPU worker
+            w = self.workers[wid]
+            while w.units and len(w.units) < w.cap and (k := self._pick_ahead(w)) is not None:
+                w.units.append(k)
+                out.append((wid, k))
         for wid in live:
             w = self.workers[wid]
             if not w.units and (self.stopping or not self._may_come(w)):
@@ -226,6 +234,21 @@ class Farm:
             j = next((j for j in order if self.gpu_units[q[j]]), None)
         if j is None:
             j = next((j for j in order if self.can_run(w, q[j])), None)
+        if j is None:
+            return None
+        k = q[j]
+        del q[j]
+        return k
+
+    def _pick_ahead(self, w: Worker) -> int | None:
+        """A GPU unit for ``w`` to hold ahead (one whose inputs can be made ahead, ``ahead_ok``), if more GPU units
+        are queued than there are other GPU workers; else None."""
+        others = sum(1 for o in self.workers.values() if o is not w and not o.stopped and self._gpu_capable(o))
+        q = self.queue
+        if sum(1 for k in q if self.gpu_units[k]) <= others:
+            return None
+        order = range(len(q) - 1, -1, -1) if w.tail else range(len(q))
+        j = next((j for j in order if self.gpu_units[q[j]] and self.ahead_ok[q[j]]), None)
         if j is None:
             return None
         k = q[j]

@@ -639,6 +639,10 @@ class _Run:
                 raise DeviceFault(why) from e
             raise
 
+    def ahead_ok(self) -> list[bool]:
+        """Units worth holding ahead: GPU units with surfaces to make (tasks on a grid, ``n > 0``)."""
+        return [u.gpu and any(self.tasks[i].n > 0 for i in u.tasks) for u in self.units]
+
     def prefetch(self, k: int) -> None:
         """A GPU unit just held: its surfaces start on the host threads (``ahead``) while the GPU works."""
         u = self.units[k]
@@ -776,7 +780,7 @@ def _fault(rank: int, gpu: int | None, e: BaseException) -> str:
 
 def _serial(r: _Run) -> None:
     """One process: the farm with one worker (a device fault leaves the GPU units pending, the CPU units run)."""
-    farm = Farm([u.gpu for u in r.units], r.work, {0: Worker(gpu=r.gpu, ahead=r.lookahead)})
+    farm = Farm([u.gpu for u in r.units], r.work, {0: Worker(gpu=r.gpu, ahead=r.lookahead)}, ahead_ok=r.ahead_ok())
     held: deque = deque()
     sends = farm.request(0)
     while True:
@@ -883,7 +887,7 @@ def _coordinate(r: _Run) -> None:
     workers = {w: Worker(gpu=r.gpu_of[w], ahead=r.lookahead) for w in range(1, comm.size)}
     if r.works:
         workers[0] = Worker(gpu=r.gpu_of[0], tail=True, ahead=r.lookahead)
-    farm = Farm([u.gpu for u in r.units], r.work, workers)
+    farm = Farm([u.gpu for u in r.units], r.work, workers, ahead_ok=r.ahead_ok())
     local = _Local(r) if r.works else None
     status = MPI.Status()
     while farm.busy():
