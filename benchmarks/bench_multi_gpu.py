@@ -20,10 +20,13 @@ both held: the GPU rows stay pending, exit 5, one "no GPU left" line; the holder
 skipped and recorded as such, and no launch runs past the budget + 60 s; the fault check runs if at least 90 s
 of the budget are left (alone: ``--sets`` with no set).
 
-    python3 benchmarks/bench_multi_gpu.py --out OUT --gpus 1 2 4 --sets figs sde pub
-    python3 benchmarks/bench_multi_gpu.py --out OUT --sets --fault-check         # the device-fault check alone
+    python3 benchmarks/bench_multi_gpu.py --out OUT --gpus 1 2 4 --sets pub sde figs
+    python3 benchmarks/bench_multi_gpu.py --out OUT --sets --fault-check   # the fault check alone
 
-Writes OUT/results.json (every run, the node, the command) and OUT/table.md; logs in OUT/runs.log.
+(the second writes OUT/fault_check.json and reuses the first's OUT/gpus1/fig2.h5 as its reference).
+
+Writes OUT/results.json (every run, the node, the command) and OUT/table.md (OUT/fault_check.json for the fault
+check alone); logs in OUT/runs.log.
 """
 
 from __future__ import annotations
@@ -295,7 +298,7 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--out", required=True)
     p.add_argument("--gpus", type=int, nargs="+", default=[1, 2, 4])
-    p.add_argument("--sets", nargs="*", default=["figs", "sde", "pub"],
+    p.add_argument("--sets", nargs="*", default=["pub", "sde", "figs"],
                    help=f"job sets: {', '.join(SETS)}, or NAME=JOB.toml[,JOB.toml...] (e.g. a CPU smoke test)")
     p.add_argument("--ranks", type=int, default=len(os.sched_getaffinity(0)),
                    help="MPI ranks of every launch (default: the cores of this node)")
@@ -338,9 +341,12 @@ def main() -> int:
             else:
                 res["fault_check"] = {"skipped": f"budget ({elapsed():.0f} s)"}
     res["total_s"] = round(elapsed(), 1)
-    (out / "results.json").write_text(json.dumps(res, indent=1))
-    (out / "table.md").write_text(table(rows))
-    print(table(rows))
+    if rows:
+        (out / "results.json").write_text(json.dumps(res, indent=1))
+        (out / "table.md").write_text(table(rows))
+        print(table(rows))
+    else:  # the fault check alone: beside the scaling results of the same --out, not over them
+        (out / "fault_check.json").write_text(json.dumps(res, indent=1))
     print(f"total {res['total_s']} s")
     ok = all(r.get("rc", 0) == 0 for r in rows)
     return 0 if ok else 1
