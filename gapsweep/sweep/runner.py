@@ -580,6 +580,7 @@ class _Run:
         stopped = self.stop.signum if self.stop.requested() else None
         outcome = self.outcome
         if comm is not None:
+            _quiet_barrier(comm)  # ranks done early wait here without spinning on a core the GPU workers need
             counts, stopped, outcome = comm.bcast((counts, stopped, outcome) if self.rank == 0 else None, root=0)
             comm.Barrier()
         summary.update(counts)
@@ -770,6 +771,16 @@ def _abort(comm: Any, rank: int, wmode: str, held: lease.Lease | None, e: BaseEx
         held.release()
     sys.stderr.flush()
     comm.Abort(1)
+
+
+def _quiet_barrier(comm: Any) -> None:
+    """A barrier that sleeps while it waits (MPI's blocking calls spin on a core): a worker that has left the
+    farm while GPU workers finish their last units gives its core to their host threads."""
+    req = comm.Ibarrier()
+    delay = 1e-4
+    while not req.Test():
+        time.sleep(delay)
+        delay = min(2 * delay, 0.01)
 
 
 def _fault(rank: int, gpu: int | None, e: BaseException) -> str:
