@@ -20,10 +20,11 @@ both held: the GPU rows stay pending, exit 5, one "no GPU left" line; the holder
 skipped and recorded as such, and no launch runs past the budget + 60 s; the fault check runs if at least 90 s
 of the budget are left (alone: ``--sets`` with no set).
 
-    python3 benchmarks/bench_multi_gpu.py --out OUT --gpus 1 2 4 --sets pub sde figs
-    python3 benchmarks/bench_multi_gpu.py --out OUT --sets --fault-check   # the fault check alone
+    python3 benchmarks/bench_multi_gpu.py --out OUT --work /tmp/farm --gpus 1 2 4 --sets pub sde figs
+    python3 benchmarks/bench_multi_gpu.py --out OUT --work /tmp/farm --sets --fault-check   # the fault check alone
 
-(the second writes OUT/fault_check.json and reuses the first's OUT/gpus1/fig2.h5 as its reference).
+(the second writes OUT/fault_check.json and reuses the first's /tmp/farm/gpus1/fig2.h5 as its reference; the
+stores stay in --work, default --out).
 
 Writes OUT/results.json (every run, the node, the command) and OUT/table.md (OUT/fault_check.json for the fault
 check alone); logs in OUT/runs.log.
@@ -305,10 +306,14 @@ def main() -> int:
     p.add_argument("--pub-seeds", type=int, default=None, help="seeds of the pub jobs (default: their 16)")
     p.add_argument("--budget", type=float, default=470.0, help="seconds after which no run starts")
     p.add_argument("--fault-check", action="store_true")
+    p.add_argument("--work", default=None, help="folder of the stores (default: --out); e.g. /tmp/farm, so that "
+                                                 "only the JSON, the table and the log land in --out")
     p.add_argument("--run-args", default="", help="more `gapsweep run` options, e.g. '--lookahead 0'")
     a = p.parse_args()
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
+    work = Path(a.work) if a.work else out
+    work.mkdir(parents=True, exist_ok=True)
     sys.path.insert(0, str(ROOT))
     extra = a.run_args.split()
     rows: list[dict] = []
@@ -318,7 +323,7 @@ def main() -> int:
         for name in a.sets:
             name, _, files = name.partition("=")
             jobs = ([Path(f).resolve() for f in files.split(",")] if files else
-                    pub_jobs(out, a.pub_seeds) if name == "pub" else SETS[name])
+                    pub_jobs(work, a.pub_seeds) if name == "pub" else SETS[name])
             t1 = None
             for k in sorted(a.gpus):
                 est = (t1 / k * 1.25 + 15) if t1 else PRIOR.get(name, 60.0)
@@ -327,7 +332,7 @@ def main() -> int:
                     continue
                 log.write(f"== {name} on {k} GPU(s), {elapsed():.0f} s into the call\n")
                 log.flush()
-                r = one_run(name, jobs, k, out, a.ranks, extra, log, timeout=max(30.0, a.budget + 60 - elapsed()))
+                r = one_run(name, jobs, k, work, a.ranks, extra, log, timeout=max(30.0, a.budget + 60 - elapsed()))
                 rows.append(r)
                 if k == 1:
                     t1 = r["wall_s"]
@@ -336,7 +341,7 @@ def main() -> int:
                 (out / "results.json").write_text(json.dumps(res, indent=1))
         if a.fault_check:
             if elapsed() + 90 < a.budget:  # about four launches of figure 2
-                res["fault_check"] = fault_check(out, a.ranks, log)
+                res["fault_check"] = fault_check(work, a.ranks, log)
                 print(json.dumps(res["fault_check"])[:2000], flush=True)
             else:
                 res["fault_check"] = {"skipped": f"budget ({elapsed():.0f} s)"}
