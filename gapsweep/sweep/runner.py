@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from gapsweep.sweep import batching, budget, gpus, lease, limits, provenance, storecheck
+from gapsweep.sweep import batching, budget, collective, gpus, lease, limits, provenance, storecheck
 from gapsweep.sweep import methods as registry
 from gapsweep.sweep import spec as specmod
 from gapsweep.sweep.context import Context
@@ -170,6 +170,7 @@ def plan(job: str | Path | specmod.JobSpec, shard: tuple[int, int] | None = None
                  "wall (rough model, see docs/jobs.md)")
     size = budget.store_bytes(len(tasks), spec.histogram["bins"], len(spec.text))
     lines.extend(_check_resources(tasks, ranks_per_gpu))
+    lines.extend(_check_collective(tasks, ranks))  # distributed tasks: their slabs on `ranks` ranks
     lines.extend(_propose(units))
     lines.append(f"  store ~{budget.human(size)}")
     if store is not None:
@@ -220,6 +221,17 @@ def _check_resources(tasks: list[Task], ranks_per_gpu: int = 1) -> list[str]:
             raise RunError(f"the GPU tasks need ~{budget.human(need)} per GPU, more than this GPU's "
                            f"{budget.human(have)}: use smaller grids (n), fewer ranks per GPU, or a larger GPU")
     return lines
+
+
+def _check_collective(tasks: list[Task], ranks: int) -> list[str]:
+    """gapsweep.sweep.collective.check_memory, its refusal as a RunError (the GPU's memory from nvidia-smi: no
+    CUDA context here)."""
+    if not collective.is_collective(tasks):
+        return []
+    try:
+        return collective.check_memory(tasks, ranks, on_gpu_total=gpus.memory())
+    except collective.DoesNotFit as e:
+        raise RunError(str(e)) from None
 
 
 def _store_path(path: str | Path, shard: tuple[int, int] | None) -> Path:
@@ -413,6 +425,9 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     if os.environ.get("GAPSWEEP_TEST_PIDDIR"):  # test hook: lets a test kill -9 one particular rank
         Path(os.environ["GAPSWEEP_TEST_PIDDIR"], f"rank{rank}.pid").write_text(str(os.getpid()))
     tasks, units = _select(spec, shard, batch)
+    if collective.is_collective(tasks) and (task_timeout is not None or batch != "off"):
+        raise RunError("[methods.gfmd] distributed = true: every rank solves each task together; "
+                       "--task-timeout and --batch do not apply (leave them out)")
     path = _store_path(store, shard)
     shard_text = f"{shard[0]}/{shard[1]}" if shard else ""
 
@@ -424,6 +439,7 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     if rank == 0:
         try:
             _check_resources(tasks, ranks_per_gpu)  # the same refusal as `plan`, looked at once (rank 0)
+            _check_collective(tasks, size)  # every rank runs each distributed task together: its slabs fit?
             path.parent.mkdir(parents=True, exist_ok=True)
             held = lease.acquire(path, break_lease=break_lease)
             decision = (*_decide(path, spec, tasks, shard_text, resume, overwrite), held.run_id)
@@ -540,12 +556,7 @@ def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list
     r.reused = reused
     try:
         r.start()
-        if comm is None:
-            _serial(r)
-        elif rank == 0:
-            _coordinate(r)
-        else:
-            _work(r)
+        _drive(r)
         r.finish(summary)
     except Interrupted as e:
         if comm is not None or r.st is None:  # MPI: raised after the collective close in finish()
@@ -581,7 +592,9 @@ class _Run:
         self.batch, self.per_gpu, self.lookahead = gpu_opts
         self.ctx: Context | None = None
         # rank 0 works (in a thread, beside coordinating) when asked, or by default with few ranks
-        self.works = comm is None or coordinator_works == "yes" or (coordinator_works == "auto" and self.size <= 4)
+        self.together = comm is not None and collective.is_collective(tasks)  # every rank solves (a GPU each)
+        self.works = (comm is None or self.together or coordinator_works == "yes"
+                      or (coordinator_works == "auto" and self.size <= 4))
         self.stop = limits.Stop("raise" if comm is None else "flag", _stop_file(path)).install()
         self.st: Store | None = None
         self.prog: Progress | None = None
@@ -850,6 +863,24 @@ def _fault(rank: int, gpu: int | None, e: BaseException) -> str:
     log.warning("rank %d: GPU %s failed (%s): this rank takes no more GPU tasks, its unit goes back to the queue",
                 rank, gpu, e)
     return str(e)
+
+
+def _drive(r: _Run) -> None:
+    """This rank's part of the run: one process, a collective run (every rank solves each distributed task
+    together, gapsweep.sweep.collective), or the farm's coordinator or a worker."""
+    if r.together:
+        def write(i: int, res: TaskResult) -> None:
+            with r.stop.critical():
+                r.st.write(i, res)
+            r.prog.update(res)
+
+        collective.run_collective(r.comm, r.tasks, r.units, r.work, r.ctx, _run_unit, r.todo, write, r.stop)
+    elif r.comm is None:
+        _serial(r)
+    elif r.rank == 0:
+        _coordinate(r)
+    else:
+        _work(r)
 
 
 def _serial(r: _Run) -> None:
