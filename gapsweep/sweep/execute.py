@@ -2,7 +2,8 @@
 
 :func:`run_task` never raises: an exception becomes a ``failed`` row with its message, a solver warning goes into
 the row's message, a non-finite mean gap of a ``done`` row turns it into ``failed`` (never a NaN stored as
-success), and every row gets its wall time and rank. Test hooks (``GAPSWEEP_TEST_DELAY``,
+success), an error that a signal caused (inside JIT compilation, say) is marked ``interrupted:`` (the runner leaves
+the row pending), and every row gets its wall time and rank. Test hooks (``GAPSWEEP_TEST_DELAY``,
 ``GAPSWEEP_TEST_FAIL``) live in :class:`gapsweep.sweep.context.Context`.
 """
 
@@ -13,6 +14,7 @@ import warnings
 from typing import Any
 
 from gapsweep.core import deadline
+from gapsweep.sweep import limits
 from gapsweep.sweep import methods as registry
 from gapsweep.sweep.context import Context
 from gapsweep.sweep.methods.base import non_finite
@@ -34,6 +36,7 @@ def run_task(t: Task, ctx: Context, prev: Any = None) -> tuple[TaskResult, Any]:
     """Run one task; never raises: an exception becomes status ``failed`` with the message.
     Returns the result and the warm-start state for the next task of a chain (or None)."""
     t0 = time.perf_counter()
+    signals = limits.signal_count()
     try:
         if ctx._delay:
             test_delay(ctx._delay)
@@ -52,7 +55,10 @@ def run_task(t: Task, ctx: Context, prev: Any = None) -> tuple[TaskResult, Any]:
     except StoreWriteError:  # the store's failure (kept fields not writable), not the task's: the run stops
         raise
     except Exception as e:  # the sweep goes on; the row records what happened
-        res, state = TaskResult("failed", f"{type(e).__name__}: {e}"), None
+        # an error caused by a signal (issue 31: one inside JIT compilation) is an interruption, not the task's
+        # result: the runner leaves such a row pending (or --resume runs it again)
+        msg = limits.interrupted_message(e) if limits.cut_by_signal(e, signals) else f"{type(e).__name__}: {e}"
+        res, state = TaskResult("failed", msg), None
     res.values["wall_time"] = time.perf_counter() - t0
     res.values["rank"] = ctx.rank
     return res, state

@@ -315,10 +315,26 @@ def _run_unit(tasks: list[Task], unit: Unit, ctx: Context, todo: set[int], limit
     state = None
     for i in run:
         res, state = run_task(tasks[i], ctx, state) if not limit else _run_limited(tasks[i], ctx, state, limit)
+        if _cut(res, stop):
+            return
         if i in todo:
             yield i, res
         if stop is not None and stop.mode == "flag" and stop.requested():
             return
+
+
+def _cut(res: TaskResult, stop: limits.Stop | None) -> bool:
+    """A task cut by a stop request (its error says ``interrupted:``): its row is not written -- it stays pending,
+    run again by --resume (issue 31) -- and the unit ends; in raise mode (serial) the run stops now. Without a stop
+    request (an interruption seen only in the error) the row is written as failed with that prefix, and
+    --resume runs it again."""
+    if res.status != "failed" or not limits.is_interrupted(res.message):
+        return False
+    if stop is None or not stop.requested():
+        return False
+    if stop.mode == "raise":
+        raise Interrupted(stop.signum)
+    return True
 
 
 def _run_limited(t: Task, ctx: Context, state: Any, limit: float) -> tuple[TaskResult, Any]:

@@ -126,6 +126,10 @@ COMMON_RESULTS = ("wall_time", "rank")
 # The message prefix of a row that ran out of its time limit (--task-timeout): such failed rows are run again by
 # --resume (a slow node or a cold cache may have caused them).
 TIMEOUT_PREFIX = "timeout:"
+# The message prefix of a row whose task was cut by a signal or failed in a way that says it was interrupted (a
+# signal inside numba's JIT compilation, delivered in an llvmlite callback, surfaces as "no compiled object yet";
+# issue 31): never a result of the task's parameters, so --resume runs such rows again.
+INTERRUPTED_PREFIX = "interrupted:"
 # The kept fields of a GFMD task (docs/jobs.md "keep_fields", gapsweep.sweep.fields).
 FIELD_NAMES = ("gap", "pressure", "displacement", "height")
 

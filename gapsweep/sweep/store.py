@@ -226,6 +226,25 @@ def _locking_kw() -> dict[str, Any]:
     return {"locking": False} if h5py.version.hdf5_version_tuple >= (1, 10, 7) else {}
 
 
+def _writer_file(path: str | Path, mode: str, comm: Any) -> h5py.File:
+    """Open a store for writing. Serial: with HDF5's own file lock where the file system supports it
+    (``locking="best-effort"``; ``HDF5_USE_FILE_LOCKING=FALSE`` still switches it off) -- beside the lease's lock
+    on the file (gapsweep.sweep.lease.FileLock), which is what excludes a second gapsweep writer. Where HDF5's lock
+    is refused although the lease is held (NFS emulates ``flock`` by the same byte-range locks), the file is
+    opened without it. ``mpio`` takes no file lock (HDF5 does not support one there)."""
+    if comm is not None:
+        return h5py.File(path, mode, driver="mpio", comm=comm)
+    if h5py.version.version_tuple[:2] < (3, 5):
+        return h5py.File(path, mode)
+    try:
+        return h5py.File(path, mode, locking="best-effort")
+    except OSError as e:
+        if "lock" not in str(e).lower():
+            raise
+        log.debug("store %s: HDF5's file lock refused (%s); opened under the lease's lock", path, e)
+        return h5py.File(path, mode, locking=False)
+
+
 class Store:
     """An open store for writing. Create with :meth:`create` (collective under mpio) or :meth:`open`."""
 
@@ -266,7 +285,7 @@ class Store:
                 comm: Any) -> Store:
         n = len(tasks)
         try:
-            f = h5py.File(path, "w", driver="mpio", comm=comm) if comm is not None else h5py.File(path, "w")
+            f = _writer_file(path, "w", comm)
         except (OSError, RuntimeError) as e:
             raise _failed(f"store {path}: cannot create ({e})") from None
         try:
@@ -300,7 +319,7 @@ class Store:
     @classmethod
     def open(cls, path: str | Path, *, comm: Any = None) -> Store:
         try:
-            f = h5py.File(path, "r+", driver="mpio", comm=comm) if comm is not None else h5py.File(path, "r+")
+            f = _writer_file(path, "r+", comm)
         except OSError as e:
             raise StoreError(f"store {path}: cannot open for writing ({e})") from None
         try:
