@@ -106,25 +106,38 @@ def _write_fields(directory: str | Path, task_id: str, arrays: Mapping[str, np.n
     lx, ly = (length, length) if np.isscalar(length) else length
     axes = {"x": (np.arange(nx) + 0.5) * (lx / nx), "y": (np.arange(ny) + 0.5) * (ly / ny)}
     chunk = (min(nx, 256), min(ny, 256))
+    f: Any = None
+    hdf5 = True  # an error before the file is closed comes from HDF5
     try:
-        with h5py.File(tmp, "w", track_order=True) as f:
-            for name, x in axes.items():
-                ds = f.create_dataset(name, data=x)
-                ds.make_scale(name)
-                ds.attrs.update({"long_name": f"{name} position of the cell centre", **_length_units(attrs)})
-            for name, a in arrays.items():
-                long_name, units = FIELD_META[name]
-                units = _length_units(attrs) if units is _LEN else _pressure_units(attrs)
-                ds = f.create_dataset(name, data=np.asarray(a, dtype=np.float64), chunks=chunk, compression="gzip",
-                                      compression_opts=4, shuffle=True)
-                ds.dims[0].attach_scale(f["x"])
-                ds.dims[1].attach_scale(f["y"])
-                ds.attrs.update({"long_name": long_name, **units})
-            f.attrs.update({"Conventions": "CF-1.10", "title": f"gapsweep kept fields of task {task_id}",
-                            "task_id": task_id})
-            for k, v in attrs.items():
-                f.attrs[k] = v if isinstance(v, (int, float, str, np.integer, np.floating)) else json.dumps(v)
+        f = h5py.File(tmp, "w", track_order=True)  # closed below, not by a with-block: see the except
+        for name, x in axes.items():
+            ds = f.create_dataset(name, data=x)
+            ds.make_scale(name)
+            ds.attrs.update({"long_name": f"{name} position of the cell centre", **_length_units(attrs)})
+        for name, a in arrays.items():
+            long_name, units = FIELD_META[name]
+            units = _length_units(attrs) if units is _LEN else _pressure_units(attrs)
+            ds = f.create_dataset(name, data=np.asarray(a, dtype=np.float64), chunks=chunk, compression="gzip",
+                                  compression_opts=4, shuffle=True)
+            ds.dims[0].attach_scale(f["x"])
+            ds.dims[1].attach_scale(f["y"])
+            ds.attrs.update({"long_name": long_name, **units})
+        f.attrs.update({"Conventions": "CF-1.10", "title": f"gapsweep kept fields of task {task_id}",
+                        "task_id": task_id})
+        for k, v in attrs.items():
+            f.attrs[k] = v if isinstance(v, (int, float, str, np.integer, np.floating)) else json.dumps(v)
+        f.close()
+        hdf5 = False
         os.replace(tmp, final)
+    except (OSError, RuntimeError) as e:
+        if not hdf5:
+            raise
+        # HDF5 crashes when a file whose write failed is closed or released (issue 31: a run keeping fields
+        # segfaulted on a full disk): the file is kept open to the end of the process, which leaves by os._exit
+        from gapsweep.sweep import store
+
+        raise store.write_failed(f"kept fields of task {task_id} in {d}: cannot be written ({e}); the row stays "
+                                 "pending: free space or fix the folder and run again with --resume") from None
     finally:
         if tmp.exists():
             tmp.unlink()

@@ -247,6 +247,8 @@ class Lease:
                     tmp = p.with_name(p.name + f".mark-{self.run_id}")
                     tmp.write_text(json.dumps({**info, "interrupted": True}))
                     os.replace(tmp, p)
+                except FileNotFoundError:
+                    continue  # released, or never taken from this host
                 except (OSError, ValueError) as e:
                     log.warning("lease %s: cannot mark it interrupted (%s)", p, e)
 
@@ -289,6 +291,17 @@ class Lease:
 
     def __exit__(self, *exc: Any) -> None:
         self.release()
+
+
+def mark_ended(store: str | Path, run_id: str) -> None:
+    """Any rank of an MPI job that is about to abort (issue 31): mark the run's lease files (found from the
+    store's path and the run id every rank knows) as ended -- the job does not survive ``MPI_Abort`` -- so that
+    the next run takes them over, without --break-lease, once their holder (rank 0) is seen dead."""
+    paths = [lease_path(store)]
+    ident = identity_path(store)
+    if ident is not None:
+        paths.append(ident)
+    Lease(paths[0], run_id, paths[1] if len(paths) > 1 else None).mark_interrupted()
 
 
 def _release_file(p: Path, run_id: str) -> None:

@@ -231,6 +231,10 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
             todo = storecheck.incomplete_rows(f, path, report)
             damaged = set(report.damaged)
     except (OSError, StoreError) as e:
+        from gapsweep.sweep.outputs import is_store
+
+        if not is_store(path):  # --overwrite would be refused too (the output rule): not ours to replace
+            raise RunError(f"{e}; it is not a gapsweep store: choose another --store") from None
         raise RunError(f"{e}; pass --overwrite to replace it") from None
     if isinstance(sha, bytes):
         sha = sha.decode()
@@ -406,6 +410,7 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     held: lease.Lease | None = None
     if rank == 0:
         try:
+            _guard_store(path, _inputs(job, spec), overwrite)
             path.parent.mkdir(parents=True, exist_ok=True)
             held = lease.acquire(path, break_lease=break_lease)
             decision = (*_decide(path, spec, tasks, shard_text, resume, overwrite), held.run_id)
@@ -426,6 +431,28 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     finally:
         if held is not None:
             held.release()
+
+
+def _inputs(job: str | Path | specmod.JobSpec, spec: specmod.JobSpec) -> list[Path]:
+    """The files a run reads: its job spec and a measured height map (``[surface] kind = "file"``)."""
+    from gapsweep.sweep.filesurface import _FILES
+
+    out = [] if isinstance(job, specmod.JobSpec) else [Path(job)]
+    if spec.surface.get("kind") == "file" and _FILES.get(spec.surface.get("sha256", "")):
+        out.append(Path(_FILES[spec.surface["sha256"]]))
+    return out
+
+
+def _guard_store(path: Path, inputs: list[Path], overwrite: bool) -> None:
+    """The output rule (gapsweep.sweep.outputs, issue 31) for ``run --store``: never an input (the job spec, the
+    height map; by device and inode) nor a folder; ``--overwrite`` replaces only a gapsweep store."""
+    from gapsweep.sweep import outputs
+
+    try:
+        outputs.guard_output(path, inputs, "run --store", overwrite=True, own=lambda o: None if not overwrite or
+                             outputs.is_store(o) else "is not a gapsweep store (a plain HDF5 file or another file)")
+    except FileExistsError as e:
+        raise RunError(str(e)) from None
 
 
 def _stop_file(path: Path) -> Path:
@@ -546,10 +573,10 @@ def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list
             raise RunError(f"{e if isinstance(e, StoreWriteError) else f'store {path}: {e}'}; every row finished "
                            "before is intact: fix the cause (free space, file-size limit) and run again with "
                            "--resume") from None
-        _abort(comm, rank, wmode, held, e)
+        _abort(comm, rank, wmode, held, e, (path, run_id))
     except BaseException as e:
         if comm is not None:
-            _abort(comm, rank, wmode, held, e)
+            _abort(comm, rank, wmode, held, e, (path, run_id))
         raise
     finally:
         stop.restore()
@@ -656,11 +683,14 @@ def _abandon(st: Store, record: dict[str, Any] | None = None) -> None:
         log.warning("closing %s after an error: %s", st.path, e)
 
 
-def _abort(comm: Any, rank: int, wmode: str, held: lease.Lease | None, e: BaseException) -> None:
+def _abort(comm: Any, rank: int, wmode: str, held: lease.Lease | None, e: BaseException,
+           run: tuple[Path, str] | None = None) -> None:
     log.error("rank %d: fatal error, aborting the MPI job: %s: %s", rank, type(e).__name__, e,
               exc_info=not isinstance(e, (StoreError, OSError)))
     if held is not None and wmode != "mpio":  # rank 0 alone wrote: its rows are flushed, the store is free
         held.release()
+    elif run is not None:  # issue 31: the lease says its run ended (MPI_Abort ends every rank); once its holder
+        lease.mark_ended(*run)  # is gone the next run takes it over without --break-lease
     sys.stderr.flush()
     comm.Abort(1)
 

@@ -348,13 +348,17 @@ def test_export_never_replaces_a_store(tmp_path, refs, case):
 
 
 def test_export_overwrite_replaces_its_own(tmp_path, refs):
+    """--overwrite replaces an earlier export (of any store), and nothing else (issue 31: one rule for every
+    command that writes; tests/faults/test_outputs.py has the other cases)."""
     out = tmp_path / "s.nc"
-    assert gs("export", refs["theory"], "--out", out).returncode == 0
-    first = out.read_bytes()
-    out.write_bytes(b"not the export")
+    assert gs("export", refs["hist"], "--out", out).returncode == 0
     p = gs("export", refs["theory"], "--out", out, "--overwrite")
     assert p.returncode == 0, p.stderr
-    assert out.read_bytes()[:8] == first[:8] == b"\x89HDF\r\n\x1a\n"
+    assert out.read_bytes()[:8] == b"\x89HDF\r\n\x1a\n"
+    out.write_bytes(b"not the export")
+    p = gs("export", refs["theory"], "--out", out, "--overwrite")
+    one_line_error(p, "export --out", "not a netCDF file written by gapsweep export")
+    assert out.read_bytes() == b"not the export"
 
 
 # --- issue 19 item 10: unreadable inputs are one-line errors naming the file ------------------------------------
