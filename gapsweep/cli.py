@@ -273,7 +273,6 @@ def _finished(path: str) -> int:
     """``status --finished``: 0 when every task of the store has a finished row, else 4 and one line naming the
     store, the pending count and how its last run ended (interrupted by a signal, stopped by an error, or
     still running / killed)."""
-    import json
 
     from gapsweep.sweep import store
 
@@ -281,7 +280,9 @@ def _finished(path: str) -> int:
     pending = int((df.status == "pending").sum())
     if not pending:
         return 0
-    runs = json.loads(store.read_attrs(path).get("runs", "[]"))
+    from gapsweep.sweep.storecheck import run_records
+
+    runs = run_records(store.read_attrs(path).get("runs", "[]"))
     last = runs[-1] if runs else {}
     how = (f"interrupted by {last['interrupted']}" if last.get("interrupted") else
            f"stopped: {last['stopped']}" if last.get("stopped") else

@@ -130,7 +130,7 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
     index = {t.task_id: i for i, t in enumerate(tasks)}
     runs = []
     for m in metas:
-        runs.extend(json.loads(m.get("runs", "[]")))
+        runs.extend(storecheck.run_records(m.get("runs", "[]")))  # a damaged list: those records are lost
     attrs = provenance.store_attrs(js, shard="", extra={"merged_from": json.dumps([str(s) for s in shards]),
                                                         "runs": json.dumps(runs)})
     attrs["spec_sha256"] = metas[0]["spec_sha256"]
@@ -150,7 +150,7 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
                 continue
             if f["histograms/density"].shape[1] != bins:
                 raise StoreError(f"merge: {s} has {f['histograms/density'].shape[1]} histogram bins, the job {bins}")
-            ids = [x.decode() for x in f["tasks"].fields("task_id")[...]]
+            ids = [x.decode("utf-8", "replace") for x in f["tasks"].fields("task_id")[...]]
             r = upgrade_results(f["results"][...])  # a format-1 shard: by column name
             e, d = f["histograms/edges"][...], f["histograms/density"][...]
             if PRESSURE_HIST[0] in f:
@@ -164,10 +164,10 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
         damaged += len(rep.damaged)
         bad = set(rep.rerun)
         for j, tid in enumerate(ids):
+            if j in bad or r["status"][j] == STATUS["pending"]:
+                continue  # (a damaged task id of such a row is restored by --resume of its shard)
             if tid not in index:
                 raise StoreError(f"merge: task {tid} of {s} is not in the job")
-            if j in bad or r["status"][j] == STATUS["pending"]:
-                continue
             i = index[tid]
             new, old = _RANK[int(r["status"][j])], _RANK[int(results["status"][i])]
             if new < old:

@@ -227,9 +227,8 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
         with open_read(path, check=False) as f:
             report = storecheck.check(f, path)  # once: it reads and checksums every row
             sha, shard = f.attrs.get("spec_sha256"), f.attrs.get("shard")
-            ids = [x.decode() for x in f["tasks"].fields("task_id")[...]] if f["tasks"].shape[0] else []
             todo = storecheck.incomplete_rows(f, path, report)
-            damaged = set(report.damaged)
+            moved, kept = _moved_rows(f, tasks, set(report.damaged), set(todo))
     except (OSError, StoreError) as e:
         from gapsweep.sweep.outputs import is_store
 
@@ -238,15 +237,18 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
         raise RunError(f"{e}; pass --overwrite to replace it") from None
     if isinstance(sha, bytes):
         sha = sha.decode()
-    want = [t.task_id for t in tasks]
-    # rows whose task parameters were damaged (checksum mismatch) are rewritten from the spec and run again
-    moved = {i for i, (a, b) in enumerate(zip(ids, want)) if a != b}
-    if sha not in (spec.sha256, spec.text_sha256) or shard != shard_text or len(ids) != len(want) \
-            or not moved <= damaged:
+    if sha not in (spec.sha256, spec.text_sha256) or shard != shard_text or moved is None:
         raise RunError(f"store {path} was written for another job spec or shard; pass --overwrite to replace "
                        "it or choose another --store")
-    if not todo:
+    if kept:  # done rows whose results verify against the spec's task row: only their task row is restored
+        log.warning("store %s: %d done row(s) with a damaged task row verify against the job spec's: kept, their "
+                    "task rows are restored (rows %s)", path, len(kept), sorted(kept)[:5])
+        todo = [i for i in todo if i not in kept]
+    if not todo and not moved:
         return "noop", []
+    if not resume and not todo:
+        raise RunError(f"store {path}: {len(moved)} damaged task row(s) (rows {sorted(moved)[:5]}): pass --resume to "
+                       "restore them from the job spec (every done row is kept)")
     if not resume:
         raise RunError(f"store {path} exists with {len(todo)} of {len(tasks)} tasks pending: pass --resume to "
                        "finish it or --overwrite to start again")
@@ -256,6 +258,36 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
         raise RunError(f"store {path}: no room to record a new run ({e.strerror}: full disk or file-size "
                        "limit); nothing was changed: free space and run again") from None
     return "resume", todo
+
+
+def _moved_rows(f: Any, tasks: list[Task], damaged: set[int], todo: set[int],
+                ) -> tuple[set[int] | None, set[int]]:
+    """Rows whose stored task row differs from the job's (a damaged task id or parameter, issue 31) and, of those,
+    the done rows whose stored checksum verifies against the job's task row (their results are intact: only the
+    task row is restored, the row stays done). None when the task table cannot be this job's: another length, or
+    a differing row that is neither damaged (checksum) nor to be run again (pending)."""
+    import numpy as np
+
+    from gapsweep.sweep.schema import CHECKSUM, PRESSURE_HIST, row_checksum
+    from gapsweep.sweep.store import task_rows
+
+    have = f["tasks"][...] if f["tasks"].shape[0] else np.zeros(0)
+    if len(have) != len(tasks):
+        return None, set()
+    want = task_rows(tasks)
+    moved = {i for i in range(len(want)) if have[i].tobytes() != want[i].tobytes()}
+    if not moved <= damaged | todo:
+        return None, set()
+    kept = set()
+    r = f["results"]
+    if CHECKSUM in (r.dtype.names or ()):
+        g = (f["histograms/edges"], f["histograms/density"], f[PRESSURE_HIST[0]], f[PRESSURE_HIST[1]])
+        for i in sorted(moved & damaged):
+            row = r[i]
+            if int(row["status"]) != STATUS["pending"] and \
+                    int(row[CHECKSUM]) == row_checksum(want[i], row, tuple(x[i] for x in g)):
+                kept.add(i)
+    return moved, kept
 
 
 class Progress:
@@ -514,7 +546,9 @@ def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list
                                  rank, run_id)
                 if held is not None:  # the file opened is the one leased (issue 19: keyed by device and inode)
                     held.bind(path)
-                runs = json.loads(st.f.attrs.get("runs", "[]"))
+                if mode == "resume":  # every byte of a re-run row is written again, NaN histograms included
+                    st.force_histograms(todo_list)
+                runs = _earlier_runs(st, path)
                 st.set_attrs({"runs": json.dumps([*runs, record])}, flush=True)  # survives a kill -9
         if os.environ.get("GAPSWEEP_TEST_ABORT_RANK", "") == str(rank):
             raise RuntimeError(f"injected error on rank {rank} (GAPSWEEP_TEST_ABORT_RANK)")
@@ -595,7 +629,7 @@ def _mark_interrupted(st: Store, record: dict[str, Any], prog: Progress, held: l
     write is collective and cannot be done by rank 0 alone.)"""
     try:
         budget.probe_growth(st.path)  # a metadata write only where the file can grow
-        runs = json.loads(st.f.attrs.get("runs", "[]"))
+        runs = storecheck.run_records(st.f.attrs.get("runs", "[]")) or [{}]
         runs[-1] = {**record, **_interrupted(signum, dict(prog.count))}
         st.set_attrs({"runs": json.dumps(runs)}, flush=True)
     except (OSError, StoreError) as e:
@@ -603,6 +637,18 @@ def _mark_interrupted(st: Store, record: dict[str, Any], prog: Progress, held: l
         return
     if held is not None:
         held.mark_interrupted()
+
+
+def _earlier_runs(st: Store, path: Path) -> list[dict[str, Any]]:
+    """The store's run records before this run's; a damaged list (issue 31) is rebuilt: one record saying the
+    earlier ones were lost (the rows do not depend on them)."""
+    raw = st.f.attrs.get("runs", "[]")
+    why = storecheck.runs_problem(raw)
+    if why is None:
+        return storecheck.run_records(raw)
+    log.warning("store %s: its run records were damaged (%s); rebuilt as a new list (the earlier run history is "
+                "lost, every row is kept)", path, why)
+    return [{"rebuilt": provenance.now(), "note": f"the earlier run records were damaged ({why}) and are lost"}]
 
 
 def _interrupted(signum: int, counts: dict[str, int]) -> dict[str, Any]:
@@ -649,7 +695,7 @@ def _close_record(st: Store, record: dict[str, Any]) -> None:
     """Replace the run's record (the last one) and close the store (collective under mpio). The record is
     written only if the file can grow (budget.probe_growth; a failed metadata write can ruin an HDF5 file):
     otherwise it is left as it was (the run then reads as "running or killed") and a warning says why."""
-    runs = json.loads(st.f.attrs.get("runs", "[]"))
+    runs = storecheck.run_records(st.f.attrs.get("runs", "[]")) or [{}]
     runs[-1] = record
     new = {"runs": json.dumps(runs)}
     if record.get("finished"):

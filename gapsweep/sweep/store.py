@@ -25,7 +25,6 @@ written and flushed at creation. Reliability (leases, validation, write errors):
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import os
@@ -299,6 +298,9 @@ class Store:
         self.n_tasks = self._res.shape[0]
         self.bins = self._density.shape[1]
         self._nan_rows = (np.full(self.bins + 1, np.nan), np.full(self.bins, np.nan))  # a row without histogram
+        # rows that are pending now: a row that is not (run again: timed out, damaged, incomplete) is first marked
+        # pending, so that no reader sees its old status beside its new payload (issue 31: false "damaged")
+        self._fresh = self.statuses() == STATUS["pending"]
 
     @classmethod
     def create(cls, path: str | Path, tasks: Sequence[Task], attrs: dict[str, Any], bins: int, *,
@@ -375,11 +377,22 @@ class Store:
             self._task_rows = want
         return bad
 
+    def force_histograms(self, rows: Iterable[int]) -> None:
+        """Make the next write of each of ``rows`` write its histograms even when it has none (NaN rows): a row
+        run again on --resume may hold damaged bytes where its histograms should be NaN (issue 31: a theory,
+        SDE or Fokker-Planck row whose NaN histogram or pressure histogram was damaged stayed damaged)."""
+        if self._has_hist is None:
+            return
+        for i in rows:
+            self._has_hist[i] = True
+            if self._has_phist is not None:
+                self._has_phist[i] = True
+
     def statuses(self) -> np.ndarray:
         return self._res.fields("status")[...] if self.n_tasks else np.zeros(0, dtype="i1")
 
     def task_ids(self) -> list[str]:
-        return [x.decode() for x in self.f["tasks"].fields("task_id")[...]] if self.n_tasks else []
+        return [x.decode("utf-8", "replace") for x in self.f["tasks"].fields("task_id")[...]] if self.n_tasks else []
 
     def write(self, i: int, res: TaskResult, *, flush: bool = True) -> None:
         """Write row ``i`` (independent I/O under mpio): payload first (histogram), status row last, so that a
@@ -401,6 +414,11 @@ class Store:
         phist = (np.asarray(res.phist[0], dtype=np.float64), np.asarray(res.phist[1], dtype=np.float64)) \
             if res.phist is not None else (nan_e, nan_d)
         try:
+            if not self._fresh[i]:
+                self._res[i] = empty_results(1, self._rdtype)[0]  # status pending (0), no checksum to match
+                if flush and not self.parallel:
+                    self.f.flush()
+                self._fresh[i] = True
             # A checksummed row's histograms on disk must be what its checksum covers: a row without one writes
             # NaN rows only where an earlier run of it left a histogram (else the creation's NaN rows are there).
             wrote = False
@@ -501,7 +519,7 @@ def open_read(path: str | Path, *, check: bool = True):
 def read_attrs(path: str | Path) -> dict[str, Any]:
     """File attributes as Python values (strings decoded)."""
     with open_read(path) as f:
-        return {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
+        return {k: (v.decode("utf-8", "replace") if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
 
 
 def read(path: str | Path, *, mark_damaged: bool = True):
@@ -525,7 +543,7 @@ def read(path: str | Path, *, mark_damaged: bool = True):
                     len(report.damaged), report.damaged[:5])
     cols: dict[str, Any] = {}
     for k in TASK_DTYPE.names:
-        cols[k] = [x.decode() for x in t[k]] if TASK_DTYPE[k].kind == "S" else t[k]
+        cols[k] = [x.decode("utf-8", "replace") for x in t[k]] if TASK_DTYPE[k].kind == "S" else t[k]
     cols["status"] = [STATUS_NAMES.get(int(s), "unknown") for s in r["status"]]
     for i in report.damaged:
         cols["status"][i] = "damaged"
@@ -543,7 +561,7 @@ def read_pressure_histograms(path: str | Path, task_ids: Iterable[str] | None = 
     with open_read(path) as f:
         if PRESSURE_HIST[0] not in f or not f["tasks"].shape[0]:
             return {}
-        ids = [x.decode() for x in f["tasks"].fields("task_id")[...]]
+        ids = [x.decode("utf-8", "replace") for x in f["tasks"].fields("task_id")[...]]
         atom = f["results"].fields("pressure_atom")[...]
         e_all, d_all = f[PRESSURE_HIST[0]][...], f[PRESSURE_HIST[1]][...]
     want = set(task_ids) if task_ids is not None else None
@@ -559,7 +577,7 @@ def read_histograms(path: str | Path, task_ids: Iterable[str] | None = None,
     """``{task_id: (edges, density, count)}`` for tasks that have a histogram (density integrates to 1 over
     the bins; count = samples or pixels binned). ``task_ids`` restricts the selection."""
     with open_read(path) as f:
-        ids = [x.decode() for x in f["tasks"].fields("task_id")[...]] if f["tasks"].shape[0] else []
+        ids = [x.decode("utf-8", "replace") for x in f["tasks"].fields("task_id")[...]] if f["tasks"].shape[0] else []
         count = f["results"].fields("count")[...] if ids else np.zeros(0, dtype="i8")
         want = set(task_ids) if task_ids is not None else None
         out = {}
@@ -599,7 +617,7 @@ def status(path: str | Path) -> str:
         if len(done):
             lines.append(f"wall time of finished tasks: {np.nansum(done.wall_time):.1f} s "
                          f"(max {np.nanmax(done.wall_time):.2f} s)")
-    runs = json.loads(attrs.get("runs", "[]"))
+    runs = storecheck.run_records(attrs.get("runs", "[]"))
     for r in runs:
         end = r.get("finished") or "(running or killed)"
         if r.get("interrupted"):
