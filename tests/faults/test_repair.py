@@ -133,8 +133,11 @@ def test_damaged_run_records_rebuilt(tmp_path, refs, partial, bad):
 
 
 def _make_timed_out(path, i):
-    """Row ``i`` recorded as a timed-out failure (sealed: its checksum matches), as --task-timeout leaves it."""
+    """Row ``i`` recorded as a timed-out failure (no histogram, sealed: its checksum matches), as --task-timeout
+    leaves it."""
     with h5py.File(path, "r+") as f:
+        for k in HIST_SETS:
+            f[k][i] = np.full(f[k].shape[1], np.nan)
         r = f["results"][i]
         r["status"] = STATUS["failed"]
         r["message"] = b"timeout: task exceeded its time limit of 1 s (run again by --resume)"
