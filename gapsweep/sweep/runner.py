@@ -208,7 +208,7 @@ def _store_path(path: str | Path, shard: tuple[int, int] | None) -> Path:
 
 
 def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: str, resume: bool,
-            overwrite: bool) -> tuple[str, list[int]]:
+            overwrite: bool, *, reordered: bool = False) -> tuple[str, list[int]]:
     """('create' | 'resume' | 'noop', task indices to run). Raises RunError when the store cannot be used.
     On resume the store is validated (docs/reliability.md): pending rows, rows of unknown status and done rows
     without a complete result are run again."""
@@ -237,7 +237,7 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
         raise RunError(f"{e}; pass --overwrite to replace it") from None
     if isinstance(sha, bytes):
         sha = sha.decode()
-    if sha not in (spec.sha256, spec.text_sha256) or shard != shard_text or moved is None:
+    if (sha not in (spec.sha256, spec.text_sha256) and not reordered) or shard != shard_text or moved is None:
         raise RunError(f"store {path} was written for another job spec or shard; pass --overwrite to replace "
                        "it or choose another --store")
     if kept:  # done rows whose results verify against the spec's task row: only their task row is restored
@@ -258,6 +258,59 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
         raise RunError(f"store {path}: no room to record a new run ({e.strerror}: full disk or file-size "
                        "limit); nothing was changed: free space and run again") from None
     return "resume", todo
+
+
+def _order_free(spec: specmod.JobSpec) -> str:
+    """The spec's canonical JSON with the values of every axis list sorted (grid axes and method overrides):
+    equal for two specs that differ only in the order of axis values (docs/jobs.md: the order does not enter)."""
+    d = json.loads(spec.canonical())
+
+    def norm(x: Any) -> Any:
+        if isinstance(x, dict):
+            return {k: norm(v) for k, v in x.items()}
+        if isinstance(x, list) and all(isinstance(v, (int, float, str)) and not isinstance(v, bool) for v in x):
+            return sorted(x, key=lambda v: (isinstance(v, str), v))
+        return x
+
+    return json.dumps({**d, "grid": norm(d["grid"]), "methods": norm(d["methods"])}, sort_keys=True)
+
+
+def _stored_order(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: str,
+                  overwrite: bool) -> list[int] | None:
+    """Issue 31: a store written from the same spec with the values of an axis in another order (its hash
+    differs, its tasks are the same) is resumed in its own row order: the permutation (store row -> index into
+    ``tasks``), or None where there is nothing to reorder."""
+    if overwrite or not path.is_file():
+        return None
+    try:
+        with open_read(path, check=False) as f:
+            sha, text, shard = (f.attrs.get(k) for k in ("spec_sha256", "spec_text", "shard"))
+            ids = [x.decode("utf-8", "replace") for x in f["tasks"].fields("task_id")[...]] \
+                if f["tasks"].shape[0] else []
+    except (OSError, StoreError, KeyError):
+        return None  # _decide says what is wrong with it
+    sha, text = (x.decode("utf-8", "replace") if isinstance(x, bytes) else x for x in (sha, text))
+    if sha in (spec.sha256, spec.text_sha256) or shard != shard_text or not isinstance(text, str):
+        return None
+    try:
+        if _order_free(specmod.loads(text, base=spec.base_dir or None)) != _order_free(spec):
+            return None
+    except (specmod.SpecError, ValueError, AttributeError):
+        return None
+    index = {t.task_id: i for i, t in enumerate(tasks)}
+    if sorted(ids) != sorted(index):
+        return None
+    log.info("store %s: the job spec lists axis values in another order than the store's; resumed in the "
+             "store's row order", path)
+    return [index[x] for x in ids]
+
+
+def _store_order(tasks: list[Task], units: list[Unit], order: list[int] | None) -> tuple[list[Task], list[Unit]]:
+    """``tasks`` (and their ``units``) in the store's row order (:func:`_stored_order`); unchanged for None."""
+    if order is None:
+        return tasks, units
+    new = {old: k for k, old in enumerate(order)}
+    return [tasks[i] for i in order], [u.remap(new) for u in units]
 
 
 def _moved_rows(f: Any, tasks: list[Task], damaged: set[int], todo: set[int],
@@ -445,7 +498,9 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
             _guard_store(path, _inputs(job, spec), overwrite)
             path.parent.mkdir(parents=True, exist_ok=True)
             held = lease.acquire(path, break_lease=break_lease)
-            decision = (*_decide(path, spec, tasks, shard_text, resume, overwrite), held.run_id)
+            order = _stored_order(path, spec, tasks, shard_text, overwrite)
+            decision = (order, *_decide(path, spec, _store_order(tasks, [], order)[0], shard_text, resume,
+                                        overwrite, reordered=order is not None), held.run_id)
             _stop_file(path).unlink(missing_ok=True)  # a stop request of an earlier run
         except Exception as e:  # every rank must learn about it, or the others wait in bcast forever
             decision = e if isinstance(e, RunError) else RunError(
@@ -457,6 +512,8 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
         decision = comm.bcast(decision, root=0)
     if isinstance(decision, RunError):
         raise decision
+    tasks, units = _store_order(tasks, units, decision[0])  # a reordered axis: the store's row order (issue 31)
+    decision = decision[1:]
     try:
         return _execute(spec, comm, rank, size, tasks, units, path, shard_text, decision, writer, progress,
                         coordinator_works, task_timeout, held, (batch, ranks_per_gpu))

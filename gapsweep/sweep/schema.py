@@ -150,8 +150,11 @@ class Task:
 
     def surface_params(self) -> dict[str, Any]:
         """The ``surface.*`` options without their prefix: keyword arguments of ``surfaces.self_affine`` (for a
-        file surface, ``kind = "file"`` and the loading options of gapsweep.sweep.filesurface)."""
-        return {k[8:]: v for k, v in self.options if k.startswith("surface.")}
+        file surface, ``kind = "file"`` and the loading options of gapsweep.sweep.filesurface). A synthetic
+        surface's ``unit`` is a label of its lengths (``t.opt("surface.unit")``), not a generator argument (issue
+        31: every task of such a job failed with "unexpected keyword argument 'unit'")."""
+        file = self.opt("surface.kind") == "file"
+        return {k[8:]: v for k, v in self.options if k.startswith("surface.") and (file or k != "surface.unit")}
 
     @property
     def law(self) -> str:
