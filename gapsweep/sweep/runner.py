@@ -229,6 +229,7 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
             sha, shard = f.attrs.get("spec_sha256"), f.attrs.get("shard")
             todo = storecheck.incomplete_rows(f, path, report)
             moved, kept = _moved_rows(f, tasks, set(report.damaged), set(todo))
+            runs_bad = report.runs_damaged is not None
     except (OSError, StoreError) as e:
         from gapsweep.sweep.outputs import is_store
 
@@ -244,7 +245,7 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
         log.warning("store %s: %d done row(s) with a damaged task row verify against the job spec's: kept, their "
                     "task rows are restored (rows %s)", path, len(kept), sorted(kept)[:5])
         todo = [i for i in todo if i not in kept]
-    if not todo and not moved:
+    if not todo and not moved and not (resume and runs_bad):  # --resume rebuilds damaged run records
         return "noop", []
     if not resume and not todo:
         raise RunError(f"store {path}: {len(moved)} damaged task row(s) (rows {sorted(moved)[:5]}): pass --resume to "
