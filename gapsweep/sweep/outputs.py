@@ -102,10 +102,10 @@ def hdf5_attrs(path: str | Path) -> dict[str, Any] | None:
 
 
 def is_export(path: str | Path) -> bool:
-    """Whether ``path`` is a netCDF file written by ``gapsweep export`` (title ``gapsweep store``, a
-    ``history`` saying it was opened from a store) and not a store."""
+    """Whether ``path`` is a netCDF file written by ``gapsweep export`` (the store's format as attribute
+    ``gapsweep_format``, a ``history`` saying it was opened from a store) and not a store."""
     a = hdf5_attrs(path)
-    return a is not None and a.get("format") != FORMAT and a.get("title") == "gapsweep store" \
+    return a is not None and a.get("format") != FORMAT and a.get("gapsweep_format") == FORMAT \
         and str(a.get("history", "")).startswith("opened from ")
 
 
