@@ -283,8 +283,9 @@ class Lease:
                              "itself, through this or another path: a hard link, symlink or mount of the same "
                              "file); wait for it to finish or stop it") from None
         if got is None:
-            log.warning("store %s: its file system has no file locks; a second run through another path (hard "
-                        "link, other $TMPDIR) is detected only on this host", store)
+            log.warning("store %s: the file itself cannot be locked (no file locks on its file system, or no write "
+                        "permission); a second run through another path (a hard link, another $TMPDIR) is detected "
+                        "only by the lease files", store)
 
     def __enter__(self) -> Lease:
         return self
