@@ -46,6 +46,13 @@ MAX_TASKS = 200_000
 MIN_LENGTH, MAX_LENGTH, MAX_WAVES = 1e-12, 1e12, 1e9
 
 
+def _check_waves(length: float, lambda_s: float, given: Any) -> None:
+    """At most MAX_WAVES shortest wavelengths per box (issue 31: ``lambda_s = 5e-324`` gave an OverflowError)."""
+    if length / lambda_s > MAX_WAVES:
+        raise SpecError(f"surface.lambda_s: expected a number >= length / {MAX_WAVES:g} = {length / MAX_WAVES:g} "
+                        f"(at most {MAX_WAVES:g} shortest wavelengths per box), got {given!r}")
+
+
 def max_tasks() -> int:
     """The task cap: ``GAPSWEEP_MAX_TASKS`` if set (a positive integer), else :data:`MAX_TASKS`."""
     v = os.environ.get("GAPSWEEP_MAX_TASKS", "")
@@ -235,10 +242,7 @@ def loads(text: str, base: str | Path | None = None) -> JobSpec:
         length = rd.number("surface.length", s.get("length", 1.0), ge=MIN_LENGTH, le=MAX_LENGTH)
         lambda_l = rd.number("surface.lambda_l", s.get("lambda_l", 0.25), gt=0.0, le=length)
         lambda_s = rd.number("surface.lambda_s", s.get("lambda_s", 2.5e-3), gt=0.0, lt=lambda_l)
-        if length / lambda_s > MAX_WAVES:  # issue 31: 5e-324 gave an OverflowError traceback
-            raise SpecError(f"surface.lambda_s: expected a number >= length / {MAX_WAVES:g} = "
-                            f"{length / MAX_WAVES:g} (at most {MAX_WAVES:g} shortest wavelengths per box), got "
-                            f"{s.get('lambda_s')!r}")
+        _check_waves(length, lambda_s, s.get("lambda_s"))
         norms = [k for k in ("rms_slope", "rms_height", "c0") if k in s]
         if len(norms) > 1:
             raise SpecError(f"surface: give exactly one of rms_slope, rms_height, c0; got {', '.join(norms)}")
