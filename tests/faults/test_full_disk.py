@@ -21,6 +21,7 @@ import pytest
 from gapsweep import lease, store
 
 from .conftest import (
+    HIST_JOB,
     WRITERS,
     assert_done_kept,
     assert_only_done_pending,
@@ -180,3 +181,20 @@ def test_merge_export_report_under_file_size_limit(tmp_path, refs, limit):
     assert src.read_bytes() == before
     assert sorted(x.name for x in tmp_path.iterdir() if x.name not in ("m.h5", "e.nc", "rep")) == ["s.h5"]
 
+
+
+@needs_mpi
+@pytest.mark.parametrize("writer", WRITERS)
+def test_mpi_run_without_fields_on_a_disk_too_small_for_its_record(tmpfs, refs, writer):
+    """Without kept fields every row's space is allocated at creation: on a disk with room for the store but
+    not for the run record's growth probe, the MPI run writes every row, says the record was not updated, and
+    ends cleanly (no crash, lease released)."""
+    d = tmpfs(200)
+    path = d / "h.h5"
+    p = subprocess.run(mpi_cmd(2, "run", HIST_JOB, "--store", path, "--writer", writer, "--progress", "none"),
+                       env=env(), capture_output=True, text=True, timeout=300)
+    out = p.stdout + p.stderr
+    assert p.returncode == 0, out
+    assert "run record was not updated" in out and "Traceback" not in out, out
+    assert lease.read(path) is None
+    assert store.diff(path, refs["hist"]) == []
