@@ -190,9 +190,9 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
     for c in conflicts:
         log.warning("merge: %s (kept the %s)", c, on_conflict)
     done = {t.task_id for t, s in zip(tasks, results["status"], strict=True) if s == STATUS["done"]}
-    outputs.guard_output(outp, shards, "merge --out", overwrite=overwrite,
-                         own=lambda o: _not_own_merge(o, metas[0]["spec_sha256"], done))
-    with lease.acquire(outp, break_lease=break_lease, purpose="merge"):
+    with lease.acquire(outp, break_lease=break_lease, purpose="merge"):  # a live writer is named first
+        outputs.guard_output(outp, shards, "merge --out", overwrite=overwrite,
+                             own=lambda o: _not_own_merge(o, metas[0]["spec_sha256"], done))
         tmp = outp.with_name(f".{outp.name}.tmp-{os.getpid()}")
         try:
             _write(tmp, outp, tasks, attrs, bins, results, (edges, dens, pedges, pdens))
