@@ -576,7 +576,7 @@ def reusable_rows(sources: Sequence[str | Path], path: Path, tasks: list[Task], 
                             f["histograms/density"].shape[1], bins)
                 continue
             n = f["tasks"].shape[0]
-            ids = [x.decode() for x in f["tasks"].fields("task_id")[...]] if n else []
+            ids = [x.decode("utf-8", "replace") for x in f["tasks"].fields("task_id")[...]] if n else []
             status = f["results"].fields("status")[...] if n else []
             bad = set(rep.rerun)
             take = [j for j, tid in enumerate(ids) if tid in want and want[tid] not in out and j not in bad

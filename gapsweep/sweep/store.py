@@ -414,11 +414,7 @@ class Store:
         phist = (np.asarray(res.phist[0], dtype=np.float64), np.asarray(res.phist[1], dtype=np.float64)) \
             if res.phist is not None else (nan_e, nan_d)
         try:
-            if not self._fresh[i]:
-                self._res[i] = empty_results(1, self._rdtype)[0]  # status pending (0), no checksum to match
-                if flush and not self.parallel:
-                    self.f.flush()
-                self._fresh[i] = True
+            self._mark_pending(i, flush)
             # A checksummed row's histograms on disk must be what its checksum covers: a row without one writes
             # NaN rows only where an earlier run of it left a histogram (else the creation's NaN rows are there).
             wrote = False
@@ -443,6 +439,16 @@ class Store:
         except (OSError, RuntimeError) as e:
             raise _failed(f"store {self.path}: writing row {i} failed ({e})") from None
 
+    def _mark_pending(self, i: int, flush: bool) -> None:
+        """A row that is not pending in the file (run again: timed out, damaged, incomplete) is first written back
+        to pending, so that no reader (and no kill) meets its old status beside its new payload (issue 31)."""
+        if self._fresh[i]:
+            return
+        self._res[i] = empty_results(1, self._rdtype)[0]  # status pending (0): no checksum to match
+        if flush and not self.parallel:
+            self.f.flush()
+        self._fresh[i] = True
+
     def copy_row(self, i: int, row: np.void, hists: tuple[np.ndarray, ...]) -> None:
         """Write row ``i`` as a finished row taken from another store (``gapsweep run --reuse``): its results row
         (copied by column name) and histograms (gap and pressure: edges, density), payload first, with the
@@ -454,6 +460,7 @@ class Store:
                 r[k] = row[k]
         with _quiet_dealloc():
             try:
+                self._mark_pending(i, True)
                 self._edges[i], self._density[i] = e, d
                 if self._pedges is not None:
                     self._pedges[i], self._pdensity[i] = pe, pd
