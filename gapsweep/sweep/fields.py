@@ -17,7 +17,8 @@ import numpy as np
 
 from gapsweep.sweep.schema import FIELD_NAMES, StoreWriteError
 
-__all__ = ["FIELD_META", "FIELD_NAMES", "field_selected", "fields_dir", "remove_fields", "write_fields"]
+__all__ = ["FIELD_META", "FIELD_NAMES", "field_selected", "fields_dir", "remove_fields", "remove_partial",
+           "write_fields"]
 
 _LEN = {"units": "1", "reference_unit": "L"}  # lengths in units of the spec's L
 # field -> (long_name, unit attributes)
@@ -61,6 +62,22 @@ def write_fields(directory: str | Path, task_id: str, arrays: Mapping[str, np.nd
     except OSError as e:
         raise StoreWriteError(f"kept fields of task {task_id} in {directory}: cannot be written ({e}); the row "
                               "stays pending: free space or fix the folder and run again with --resume") from None
+
+
+def remove_partial(directory: str | Path) -> int:
+    """Delete the temporary kept-field files (``.<task_id>.<pid>.tmp``) left in ``directory`` by a run that was
+    killed while writing one (under MPI, ``MPI_Abort`` of another rank; issue 31). Called by a run that holds the
+    store's lease, so no other run writes there. Returns the count removed."""
+    d = Path(directory)
+    if not d.is_dir():
+        return 0
+    n = 0
+    for f in d.glob(".*.tmp"):
+        stem = f.name[1:].split(".", 1)[0]
+        if f.is_file() and len(stem) == 16 and all(c in "0123456789abcdef" for c in stem):
+            f.unlink(missing_ok=True)
+            n += 1
+    return n
 
 
 def remove_fields(directory: str | Path) -> int:

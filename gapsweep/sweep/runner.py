@@ -37,7 +37,7 @@ from gapsweep.sweep import methods as registry
 from gapsweep.sweep import spec as specmod
 from gapsweep.sweep.context import Context
 from gapsweep.sweep.execute import run_task
-from gapsweep.sweep.fields import fields_dir, remove_fields
+from gapsweep.sweep.fields import fields_dir, remove_fields, remove_partial
 from gapsweep.sweep.limits import Interrupted, TaskTimeout
 from gapsweep.sweep.schema import PRESSURE_HIST, STATUS, Task, TaskResult, Unit
 from gapsweep.sweep.spec import check_extra
@@ -803,6 +803,8 @@ def _open_store(path: Path, mode: str, tasks: list[Task], attrs: dict[str, Any],
                 tmp.unlink(missing_ok=True)
             raise
     st = Store.open(path, comm=comm)
+    if mode == "resume" and rank == 0 and (gone := remove_partial(fields_dir(path))):
+        log.info("store %s: removed %d partial kept-field file(s) of an interrupted run", path, gone)
     if mode == "resume":  # task rows damaged since they were written come back from the spec (their rows re-run)
         fixed = st.repair_tasks(tasks, write=rank == 0)
         if fixed:

@@ -198,3 +198,19 @@ def test_mpi_run_without_fields_on_a_disk_too_small_for_its_record(tmpfs, refs, 
     assert "run record was not updated" in out and "Traceback" not in out, out
     assert lease.read(path) is None
     assert store.diff(path, refs["hist"]) == []
+
+
+def test_partial_field_files_removed_on_resume(tmp_path):
+    """Under MPI a rank killed by another rank's MPI_Abort may leave its kept-field file half written under its
+    temporary name; a resume (holding the lease) removes such files and nothing else."""
+    from gapsweep.sweep.fields import remove_partial
+
+    d = tmp_path / "s.h5.fields"
+    d.mkdir()
+    partial = d / ".0123456789abcdef.4242.tmp"
+    partial.write_bytes(b"\x89HDF half")
+    kept = [d / "0123456789abcdef.nc", d / ".notes.tmp", d / "mine.txt"]
+    for f in kept:
+        f.write_text("x")
+    assert remove_partial(d) == 1
+    assert not partial.exists() and all(f.exists() for f in kept)
