@@ -32,7 +32,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from gapsweep.sweep import batching, budget, gpus, lease, limits, provenance, storecheck
+from gapsweep.sweep import batching, budget, collective, gpus, lease, limits, provenance, storecheck
 from gapsweep.sweep import methods as registry
 from gapsweep.sweep import spec as specmod
 from gapsweep.sweep.context import Context
@@ -167,6 +167,7 @@ def plan(job: str | Path | specmod.JobSpec, shard: tuple[int, int] | None = None
                  "wall (rough model, see docs/jobs.md)")
     size = budget.store_bytes(len(tasks), spec.histogram["bins"], len(spec.text))
     lines.extend(_check_resources(tasks, ranks_per_gpu))
+    lines.extend(_check_collective(tasks, ranks))  # distributed tasks: their slabs on `ranks` ranks
     lines.append(f"  store ~{budget.human(size)}")
     if store is not None:
         path = _store_path(store, shard)
@@ -195,6 +196,14 @@ def _check_resources(tasks: list[Task], ranks_per_gpu: int = 1) -> list[str]:
             raise RunError(f"the GPU tasks need ~{budget.human(need)} per GPU, more than this GPU's "
                            f"{budget.human(have)}: use smaller grids (n), fewer ranks per GPU, or a larger GPU")
     return lines
+
+
+def _check_collective(tasks: list[Task], ranks: int) -> list[str]:
+    """gapsweep.sweep.collective.check_memory, its refusal as a RunError."""
+    try:
+        return collective.check_memory(tasks, ranks)
+    except collective.DoesNotFit as e:
+        raise RunError(str(e)) from None
 
 
 def _store_path(path: str | Path, shard: tuple[int, int] | None) -> Path:
@@ -489,6 +498,11 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
         Path(os.environ["GAPSWEEP_TEST_PIDDIR"], f"rank{rank}.pid").write_text(str(os.getpid()))
     tasks, units = _select(spec, shard, batch)
     _check_resources(tasks, ranks_per_gpu)  # the same refusal as `plan`
+    if collective.is_collective(tasks):  # every rank runs each distributed task together
+        if task_timeout is not None or batch != "off":
+            raise RunError("[methods.gfmd] distributed = true: every rank solves each task together; "
+                           "--task-timeout and --batch do not apply (leave them out)")
+        _check_collective(tasks, size)
     path = _store_path(store, shard)
     shard_text = f"{shard[0]}/{shard[1]}" if shard else ""
 
@@ -644,7 +658,8 @@ def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list
         hosts = sorted(set(comm.allgather(socket.gethostname()))) if comm is not None else [socket.gethostname()]
         attrs = provenance.store_attrs(spec, shard=shard_text) if rank == 0 else None
         # rank 0 works (in a thread, beside coordinating) when asked, or by default with few ranks
-        works = comm is None or coordinator_works == "yes" or (coordinator_works == "auto" and size <= 4)
+        together = comm is not None and collective.is_collective(tasks)  # every rank solves (a GPU each)
+        works = comm is None or together or coordinator_works == "yes" or (coordinator_works == "auto" and size <= 4)
         need_gpu = any(u.gpu for u in units)
         gpu = gpus.rank_gpu(comm, works, gpu_opts[1]) if need_gpu else None
         gpu_ranks = comm.allgather(gpu) if comm is not None else [gpu]
@@ -675,7 +690,14 @@ def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list
         prog = Progress(len(todo), progress if rank == 0 else "none")
         if comm is not None and rank == 0 and wmode == "rank0":  # issue 19: mpiexec's 1-s grace, see below
             stop.on_request = lambda sig: _mark_interrupted(st, record, prog, held, sig)
-        if comm is None:
+        if together:
+            def write(i: int, res: TaskResult) -> None:
+                with stop.critical():
+                    st.write(i, res)
+                prog.update(res)
+
+            collective.run_collective(comm, tasks, units, work, ctx, _run_unit, todo, write, stop)
+        elif comm is None:
             for k in work:
                 for i, res in _run_unit(tasks, units[k], ctx, todo, task_timeout, stop):
                     with stop.critical():
