@@ -908,8 +908,11 @@ def main(store_paths: Sequence[str | Path] | str | Path, out_dir: str | Path, *,
                     f"{foreign[0]}; its manifest {MANIFEST} does not list them); --overwrite replaces only a "
                     "report's own files: move them or choose another folder")
     df, hists, prov = load(paths)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    except OSError as e:
+        raise _write_error(out, e) from None
     old = tmp.with_name(tmp.name + ".old")
     try:
         build(df, hists, tmp, prov, phists=load_pressure(paths))
@@ -920,12 +923,24 @@ def main(store_paths: Sequence[str | Path] | str | Path, out_dir: str | Path, *,
             os.replace(out, old)  # checked above: only the previous report's files
         os.replace(tmp, out)
         shutil.rmtree(old, ignore_errors=True)
-    except BaseException:
+    except BaseException as e:
         shutil.rmtree(tmp, ignore_errors=True)
         if old.exists() and not out.exists():
             os.replace(old, out)
+        if isinstance(e, OSError):
+            raise _write_error(out, e) from None
         raise
     return out / "report.md"
+
+
+class ReportWriteError(RuntimeError):
+    """The report could not be written (full disk, file-size limit, permissions): one line naming the folder."""
+
+
+def _write_error(out: Path, e: OSError) -> ReportWriteError:
+    what = e.strerror or str(e)
+    return ReportWriteError(f"report --out {out}: writing failed ({what}{f': {e.filename}' if e.filename else ''}); "
+                            "nothing was replaced, the stores are untouched")
 
 
 def _inside(child: Path, parent: Path) -> bool:

@@ -394,7 +394,9 @@ def _finished(path: str) -> int:
     pending = int((df.status == "pending").sum())
     if not pending:
         return 0
-    runs = json.loads(store.read_attrs(path).get("runs", "[]"))
+    from gapsweep.sweep.storecheck import run_records
+
+    runs = run_records(store.read_attrs(path).get("runs", "[]"))
     last = runs[-1] if runs else {}
     how = (f"interrupted by {last['interrupted']}" if last.get("interrupted") else
            f"stopped: {last['stopped']}" if last.get("stopped") else

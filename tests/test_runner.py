@@ -152,7 +152,11 @@ def test_shards_merge_equal_single_run(tmp_path):
     assert store.diff(out, single) == []
     with pytest.raises(store.StoreError, match="exists"):
         store.merge(shards, out)
-    assert store.merge(shards[:2], out, overwrite=True)["pending"] > 0
+    # --overwrite replaces an earlier merge of the same job, but never with fewer done rows (issue 31)
+    with pytest.raises(store.StoreError, match="done"):
+        store.merge(shards[:2], out, overwrite=True)
+    assert store.merge(shards, out, overwrite=True)["pending"] == 0
+    assert store.diff(out, single) == []
 
 
 def test_mixed_job_rows(tmp_path):

@@ -149,6 +149,11 @@ def run_batch(tasks: list[Task], unit: Unit, ctx: Context, todo: set[int], limit
             who.append((j, i))
         if probs:
             rows.update(_solve_step(tasks, probs, who, ctx, backend, limit, state, limits))
+        if stop is not None and any(limits.is_interrupted(r.message) for r in rows.values() if r.status == "failed") \
+                and stop.requested():  # cut by a signal (issue 31): those rows stay pending
+            if stop.mode == "raise":
+                raise limits.Interrupted(stop.signum)
+            return
         for _, i in live:
             if i in todo:
                 yield i, rows[i]
