@@ -11,7 +11,8 @@ import shutil
 import numpy as np
 import pytest
 
-from gapsweep import batching, gpus, runner, spec, store, tasks
+from gapsweep import runner, spec, store
+from gapsweep.sweep import batching, gpus, tasks
 
 JOB = """
 [job]

@@ -226,7 +226,7 @@ def test_exponential_on_rectangular_grid() -> None:
 
 
 def _cupy_or_skip():
-    from gapsweep import fft as gfft
+    from gapsweep.core import fft as gfft
 
     if "cupy" not in gfft.available_backends():
         pytest.skip("no GPU / cupy")

@@ -16,7 +16,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gapsweep import spec, store, tasks
+from gapsweep import spec, store
+from gapsweep.sweep import tasks
 
 ROOT = Path(__file__).resolve().parents[1]
 JOB = ROOT / "jobs" / "contact_file.toml"
@@ -179,7 +180,7 @@ def test_contact_store_holds_every_quantity(contact_store):
 
 @pytest.mark.timeout(300)
 def test_contact_report_has_data_in_every_figure(contact_store, tmp_path):
-    from analysis import report
+    from gapsweep.analysis import report
 
     out = tmp_path / "rep"
     text = report.main([contact_store], out).read_text()

@@ -55,7 +55,7 @@ def test_to_dataset_by_path_cf_attrs_and_theory_broadcast(mixed):
     assert ds.attrs["Conventions"].startswith("CF-") and ds.attrs["gapsweep_job_name"] == "test-mixed"
     assert len(ds.attrs["gapsweep_spec_sha256"]) == 64 and "versions" in "".join(ds.attrs)
     # The analysis wrapper opens it by path too.
-    from analysis import dataset as adataset
+    from gapsweep.analysis import dataset as adataset
 
     assert adataset.to_dataset(mixed)["gfmd_mean_gap"].equals(ds["gfmd_mean_gap"])
 

@@ -209,10 +209,8 @@ def to_dataset(path: str | Path, *, n: int | None = None, c2: float | None = Non
 def _drop_placeholders(ds: Any, spec_text: str) -> Any:
     """Leave out the axes a job does not have: ``hurst`` for a measured map (it is 0 there), ``rho`` for the
     hard wall (0: no interaction range)."""
-    try:
-        import tomllib
-    except ImportError:  # pragma: no cover - Python 3.10
-        import tomli as tomllib
+    import tomllib
+
     try:
         raw = tomllib.loads(spec_text)
     except (tomllib.TOMLDecodeError, TypeError):

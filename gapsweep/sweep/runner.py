@@ -774,3 +774,4 @@ def _work(comm: Any, tasks: list[Task], units: list[Unit], todo: set[int], ctx: 
 def _fields_dir(store: str | Path) -> Path:
 
     return fields_dir(store)
+
