@@ -4,17 +4,18 @@ hold the paper's parameter sets (docs/model.md M6).
 ``main(store_paths, out_dir)`` reads the stores (``gapsweep.store.read`` / ``read_histograms``), aggregates
 (:mod:`gapsweep.analysis.aggregate`), compares (:mod:`gapsweep.analysis.compare`), draws
 (:mod:`gapsweep.analysis.figures`) and writes into ``out_dir``: ``report.md``, ``report.html``, the figures (PNG +
-PDF) that :func:`plan_figures` chooses from the stores' axes and methods (``fig2`` .. ``fig6`` for jobs matching
-the paper's sets, ``gap_vs_pressure_*``, ``gap_vs_hurst_*``, ``gap_distribution_*`` for any other sweep, ``fig_agreement``), ``figures.csv`` (each figure
-with the data points of its emptiest panel; a figure with an empty panel is never written), and the CSV tables
-``status.csv``, ``mean_gap.csv``, ``theory_vs_gfmd.csv``, ``agreement_points.csv``, ``agreement_summary.csv``,
-``hist_distances.csv``, ``histograms.csv`` (merged densities, long format). :func:`build` does the same from a
-DataFrame and a histogram dict (no store), which is what the tests use.
+PDF) that :func:`plan_figures` chooses from the stores' axes and methods (``fig2`` .. ``fig6`` for jobs matching the
+paper's sets, ``gap_vs_pressure_*``, ``gap_vs_hurst_*``, ``gap_distribution_*`` for any other sweep,
+``fig_agreement``), ``figures.csv`` (each figure with the data points of its emptiest panel; a figure with an empty
+panel is never written), and the CSV tables ``status.csv``, ``mean_gap.csv``, ``theory_vs_gfmd.csv``,
+``agreement_points.csv``, ``agreement_summary.csv``, ``hist_distances.csv``, ``histograms.csv`` (merged densities,
+long format). :func:`build` does the same from a DataFrame and a histogram dict (no store), which is what the tests
+use.
 
 Verdict rules (stated in the report too): the theory "agrees" with GFMD on a curve when every point that is not
-ill-conditioned (``|g0| >= 0.25 h_rms``, see :mod:`gapsweep.analysis.compare`) has ``|rel_err| <= 5 %``; a trend is read
-from Spearman's rank correlation; the SDE "matches" GFMD when ``L1 <= 0.1`` (at most 5 % of the probability mass
-misplaced). A claim whose points are not in the stores gets "not enough data".
+ill-conditioned (``|g0| >= 0.25 h_rms``, see :mod:`gapsweep.analysis.compare`) has ``|rel_err| <= 5 %``; a trend is
+read from Spearman's rank correlation; the SDE "matches" GFMD when ``L1 <= 0.1`` (at most 5 % of the probability
+mass misplaced). A claim whose points are not in the stores gets "not enough data".
 """
 
 from __future__ import annotations
