@@ -14,7 +14,8 @@ import pytest
 import gapsweep
 
 PKG = Path(gapsweep.__file__).resolve().parent
-PHYSICS = ("gapsweep.core", "gapsweep.surfaces", "gapsweep.gfmd", "gapsweep.theory", "gapsweep.gapdist")
+PHYSICS = ("gapsweep.core", "gapsweep.surfaces", "gapsweep.gfmd", "gapsweep.theory", "gapsweep.gapdist",
+           "gapsweep.reference")
 
 
 def _module_name(path: Path) -> str:

@@ -9,7 +9,7 @@ runs sweeps in one process and writes reports. Everything else is an extra of ``
 | ``sde`` | warp-lang | the SDE ensembles (CPU and GPU) |
 | ``gpu`` | cupy | GFMD on an NVIDIA GPU (``backend="cupy"``) |
 | ``mpi`` | mpi4py | MPI task farms (``mpiexec -n P gapsweep run``) |
-| ``xarray`` | xarray, netCDF4 | ``gapsweep.store.to_dataset``, ``gapsweep export``, kept fields |
+| ``xarray`` | xarray, h5netcdf | ``store.to_dataset``, ``gapsweep export`` (netCDF4 via h5netcdf), kept fields |
 | ``topography`` | SurfaceTopography | Gaussian-amplitude surfaces by a peer code (benchmarks) |
 | ``progress`` | tqdm | a progress bar on a terminal (log lines otherwise) |
 """
@@ -30,7 +30,7 @@ EXTRAS: dict[str, tuple[str, str]] = {
     "cupyx": ("cupy-cuda12x", "gpu"),
     "mpi4py": ("mpi4py", "mpi"),
     "xarray": ("xarray", "xarray"),
-    "netCDF4": ("netCDF4", "xarray"),
+    "h5netcdf": ("h5netcdf", "xarray"),
     "SurfaceTopography": ("SurfaceTopography", "topography"),
     "tqdm": ("tqdm", "progress"),
 }

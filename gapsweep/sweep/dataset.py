@@ -229,8 +229,12 @@ def _drop_placeholders(ds: Any, spec_text: str) -> Any:
 def apply_units(ds: Any, units: Mapping[str, str | None]) -> Any:
     """Give every variable and coordinate measured in the model's length ``L`` or pressure ``E*`` the job's
     physical unit (CF ``units``, e.g. ``"um"``, ``"MPa"``, ``"MPa um"`` for an energy per area) when the store
-    records one (attribute ``units``, docs/store.md); model units stay ``"1"`` with ``reference_unit``."""
-    length, pressure = units.get("length"), units.get("pressure")
+    records one (attribute ``units``, docs/store.md), spelled for UDUNITS (``"A"`` is written ``"angstrom"``,
+    not ampere); model units stay ``"1"`` with ``reference_unit``. ``gapsweep_units`` keeps the job's own
+    spelling."""
+    from gapsweep.sweep.fields import cf_unit
+
+    length, pressure = cf_unit(units.get("length")), cf_unit(units.get("pressure"))
     phys = {"L": length, "E*": pressure, "E* L": f"{pressure} {length}" if pressure and length else None}
     for name in [*ds.data_vars, *ds.coords]:
         a = ds[name].attrs

@@ -2,8 +2,8 @@
 
 :func:`run_task` never raises: an exception becomes a ``failed`` row with its message, a solver warning goes into
 the row's message, a non-finite mean gap of a ``done`` row turns it into ``failed`` (never a NaN stored as
-success), and every row gets its wall time and rank. Test hooks (``GAPSWEEP_TEST_DELAY``,
-``GAPSWEEP_TEST_FAIL``) live in :class:`gapsweep.sweep.context.Context`.
+success), and every row gets its wall time and rank. The test hook ``GAPSWEEP_TEST_DELAY``
+and the fault-injection seam ``_fail`` live in :class:`gapsweep.sweep.context.Context`.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ def run_task(t: Task, ctx: Context, prev: Any = None) -> tuple[TaskResult, Any]:
         if ctx._delay:
             test_delay(ctx._delay)
         if t.sigma0 in ctx._fail:
-            raise RuntimeError(f"injected failure (GAPSWEEP_TEST_FAIL) at sigma0={t.sigma0!r}")
+            raise RuntimeError(f"injected failure at sigma0={t.sigma0!r}")
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             res, state = registry.get(t.method).run(t, ctx, prev)

@@ -136,8 +136,6 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
         try:
             st = Store.create(tmp, tasks, attrs, bins)
             try:
-                if os.environ.get("GAPSWEEP_TEST_MERGE_DELAY"):  # test hook: a signal while the output is written
-                    __import__("time").sleep(float(os.environ["GAPSWEEP_TEST_MERGE_DELAY"]))
                 if len(tasks):
                     st.f["histograms/edges"][...] = edges
                     st.f["histograms/density"][...] = dens

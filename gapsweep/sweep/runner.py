@@ -377,8 +377,6 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     spec = _load(job)
     comm = _comm(mpi)
     rank, size = (comm.rank, comm.size) if comm is not None else (0, 1)
-    if os.environ.get("GAPSWEEP_TEST_PIDDIR"):  # test hook: lets a test kill -9 one particular rank
-        Path(os.environ["GAPSWEEP_TEST_PIDDIR"], f"rank{rank}.pid").write_text(str(os.getpid()))
     tasks, units = _select(spec, shard, batch)
     _check_resources(tasks, ranks_per_gpu)  # the same refusal as `plan`
     path = _store_path(store, shard)
@@ -473,8 +471,6 @@ def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list
                     held.bind(path)
                 runs = json.loads(st.f.attrs.get("runs", "[]"))
                 st.set_attrs({"runs": json.dumps([*runs, record])}, flush=True)  # survives a kill -9
-        if os.environ.get("GAPSWEEP_TEST_ABORT_RANK", "") == str(rank):
-            raise RuntimeError(f"injected error on rank {rank} (GAPSWEEP_TEST_ABORT_RANK)")
         prog = Progress(len(todo), progress if rank == 0 else "none")
         if comm is not None and rank == 0 and wmode == "rank0":  # issue 19: mpiexec's 1-s grace, see below
             stop.on_request = lambda sig: _mark_interrupted(st, record, prog, held, sig)

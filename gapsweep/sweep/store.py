@@ -28,7 +28,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import os
 from collections.abc import Iterable, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -378,22 +377,9 @@ class Store:
         except (OSError, RuntimeError) as e:
             raise _failed(f"store {self.path}: writing row {i} failed ({e})") from None
 
-    _writes = 0
-
     def _inject(self) -> None:
-        # Test hook (tests/faults): GAPSWEEP_TEST_WRITE_ERROR=k makes the k-th row write of this process fail
-        # between its payload and its status, as a full disk would.
-        # GAPSWEEP_TEST_KILL_AT_WRITE=k kills the process (SIGKILL) at that same point.
-        k = os.environ.get("GAPSWEEP_TEST_WRITE_ERROR", "")
-        kill = os.environ.get("GAPSWEEP_TEST_KILL_AT_WRITE", "")
-        if k or kill:
-            Store._writes += 1
-            if kill and Store._writes == int(kill):
-                import signal
-
-                os.kill(os.getpid(), signal.SIGKILL)
-            if k and Store._writes == int(k):
-                raise OSError(28, "No space left on device (injected by GAPSWEEP_TEST_WRITE_ERROR)")
+        """Fault-injection seam between a row's payload and its status: does nothing here. The fault suite
+        replaces it from outside the package (a full disk, a kill -9 at that point; tests/hooks)."""
 
     def set_attrs(self, attrs: dict[str, Any], *, flush: bool = False) -> None:
         """Set file attributes (collective under mpio: every rank passes the same values)."""
