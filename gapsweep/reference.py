@@ -75,7 +75,7 @@ def westergaard(x: Any, pbar: float, amplitude: float, e_star: float = 1.0, lam:
 
     and the pressure at ``x`` (one period ``0 <= x < lam``, contact centred on ``x = 0``):
 
-        p(x) = 2 pbar cos(pi x/lam) sqrt(sin^2(pi a/lam) - sin^2(pi x/lam)) / sin^2(pi a/lam)   for |x| < a.
+        p(x) = 2 pbar cos(pi x/lam) sqrt(sin^2(pi a/lam) - sin^2(pi x/lam)) / sin^2(pi a/lam)   for abs(x) < a.
     """
     pstar = math.pi * e_star * amplitude / lam
     if not 0 < pbar <= pstar:
