@@ -235,14 +235,15 @@ def check_file(md: Path, strict_sections: tuple[str, ...] = (), sourced: bool = 
         plain = CODE.sub("", rest)
         plain = re.sub(r"<!--.*?-->", "", plain, flags=re.S)
         strict = head.startswith(strict_sections) if strict_sections else False
-        strict = strict or STRICT_MARK in body
+        bare = CODE.sub("", body)  # a marker quoted in a code span is no marker
+        strict = strict or STRICT_MARK in bare
         if strict:
             for i, line in enumerate(plain.splitlines()):
                 for m in NUMBER.finditer(line):
                     problems.append(f"{md.relative_to(ROOT)}:{line0 + 1 + i}: the number {m[2]!r} names no "
                                     f"result file (a checked link, or a parameter in code)")
-        elif UNSOURCED.search(body):
-            DEBTS.append(f"{md.relative_to(ROOT)}:{line0}: {head}: {UNSOURCED.search(body)[1].strip()}")
+        elif UNSOURCED.search(bare):
+            DEBTS.append(f"{md.relative_to(ROOT)}:{line0}: {head}: {UNSOURCED.search(bare)[1].strip()}")
         elif sourced and head and NUMBER.search(CODE.sub("", body)) and not _names_result(md, body):
             problems.append(f"{md.relative_to(ROOT)}:{line0}: section {head!r} quotes numbers but names no "
                             "result file that exists")

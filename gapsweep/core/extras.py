@@ -10,7 +10,7 @@ runs sweeps in one process and writes reports. Everything else is an extra of ``
 | ``gpu`` | cupy | GFMD on an NVIDIA GPU (``backend="cupy"``) |
 | ``mpi`` | mpi4py | MPI task farms (``mpiexec -n P gapsweep run``) |
 | ``xarray`` | xarray, h5netcdf | ``store.to_dataset``, ``gapsweep export`` (netCDF4 via h5netcdf), kept fields |
-| ``topography`` | SurfaceTopography | Gaussian-amplitude surfaces by a peer code (benchmarks) |
+| ``topography`` | SurfaceTopography | height maps in SurfaceTopography's formats; peer-code surfaces |
 | ``progress`` | tqdm | a progress bar on a terminal (log lines otherwise) |
 """
 
