@@ -116,7 +116,7 @@ def _parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("demo", help="run the shipped demo job: GFMD vs field theory (figure 2) and a gap distribution")
     s.add_argument("--out", default="out", help="output directory (default: out)")
-    s.add_argument("--job", default=None, help="job spec (default: the demo.toml shipped with gapsweep)")
+    s.add_argument("--job", default=None, help="job spec or shipped job name (default: the shipped demo)")
     s.add_argument("--theory-only", action="store_true", help="only the field-theory figure-2 table and figure")
     return p
 
@@ -321,9 +321,7 @@ def _demo(args: argparse.Namespace) -> int:
         return 0
     from gapsweep import jobs
 
-    job = Path(args.job) if args.job else jobs.path("demo")
-    if not job.is_file():
-        raise FileNotFoundError(f"demo job spec {job}: no such file")
+    job = jobs.resolve(args.job) if args.job else jobs.path("demo")
     res = demo.run(job, out)
     print(res["status"])
     if res["table"]:
