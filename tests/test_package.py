@@ -66,7 +66,7 @@ def test_jobs_lists_and_run_by_name(tmp_path):
     df = store.read(tmp_path / "q.h5")
     assert len(df) > 0 and (df.status == "done").all()
     r = _gs("run", "no_such_job", "--store", "x.h5", cwd=tmp_path)
-    assert r.returncode == 1 and "gapsweep jobs" in r.stderr and not (tmp_path / "x.h5").exists()
+    assert r.returncode == 2 and "gapsweep jobs" in r.stderr and not (tmp_path / "x.h5").exists()  # a bad argument
 
 
 def test_report_with_a_users_analysis_module(tmp_path):

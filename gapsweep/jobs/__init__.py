@@ -12,7 +12,7 @@ import tomllib
 from importlib import resources
 from pathlib import Path
 
-__all__ = ["describe", "names", "path", "resolve"]
+__all__ = ["NoSuchJob", "describe", "names", "path", "resolve"]
 
 
 def _folder() -> Path:
@@ -33,17 +33,21 @@ def path(name: str) -> Path:
     return p
 
 
+class NoSuchJob(FileNotFoundError, ValueError):
+    """A job argument that is neither a file nor a shipped job name (the CLI's exit code 2: a bad argument)."""
+
+
 def resolve(job: str | Path) -> Path:
     """A job argument of the command line: an existing file is that file; otherwise a bare name (no folder, e.g.
-    ``fig2`` or ``fig2.toml``) is the shipped spec of that name. Anything else raises :class:`FileNotFoundError`
-    naming the shipped specs."""
+    ``fig2`` or ``fig2.toml``) is the shipped spec of that name. Anything else raises :class:`NoSuchJob` (a
+    :class:`FileNotFoundError` and a :class:`ValueError`) naming the shipped specs."""
     p = Path(job)
     if p.is_file():
         return p
     if p.parent == Path(".") and (p.suffix in ("", ".toml")) and (_folder() / f"{p.stem}.toml").is_file():
         return path(p.stem)
-    raise FileNotFoundError(f"job spec {str(job)!r}: no such file, nor a shipped job name "
-                            f"(`gapsweep jobs` lists them: {', '.join(names())})")
+    raise NoSuchJob(f"job spec {str(job)!r}: no such file, nor a shipped job name "
+                    f"(`gapsweep jobs` lists them: {', '.join(names())})")
 
 
 def describe(name: str) -> str:
