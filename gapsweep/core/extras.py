@@ -9,6 +9,7 @@ runs sweeps in one process and writes reports. Everything else is an extra of ``
 | ``sde`` | warp-lang | the SDE ensembles (CPU and GPU) |
 | ``gpu`` | cupy | GFMD on an NVIDIA GPU (``backend="cupy"``) |
 | ``mpi`` | mpi4py | MPI task farms (``mpiexec -n P gapsweep run``) |
+| ``distributed`` | mpi4py (+ cupy with NCCL on GPUs) | one GFMD solve over MPI ranks (``gfmd.solve(comm=...)``) |
 | ``xarray`` | xarray, h5netcdf | ``store.to_dataset``, ``gapsweep export`` (netCDF4 via h5netcdf), kept fields |
 | ``topography`` | SurfaceTopography | height maps in SurfaceTopography's formats; peer-code surfaces |
 | ``progress`` | tqdm | a progress bar on a terminal (log lines otherwise) |

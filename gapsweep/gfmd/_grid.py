@@ -94,6 +94,52 @@ class Grid:
         """``(E*/4) sum_q q |u~(q)|^2``: elastic energy per nominal area of the displacement ``u`` (M3)."""
         return 0.5 * self.dot(u_hat, (0.5 * e_star) * self.q * u_hat)
 
+    # Reductions over the whole grid. A distributed grid (gapsweep.gfmd.distributed.SlabGrid) holds a slab of
+    # rows (real space) and of half-spectrum columns (Fourier space) per rank and combines them over the ranks;
+    # the minimisers call these instead of the array methods, so one algorithm serves both.
+    @property
+    def real_shape(self) -> tuple[int, int]:
+        """Shape of the real fields this process holds (the whole grid here)."""
+        return self.shape
+
+    def spectrum_zeros(self) -> Any:
+        """Zero half-spectrum coefficients of the fields this process holds."""
+        return self.xp.zeros((self.shape[0], self.shape[1] // 2 + 1), dtype=self.xp.complex128)
+
+    def mean(self, a: Any) -> float:
+        """Grid mean of the real field ``a``."""
+        return float(self.xp.mean(a))
+
+    def total(self, a: Any) -> float:
+        return float(self.xp.sum(a))
+
+    def amin(self, a: Any) -> float:
+        return float(a.min())
+
+    def amax(self, a: Any) -> float:
+        return float(a.max())
+
+    def count(self, mask: Any) -> int:
+        return int(self.xp.count_nonzero(mask))
+
+    def agree(self, flag: bool) -> bool:
+        """Whether ``flag`` holds on every process (here: the one)."""
+        return bool(flag)
+
+    def all_finite(self, a: Any) -> bool:
+        return self.agree(bool(self.xp.all(self.xp.isfinite(a))))
+
+    def mode0(self, a: Any) -> complex:
+        """The ``q = 0`` coefficient of the half spectrum ``a``."""
+        return complex(a[0, 0])
+
+    def set_mode0(self, a: Any, value: complex) -> None:
+        a[0, 0] = value
+
+    def reduce_ops(self, ops: Any) -> Any:
+        """The hard-wall passes (gfmd._constrained_ops) with their scalars combined over the grid: as they are."""
+        return ops
+
     def to_host(self, a: Any) -> np.ndarray:
         return a.get() if self.xp is not np else a
 
