@@ -28,7 +28,7 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -39,13 +39,13 @@ from gapsweep.sweep.context import Context
 from gapsweep.sweep.execute import run_task
 from gapsweep.sweep.fields import fields_dir, remove_fields
 from gapsweep.sweep.limits import Interrupted, TaskTimeout
-from gapsweep.sweep.schema import STATUS, Task, TaskResult, Unit
+from gapsweep.sweep.schema import PRESSURE_HIST, STATUS, Task, TaskResult, Unit
 from gapsweep.sweep.spec import check_extra
 from gapsweep.sweep.store import Store, StoreError, StoreWriteError, open_read
 from gapsweep.sweep.store import io_failed as store_io_failed
 from gapsweep.sweep.tasks import estimate_cost, expand, make_units, shard_units
 
-__all__ = ["Interrupted", "RunError", "parse_shard", "plan", "run"]
+__all__ = ["Interrupted", "RunError", "parse_shard", "plan", "reusable_rows", "run"]
 
 log = logging.getLogger("gapsweep.runner")
 
@@ -353,7 +353,8 @@ def warm_up(t: Task, ctx: Context) -> None:
 def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = False, overwrite: bool = False,
         shard: tuple[int, int] | None = None, writer: str = "auto", progress: str = "auto",
         coordinator_works: str = "auto", mpi: str = "auto", break_lease: bool = False,
-        task_timeout: float | None = None, batch: str = "off", ranks_per_gpu: int = 1) -> dict[str, Any]:
+        task_timeout: float | None = None, batch: str = "off", ranks_per_gpu: int = 1,
+        reuse: Sequence[str | Path] = ()) -> dict[str, Any]:
     """Run a job into a store (serially or as an MPI task farm). Returns a summary dict on every rank.
 
     ``writer``: auto | mpio | rank0 (env ``GAPSWEEP_WRITER`` overrides auto); ``progress``: auto | bar | log |
@@ -361,7 +362,8 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     ``break_lease``: take over the lease of a run that is gone; ``task_timeout``: per-task wall-time limit [s];
     ``batch``: off (default: one solve at a time, faster in the sweep) | auto (GFMD chains batched on GPU ranks,
     gapsweep.batching) | all (also CPU backends: for tests and comparisons); ``ranks_per_gpu``: ranks sharing
-    one GPU (gapsweep.gpus).
+    one GPU (gapsweep.gpus); ``reuse``: other stores whose verified ``done`` rows of the same tasks (task id) are
+    copied instead of run (:func:`reusable_rows`; the run record names the sources).
 
     Raises :class:`RunError` when the run cannot start or a write fails (rows finished before stay done),
     :class:`~gapsweep.limits.Interrupted` after a clean stop on SIGINT/SIGTERM or a ``<store>.stop`` file (the
@@ -386,11 +388,15 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     # error. Nothing opens the store for writing before the lease is held.
     decision: Any = None
     held: lease.Lease | None = None
+    reused: dict[int, tuple[str, Any, tuple]] = {}
     if rank == 0:
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             held = lease.acquire(path, break_lease=break_lease)
             decision = (*_decide(path, spec, tasks, shard_text, resume, overwrite), held.run_id)
+            if reuse and decision[0] != "noop":
+                reused = reusable_rows(reuse, path, tasks, decision[1], spec.histogram["bins"])
+                decision = (decision[0], [i for i in decision[1] if i not in reused], decision[2])
             _stop_file(path).unlink(missing_ok=True)  # a stop request of an earlier run
         except Exception as e:  # every rank must learn about it, or the others wait in bcast forever
             decision = e if isinstance(e, RunError) else RunError(
@@ -404,10 +410,63 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
         raise decision
     try:
         return _execute(spec, comm, rank, size, tasks, units, path, shard_text, decision, writer, progress,
-                        coordinator_works, task_timeout, held, (batch, ranks_per_gpu))
+                        coordinator_works, task_timeout, held, (batch, ranks_per_gpu), reused)
     finally:
         if held is not None:
             held.release()
+
+
+def reusable_rows(sources: Sequence[str | Path], path: Path, tasks: list[Task], todo: list[int], bins: int,
+                  ) -> dict[int, tuple[str, Any, tuple]]:
+    """Rows of ``todo`` that other stores hold ``done`` for the same task (task id: the content hash), as
+    ``{index: (source, results row, (edges, density, pressure edges, pressure density))}``; the first source
+    that has a task wins. Only rows whose checksum verifies are taken (a store of format 1 or 2 has none: it is
+    skipped with a warning), from stores of the same histogram bins; the store being written is never a source.
+    """
+    want = {tasks[i].task_id: i for i in todo}
+    out: dict[int, tuple[str, Any, tuple]] = {}
+    for src in sources:
+        sp = Path(src)
+        if sp.resolve() == path.resolve():
+            raise ValueError(f"--reuse {src}: that is the store being written")
+        with open_read(sp, check=False) as f:
+            rep = storecheck.check(f, sp)
+            if not rep.checksums:
+                log.warning("--reuse %s: a store without row checksums (format 1 or 2): its rows cannot be "
+                            "verified, none reused", sp)
+                continue
+            if f["histograms/density"].shape[1] != bins:
+                log.warning("--reuse %s: %d histogram bins, this job %d: none reused", sp,
+                            f["histograms/density"].shape[1], bins)
+                continue
+            n = f["tasks"].shape[0]
+            ids = [x.decode() for x in f["tasks"].fields("task_id")[...]] if n else []
+            status = f["results"].fields("status")[...] if n else []
+            bad = set(rep.rerun)
+            take = [j for j, tid in enumerate(ids) if tid in want and want[tid] not in out and j not in bad
+                    and int(status[j]) == STATUS["done"]]
+            if not take:
+                continue
+            res = f["results"][...]
+            h = [f[k][...] for k in ("histograms/edges", "histograms/density", *PRESSURE_HIST)]
+        for j in take:
+            out[want[ids[j]]] = (str(sp.absolute()), res[j], tuple(a[j] for a in h))
+        log.info("--reuse %s: %d row(s) copied instead of run", sp, len(take))
+    return out
+
+
+def _reused_record(reused: dict[int, tuple[str, Any, tuple]] | None) -> dict[str, Any]:
+    """The run record's ``reused`` entry: rows copied per source store (nothing when none was)."""
+    if not reused:
+        return {}
+    srcs = sorted({v[0] for v in reused.values()})
+    return {"reused": {s: sum(1 for v in reused.values() if v[0] == s) for s in srcs}}
+
+
+def _copy_reused(st: Store, reused: dict[int, tuple[str, Any, tuple]] | None) -> None:
+    """Write the rows taken from other stores (rank 0, which alone has them)."""
+    for i, (_src, row, hists) in sorted((reused or {}).items()):
+        st.copy_row(i, row, hists)
 
 
 def _stop_file(path: Path) -> Path:
@@ -417,7 +476,7 @@ def _stop_file(path: Path) -> Path:
 def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list[Task], units: list[Unit],
              path: Path, shard_text: str, decision: tuple, writer: str, progress: str, coordinator_works: str,
              task_timeout: float | None, held: lease.Lease | None, gpu_opts: tuple[str, int] = ("auto", 1),
-             ) -> dict[str, Any]:
+             reused: dict[int, tuple[str, Any, tuple]] | None = None) -> dict[str, Any]:
     mode, todo_list, run_id = decision
     summary: dict[str, Any] = {"store": str(path), "tasks": len(tasks), "todo": len(todo_list), "mode": mode,
                                "mpi_size": size, "rank": rank, **dict.fromkeys(STATUS, 0)}
@@ -457,6 +516,7 @@ def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list
                   "writer": wmode, "mode": mode, "todo": len(todo_list), "run_id": run_id,
                   **(provenance.run_extras(spec, gpu_ranks=gpu_ranks, batch=gpu_opts[0],
                                            batch_units=sum(u.kind == "batch" for u in units)) if rank == 0 else {})}
+        record.update(_reused_record(reused))
         if comm is not None:
             attrs, record = comm.bcast((attrs, record), root=0)
         ctx = Context(rank=rank, gpu=gpu)
@@ -471,6 +531,7 @@ def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list
                     held.bind(path)
                 runs = json.loads(st.f.attrs.get("runs", "[]"))
                 st.set_attrs({"runs": json.dumps([*runs, record])}, flush=True)  # survives a kill -9
+                _copy_reused(st, reused)
         prog = Progress(len(todo), progress if rank == 0 else "none")
         if comm is not None and rank == 0 and wmode == "rank0":  # issue 19: mpiexec's 1-s grace, see below
             stop.on_request = lambda sig: _mark_interrupted(st, record, prog, held, sig)

@@ -377,6 +377,33 @@ class Store:
         except (OSError, RuntimeError) as e:
             raise _failed(f"store {self.path}: writing row {i} failed ({e})") from None
 
+    def copy_row(self, i: int, row: np.void, hists: tuple[np.ndarray, ...]) -> None:
+        """Write row ``i`` as a finished row taken from another store (``gapsweep run --reuse``): its results row
+        (copied by column name) and histograms (gap and pressure: edges, density), payload first, with the
+        checksum of this store's row; flushed like :meth:`write`."""
+        e, d, pe, pd = (np.asarray(a, dtype=np.float64) for a in hists)
+        r = empty_results(1, self._rdtype)[0]
+        for k in self._rdtype.names:
+            if k in (row.dtype.names or ()) and k != CHECKSUM:
+                r[k] = row[k]
+        with _quiet_dealloc():
+            try:
+                self._edges[i], self._density[i] = e, d
+                if self._pedges is not None:
+                    self._pedges[i], self._pdensity[i] = pe, pd
+                if not self.parallel:
+                    self.f.flush()
+                if self._ck:
+                    r[CHECKSUM] = row_checksum(self._task_rows[i], r, (e, d, pe, pd))
+                    self._has_hist[i] = bool(np.isfinite(e[0]))
+                    if self._has_phist is not None:
+                        self._has_phist[i] = bool(np.isfinite(pe[0]))
+                self._res[i] = r
+                if not self.parallel:
+                    self.f.flush()
+            except (OSError, RuntimeError) as exc:
+                raise _failed(f"store {self.path}: writing row {i} failed ({exc})") from None
+
     def _inject(self) -> None:
         """Fault-injection seam between a row's payload and its status: does nothing here. The fault suite
         replaces it from outside the package (a full disk, a kill -9 at that point; tests/hooks)."""

@@ -10,6 +10,7 @@ gapsweep modules are patched right after they load:
 ``GAPSWEEP_TEST_FAIL=a,b``      tasks with these sigma0 values fail ("RuntimeError: injected failure ...")
 ``GAPSWEEP_TEST_WRITE_ERROR=k`` the k-th row write of the process fails with ENOSPC between payload and status
 ``GAPSWEEP_TEST_KILL_AT_WRITE=k`` the process SIGKILLs itself at that same point
+``GAPSWEEP_TEST_SIGNAL_AT_WRITE=k`` the process sends itself SIGTERM there (a clean stop after that row)
 ``GAPSWEEP_TEST_PIDDIR=DIR``    each rank writes ``DIR/rank<r>.pid`` once its communicator exists
 ``GAPSWEEP_TEST_ABORT_RANK=r``  rank r raises after the store is open (where the progress starts)
 ``GAPSWEEP_TEST_GPUS=n``        the number of visible GPUs (the GPU-per-rank policy on machines without one)
@@ -62,9 +63,11 @@ def patch_context(mod: Any, values: set[float]) -> None:
     mod.Context.__init__ = __init__
 
 
-def patch_store(mod: Any, write_error: int, kill_at: int) -> None:
+def patch_store(mod: Any, write_error: int, kill_at: int, signal_at: int = 0) -> None:
     def _inject(self: Any) -> None:
         _STATE["writes"] += 1
+        if signal_at and _STATE["writes"] == signal_at:
+            os.kill(os.getpid(), signal.SIGTERM)
         if kill_at and _STATE["writes"] == kill_at:
             os.kill(os.getpid(), signal.SIGKILL)
         if write_error and _STATE["writes"] == write_error:
@@ -114,9 +117,10 @@ def _patches() -> dict[str, Any]:
     out: dict[str, Any] = {}
     if _env("FAIL"):
         out["gapsweep.sweep.context"] = lambda m: patch_context(m, _fail_values(_env("FAIL")))
-    if _env("WRITE_ERROR") or _env("KILL_AT_WRITE"):
+    if _env("WRITE_ERROR") or _env("KILL_AT_WRITE") or _env("SIGNAL_AT_WRITE"):
         out["gapsweep.sweep.store"] = lambda m: patch_store(m, int(_env("WRITE_ERROR") or 0),
-                                                            int(_env("KILL_AT_WRITE") or 0))
+                                                            int(_env("KILL_AT_WRITE") or 0),
+                                                            int(_env("SIGNAL_AT_WRITE") or 0))
     if _env("PIDDIR") or _env("ABORT_RANK"):
         out["gapsweep.sweep.runner"] = lambda m: patch_runner(m, _env("PIDDIR"), _env("ABORT_RANK"))
     if _env("GPUS"):
