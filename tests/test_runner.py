@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from gapsweep import runner, spec, store, surface, theory
+from tests.hooks import gapsweep_test_hooks as hooks
 
 ROOT = Path(__file__).resolve().parent.parent
 THEORY_JOB = ROOT / "jobs" / "test_theory.toml"
@@ -59,7 +60,7 @@ def test_theory_rows_equal_direct_calls(theory_ref):
 
 def test_failure_isolation_and_rerun_noop(tmp_path, monkeypatch, theory_ref):
     fail = spec.load(THEORY_JOB).grid["sigma0"][2]
-    monkeypatch.setenv("GAPSWEEP_TEST_FAIL", repr(fail))
+    hooks.fail_at(monkeypatch, fail)
     path = tmp_path / "f.h5"
     s = _run(THEORY_JOB, path)
     assert s["failed"] == 8 and s["done"] == 40

@@ -132,9 +132,9 @@ def run_batch(tasks: list[Task], unit: Unit, ctx: Context, todo: set[int], limit
         probs, who = [], []
         for j, i in live:
             t = tasks[i]
-            if t.sigma0 in ctx._fail:  # test hook, as in run_task
-                rows[i] = TaskResult("failed", f"RuntimeError: injected failure (GAPSWEEP_TEST_FAIL) at "
-                                     f"sigma0={t.sigma0!r}", {"wall_time": 0.0, "rank": ctx.rank})
+            if t.sigma0 in ctx._fail:  # fault-injection seam, as in run_task
+                rows[i] = TaskResult("failed", f"RuntimeError: injected failure at sigma0={t.sigma0!r}",
+                                     {"wall_time": 0.0, "rank": ctx.rank})
                 state[j] = None
                 continue
             if j not in heights:

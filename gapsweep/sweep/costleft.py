@@ -132,7 +132,7 @@ def cost_left(path: str | Path, now: _dt.datetime | None = None) -> dict[str, An
     fin_wall = wall[finished & np.isfinite(wall)]
     mean_wall = float(fin_wall.mean()) if fin_wall.size else None
     rate = _rate(p, runs, int((status != STATUS["pending"]).sum()), len(ids), mean_wall,
-                 now or _dt.datetime.now(_dt.timezone.utc))
+                 now or _dt.datetime.now(_dt.UTC))
     procs = int(runs[-1].get("mpi_size", 1) or 1) if runs else 1
     start_s = startup * procs if remaining else 0.0
     core_s, gpu_s = float(est[~g].sum()) + start_s, float(est[g].sum())

@@ -209,10 +209,8 @@ def to_dataset(path: str | Path, *, n: int | None = None, c2: float | None = Non
 def _drop_placeholders(ds: Any, spec_text: str) -> Any:
     """Leave out the axes a job does not have: ``hurst`` for a measured map (it is 0 there), ``rho`` for the
     hard wall (0: no interaction range)."""
-    try:
-        import tomllib
-    except ImportError:  # pragma: no cover - Python 3.10
-        import tomli as tomllib
+    import tomllib
+
     try:
         raw = tomllib.loads(spec_text)
     except (tomllib.TOMLDecodeError, TypeError):
@@ -231,8 +229,12 @@ def _drop_placeholders(ds: Any, spec_text: str) -> Any:
 def apply_units(ds: Any, units: Mapping[str, str | None]) -> Any:
     """Give every variable and coordinate measured in the model's length ``L`` or pressure ``E*`` the job's
     physical unit (CF ``units``, e.g. ``"um"``, ``"MPa"``, ``"MPa um"`` for an energy per area) when the store
-    records one (attribute ``units``, docs/store.md); model units stay ``"1"`` with ``reference_unit``."""
-    length, pressure = units.get("length"), units.get("pressure")
+    records one (attribute ``units``, docs/store.md), spelled for UDUNITS (``"A"`` is written ``"angstrom"``,
+    not ampere); model units stay ``"1"`` with ``reference_unit``. ``gapsweep_units`` keeps the job's own
+    spelling."""
+    from gapsweep.sweep.fields import cf_unit
+
+    length, pressure = cf_unit(units.get("length")), cf_unit(units.get("pressure"))
     phys = {"L": length, "E*": pressure, "E* L": f"{pressure} {length}" if pressure and length else None}
     for name in [*ds.data_vars, *ds.coords]:
         a = ds[name].attrs

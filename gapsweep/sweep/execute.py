@@ -5,8 +5,8 @@ the row's message, a non-finite mean gap of a ``done`` row turns it into ``faile
 success), an error that a signal caused (inside JIT compilation, say) is marked ``interrupted:`` (the runner leaves
 the row pending), and every row gets its wall time and rank. A device fault (gapsweep.sweep.farm.device_fault: out
 of GPU memory, a lost context, the driver's or the MPS server's refusal) is not the task's failure: it raises
-:class:`~gapsweep.sweep.farm.DeviceFault` and the farm runs the task elsewhere. Test hooks (``GAPSWEEP_TEST_DELAY``,
-``GAPSWEEP_TEST_FAIL``) live in :class:`gapsweep.sweep.context.Context`.
+:class:`~gapsweep.sweep.farm.DeviceFault` and the farm runs the task elsewhere. The test hook
+``GAPSWEEP_TEST_DELAY`` and the fault-injection seam ``_fail`` live in :class:`gapsweep.sweep.context.Context`.
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ def run_task(t: Task, ctx: Context, prev: Any = None) -> tuple[TaskResult, Any]:
         if ctx._delay:
             test_delay(ctx._delay)
         if t.sigma0 in ctx._fail:
-            raise RuntimeError(f"injected failure (GAPSWEEP_TEST_FAIL) at sigma0={t.sigma0!r}")
+            raise RuntimeError(f"injected failure at sigma0={t.sigma0!r}")
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             res, state = registry.get(t.method).run(t, ctx, prev)

@@ -101,9 +101,18 @@ def remove_fields(directory: str | Path) -> int:
     return n
 
 
+# a spec's length unit -> its UDUNITS (CF) string: "A" would read as ampere there
+CF_UNITS = {"A": "angstrom"}
+
+
+def cf_unit(u: str | None) -> str | None:
+    """The CF/UDUNITS spelling of a job's unit (``"A"`` -> ``"angstrom"``; the others are UDUNITS already)."""
+    return None if u is None else " ".join(CF_UNITS.get(w, w) for w in str(u).split())
+
+
 def _length_units(attrs: Mapping[str, Any]) -> dict[str, str]:
     u = attrs.get("length_unit")
-    return {"units": str(u)} if u else dict(_LEN)
+    return {"units": str(cf_unit(u))} if u else dict(_LEN)
 
 
 def _pressure_units(attrs: Mapping[str, Any]) -> dict[str, str]:

@@ -74,8 +74,6 @@ def _write(tmp: Path, out: Path, tasks: list, attrs: dict, bins: int, results: n
         raise StoreWriteError(f"merge --out {out}: cannot be written ({str(e).split(' failed ', 1)[-1].strip()}); "
                               "nothing was written, the shards are untouched") from None
     try:
-        if os.environ.get("GAPSWEEP_TEST_MERGE_DELAY"):  # test hook: a signal while the output is written
-            __import__("time").sleep(float(os.environ["GAPSWEEP_TEST_MERGE_DELAY"]))
         if len(tasks):
             edges, dens, pedges, pdens = hists
             st.f["histograms/edges"][...] = edges

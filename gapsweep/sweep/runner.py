@@ -528,8 +528,6 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     spec = _load(job)
     comm = _comm(mpi)
     rank, size = (comm.rank, comm.size) if comm is not None else (0, 1)
-    if os.environ.get("GAPSWEEP_TEST_PIDDIR"):  # test hook: lets a test kill -9 one particular rank
-        Path(os.environ["GAPSWEEP_TEST_PIDDIR"], f"rank{rank}.pid").write_text(str(os.getpid()))
     tasks, units = _select(spec, shard, batch)
     if collective.is_collective(tasks) and (task_timeout is not None or batch != "off"):
         raise RunError("[methods.gfmd] distributed = true: every rank solves each task together; "
@@ -772,8 +770,6 @@ class _Run:
                 runs = _earlier_runs(self.st, self.path)
                 self.st.set_attrs({"runs": json.dumps([*runs, record])}, flush=True)  # survives a kill -9
                 _copy_reused(self.st, self.reused)
-        if os.environ.get("GAPSWEEP_TEST_ABORT_RANK", "") == str(rank):
-            raise RuntimeError(f"injected error on rank {rank} (GAPSWEEP_TEST_ABORT_RANK)")
         self.prog = Progress(len(self.todo), self.progress if rank == 0 else "none")
         if comm is not None and rank == 0 and self.wmode == "rank0":  # issue 19: mpiexec's 1-s grace, see below
             self.stop.on_request = lambda sig: _mark_interrupted(self.st, record, self.prog, self.held, sig)
@@ -1251,3 +1247,4 @@ def _work(r: _Run) -> None:
 def _fields_dir(store: str | Path) -> Path:
 
     return fields_dir(store)
+

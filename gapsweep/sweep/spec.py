@@ -18,7 +18,7 @@ import importlib
 import inspect
 import math
 import os
-import sys
+import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -27,11 +27,6 @@ from gapsweep.sweep import readers as rd
 from gapsweep.sweep.filesurface import file_surface
 from gapsweep.sweep.methods.base import GRID_AXES, Env
 from gapsweep.sweep.schema import JobSpec, SpecError
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 __all__ = ["MAX_TASKS", "JobSpec", "SpecError", "check_extra", "load", "loads", "max_tasks"]
 

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 from collections.abc import Iterable, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -477,29 +476,9 @@ class Store:
             except (OSError, RuntimeError) as exc:
                 raise _failed(f"store {self.path}: writing row {i} failed ({exc})") from None
 
-    _writes = 0
-
     def _inject(self) -> None:
-        # Test hook (tests/faults): GAPSWEEP_TEST_WRITE_ERROR=k makes the k-th row write of this process fail
-        # between its payload and its status, as a full disk would.
-        # GAPSWEEP_TEST_KILL_AT_WRITE=k kills the process (SIGKILL) at that same point.
-        # GAPSWEEP_TEST_SIGNAL_AT_WRITE=k sends it SIGTERM there (a clean stop after that row, as on Slurm's
-        # time-limit warning).
-        k = os.environ.get("GAPSWEEP_TEST_WRITE_ERROR", "")
-        kill = os.environ.get("GAPSWEEP_TEST_KILL_AT_WRITE", "")
-        term = os.environ.get("GAPSWEEP_TEST_SIGNAL_AT_WRITE", "")
-        if k or kill or term:
-            Store._writes += 1
-            if term and Store._writes == int(term):
-                import signal
-
-                os.kill(os.getpid(), signal.SIGTERM)
-            if kill and Store._writes == int(kill):
-                import signal
-
-                os.kill(os.getpid(), signal.SIGKILL)
-            if k and Store._writes == int(k):
-                raise OSError(28, "No space left on device (injected by GAPSWEEP_TEST_WRITE_ERROR)")
+        """Fault-injection seam between a row's payload and its status: does nothing here. The fault suite
+        replaces it from outside the package (a full disk, a kill -9 at that point; tests/hooks)."""
 
     def set_attrs(self, attrs: dict[str, Any], *, flush: bool = False) -> None:
         """Set file attributes (collective under mpio: every rank passes the same values)."""
