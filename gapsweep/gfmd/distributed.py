@@ -600,10 +600,14 @@ def solve_memory(shape: tuple[int, int], ranks: int, interaction: str = "exponen
     D; k and M^-1; the line search's real-space direction; one temporary of the array passes); adhesive and the
     other smooth laws (``gfmd._lean``): 7 A (h, g, d; Z, G, D; k and M^-1) + 2 A per L-BFGS pair (``memory``;
     the default 2: 11 A), 3 A more while a tensile load is followed (``tensile``); hard wall pcg 12 A; scratch
-    3 A. Checked on the CPU under mpiexec (tests/mpi/test_distributed.py: the traced numpy peak is within the
-    estimate) and on GPUs by benchmarks/bench_distributed.py (the memory pool's peak beside it)."""
+    3 A (4 A for the smooth laws: their chunked passes' temporaries measured 0.75 A more at 65536^2 on 4 H200s,
+    benchmarks/results/distributed/h200x4_challenge.json). Checked on the CPU under mpiexec
+    (tests/mpi/test_distributed.py: the traced numpy peak is within the estimate) and on GPUs by
+    benchmarks/bench_distributed.py (the memory pool's peak beside it; at 16384^2 over 2-4 GPUs the pool held up to
+    1.3x this estimate: the transform's chunk buffers, a few GB whatever the grid, are not yet counted)."""
     nx, ny = (int(v) for v in shape)
     a = 8.0 * math.ceil(nx / ranks) * ny
     smooth = 7.0 + 2.0 * memory + (3.0 if tensile else 0.0)
     arrays = {"exponential": 12.0, "adhesive": smooth, "smooth": smooth, "hard_wall": 12.0}[interaction]
-    return {"bytes_per_rank": (arrays + 3.0) * a, "array_bytes": a, "arrays": arrays, "scratch_arrays": 3.0}
+    scratch = 4.0 if interaction in ("adhesive", "smooth") else 3.0
+    return {"bytes_per_rank": (arrays + scratch) * a, "array_bytes": a, "arrays": arrays, "scratch_arrays": scratch}

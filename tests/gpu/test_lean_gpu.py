@@ -58,5 +58,6 @@ def test_lean_adhesion_on_gpu(sigma0, monkeypatch):
     assert abs(gpu.mean_gap - single.mean_gap) <= 1e-9 * abs(single.mean_gap)
     assert abs(gpu.contact_area - single.contact_area) <= 1e-9
     est = distributed.solve_memory((n, n), 1, "adhesive", tensile=sigma0 < 0)
-    assert peak <= est["bytes_per_rank"] + 64 * 2**20, (peak / est["array_bytes"], est)  # + cuFFT plans
+    # + cuFFT plans and the pool's cached blocks: 109-111 MiB at n = 256 on an H200 (2026-11-26), whatever the grid
+    assert peak <= est["bytes_per_rank"] + 128 * 2**20, (peak / est["array_bytes"], est)
     assert np.isfinite(float(gpu.elastic_energy))
