@@ -16,6 +16,7 @@ from gapsweep import lease, store
 from .conftest import (
     JOBS,
     WRITERS,
+    Hold,
     assert_done_kept,
     assert_only_done_pending,
     done_rows,
@@ -26,7 +27,6 @@ from .conftest import (
     mpi_cmd,
     needs_mpi,
     resume_to_ref,
-    wait_done,
 )
 
 
@@ -37,10 +37,9 @@ def _last_run(path):
 @pytest.mark.parametrize("sig,code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 @pytest.mark.parametrize("job", ["theory", "hist"])
 def test_signal_serial(tmp_path, refs, sig, code, job):
-    path = tmp_path / "s.h5"
-    p = gs_popen("run", JOBS[job], "--store", path, "--mpi", "off", "--progress", "log",
-                 GAPSWEEP_TEST_DELAY="0.05")
-    wait_done(path, 4, p)
+    path, hold = tmp_path / "s.h5", Hold(tmp_path / "hold", 4)
+    p = gs_popen("run", JOBS[job], "--store", path, "--mpi", "off", "--progress", "log", **hold.env())
+    hold.wait(p)  # held after its 4th row: the signal meets a run in the middle of its work
     seen = done_rows(path)
     p.send_signal(sig)
     rc, _, err = finish(p)
@@ -63,13 +62,13 @@ def test_signal_serial(tmp_path, refs, sig, code, job):
 def test_stop_mpi(tmp_path, refs, writer, how):
     """Under mpiexec: SIGTERM to rank 0 or a <store>.stop file (what the Slurm scripts create) drains the farm;
     every rank exits 143, the store is closed and the run recorded as interrupted; no hang."""
-    path, pids = tmp_path / "s.h5", tmp_path / "pids"
+    path, pids, hold = tmp_path / "s.h5", tmp_path / "pids", Hold(tmp_path / "hold", 4)
     pids.mkdir()
     p = subprocess.Popen(mpi_cmd(2, "run", JOBS["theory"], "--store", path, "--writer", writer, "--progress",
-                                 "none"), env=env(GAPSWEEP_TEST_DELAY="0.05", GAPSWEEP_TEST_PIDDIR=str(pids)),
+                                 "none"), env=env(**hold.env(GAPSWEEP_TEST_PIDDIR=str(pids))),
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        wait_done(path, 4, p)
+        hold.wait(p)
         seen = done_rows(path)
         if how == "stop-file":
             (tmp_path / "s.h5.stop").touch()
@@ -121,10 +120,9 @@ def test_task_timeout_mpi_rank0_thread(tmp_path):
 
 
 def test_stop_file_serial(tmp_path, refs):
-    path = tmp_path / "s.h5"
-    p = gs_popen("run", JOBS["theory"], "--store", path, "--mpi", "off", "--progress", "none",
-                 GAPSWEEP_TEST_DELAY="0.05")
-    wait_done(path, 4, p)
+    path, hold = tmp_path / "s.h5", Hold(tmp_path / "hold", 4)
+    p = gs_popen("run", JOBS["theory"], "--store", path, "--mpi", "off", "--progress", "none", **hold.env())
+    hold.wait(p)
     seen = done_rows(path)
     (tmp_path / "s.h5.stop").touch()
     rc, _, err = finish(p)
@@ -172,10 +170,9 @@ def test_signal_at_startup(tmp_path, refs, sig, offset):
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_signal_at_startup_of_resume(tmp_path, refs, sig):
     """The same at the start of a resumed run: its own run record says interrupted, the rows done before stay."""
-    path = tmp_path / "s.h5"
-    p = gs_popen("run", JOBS["theory"], "--store", path, "--mpi", "off", "--progress", "none",
-                 GAPSWEEP_TEST_DELAY="0.05")
-    wait_done(path, 4, p)
+    path, hold = tmp_path / "s.h5", Hold(tmp_path / "hold", 4)
+    p = gs_popen("run", JOBS["theory"], "--store", path, "--mpi", "off", "--progress", "none", **hold.env())
+    hold.wait(p)
     p.send_signal(signal.SIGTERM)
     finish(p)
     seen = done_rows(path)
@@ -196,10 +193,9 @@ def test_signal_at_startup_of_resume(tmp_path, refs, sig):
 def test_two_signals_in_a_row(tmp_path, refs, first, second):
     """A second signal right behind the first (an impatient Ctrl-C, a launcher signalling the group and the
     process) must not cut the first one's clean-up: recorded as interrupted by the first, lease released."""
-    path = tmp_path / "s.h5"
-    p = gs_popen("run", JOBS["hist"], "--store", path, "--mpi", "off", "--progress", "none",
-                 GAPSWEEP_TEST_DELAY="0.05")
-    wait_done(path, 4, p)
+    path, hold = tmp_path / "s.h5", Hold(tmp_path / "hold", 4)
+    p = gs_popen("run", JOBS["hist"], "--store", path, "--mpi", "off", "--progress", "none", **hold.env())
+    hold.wait(p)
     seen = done_rows(path)
     p.send_signal(first)
     p.send_signal(second)
@@ -255,11 +251,12 @@ def _resume_plain(path, ref):
     assert store.diff(path, ref) == []
 
 
-def _mpi_popen(path, delay="0.3", writer="rank0"):
+def _mpi_popen(path, delay="0.3", writer="rank0", hold=None):
     import os
 
+    kw = hold.env(GAPSWEEP_TEST_DELAY=delay) if hold is not None else {"GAPSWEEP_TEST_DELAY": delay}
     return subprocess.Popen(mpi_cmd(2, "run", JOBS["theory"], "--store", path, "--writer", writer, "--progress",
-                                    "none"), env=env(GAPSWEEP_TEST_DELAY=delay), stdout=subprocess.PIPE,
+                                    "none"), env=env(**kw), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, preexec_fn=os.setsid)
 
 
@@ -282,10 +279,10 @@ def test_signal_to_mpiexec(tmp_path, refs, sig, target, task):
     done lost; a resume reaches the uninterrupted result. mpiexec's own exit status is its own (Open MPI 4: 1
     when it was signalled itself); the ranks exit 130/143. Long tasks (2 s) outlast Open MPI's 1-s grace before
     it SIGKILLs the ranks: the interruption is recorded the moment the farm starts stopping."""
-    path = tmp_path / "s.h5"
-    p = _mpi_popen(path, delay="0.3" if task == "short" else "2")
+    path, hold = tmp_path / "s.h5", Hold(tmp_path / "hold", 4 if task == "short" else 2)
+    p = _mpi_popen(path, delay="0.3" if task == "short" else "2", hold=hold)
     try:
-        wait_done(path, 4 if task == "short" else 2, p)
+        hold.wait(p)
         seen = done_rows(path)
         _signal_mpi(p, sig, target)
         rc, _, err = finish(p, timeout=60)
