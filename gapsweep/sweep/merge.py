@@ -145,7 +145,7 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
                     st.f[PRESSURE_HIST[1]][...] = pdens
                     # rows of a format-1/2 shard get their checksum here; format-3 rows are checked above
                     st.f["results"][...] = seal(st.f["tasks"][...], results, bins, edges, dens, pedges, pdens)
-                st.f.attrs["finished"] = provenance.now()
+                st.set_attrs({"finished": provenance.now()})
             finally:
                 st.close()
             os.replace(tmp, outp)

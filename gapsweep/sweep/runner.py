@@ -225,7 +225,7 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
         return "create", list(range(len(tasks)))
     try:
         with open_read(path, check=False) as f:
-            report = storecheck.check(f, path)  # once: it reads and checksums every row
+            report = storecheck.check(f, path, repair_tasks=resume)  # once: it reads and checksums every row
             sha, shard = f.attrs.get("spec_sha256"), f.attrs.get("shard")
             ids = [x.decode() for x in f["tasks"].fields("task_id")[...]] if f["tasks"].shape[0] else []
             todo = storecheck.incomplete_rows(f, path, report)
@@ -593,7 +593,7 @@ def _open_store(path: Path, mode: str, tasks: list[Task], attrs: dict[str, Any],
             if rank == 0:
                 tmp.unlink(missing_ok=True)
             raise
-    st = Store.open(path, comm=comm)
+    st = Store.open(path, comm=comm, repair_tasks=mode == "resume")
     if mode == "resume":  # task rows damaged since they were written come back from the spec (their rows re-run)
         fixed = st.repair_tasks(tasks, write=rank == 0)
         if fixed:

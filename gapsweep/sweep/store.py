@@ -44,6 +44,7 @@ from gapsweep.sweep.schema import (  # noqa: F401 - the store's layout, re-expor
     FORMAT,
     FORMAT_VERSION,
     INT_RESULTS,
+    INTEGRITY,
     MESSAGE_LEN,
     NEW_IN_V2,
     PRESSURE_HIST,
@@ -58,6 +59,7 @@ from gapsweep.sweep.schema import (  # noqa: F401 - the store's layout, re-expor
     StoreWriteError,
     Task,
     TaskResult,
+    integrity_record,
     row_checksum,
 )
 
@@ -221,6 +223,14 @@ def reseal(f: h5py.File) -> None:
                              g["pressure_edges"][...], g["pressure_density"][...])
 
 
+def seal_attrs(f: h5py.File, tasks: np.ndarray | None = None) -> None:
+    """Write the format-4 checksums of every attribute and of ``/tasks`` (``tasks``: the table, if the caller
+    has it) from what the file holds now (schema.integrity_record). Called by every writer of attributes; tests
+    and tools that change an attribute on purpose call it too (never on a store whose damage must show)."""
+    attrs = storecheck._attributes(f)
+    f.attrs[INTEGRITY] = integrity_record(attrs, f["tasks"][...] if tasks is None else tasks)
+
+
 def _locking_kw() -> dict[str, Any]:
     # A reader of a running store must not take (or wait for) HDF5's file lock.
     return {"locking": False} if h5py.version.hdf5_version_tuple >= (1, 10, 7) else {}
@@ -248,6 +258,9 @@ class Store:
         self._has_hist = (np.isfinite(self._edges[:, 0]) if n else np.zeros(0, bool)) if self._ck else None
         self._has_phist = (np.isfinite(self._pedges[:, 0]) if n else np.zeros(0, bool)) \
             if self._ck and self._pedges is not None else None
+        self._integrity = INTEGRITY in f.attrs  # format 4: attribute writes keep the checksums current
+        # ... of the task table as this process knows it (the same on every rank: read once, or the job's)
+        self._tasks_now = f["tasks"][...] if self._integrity else None
         self.parallel = comm is not None
         self.n_tasks = self._res.shape[0]
         self.bins = self._density.shape[1]
@@ -279,11 +292,12 @@ class Store:
             g.create_dataset("density", shape=(n, bins), dtype="f8", fillvalue=np.nan, dcpl=_early())
             g.create_dataset("pressure_edges", shape=(n, bins + 1), dtype="f8", fillvalue=np.nan, dcpl=_early())
             g.create_dataset("pressure_density", shape=(n, bins), dtype="f8", fillvalue=np.nan, dcpl=_early())
+            rows = task_rows(tasks)
             if comm is None or comm.rank == 0:
                 if n:
-                    rows = task_rows(tasks)
                     dt[...] = rows
                     dr[...] = seal(rows, empty_results(n), bins)
+            seal_attrs(f, rows)  # every rank the same (collective under mpio)
             f.flush()
             if comm is not None:
                 comm.Barrier()
@@ -298,13 +312,15 @@ class Store:
         return cls(f, comm)
 
     @classmethod
-    def open(cls, path: str | Path, *, comm: Any = None) -> Store:
+    def open(cls, path: str | Path, *, comm: Any = None, repair_tasks: bool = False) -> Store:
+        """Open an existing store for writing (validated; ``repair_tasks``: a ``/tasks`` table that fails its
+        checksum is accepted, for :meth:`repair_tasks` to restore from the job)."""
         try:
             f = h5py.File(path, "r+", driver="mpio", comm=comm) if comm is not None else h5py.File(path, "r+")
         except OSError as e:
             raise StoreError(f"store {path}: cannot open for writing ({e})") from None
         try:
-            storecheck.check(f, path)
+            storecheck.check(f, path, repair_tasks=repair_tasks)
         except BaseException:
             f.close()
             raise
@@ -326,6 +342,8 @@ class Store:
             raise _failed(f"store {self.path}: restoring task rows failed ({e})") from None
         if self._task_rows is not None:
             self._task_rows = want
+        if self._integrity:
+            self._tasks_now = want
         return bad
 
     def statuses(self) -> np.ndarray:
@@ -401,6 +419,8 @@ class Store:
             with _quiet_dealloc():
                 for k, v in attrs.items():
                     self.f.attrs[k] = v
+                if self._integrity:
+                    seal_attrs(self.f, self._tasks_now)
                 if flush:
                     self.f.flush()
         except (OSError, RuntimeError) as e:
