@@ -60,7 +60,7 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
         raise StoreError(f"merge: the output {outp} is also a shard; choose another --out")
     if outp.exists() and not overwrite:
         raise StoreError(f"merge: {outp} exists (pass --overwrite to replace it)")
-    metas = [read_attrs(s) for s in shards]
+    metas = [read_attrs(s, tolerate_tasks=skip_damaged) for s in shards]
     shas = {m["spec_sha256"] for m in metas}
     if len(shas) != 1:
         raise StoreError(f"merge: shards come from different job specs ({len(shas)} spec hashes)")
@@ -86,8 +86,8 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
     conflicts: list[str] = []
     damaged = 0
     for s in shards:
-        with open_read(s) as f:
-            rep = storecheck.check(f, s)
+        with open_read(s, tolerate_tasks=skip_damaged) as f:
+            rep = storecheck.check(f, s, tolerate_tasks=skip_damaged)
             if f["tasks"].shape[0] == 0:
                 continue
             if f["histograms/density"].shape[1] != bins:
@@ -106,6 +106,10 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
         damaged += len(rep.damaged)
         bad = set(rep.rerun)
         for j, tid in enumerate(ids):
+            if tid not in index and rep.tasks_damaged:  # --skip-damaged: a task id changed since it was written
+                log.warning("merge: %s row %d: task id %r is not the job's (damaged /tasks): left out", s, j, tid)
+                damaged += 1
+                continue
             if tid not in index:
                 raise StoreError(f"merge: task {tid} of {s} is not in the job")
             if j in bad or r["status"][j] == STATUS["pending"]:

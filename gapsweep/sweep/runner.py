@@ -225,7 +225,7 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
         return "create", list(range(len(tasks)))
     try:
         with open_read(path, check=False) as f:
-            report = storecheck.check(f, path, repair_tasks=resume)  # once: it reads and checksums every row
+            report = storecheck.check(f, path, tolerate_tasks=resume)  # once: it reads and checksums every row
             sha, shard = f.attrs.get("spec_sha256"), f.attrs.get("shard")
             ids = [x.decode() for x in f["tasks"].fields("task_id")[...]] if f["tasks"].shape[0] else []
             todo = storecheck.incomplete_rows(f, path, report)
@@ -237,6 +237,9 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
     want = [t.task_id for t in tasks]
     # rows whose task parameters were damaged (checksum mismatch) are rewritten from the spec and run again
     moved = {i for i, (a, b) in enumerate(zip(ids, want)) if a != b}
+    if report.tasks_damaged:  # format 4: /tasks failed its checksum, the rows that differ are the damage
+        damaged |= moved
+        todo = sorted(set(todo) | moved)
     if sha not in (spec.sha256, spec.text_sha256) or shard != shard_text or len(ids) != len(want) \
             or not moved <= damaged:
         raise RunError(f"store {path} was written for another job spec or shard; pass --overwrite to replace "

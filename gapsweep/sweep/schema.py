@@ -398,7 +398,8 @@ def integrity_record(attrs: dict[str, Any], tasks: np.ndarray) -> str:
 def integrity_problem(record: Any, attrs: dict[str, Any], tasks: Any) -> str | None:
     """The first item that fails its checksum, as the rest of a one-line message ("attribute 'units' fails its
     checksum"), or None. ``attrs``: the file's other attributes (an unreadable one as an exception instance);
-    ``tasks``: a callable returning the ``/tasks`` table (read only when the attributes pass)."""
+    ``tasks``: a callable returning the ``/tasks`` table (read only when the attributes pass; None: none there,
+    which the structural check reports)."""
     try:
         rec = json.loads(record)
         items = {k: v for k, v in rec.items() if k != "self"}
@@ -415,6 +416,7 @@ def integrity_problem(record: Any, attrs: dict[str, Any], tasks: Any) -> str | N
     for k in items:
         if k.startswith("attr:") and k[5:] not in attrs:
             return f"attribute {k[5:]!r} is missing (it is in the store's checksums)"
-    if _digest(np.ascontiguousarray(tasks()).tobytes()) != items.get("table:/tasks"):
+    table = tasks()
+    if table is not None and _digest(np.ascontiguousarray(table).tobytes()) != items.get("table:/tasks"):
         return "table '/tasks' (task ids and parameters) fails its checksum"
     return None

@@ -320,7 +320,7 @@ class Store:
         except OSError as e:
             raise StoreError(f"store {path}: cannot open for writing ({e})") from None
         try:
-            storecheck.check(f, path, repair_tasks=repair_tasks)
+            storecheck.check(f, path, tolerate_tasks=repair_tasks)
         except BaseException:
             f.close()
             raise
@@ -439,7 +439,7 @@ class Store:
 
 
 @contextmanager
-def open_read(path: str | Path, *, check: bool = True):
+def open_read(path: str | Path, *, check: bool = True, tolerate_tasks: bool = False):
     """Open a store read-only without taking HDF5's file lock (it may be running). With ``check`` the
     structure is validated (:mod:`gapsweep.storecheck`): a damaged store raises :class:`StoreError` naming the
     file and the problem."""
@@ -460,8 +460,10 @@ def open_read(path: str | Path, *, check: bool = True):
         raise StoreError(f"store {p}: not a readable HDF5 file ({e}): truncated or damaged") from None
     with f:
         if check:
-            storecheck.check(f, p)
+            storecheck.check(f, p, tolerate_tasks=tolerate_tasks)
         elif f.attrs.get("format") != FORMAT:
+            if INTEGRITY in f.attrs:  # format 4: a changed format attribute is named as such
+                storecheck.check(f, p)
             raise StoreError(f"store {p}: not a gapsweep store (format attribute {f.attrs.get('format')!r})")
         try:
             yield f
@@ -471,13 +473,13 @@ def open_read(path: str | Path, *, check: bool = True):
             raise StoreError(f"store {p}: read error ({e}): damaged store") from None
 
 
-def read_attrs(path: str | Path) -> dict[str, Any]:
-    """File attributes as Python values (strings decoded)."""
-    with open_read(path) as f:
+def read_attrs(path: str | Path, *, tolerate_tasks: bool = False) -> dict[str, Any]:
+    """File attributes as Python values (strings decoded). ``tolerate_tasks``: see :func:`storecheck.check`."""
+    with open_read(path, tolerate_tasks=tolerate_tasks) as f:
         return {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
 
 
-def read(path: str | Path, *, mark_damaged: bool = True):
+def read(path: str | Path, *, mark_damaged: bool = True, tolerate_tasks: bool = False):
     """One row per task: parameters, status (string), message and results (``docs/store.md``).
 
     Returns a ``pandas.DataFrame`` with columns task_id, method, chain, hurst, rho, sigma0, seed, n, lambda_l,
@@ -488,7 +490,7 @@ def read(path: str | Path, *, mark_damaged: bool = True):
     import pandas as pd
 
     with open_read(path, check=False) as f:
-        report = storecheck.check(f, path)
+        report = storecheck.check(f, path, tolerate_tasks=tolerate_tasks)
         t = f["tasks"][...]
         r = f["results"][...]
     if not mark_damaged:
@@ -549,10 +551,10 @@ def read_histograms(path: str | Path, task_ids: Iterable[str] | None = None,
 
 def status(path: str | Path) -> str:
     """A short text summary of a running or finished store (counts per method and status, runs, failures)."""
-    attrs = read_attrs(path)
-    df = read(path)
+    attrs = read_attrs(path, tolerate_tasks=True)  # a damaged /tasks is a line of the summary, not its end
+    df = read(path, tolerate_tasks=True)
     with open_read(path, check=False) as f:
-        report = storecheck.check(f, path)
+        report = storecheck.check(f, path, tolerate_tasks=True)
     lines = [f"store {path}: job {attrs.get('job_name')!r}, {len(df)} tasks"
              + (f", shard {attrs['shard']}" if attrs.get("shard") else "")]
     held = lease.read(path)

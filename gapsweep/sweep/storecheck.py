@@ -53,7 +53,8 @@ class Report:
     damaged: list[int] = field(default_factory=list)  # rows whose checksum does not match their bytes
     checksums: bool = True  # False: a store of format 1 or 2, whose rows carry no checksum
     layout: Layout | None = None  # the store's layout (gapsweep.sweep.schema.LAYOUTS)
-    tasks_damaged: bool = False  # format 4, check(repair_tasks=True): /tasks failed its checksum
+    tasks_damaged: bool = False  # format 4, check(tolerate_tasks=True): /tasks failed its checksum
+    path: str = ""
 
     @property
     def rerun(self) -> list[int]:
@@ -62,6 +63,10 @@ class Report:
     def lines(self) -> list[str]:
         out = []
         name = self.layout.name if self.layout is not None else "?"
+        if self.tasks_damaged:
+            out.append("table '/tasks' (task ids and parameters) fails its checksum: changed after it was "
+                       "written; --resume restores it from the job (merge and export refuse the store, merge "
+                       "--skip-damaged leaves out rows whose task is not the job's)")
         if not self.checksums:
             out.append(f"no row checksums this version verifies (format {name}, written before 3c): rows are "
                        "checked for completeness only, not for changed bytes")
@@ -103,7 +108,7 @@ def _attributes(f: Any) -> dict[str, Any]:
 _TASKS_PROBLEM = "table '/tasks'"
 
 
-def _integrity(f: Any, path: Any, repair_tasks: bool) -> bool:
+def _integrity(f: Any, path: Any, tolerate_tasks: bool) -> bool:
     """Format 4: every attribute and the ``/tasks`` table against their checksums (schema.integrity_record);
     the first that fails is named in one line."""
     try:
@@ -112,14 +117,16 @@ def _integrity(f: Any, path: Any, repair_tasks: bool) -> bool:
         record = None
 
     def tasks() -> Any:
+        if "tasks" not in f or not hasattr(f["tasks"], "dtype"):
+            return None  # named by the structural check
         try:
             return f["tasks"][...]
         except (OSError, ValueError, KeyError, TypeError) as exc:
             _fail(path, f"cannot read /tasks ({exc}): damaged store")
 
     problem = integrity_problem(record, _attributes(f), tasks)
-    if problem and repair_tasks and problem.startswith(_TASKS_PROBLEM):
-        log.warning("store %s: %s; rows whose task differs from the job are restored and run again", path, problem)
+    if problem and tolerate_tasks and problem.startswith(_TASKS_PROBLEM):
+        log.warning("store %s: %s", path, problem)
         return True
     if problem:
         _fail(path, problem + " (changed after it was written: a damaged store)")
@@ -130,18 +137,20 @@ def _layout(f: Any, path: Any, r: Any, integrity: bool) -> Layout:
     version = f.attrs.get("format_version")
     lay = layout_of(version, r.dtype, "checksums" in f, integrity)
     if lay is None:
-        same = [x.name for x in LAYOUTS if x.results == r.dtype]
-        _fail(path, f"format_version {version!r} with a /results table of format {'/'.join(same)}: no layout "
+        same = [x.name for x in LAYOUTS if x.results == r.dtype and x.integrity == integrity]
+        shown = version.item() if hasattr(version, "item") else version
+        _fail(path, f"format_version {shown!r} with a /results table of format {'/'.join(same)}: no layout "
               "ever written (a damaged attribute, or a store of a newer gapsweep)")
     return lay
 
 
-def check(f: Any, path: str | Path, *, repair_tasks: bool = False) -> Report:
+def check(f: Any, path: str | Path, *, tolerate_tasks: bool = False) -> Report:
     """Validate an open store ``f`` (h5py.File); raise StoreError on a structural problem (a format-4 store's
-    attributes and task table first: one that fails its checksum is named). ``repair_tasks`` (``--resume``,
-    which restores task rows from the job): a ``/tasks`` table that fails its checksum is reported instead."""
+    attributes and task table first: one that fails its checksum is named). ``tolerate_tasks`` (``--resume``,
+    which restores task rows from the job; ``status``; ``merge --skip-damaged``): a ``/tasks`` table that
+    fails its checksum is reported (``Report.tasks_damaged``) instead."""
     integrity = INTEGRITY in f.attrs
-    tasks_damaged = _integrity(f, path, repair_tasks) if integrity else False
+    tasks_damaged = _integrity(f, path, tolerate_tasks) if integrity else False
     if f.attrs.get("format") != FORMAT:
         _fail(path, f"not a gapsweep store (format attribute {f.attrs.get('format')!r})")
     for name in ("spec_text", "spec_sha256"):
