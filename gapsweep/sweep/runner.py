@@ -484,9 +484,9 @@ def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list
         if comm is None:
             for k in work:
                 for i, res in _run_unit(tasks, units[k], ctx, todo, task_timeout, stop):
-                    with stop.critical():
+                    with stop.critical():  # a row written is a row counted (a signal acts after both)
                         st.write(i, res)
-                    prog.update(res)
+                        prog.update(res)
                     if stop.requested():  # the stop file (a signal raises by itself)
                         raise Interrupted(stop.signum)
         elif rank == 0:
