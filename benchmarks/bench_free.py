@@ -3,10 +3,12 @@ by side in one process (docs/gfmd.md, "Periodic or free boundaries"). Also print
 condition changes the answer (mean gap, contact area).
 
 Each case: one warm-up solve per mode (numba compilation, FFT plans, the Green's function), then ``--repeats``
-timed solves per mode, alternating, the minimum reported; ``ratio = free / periodic``. CPU, one thread, the
-default method of each law ("auto").
+timed solves per mode, alternating, the minimum reported; ``ratio = free / periodic`` (wall time) and
+``cpu_ratio`` (process time, every thread: steadier on a shared machine). CPU, one thread (set
+``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1`` too: the spectral dot products call BLAS), the default method of
+each law ("auto"). ``--only exponential`` runs the cases whose name contains the word.
 
-    PYTHONPATH=$PWD nice python benchmarks/bench_free.py [--repeats 3] [--json out.json]
+    PYTHONPATH=$PWD nice python benchmarks/bench_free.py [--repeats 3] [--json out.json] [--only exponential]
 """
 
 from __future__ import annotations
@@ -36,6 +38,8 @@ def cases() -> list[tuple[str, np.ndarray, tuple[float, float], dict]]:
         ("crop 512x384, hard wall", p[:, 64:448], (1.0, 0.75), dict(sigma0=0.05, **hw)),
         ("crop 256x192, exponential", p[:256, :192], (0.5, 0.375),
          dict(sigma0=0.05, gamma0=1e-4, rho=1e-3, tol=1e-8)),
+        ("crop 320x448, exponential", p[:320, 32:480], (0.625, 0.875),
+         dict(sigma0=0.05, gamma0=1e-4, rho=1e-3, tol=1e-8)),
     ]
 
 
@@ -43,27 +47,33 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--only", default="", help="run the cases whose name contains this")
     args = ap.parse_args()
     rows = []
     print(f"{'case':32s} {'periodic s':>10s} {'free s':>9s} {'ratio':>6s} {'its p/f':>9s} "
           f"{'gap free/per':>12s} {'area free/per':>13s}")
     for name, h, length, kw in cases():
-        res, best = {}, {True: np.inf, False: np.inf}
+        if args.only not in name:
+            continue
+        res, best, cpu = {}, {True: np.inf, False: np.inf}, {True: np.inf, False: np.inf}
         for per in (True, False):
             res[per] = solve(h, length=length, periodic=per, **kw)  # warm-up
         for _ in range(args.repeats):
             for per in (True, False):
-                t = time.perf_counter()
+                t, c = time.perf_counter(), time.process_time()
                 res[per] = solve(h, length=length, periodic=per, **kw)
                 best[per] = min(best[per], time.perf_counter() - t)
+                cpu[per] = min(cpu[per], time.process_time() - c)
         a, b = res[True], res[False]
         assert a.converged and b.converged, (a.status, b.status)
         row = dict(case=name, periodic_s=best[True], free_s=best[False], ratio=best[False] / best[True],
                    iterations_periodic=a.iterations, iterations_free=b.iterations,
-                   mean_gap_ratio=b.mean_gap / a.mean_gap, area_ratio=b.contact_area / a.contact_area)
+                   mean_gap_ratio=b.mean_gap / a.mean_gap, area_ratio=b.contact_area / a.contact_area,
+                   periodic_cpu_s=cpu[True], free_cpu_s=cpu[False], cpu_ratio=cpu[False] / cpu[True])
         rows.append(row)
         print(f"{name:32s} {best[True]:10.3f} {best[False]:9.3f} {row['ratio']:6.2f} "
-              f"{a.iterations:4d}/{b.iterations:<4d} {row['mean_gap_ratio']:12.3f} {row['area_ratio']:13.3f}")
+              f"{a.iterations:4d}/{b.iterations:<4d} {row['mean_gap_ratio']:12.3f} {row['area_ratio']:13.3f}"
+              f"  CPU s {cpu[True]:.3f}/{cpu[False]:.3f} = {row['cpu_ratio']:.2f}", flush=True)
     meta = dict(machine=platform.processor() or platform.machine(), python=platform.python_version(),
                 repeats=args.repeats)
     if args.json:

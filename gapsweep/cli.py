@@ -1,9 +1,10 @@
-"""Command-line interface (thin): ``gapsweep plan | run | status | merge | report | export | demo``.
+"""Command-line interface (thin): ``gapsweep plan | run | status | merge | submit | report | export | demo``.
 
 Exit codes: 0 success, 1 a task-independent error (a run that cannot start, a store that cannot be read or
 merged, a write error, a missing optional dependency, an output that exists), 2 an invalid job spec or argument
 (nothing is written), 3 a run in which every task failed, 4 ``status --finished`` of a store with pending
-tasks, 130 / 143 a run stopped by SIGINT / SIGTERM (recorded
+tasks, 5 a run that ended with some rows failed or left pending (no GPU left: docs/running.md), 130 / 143 a
+run stopped by SIGINT / SIGTERM (recorded
 as interrupted; finish it with --resume), 141 the reader of standard output went away (``gapsweep ... | head``).
 
 The library logs through ``logging.getLogger("gapsweep")``; :func:`main` attaches one stderr handler to it
@@ -13,10 +14,12 @@ The library logs through ``logging.getLogger("gapsweep")``; :func:`main` attache
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import os
 import sys
 from pathlib import Path
+from typing import Any
 
 DESCRIPTION = """\
 gapsweep: mean gap and gap distribution between an elastic body and a rough surface, by GFMD, the field theory
@@ -25,12 +28,15 @@ and SDE / Fokker-Planck ensembles, over whole parameter grids (docs/model.md; jo
   gapsweep demo                                   the paper's figure 2 and a gap distribution (minutes on 2 cores)
   gapsweep plan JOB.toml                          validate a job spec, count its tasks, estimate the cost
   gapsweep run JOB.toml --store OUT.h5            run it (under mpiexec: an MPI task farm)
+  gapsweep submit JOB.toml OUT_DIR --shards N     run it on Slurm: N shards + a merge job (docs/running.md)
+  gapsweep status OUT.h5                          counts, failures, the cost and time left
   gapsweep report OUT.h5 --out DIR                figures, tables and (for the paper's sets) verdicts
   gapsweep export OUT.h5 --out OUT.nc             the store as netCDF4 (xarray, ncdump, ...)
 """
 EPILOG = """\
 Open MPI as root needs OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1, and more ranks than cores
-OMPI_MCA_rmaps_base_oversubscribe=1 (docs/running.md). Exit codes: 0 ok, 1 error, 2 invalid spec or argument.
+OMPI_MCA_rmaps_base_oversubscribe=1 (docs/running.md). Exit codes: 0 ok, 1 error, 2 invalid spec or argument,
+3 every task of a run failed, 5 a run left rows failed or pending (`gapsweep status STORE` lists them).
 """
 
 
@@ -78,12 +84,29 @@ def _parser() -> argparse.ArgumentParser:
                         "the sweep, docs/benchmarks.md), auto (GPU chains with n <= 1024) or all (CPU backends too)")
     s.add_argument("--ranks-per-gpu", type=int, default=1, metavar="K",
                    help="ranks of a node that share one GPU (default 1: ranks beyond the GPU count work CPU units)")
+    s.add_argument("--lookahead", type=int, default=4, metavar="N",
+                   help="GPU units a GPU worker holds beyond the one it runs; their surfaces are made on N host "
+                        "threads while the GPU works (default 4; 0: none)")
+    s.add_argument("--reuse", action="append", default=[], metavar="OTHER.h5",
+                   help="copy the done rows of the same tasks (same task id) from another store instead of "
+                        "running them, where their checksums verify (repeatable; the run record names the "
+                        "sources)")
 
     s = sub.add_parser("status", help="summarise a running or finished store")
     s.add_argument("store", help="HDF5 store written by `gapsweep run`")
     s.add_argument("--finished", action="store_true",
                    help="only check that no task is pending: exit 0, or 4 with one line saying how many are and "
                         "how the last run ended (the Slurm merge job names unfinished shards with it)")
+    s.add_argument("--json", action="store_true",
+                   help="print counts, the cost left (core-hours, GPU-hours) and the time left as JSON")
+
+    _submit_parser(sub)
+    s = sub.add_parser("requeue", help="(used by the Slurm job scripts) requeue this job after the time-limit "
+                                       "warning stopped its run, if allowed")
+    s.add_argument("store", help="the store the job's run writes")
+    s.add_argument("--max", type=int, default=3, help="requeue at most this many times (default 3)")
+    s.add_argument("--job-id", default=None, help="the job (default: $SLURM_JOB_ID)")
+    s.add_argument("--dry-run", action="store_true", help="only say what would be done")
 
     s = sub.add_parser("merge", help="merge shard stores of one job into one store")
     s.add_argument("shards", nargs="+", help="shard stores of one job (same spec)")
@@ -116,6 +139,34 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+SUBMIT_OPTIONS = ("--shards", "--mpi", "--account", "--partition", "--mem", "--time", "--merge-time", "--setup",
+                  "--max-running", "--requeue", "--signal-lead", "--force", "--dry-run")
+
+
+def _submit_parser(sub: Any) -> None:
+    s = sub.add_parser("submit", help="submit a job to Slurm: an array of shards and a merge job, or one MPI job")
+    s.add_argument("job", help="job spec (TOML)")
+    s.add_argument("out", help="output folder: the final store is OUT/<job file name>.h5")
+    g = s.add_mutually_exclusive_group(required=True)
+    g.add_argument("--shards", type=int, metavar="N", help="N shard jobs (job arrays) and a merge job")
+    g.add_argument("--mpi", type=int, metavar="P", help="one MPI job of P ranks")
+    for k, h in (("account", "sbatch --account (env GAPSWEEP_ACCOUNT)"),
+                 ("partition", "sbatch --partition (env GAPSWEEP_PARTITION)"),
+                 ("mem", "sbatch --mem per node, e.g. 4G (env GAPSWEEP_MEM)"),
+                 ("time", "time limit of the run jobs (env GAPSWEEP_TIME; default the scripts' 04:00:00)"),
+                 ("merge-time", "time limit of the merge job (env GAPSWEEP_MERGE_TIME; default 00:30:00)"),
+                 ("setup", "shell code each job runs first: module load ...; source venv/bin/activate "
+                           "(env GAPSWEEP_SETUP)")):
+        s.add_argument(f"--{k}", default=None, help=h)
+    s.add_argument("--max-running", type=int, metavar="K", help="at most K array tasks at a time (--array=...%%K)")
+    s.add_argument("--requeue", type=int, default=3, metavar="K",
+                   help="a run job stopped by its time limit requeues itself up to K times (default 3; 0: never)")
+    s.add_argument("--signal-lead", type=int, default=300, metavar="S",
+                   help="seconds before the time limit at which a run job stops and requeues (default 300)")
+    s.add_argument("--force", action="store_true", help="submit even if jobs of this store are queued or running")
+    s.add_argument("--dry-run", action="store_true", help="print the sbatch commands and job scripts, submit nothing")
+
+
 def _setup_logging(verbose: bool, quiet: bool) -> None:
     """One stderr handler on the "gapsweep" logger (the library only logs; applications configure)."""
     log = logging.getLogger("gapsweep")
@@ -133,7 +184,11 @@ def main(argv: list[str] | None = None) -> int:
     # signals from here on: recorded for a run (its Stop acts on them), raised for the other commands
     old = limits.install_early(defer_all=True)
     try:
-        args = _parser().parse_args(argv)
+        parser = _parser()
+        args, unknown = parser.parse_known_args(argv)
+        if unknown:
+            allowed = f" (allowed options: {' '.join(SUBMIT_OPTIONS)})" if args.command == "submit" else ""
+            parser.error(f"unrecognized arguments: {' '.join(unknown)}{allowed}")
         _setup_logging(args.verbose, args.quiet)
         code = _main(args)
     finally:
@@ -211,37 +266,11 @@ def _dispatch(args: argparse.Namespace) -> int:
                           ranks_per_gpu=args.ranks_per_gpu))
         return 0
     if args.command == "run":
-        from gapsweep.sweep import runner
-        from gapsweep.sweep import spec as specmod
-
-        if len(args.store) != len(args.job):
-            raise ValueError(f"--store: give one store per job, in order ({len(args.job)} job(s), "
-                             f"{len(args.store)} store(s))")
-        if len(args.job) > 1:  # every spec is validated before the first job runs
-            for job in args.job:
-                specmod.load(job)
-        rc = 0
-        for job, store in zip(args.job, args.store):
-            s = runner.run(job, store, resume=args.resume, overwrite=args.overwrite,
-                           shard=runner.parse_shard(args.shard), writer=args.writer, progress=args.progress,
-                           coordinator_works=args.coordinator_works, mpi=args.mpi, break_lease=args.break_lease,
-                           task_timeout=args.task_timeout, batch=args.batch, ranks_per_gpu=args.ranks_per_gpu)
-            if s["rank"] == 0 and args.progress != "none":
-                print(f"{s['store']}: {s['mode']}, {s['todo']} of {s['tasks']} tasks run: {s['done']} done, "
-                      f"{s['failed']} failed, {s['not_converged']} not converged")
-            if s["todo"] and s["failed"] == s["todo"]:
-                if s["rank"] == 0:
-                    print(f"gapsweep: every task of this run failed ({s['failed']}); see `gapsweep status "
-                          f"{s['store']}`", file=sys.stderr)
-                rc = 3
-        return rc
+        return _run(args)
     if args.command == "status":
-        from gapsweep.sweep import store
-
-        if args.finished:
-            return _finished(args.store)
-        print(store.status(args.store))
-        return 0
+        return _status(args)
+    if args.command in ("submit", "requeue"):
+        return _slurm(args)
     if args.command == "merge":
         from gapsweep.sweep import merge
 
@@ -269,12 +298,96 @@ def _dispatch(args: argparse.Namespace) -> int:
     raise AssertionError(args.command)  # pragma: no cover
 
 
+def _run(args: argparse.Namespace) -> int:
+    """`gapsweep run`: the jobs one after the other in this launch."""
+    from gapsweep.sweep import runner
+    from gapsweep.sweep import spec as specmod
+
+    if len(args.store) != len(args.job):
+        raise ValueError(f"--store: give one store per job, in order ({len(args.job)} job(s), "
+                         f"{len(args.store)} store(s))")
+    if len(args.job) > 1:  # every spec is validated before the first job runs
+        for job in args.job:
+            specmod.load(job)
+    rc = 0
+    for job, store in zip(args.job, args.store):  # every job runs; the first non-zero code is returned
+        s = runner.run(job, store, resume=args.resume, overwrite=args.overwrite,
+                       shard=runner.parse_shard(args.shard), writer=args.writer, progress=args.progress,
+                       coordinator_works=args.coordinator_works, mpi=args.mpi, break_lease=args.break_lease,
+                       task_timeout=args.task_timeout, batch=args.batch, ranks_per_gpu=args.ranks_per_gpu,
+                       lookahead=args.lookahead, reuse=args.reuse)
+        if s["rank"] == 0 and args.progress != "none":
+            print(f"{s['store']}: {s['mode']}, {s['todo']} of {s['tasks']} tasks run: {s['done']} done, "
+                  f"{s['failed']} failed, {s['not_converged']} not converged"
+                  + (f", {s['pending']} left pending" if s.get("pending") else ""))
+        code = _run_code(s)
+        rc = rc or code
+    return rc
+
+
+def _run_code(s: dict) -> int:
+    """Exit code of one job's run (docs/running.md): 3 every task of the run failed, 5 rows failed or pending
+    are left in the store, else 0; the rank-0 process says why in one line."""
+    if s["todo"] and s["failed"] == s["todo"]:
+        if s["rank"] == 0:
+            print(f"gapsweep: every task of this run failed ({s['failed']}); see `gapsweep status "
+                  f"{s['store']}`", file=sys.stderr)
+        return 3
+    if s.get("unfinished"):
+        if s["rank"] == 0:
+            failed = s["unfinished"] - s.get("pending", 0)
+            print(f"gapsweep: store {s['store']}: {s['unfinished']} row(s) not done ({failed} failed, "
+                  f"{s.get('pending', 0)} pending): `gapsweep status {s['store']}` lists them; --resume runs the "
+                  "pending ones (exit 5)", file=sys.stderr)
+        return 5
+    return 0
+
+
+def _status(args: argparse.Namespace) -> int:
+    """``gapsweep status``: the store's summary and the cost left (``--json``: both as JSON; ``--finished``: the
+    merge job's check). The cost left needs the store's spec; a store whose spec no longer loads (a moved height
+    map) still gets its summary, with the reason instead of the cost."""
+    from gapsweep.sweep import costleft, store
+    from gapsweep.sweep.spec import SpecError
+
+    if args.finished:
+        return _finished(args.store)
+    if args.json:
+        print(json.dumps(costleft.summary(args.store), indent=1, sort_keys=True, default=str))
+        return 0
+    print(store.status(args.store))
+    try:
+        print("\n".join(costleft.describe(costleft.cost_left(args.store))))
+    except (SpecError, OSError) as e:
+        print(f"cost left: unknown ({e})")
+    return 0
+
+
+def _slurm(args: argparse.Namespace) -> int:
+    from gapsweep.sweep import slurm
+
+    if args.command == "requeue":
+        ok, why = slurm.requeue(args.store, args.max, args.job_id, act=not args.dry_run)
+        print(f"gapsweep requeue {args.store}: {'yes' if ok else 'no'}: {why}", file=sys.stderr)
+        return 0 if ok else 1
+    site = slurm.SiteOptions.from_env(account=args.account, partition=args.partition, mem=args.mem,
+                                      time=args.time, merge_time=args.merge_time, setup=args.setup)
+    sub = slurm.submit(args.job, args.out, shards=args.shards, mpi=args.mpi, site=site,
+                       max_running=args.max_running, requeue_max=args.requeue, signal_lead=args.signal_lead,
+                       force=args.force, dry_run=args.dry_run)
+    if args.dry_run:
+        print(sub.dry_run_text())
+        return 0
+    for n in sub.notes:
+        print(f"gapsweep: {n}", file=sys.stderr)
+    print(sub.summary())
+    return 0
+
+
 def _finished(path: str) -> int:
     """``status --finished``: 0 when every task of the store has a finished row, else 4 and one line naming the
     store, the pending count and how its last run ended (interrupted by a signal, stopped by an error, or
     still running / killed)."""
-    import json
-
     from gapsweep.sweep import store
 
     df = store.read(path)

@@ -95,3 +95,54 @@ def test_multiscale_against_full_gfmd(s0):
     assert _l1(ms.samples, ref) < 0.15
     ident = (kw["gamma0"] / kw["rho"]) * np.mean(np.exp(-raw.samples / kw["rho"])) / s0
     assert ident == pytest.approx(1.0, abs=0.05)  # <exp(-g/rho)> is heavy-tailed: +-3 % Monte-Carlo scatter
+
+
+def test_multiscale_keeps_the_fine_variance_with_one_sample_per_pixel():
+    """Issue 30 item 4: with more coarse pixels than samples (one sample per pixel), the earlier centring (each
+    pixel's own sample mean, ``center="sample"``) removed every fine-scale fluctuation, so the samples were the
+    coarse field and ignored the seed. The default centring (the expected drift, a table over start gaps) keeps
+    the fine variance: ``var(samples) - var(coarse field)`` matches a run with 16 samples per pixel to 25 %
+    (7 % of the variance comes from the fine shells here: H = 0.2, zeta_s = 64, GFMD on 128^2 of 512^2), the
+    mean to 2 % of the spread, and the seed matters."""
+    h = surface.self_affine(512, 0.2, lambda_l=0.5, lambda_s=0.5 / 64, rms_slope=1.0, seed=7)
+    kw = dict(rho=0.2 * surface.rms_height(h), gamma0=1e-3, lambda_l=0.5, check=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        few = [closure.multiscale_gap_samples(1e-3, h, samples=16000, seed=s, **kw) for s in (1, 2)]
+        many = closure.multiscale_gap_samples(1e-3, h, samples=2**18, seed=3, **kw)
+        old = closure.multiscale_gap_samples(1e-3, h, samples=16000, seed=1, center="sample", **kw)
+        old2 = closure.multiscale_gap_samples(1e-3, h, samples=16000, seed=2, center="sample", **kw)
+    assert few[0].n_c ** 2 > 16000 and few[0].samples.size == 16000 and old.samples.size == few[0].n_c ** 2
+    fine = many.samples.var() - old.samples.var()  # the earlier rule at one sample per pixel: the coarse field
+    assert fine > 0.05 * many.samples.var()
+    for f in few:
+        assert abs(f.samples.var() - many.samples.var()) < 0.25 * fine
+        assert f.samples.mean() == pytest.approx(many.samples.mean(), abs=0.02 * many.samples.std())
+    assert not np.array_equal(np.sort(few[0].samples), np.sort(few[1].samples))
+    np.testing.assert_allclose(old.samples, old2.samples, rtol=1e-12)  # the earlier rule ignored the seed
+
+
+def test_multiscale_self_check_sets_the_status():
+    """The self-check (L1 between the last two coarse grids' distributions, times L1_SAFETY) is reported, and a
+    tolerance it cannot meet turns "converged" into "l1_not_met"; check=False skips it."""
+    h = surface.self_affine(256, 0.5, lambda_l=0.5, lambda_s=0.5 / 32, rms_slope=1.0, seed=7)
+    kw = dict(rho=0.3 * surface.rms_height(h), gamma0=1e-3, lambda_l=0.5, seed=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ok = closure.multiscale_gap_samples(1e-2, h, **kw)
+        strict = closure.multiscale_gap_samples(1e-2, h, l1_tol=1e-3, **kw)
+        off = closure.multiscale_gap_samples(1e-2, h, check=False, **kw)
+    assert 0 < ok.l1_change < 0.1 and ok.l1_estimate == pytest.approx(closure.L1_SAFETY * ok.l1_change)
+    assert ok.status == "converged" and strict.status == "l1_not_met"
+    assert math.isnan(off.l1_estimate) and off.status == "converged"
+    with pytest.raises(ValueError, match="l1_tol"):
+        closure.multiscale_gap_samples(1e-2, h, l1_tol=0.0, **kw)
+
+
+def test_l1_distance():
+    """0 for identical samples, 2 for disjoint ones, and a hand-computed value."""
+    x = np.arange(100.0)
+    assert closure.l1_distance(x, x) == pytest.approx(0.0, abs=1e-12)
+    assert closure.l1_distance(x + 1000.0, x) == pytest.approx(2.0)
+    # half the samples moved outside the reference's range: |0.5 - 1| summed over bins + 0.5 outside = 1.0
+    assert closure.l1_distance(np.concatenate([x[:50], x[:50] + 1000.0]), x, bins=2) == pytest.approx(1.0)

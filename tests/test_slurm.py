@@ -1,10 +1,16 @@
-"""The Slurm scripts on a real single-node Slurm cluster (recipe in docs/running.md:
-slurmctld + slurmd + munge, brought up
-here in a temporary directory; skipped unless slurmctld/slurmd/munged are installed and we are root): a 3-shard
-array job plus the merge job chained with --dependency=afterok equals a single-run store; so does an MPI job."""
+"""The Slurm scripts and ``gapsweep submit`` on a real single-node Slurm cluster (recipe in docs/running.md:
+slurmctld + slurmd + munge, brought up here in a temporary directory; skipped unless slurmctld/slurmd/munged are
+installed and we are root): a 3-shard array job plus the merge job chained with afterany equals a single-run
+store; so does an MPI job; a job that reaches its time limit is requeued and completes with nothing lost, the
+merge waiting for its last attempt; arrays are throttled (%K) and split at the cluster's MaxArraySize (4 here);
+a second submission of a store is refused.
+
+The cluster is configured with ``MaxArraySize=4`` and ``AuthInfo=cred_expire=10``: Slurm holds a requeued job
+for ``cred_expire`` seconds (default 120) before it may start again; 10 keeps the requeue test short."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import signal
@@ -47,6 +53,8 @@ SlurmdLogFile={d}/slurmd.log
 ReturnToService=2
 MpiDefault=none
 JobAcctGatherType=jobacct_gather/none
+MaxArraySize=4
+AuthInfo=cred_expire=10
 NodeName=localhost CPUs={cpus} RealMemory=2000 State=UNKNOWN
 PartitionName=debug Nodes=localhost Default=YES MaxTime=INFINITE State=UP
 """
@@ -182,3 +190,89 @@ def test_failed_shards_merge_runs_and_names_them(cluster, tmp_path):
     log = (out / "test_mixed.merge.out").read_text()
     assert "site-hook" in log
     assert "2 of 2 shard(s) missing or unfinished" in log and "shard 0" in log and "shard 1" in log, log
+
+
+# test_theory.toml without the discrete form: 24 tasks of one cost, results independent of the split
+FLAT = JOB.parent.joinpath("test_theory.toml").read_text().replace(
+    'forms = ["paper", "continuum", "discrete"]', 'forms = ["paper", "continuum"]').replace("\nn = 64\n", "\n")
+
+
+def _submit(env, job, out, *args, cwd):
+    return subprocess.run([*_gapsweep().split(), "submit", str(job), str(out), *args], env=env,
+                          capture_output=True, text=True, timeout=120, cwd=cwd)
+
+
+def _ids(stdout: str) -> list[str]:
+    w = stdout.split()
+    return [*w[w.index("array") + 1].split(","), w[w.index("merge") + 1]]
+
+
+@pytest.mark.slow
+def test_time_limit_requeue_completes_nothing_lost(cluster, tmp_path):
+    """One shard of 24 tasks of ~2.2 s (53 s of work) under a 1-minute limit, warned 20 s before it: the run
+    stops cleanly at the warning and the job requeues itself (same job id), resuming the store, until it is
+    done; the merge (afterany) runs only after the last attempt, and the merged store equals a single run."""
+    job = tmp_path / "flat.toml"
+    job.write_text(FLAT)
+    ref = tmp_path / "ref.h5"
+    runner.run(job, ref, progress="none", mpi="off")
+    env = dict(cluster, GAPSWEEP=_gapsweep(), GAPSWEEP_TEST_DELAY="2.2")
+    out = tmp_path / "out"
+    p = _submit(env, job, out, "--shards", "1", "--time", "1", "--signal-lead", "20", cwd=tmp_path)
+    assert p.returncode == 0, p.stdout + p.stderr
+    ids = _ids(p.stdout)
+    _wait(env, ids, timeout=240)
+    logs = "\n".join(f"{f.name}:\n{f.read_text()}" for f in sorted(out.glob("*.out")))
+    rec = json.loads((out / "flat.shard0.h5.requeue").read_text())
+    assert rec["job"] == ids[0] and rec["requeues"] >= 1, logs
+    runs = json.loads(store.read_attrs(out / "flat.shard0.h5")["runs"])
+    assert len(runs) == rec["requeues"] + 1 and all(r.get("interrupted") == "SIGTERM" for r in runs[:-1]), runs
+    assert runs[-1].get("finished"), runs
+    assert store.diff(out / "flat.h5", ref) == [], logs
+    assert "merged 1 shard(s)" in logs and "incomplete" not in logs, logs
+
+
+def _scontrol_job(env, jid: str) -> str:
+    return subprocess.run(["scontrol", "show", "job", jid], env=env, capture_output=True, text=True,
+                          timeout=20).stdout
+
+
+def test_throttle_split_and_second_submission_refused(cluster, tmp_path):
+    """Held (SBATCH_ARGS=--hold): 6 shards at MaxArraySize 4 are two arrays (0-3 and 0-1, every index below 4),
+    each throttled to 2 running (ArrayTaskThrottle=2, %2 in squeue); the merge depends on both. A second
+    submission for the same store is refused naming the queued jobs. Released, the shards (offsets 0 and 4 of
+    6) run and the merge equals a single run."""
+    job = tmp_path / "flat.toml"
+    job.write_text(FLAT)
+    ref = tmp_path / "ref.h5"
+    runner.run(job, ref, progress="none", mpi="off")
+    env = dict(cluster, GAPSWEEP=_gapsweep(), SBATCH_ARGS="--hold")
+    out = tmp_path / "out"
+    p = _submit(env, job, out, "--shards", "6", "--max-running", "2", cwd=tmp_path)
+    assert p.returncode == 0, p.stdout + p.stderr
+    ids = _ids(p.stdout)
+    try:
+        assert len(ids) == 3
+        a0, a1, merge_id = ids
+        for a, last in ((a0, 3), (a1, 1)):
+            info = _scontrol_job(env, a)
+            assert "ArrayTaskThrottle=2" in info, info
+            assert f"ArrayTaskId=0-{last}%2" in info or f"ArrayTaskId=0-{last}" in info, info
+        q = subprocess.run(["squeue", "-h", "-o", "%i", "-j", f"{a0},{a1}"], env=env, capture_output=True,
+                           text=True, timeout=20).stdout
+        assert f"{a0}_[0-3%2]" in q and f"{a1}_[0-1%2]" in q, q
+        assert f"afterany:{a0}" in _scontrol_job(env, merge_id) and f"{a1}" in _scontrol_job(env, merge_id)
+        p2 = _submit(env, job, out, "--shards", "6", cwd=tmp_path)
+        assert p2.returncode == 1 and "queued or running already" in p2.stderr, p2.stderr
+        for jid in ids:
+            assert jid in p2.stderr or f"{jid}_" in p2.stderr, p2.stderr
+    except BaseException:
+        subprocess.run(["scancel", *ids], env=env, timeout=20)
+        raise
+    subprocess.run(["scontrol", "release", ",".join(ids)], env=env, check=True, timeout=20)
+    _wait(env, ids, timeout=240)
+    logs = "\n".join(f"{f.name}:\n{f.read_text()}" for f in sorted(out.glob("*.out")))
+    shards = sorted(f.name for f in out.glob("flat.shard*.h5"))
+    assert shards == [f"flat.shard{i}.h5" for i in range(6)], logs
+    assert [store.read_attrs(out / f"flat.shard{i}.h5")["shard"] for i in range(6)] == [f"{i}/6" for i in range(6)]
+    assert store.diff(out / "flat.h5", ref) == [], logs

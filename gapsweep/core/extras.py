@@ -9,6 +9,7 @@ runs sweeps in one process and writes reports. Everything else is an extra of ``
 | ``sde`` | warp-lang | the SDE ensembles (CPU and GPU) |
 | ``gpu`` | cupy | GFMD on an NVIDIA GPU (``backend="cupy"``) |
 | ``mpi`` | mpi4py | MPI task farms (``mpiexec -n P gapsweep run``) |
+| ``distributed`` | mpi4py (+ cupy with NCCL on GPUs) | one GFMD solve over MPI ranks (``gfmd.solve(comm=...)``) |
 | ``xarray`` | xarray, netCDF4 | ``gapsweep.store.to_dataset``, ``gapsweep export``, kept fields |
 | ``topography`` | SurfaceTopography | Gaussian-amplitude surfaces by a peer code (benchmarks) |
 | ``progress`` | tqdm | a progress bar on a terminal (log lines otherwise) |

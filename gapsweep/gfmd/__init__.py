@@ -57,6 +57,7 @@ from __future__ import annotations
 # numba CPU kernels), _cuda (cupy GPU kernels, kernels.cu), _solvers (cg, lbfgs, fire), _common (helpers),
 # _result (GFMDResult), _path (load paths), batched (batches). This file only re-exports: no module of the
 # package imports it back. Benchmarks use gfmd._Problem and gfmd._make_ops.
+from gapsweep.core.slab import slab_rows
 from gapsweep.gfmd import _softmax
 from gapsweep.gfmd._common import STATUSES, UnderResolvedWarning, _make_ops, _transfer_modes  # noqa: F401
 from gapsweep.gfmd._ops import _have_numba, _is_cupy  # noqa: F401
@@ -69,7 +70,7 @@ from gapsweep.gfmd.batched import solve_batch
 from gapsweep.gfmd.interactions import INTERACTIONS, Interaction, resolve  # noqa: F401
 
 __all__ = ["INTERACTIONS", "METHODS", "BatchProblem", "GFMDResult", "Interaction", "LoadPath",
-           "UnderResolvedWarning", "solve", "solve_batch", "solve_path"]
+           "UnderResolvedWarning", "slab_rows", "solve", "solve_batch", "solve_path"]
 
 METHODS = _softmax.METHODS  # methods of the exponential law (the job-spec validator uses this list)
 DEFAULT_METHOD = _softmax.DEFAULT_METHOD

@@ -49,11 +49,12 @@ _REFRESH = 25  # iterations between fresh K p when the update was unclipped (bou
 log = logging.getLogger("gapsweep.gfmd")
 
 
-def _violation(g: Any, S: Any, n_s: int, xp: Any) -> tuple[float, float]:
+def _violation(g: Any, S: Any, n_s: int, grid: Grid) -> tuple[float, float]:
     """``(rms of g on S, max overlap -min(g) off S)`` (lengths)."""
-    rms = math.sqrt(float(xp.sum(xp.where(S, g * g, 0.0))) / max(n_s, 1))
+    xp = grid.xp
+    rms = math.sqrt(grid.total(xp.where(S, g * g, 0.0)) / max(n_s, 1))
     off = xp.where(S, xp.inf, g)
-    overlap = max(0.0, -float(off.min())) if n_s < g.size else 0.0
+    overlap = max(0.0, -grid.amin(off)) if n_s < grid.size else 0.0
     return rms, overlap
 
 
@@ -85,23 +86,25 @@ def _coarse_start(h: Any, law: Interaction, sigma0: float, e_star: float, length
 
 def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, length: Any, tol: float,
              method: str, backend: str, max_iter: int, initial: Any, threads: int | None, host: Any,
-             t_start: float, periodic: bool = True) -> GFMDResult:
+             t_start: float, periodic: bool = True, grid: Grid | None = None) -> GFMDResult:
     """Hard wall ``law`` on the grid ``heights`` (inputs validated by ``gfmd.solve``): periodic, or a finite map
-    with free boundaries (``periodic=False``: :class:`FreeGrid`'s compliance, the same iteration)."""
-    grid = (Grid if periodic else FreeGrid)(heights.shape, length, backend, threads, _is_cupy(heights))
+    with free boundaries (``periodic=False``: :class:`FreeGrid`'s compliance, the same iteration). ``grid``: a
+    prepared grid (a distributed one: gapsweep.gfmd.distributed; "mpcg" is not offered there)."""
+    grid = grid if grid is not None else (Grid if periodic else FreeGrid)(heights.shape, length, backend, threads,
+                                                                          _is_cupy(heights))
     if method == "auto":
         method = DEFAULT_METHOD_GPU if grid.backend == "cupy" else DEFAULT_METHOD
     xp = grid.xp
     h = grid.asarray(heights)
-    if not bool(xp.all(xp.isfinite(h))):
+    if not grid.all_finite(h):
         raise ValueError("heights contain NaN or inf")
-    h_shift = float(h.mean())
+    h_shift = grid.mean(h)
     h = h - h_shift
-    h_rms = math.sqrt(float(xp.mean(h * h)))
+    h_rms = math.sqrt(grid.mean(h * h))
     g_ref = h_rms if h_rms > 0 else min(grid.lx / grid.shape[0], grid.ly / grid.shape[1])
     with np.errstate(divide="ignore"):
         kinv = 1.0 / ((0.5 * e_star) * grid.q)
-    kinv[0, 0] = 0.0
+    grid.set_mode0(kinv, 0.0)
     kinv = grid.multiplier(kinv)
 
     def compliance(a: Any, out: Any = None) -> Any:  # u = K a, <u> = 0
@@ -116,26 +119,27 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
         p, coarse_its = _coarse_start(h, law, sigma0, e_star, length, threads, backend, xp, periodic)
         p *= sigma0 / float(p.mean())
     elif initial is None:
-        p = xp.full(grid.shape, sigma0)
+        p = xp.full(grid.real_shape, sigma0)
     else:
         p0 = initial.pressure if isinstance(initial, GFMDResult) else initial
         p = xp.maximum(xp.asarray(p0, dtype=xp.float64), 0.0)
-        if p.shape != grid.shape or not bool(xp.all(xp.isfinite(p))) or not float(p.sum()) > 0:
-            raise ValueError(f"initial must be a GFMDResult or a finite pressure field of shape {grid.shape} "
+        shape_ok = tuple(p.shape) == tuple(grid.real_shape)
+        if not grid.agree(shape_ok and bool(xp.all(xp.isfinite(p)))) or not grid.total(p) > 0:
+            raise ValueError(f"initial must be a GFMDResult or a finite pressure field of shape {grid.real_shape} "
                              "with a positive sum")
-        p *= sigma0 / float(p.mean())
+        p *= sigma0 / grid.mean(p)
     history: list[float] = []
     status = "max_iter"
     fft_pairs = 1
-    t = xp.zeros(grid.shape)
-    g = xp.empty(grid.shape)
-    gs = xp.empty(grid.shape)
-    ops = make_ops(xp)
+    t = xp.zeros(grid.real_shape)
+    g = xp.empty(grid.real_shape)
+    gs = xp.empty(grid.real_shape)
+    ops = grid.reduce_ops(make_ops(xp))
     delta, gz_old = 0.0, 1.0
     precondition = method != "pk"
     stiff = grid.multiplier((0.5 * e_star) * grid.q)  # M = K^-1 = E* q/2, the Fourier preconditioner
-    z = xp.empty(grid.shape) if precondition else None
-    r = xp.empty(grid.shape)
+    z = xp.empty(grid.real_shape) if precondition else None
+    r = xp.empty(grid.real_shape)
     it = since_fresh = 0
     with np.errstate(all="ignore"):
         u = compliance(p)
@@ -187,16 +191,16 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
         u = compliance(p)
         fft_pairs += 2
         S = p > 0
-        n_s = int(xp.count_nonzero(S))
-        g0 = -float(xp.sum(xp.where(S, u - h, 0.0))) / max(n_s, 1)
+        n_s = grid.count(S)
+        g0 = -grid.total(xp.where(S, u - h, 0.0)) / max(n_s, 1)
         g = g0 + u - h
-        rms, overlap = _violation(g, S, n_s, xp)
+        rms, overlap = _violation(g, S, n_s, grid)
         residual = max(rms, overlap) / g_ref
-        complementarity = float(xp.mean(p * xp.abs(g))) / (sigma0 * g_ref)
-        load_error = abs(float(p.mean()) / sigma0 - 1.0)
+        complementarity = grid.mean(p * xp.abs(g)) / (sigma0 * g_ref)
+        load_error = abs(grid.mean(p) / sigma0 - 1.0)
         elastic = grid.elastic_energy(grid.fwd(u), e_star) if periodic else grid.elastic_energy_pu(p, u)
         gap = xp.where(S, 0.0, g)  # the contact atom exactly at g = 0
-    fields_ok = math.isfinite(residual) and bool(xp.all(xp.isfinite(p))) and bool(xp.all(xp.isfinite(u)))
+    fields_ok = math.isfinite(residual) and grid.all_finite(p) and grid.all_finite(u)
     if not fields_ok:
         status = "non_finite"
     converged = fields_ok and residual <= tol and load_error <= tol
@@ -209,7 +213,7 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
     gap, p, u = fields["gap"], fields["pressure"], fields["displacement"]
     grid.synchronize()
     return GFMDResult(
-        mean_gap=float(gap.mean()),
+        mean_gap=grid.mean(gap),
         gap=gap,
         pressure=p,
         displacement=u,

@@ -40,6 +40,13 @@ from gapsweep.gfmd._result import GFMDResult, host_fields
 from gapsweep.gfmd._smooth import _DETACHED, _wolfe
 from gapsweep.gfmd.interactions.base import SmoothInteraction
 
+try:
+    from scipy.linalg.blas import zaxpy as _zaxpy
+except ImportError:  # pragma: no cover - scipy is a dependency
+    def _zaxpy(x, y, a):
+        y += a * x
+        return y
+
 METHODS = ("lbfgs",)
 log = logging.getLogger("gapsweep.gfmd")
 
@@ -101,9 +108,19 @@ class _FreeState:
         self._evaluate()
 
 
+def _axpy_into(a: float, x: Any, y: Any) -> None:
+    """``y += a x`` for complex arrays: one BLAS ``zaxpy`` pass on numpy (no temporary), the array expression
+    elsewhere (cupy)."""
+    if isinstance(y, np.ndarray) and y.dtype == np.complex128 and x.dtype == np.complex128 \
+            and y.flags.c_contiguous and x.flags.c_contiguous:
+        _zaxpy(x.ravel(), y.ravel(), a=a)  # ravel of a contiguous array is a view: y is updated in place
+    else:
+        y += a * x
+
+
 def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: float, length: Any, tol: float,
              method: str, backend: str, max_iter: int, initial: Any, threads: int | None, host: Any,
-             t_start: float, periodic: bool = False, memory: int = 8) -> GFMDResult:
+             t_start: float, periodic: bool = False, memory: int = 12) -> GFMDResult:
     """Smooth ``law`` on the finite map ``heights`` with free boundaries (module docstring; inputs validated by
     ``gfmd.solve``). ``initial``: None (the body flat, touching the highest summit) or a GFMDResult of a free
     solve of the same map (its pressure is turned into the displacement on the doubled grid)."""
@@ -156,7 +173,9 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
         return minv_u * G[0], minv_d * G[1]
 
     def axpy(a: float, x: tuple[Any, float], y: tuple[Any, float]) -> tuple[Any, float]:
-        return y[0] + a * x[0], y[1] + a * x[1]
+        """``y + a x``, in place on ``y`` (a direction being built by the two-loop recursion, owned here)."""
+        _axpy_into(a, x[0], y[0])
+        return y[0], y[1] + a * x[1]
 
     with np.errstate(all="ignore"):
         while True:
@@ -182,15 +201,20 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
                 al = r * st.dot(s, q)
                 alphas.append(al)
                 q = axpy(-al, y, q)
-            q = precondition(q)
+            q0 = q[0]  # owned (a copy of the gradient): scaled in place
+            q0 *= minv_u
+            q = (q0, minv_d * q[1])
             if y_hist:
                 yhy = st.dot(y_hist[-1], precondition(y_hist[-1]))
                 if yhy > 0:
                     sc = 1.0 / (r_hist[-1] * yhy)
-                    q = (q[0] * sc, q[1] * sc)
+                    q0 *= sc
+                    q = (q0, q[1] * sc)
             for s, y, r, al in zip(s_hist, y_hist, r_hist, reversed(alphas)):
                 q = axpy(al - r * st.dot(y, q), s, q)
-            D = (-q[0], -q[1])
+            q0 = q[0]
+            q0 *= -1.0
+            D = (q0, -q[1])
             slope = st.dot(grad, D)
             if not slope < 0:
                 s_hist.clear(), y_hist.clear(), r_hist.clear()

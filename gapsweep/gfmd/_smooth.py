@@ -61,27 +61,27 @@ class _State:
     def _evaluate(self) -> None:
         xp = self.xp
         self.p = self.law.pressure(self.g, xp)
-        self.e_law = float(xp.mean(self.law.energy(self.g, xp)))
+        self.e_law = self.grid.mean(self.law.energy(self.g, xp))
         self.G = self.k * self.Z - self.grid.fwd(self.p)
-        self.G[0, 0] += self.sigma0  # k(0) = 0: sigma0 - <p>
+        self.grid.set_mode0(self.G, self.grid.mode0(self.G) + self.sigma0)  # k(0) = 0: sigma0 - <p>
         self.nfev += 1
 
     def energy(self) -> float:
-        return 0.5 * self.grid.dot(self.Z, self.k * self.Z) + self.e_law + self.sigma0 * float(self.Z[0, 0].real)
+        return 0.5 * self.grid.dot(self.Z, self.k * self.Z) + self.e_law + self.sigma0 * self.grid.mode0(self.Z).real
 
     def line(self, D: Any) -> tuple[Any, float, float, float]:
         """Real-space direction ``d`` and the scalars of ``phi(alpha) = F(Z + alpha D)``."""
         d = self.grid.inv(D)
         a = self.grid.dot(D, self.k * self.Z)
         b = self.grid.dot(D, self.k * D)
-        return d, a, b, float(D[0, 0].real)
+        return d, a, b, self.grid.mode0(D).real
 
     def phi(self, alpha: float, d: Any, a: float, b: float, d0: float, e0: float) -> tuple[float, float]:
         """``(phi(alpha) - phi(0) + e_law(0), phi'(alpha))`` without FFT."""
-        xp = self.xp
+        xp, grid = self.xp, self.grid
         g = self.g + alpha * d
-        f = alpha * a + 0.5 * alpha * alpha * b + float(xp.mean(self.law.energy(g, xp))) + self.sigma0 * alpha * d0
-        df = a + alpha * b - float(xp.mean(self.law.pressure(g, xp) * d)) + self.sigma0 * d0
+        f = alpha * a + 0.5 * alpha * alpha * b + grid.mean(self.law.energy(g, xp)) + self.sigma0 * alpha * d0
+        df = a + alpha * b - grid.mean(self.law.pressure(g, xp) * d) + self.sigma0 * d0
         return f, df
 
     def move(self, alpha: float, D: Any, d: Any) -> None:
@@ -143,7 +143,7 @@ def _lbfgs(st: _State, minv: Any, p_ref: float, tol: float, max_iter: int, memor
     with np.errstate(all="ignore"):
         while True:
             deadline.check()  # a task time limit ends the solve between iterations
-            g00 = complex(st.G[0, 0])
+            g00 = grid.mode0(st.G)
             rr = max(grid.dot(st.G, st.G) - abs(g00) ** 2, 0.0)
             res = max(math.sqrt(rr), abs(g00.real)) / p_ref
             history.append(res)
@@ -151,12 +151,12 @@ def _lbfgs(st: _State, minv: Any, p_ref: float, tol: float, max_iter: int, memor
                 return "non_finite"
             if res <= tol:
                 return "converged"
-            if st.sigma0 < 0 and rng is not None and float(st.g.min()) > _DETACHED * rng:
+            if st.sigma0 < 0 and rng is not None and grid.amin(st.g) > _DETACHED * rng:
                 return "detached"
             if st.nfev >= max_iter:
                 return "max_iter"
             f = st.energy()
-            f_scale = _STALL_ENERGY * (abs(f) + abs(st.e_law) + abs(st.sigma0 * float(st.Z[0, 0].real)))
+            f_scale = _STALL_ENERGY * (abs(f) + abs(st.e_law) + abs(st.sigma0 * grid.mode0(st.Z).real))
             if res < 0.9 * best_res or best_f - f > f_scale:
                 best_res, best_f, best_at = min(res, best_res), f, st.nfev
             elif st.nfev - best_at >= _STALL_WINDOW:
@@ -309,24 +309,25 @@ class _Solver:
 
 def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: float, length: Any, tol: float,
              method: str, backend: str, max_iter: int, initial: Any, threads: int | None, host: Any,
-             t_start: float, memory: int = 8) -> GFMDResult:
+             t_start: float, memory: int = 8, grid: Grid | None = None) -> GFMDResult:
     """Smooth ``law`` on the periodic grid ``heights`` (inputs validated by ``gfmd.solve``).
 
     Starts (docs/gfmd.md, "Tensile loads"): ``initial`` when given; if that run detaches or stalls at a tensile
     load and ``initial`` is a converged result at a higher load, the load is followed down from it
     (:meth:`_Solver.follow`). Without ``initial``: the flat body touching the highest summit, solved directly
     at ``sigma0 >= 0``; at ``sigma0 < 0`` solved at zero load from there and unloaded to ``sigma0``."""
-    grid = Grid(heights.shape, length, backend, threads, _is_cupy(heights))
+    if grid is None:
+        grid = Grid(heights.shape, length, backend, threads, _is_cupy(heights))
     xp = grid.xp
     h = grid.asarray(heights)
-    if not bool(xp.all(xp.isfinite(h))):
+    if not grid.all_finite(h):
         raise ValueError("heights contain NaN or inf")
-    h = h - float(h.mean())  # the gap does not depend on <h> (the body follows the surface)
+    h = h - grid.mean(h)  # the gap does not depend on <h> (the body follows the surface)
     sv = _Solver(grid, law, h, e_star, max_iter, memory)
     step_tol = max(tol, _STEP_TOL)
     if initial is None:
-        Z = xp.zeros((grid.shape[0], grid.shape[1] // 2 + 1), dtype=xp.complex128)
-        Z[0, 0] = float(h.max())  # touching the highest summit, the body flat
+        Z = grid.spectrum_zeros()
+        grid.set_mode0(Z, grid.amax(h))  # touching the highest summit, the body flat
         if sigma0 < 0:
             st, status = sv.at(0.0, Z, step_tol)
             if status == "converged":
@@ -340,10 +341,12 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
         else:
             u0, g0 = initial
         u0 = xp.asarray(u0, dtype=xp.float64)
-        if u0.shape != grid.shape or not bool(xp.all(xp.isfinite(u0))) or not math.isfinite(g0):
-            raise ValueError(f"initial must be a GFMDResult or (displacement of shape {grid.shape}, mean gap)")
-        Z0 = grid.fwd(u0 - u0.mean())
-        Z0[0, 0] = float(g0)
+        shape_ok = tuple(u0.shape) == tuple(grid.real_shape)
+        if not grid.agree(shape_ok and bool(xp.all(xp.isfinite(u0))) and math.isfinite(g0)):
+            raise ValueError(f"initial must be a GFMDResult or (displacement of shape {grid.real_shape}, "
+                             "mean gap)")
+        Z0 = grid.fwd(u0 - grid.mean(u0))
+        grid.set_mode0(Z0, float(g0))
         st, status = sv.at(sigma0, Z0, tol)
         s_init = float(getattr(initial, "sigma0", math.nan))
         if (status in ("detached", "stalled") and isinstance(initial, GFMDResult) and initial.converged
@@ -364,19 +367,19 @@ def _result(sv: _Solver, st: _State, status: str, sigma0: float, e_star: float, 
     p_ref = law.pressure_scale(sigma0)
     with np.errstate(all="ignore"):
         z = grid.inv(st.Z)
-        u = z - float(st.Z[0, 0].real)
+        u = z - grid.mode0(st.Z).real
         gap = z - h
         p = law.pressure(gap, xp)
         U = grid.fwd(u)
         F = k * U - grid.fwd(p)
-        F[0, 0] = 0.0
+        grid.set_mode0(F, 0.0)
         residual = math.sqrt(max(grid.dot(F, F), 0.0)) / p_ref
-        load_error = abs(float(p.mean()) - sigma0) / p_ref
+        load_error = abs(grid.mean(p) - sigma0) / p_ref
         elastic = grid.elastic_energy(U, e_star)
-        area = float(xp.count_nonzero(law.contact(gap, p))) / grid.size
-        g0 = float(gap.mean())
-        e_int = float(xp.mean(law.energy(gap, xp)))
-    fields_ok = math.isfinite(residual) and bool(xp.all(xp.isfinite(gap))) and bool(xp.all(xp.isfinite(p)))
+        area = grid.count(law.contact(gap, p)) / grid.size
+        g0 = grid.mean(gap)
+        e_int = grid.mean(law.energy(gap, xp))
+    fields_ok = math.isfinite(residual) and grid.all_finite(gap) and grid.all_finite(p)
     if not fields_ok:
         status = "non_finite"
     converged = fields_ok and status == "converged" and residual <= tol and load_error <= tol

@@ -50,6 +50,7 @@ def solve(
     threads: int | None = None,
     host: bool | tuple[str, ...] = True,
     periodic: bool | None = None,
+    comm: Any = None,
 ) -> GFMDResult:
     """Equilibrium gap of an elastic half-space on the rigid surface ``heights`` at mean pressure ``sigma0``.
 
@@ -77,7 +78,21 @@ def solve(
     exponential and adhesive: "lbfgs" on ``gfmd._free``), on the CPU and the GPU (cupy).
     Default (None): a :class:`gapsweep.topography.Topography` passed as ``heights`` brings its own
     ``periodic`` flag and its ``length`` (a ``length`` given here must then be left at 1.0); arrays are periodic.
+
+    ``comm``: an mpi4py communicator: one solve split over its ranks (docs/gfmd.md, "One solve over several
+    processes"; :func:`gapsweep.gfmd.distributed.solve`): ``heights`` is then this rank's rows
+    ``h[gapsweep.gfmd.slab_rows(nx, comm)]``, every rank calls ``solve`` with the same arguments, and the result
+    (a ``SlabResult``) holds the global scalars on every rank and this rank's rows of the fields. Periodic only;
+    ``threads`` is ignored there.
     """
+    if comm is not None:
+        if periodic is False:
+            raise ValueError("comm: a distributed solve is periodic (free boundaries run on one process)")
+        from gapsweep.gfmd import distributed
+
+        return distributed.solve(heights, comm=comm, sigma0=sigma0, interaction=interaction, gamma0=gamma0,
+                                 rho=rho, work=work, e_star=e_star, length=length, tol=tol, method=method,
+                                 backend=backend, max_iter=max_iter, initial=initial, host=host)
     t_start = time.perf_counter()
     from gapsweep.surfaces.topography import Topography
 

@@ -6,5 +6,6 @@ from gapsweep.surfaces.synthetic import (  # noqa: F401
     rms_height,
     rms_slope,
     self_affine,
+    self_affine_rows,
 )
 from gapsweep.surfaces.topography import Topography, load  # noqa: F401

@@ -19,7 +19,7 @@ fixed mode set, so it holds exactly (to rounding) for every discrete grid as wel
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -34,6 +34,7 @@ __all__ = [
     "rms_height",
     "rms_slope",
     "self_affine",
+    "self_affine_rows",
     "spectrum",
     "wavevectors",
 ]
@@ -129,6 +130,25 @@ def self_affine(
     of the same seed to FFT round-off (~1e-15 relative) and grids too large for host memory work. GPU memory:
     the half spectrum, cuFFT's copy of it and the surface, about 3 grid-sized float64 arrays at the peak.
     """
+    n, kx, ky, coeff = _coefficients(n, hurst, lambda_l=lambda_l, lambda_s=lambda_s, length=length,
+                                     rms_slope=rms_slope, rms_height=rms_height, c0=c0, amplitudes=amplitudes,
+                                     seed=seed)
+    if backend not in ("numpy", "cupy"):
+        raise ValueError(f"backend must be 'numpy' or 'cupy', got {backend!r}")
+    # Half-spectrum layout of irfft2 (axis 1 holds ky >= 0). The ky = 0 column needs both kx and -kx.
+    if backend == "cupy":
+        return _irfft2_modes_gpu(n, kx, ky, coeff)
+    half = np.zeros((n, n // 2 + 1), dtype=np.complex128)
+    half[kx % n, ky] = coeff
+    on_axis = ky == 0
+    half[(-kx[on_axis]) % n, 0] = np.conj(coeff[on_axis])
+    return np.fft.irfft2(half, s=(n, n)) * (n * n)
+
+
+def _coefficients(n: int, hurst: float, *, lambda_l: float, lambda_s: float, length: float,
+                  rms_slope: float | None, rms_height: float | None, c0: float | None, amplitudes: str,
+                  seed: int) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+    """Validated ``n`` and the canonical half plane's modes ``(kx, ky)`` with their coefficients ``h~`` (M2)."""
     n = chk.count(n, "n", minimum=2)
     hurst = chk.hurst(hurst)
     length = chk.positive(length, "length")
@@ -147,8 +167,6 @@ def self_affine(
     norm_value = chk.positive(norm_value, norm_name)
     if amplitudes not in ("fixed", "gaussian"):
         raise ValueError(f"amplitudes must be 'fixed' or 'gaussian', got {amplitudes!r}")
-    if backend not in ("numpy", "cupy"):
-        raise ValueError(f"backend must be 'numpy' or 'cupy', got {backend!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= int(seed) < 2**63:
         raise ValueError(f"seed must be an integer in [0, 2**63), got {seed!r}")
     seed = int(seed)
@@ -177,15 +195,54 @@ def self_affine(
         coeff *= norm_value / math.sqrt(2.0 * np.sum(np.abs(coeff) ** 2))
     else:
         coeff *= norm_value / math.sqrt(2.0 * np.sum(q2 * np.abs(coeff) ** 2))
+    return n, kx, ky, coeff
 
-    # Half-spectrum layout of irfft2 (axis 1 holds ky >= 0). The ky = 0 column needs both kx and -kx.
-    if backend == "cupy":
-        return _irfft2_modes_gpu(n, kx, ky, coeff)
-    half = np.zeros((n, n // 2 + 1), dtype=np.complex128)
-    half[kx % n, ky] = coeff
+
+def self_affine_rows(
+    n: int,
+    hurst: float,
+    *,
+    comm: Any,
+    lambda_l: float,
+    lambda_s: float,
+    length: float = 1.0,
+    rms_slope: float | None = None,
+    rms_height: float | None = None,
+    c0: float | None = None,
+    amplitudes: Literal["fixed", "gaussian"] = "fixed",
+    seed: int = 0,
+    backend: Literal["numpy", "cupy"] = "numpy",
+) -> Any:
+    """This rank's rows ``h[slab_rows(n, comm)]`` of :func:`self_affine` with the same arguments, made in place
+    (docs/gfmd.md, "One solve over several processes"): no rank forms the whole surface. Collective.
+
+    The mode coefficients depend on ``(seed, kx, ky)`` only (M2: a counter-based hash, no sequential random
+    stream), so each rank writes the modes of its own half-spectrum columns; the whole mode set (a few MB,
+    ``kx, ky <= length/lambda_s``) is computed on every rank, the ``n x n`` spectrum never. The inverse transform
+    is :class:`gapsweep.core.slab.SlabFFT`'s with ``norm="backward"``: on the CPU the same 1-D pocketfft calls as
+    ``numpy.fft.irfft2``, so the rows equal :func:`self_affine`'s bit for bit (tests/mpi/test_distributed.py);
+    ``backend="cupy"`` (one GPU per rank) runs 1-D cuFFT transforms and equals the single-GPU surface to FFT
+    round-off (~1e-15 relative; cuFFT's 2-D plan orders the arithmetic differently). Memory per rank: the rank's
+    spectrum columns (complex) and the transform's buffers, about 4 arrays of the rank's rows."""
+    from gapsweep.core.slab import SlabFFT
+
+    n, kx, ky, coeff = _coefficients(n, hurst, lambda_l=lambda_l, lambda_s=lambda_s, length=length,
+                                     rms_slope=rms_slope, rms_height=rms_height, c0=c0, amplitudes=amplitudes,
+                                     seed=seed)
+    if backend not in ("numpy", "cupy"):
+        raise ValueError(f"backend must be 'numpy' or 'cupy', got {backend!r}")
+    fft = SlabFFT((n, n), comm, backend=backend)
+    xp = fft.xp
+    c = fft.col
     on_axis = ky == 0
-    half[(-kx[on_axis]) % n, 0] = np.conj(coeff[on_axis])
-    return np.fft.irfft2(half, s=(n, n)) * (n * n)
+    rows = np.concatenate([ky, np.zeros(int(on_axis.sum()), dtype=ky.dtype)])  # ky: rows of the [ky, kx] layout
+    cols = np.concatenate([kx % n, (-kx[on_axis]) % n])
+    vals = np.concatenate([coeff, np.conj(coeff[on_axis])])
+    mine = (rows >= c.start) & (rows < c.stop)
+    spec = xp.zeros(fft.spec_shape, dtype=xp.complex128)
+    # the mirrors last, as in self_affine, so a mode written twice keeps the same value
+    spec[xp.asarray(rows[mine] - c.start), xp.asarray(cols[mine])] = xp.asarray(vals[mine])
+    return fft.irfft2(spec, norm="backward") * (n * n)
 
 
 def _irfft2_modes_gpu(n: int, kx: np.ndarray, ky: np.ndarray, coeff: np.ndarray):

@@ -396,16 +396,50 @@ class Store:
         except (OSError, RuntimeError) as e:
             raise _failed(f"store {self.path}: writing row {i} failed ({e})") from None
 
+    def copy_row(self, i: int, row: np.void, hists: tuple[np.ndarray, ...]) -> None:
+        """Write row ``i`` as a finished row taken from another store (``gapsweep run --reuse``): its results row
+        (copied by column name) and histograms (gap and pressure: edges, density), payload first, with the
+        checksum of this store's row; flushed like :meth:`write`."""
+        e, d, pe, pd = (np.asarray(a, dtype=np.float64) for a in hists)
+        r = empty_results(1, self._rdtype)[0]
+        for k in self._rdtype.names:
+            if k in (row.dtype.names or ()) and k != CHECKSUM:
+                r[k] = row[k]
+        with _quiet_dealloc():
+            try:
+                self._edges[i], self._density[i] = e, d
+                if self._pedges is not None:
+                    self._pedges[i], self._pdensity[i] = pe, pd
+                if not self.parallel:
+                    self.f.flush()
+                if self._ck:
+                    r[CHECKSUM] = row_checksum(self._task_rows[i], r, (e, d, pe, pd))
+                    self._has_hist[i] = bool(np.isfinite(e[0]))
+                    if self._has_phist is not None:
+                        self._has_phist[i] = bool(np.isfinite(pe[0]))
+                self._res[i] = r
+                if not self.parallel:
+                    self.f.flush()
+            except (OSError, RuntimeError) as exc:
+                raise _failed(f"store {self.path}: writing row {i} failed ({exc})") from None
+
     _writes = 0
 
     def _inject(self) -> None:
         # Test hook (tests/faults): GAPSWEEP_TEST_WRITE_ERROR=k makes the k-th row write of this process fail
         # between its payload and its status, as a full disk would.
         # GAPSWEEP_TEST_KILL_AT_WRITE=k kills the process (SIGKILL) at that same point.
+        # GAPSWEEP_TEST_SIGNAL_AT_WRITE=k sends it SIGTERM there (a clean stop after that row, as on Slurm's
+        # time-limit warning).
         k = os.environ.get("GAPSWEEP_TEST_WRITE_ERROR", "")
         kill = os.environ.get("GAPSWEEP_TEST_KILL_AT_WRITE", "")
-        if k or kill:
+        term = os.environ.get("GAPSWEEP_TEST_SIGNAL_AT_WRITE", "")
+        if k or kill or term:
             Store._writes += 1
+            if term and Store._writes == int(term):
+                import signal
+
+                os.kill(os.getpid(), signal.SIGTERM)
             if kill and Store._writes == int(kill):
                 import signal
 
@@ -589,7 +623,25 @@ def status(path: str | Path) -> str:
                      f"sigma0={row.sigma0:g} seed={row.seed}: {row.message}")
     if len(bad) > 10:
         lines.append(f"  ... and {len(bad) - 10} more")
+    lines.extend(_unfinished(path, df))
     return "\n".join(lines)
+
+
+def _unfinished(path: str | Path, df: Any) -> list[str]:
+    """The status lines about rows a run left pending (which ones, and that ``--resume`` runs them) and about
+    failed rows (finished: ``--resume`` runs only the timed-out ones again)."""
+    out = []
+    pend = df[df.status == "pending"]
+    if len(pend):
+        ids = ", ".join(f"{r.task_id} ({r.method})" for r in pend.head(10).itertuples())
+        out.append(f"pending: {len(pend)} row(s) not run yet: {ids}" + (" ..." if len(pend) > 10 else ""))
+        out.append(f"  `gapsweep run JOB --store {path} --resume` runs them (JOB: this store's spec, attribute "
+                   "spec_text); nothing else is run again")
+    failed = int((df.status == "failed").sum())
+    if failed:
+        out.append(f"failed: {failed} row(s) (listed above); --resume runs the timed-out ones again, the others "
+                   "are finished (--overwrite starts the store again)")
+    return out
 
 
 def diff(a: str | Path, b: str | Path, *, ignore: Sequence[str] = VOLATILE) -> list[str]:

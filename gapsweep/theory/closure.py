@@ -38,7 +38,7 @@ from scipy.special import expit
 
 from gapsweep.core import checks as chk
 
-__all__ = ["MultiscaleGaps", "gap_distribution", "local_response_samples", "multiscale_gap_samples"]
+__all__ = ["MultiscaleGaps", "gap_distribution", "l1_distance", "local_response_samples", "multiscale_gap_samples"]
 
 log = logging.getLogger("gapsweep.theory.closure")
 
@@ -106,8 +106,12 @@ class MultiscaleGaps:
     ``samples`` [length]; ``n_c``, ``k_c``: the coarse GFMD grid and the largest integer wave number it resolves;
     ``shells``: groups of finer shells the process ran over; ``cost``: force evaluations x grid points of the
     coarse solves; ``cost_fraction``: over one full GFMD run on the input grid (estimated, ``improved.hybrid``);
-    ``status``: the hybrid's ("converged", "rtol_not_met", or the coarse solve's failure); ``mean_gap``: the
-    hybrid's mean gap (its error estimate in ``mean_gap_error``).
+    ``status``: "converged", "l1_not_met" (the self-check below exceeds ``l1_tol``), the hybrid's
+    "rtol_not_met", or the coarse solve's failure; ``mean_gap``: the hybrid's mean gap (its error estimate in
+    ``mean_gap_error``); ``l1_change``: L1 distance between these samples and those of the same route on the
+    ladder's previous (twice coarser) grid (NaN if there was none); ``l1_estimate``: the estimated L1 distance to
+    GFMD's histogram, ``L1_SAFETY x l1_change`` (NaN if there was no previous grid; 0 if nothing was left
+    unresolved).
     """
 
     samples: np.ndarray
@@ -119,6 +123,86 @@ class MultiscaleGaps:
     status: str
     mean_gap: float
     mean_gap_error: float
+    l1_change: float = math.nan
+    l1_estimate: float = math.nan
+
+
+# The self-check's factor: the L1 distance to GFMD estimated as L1_SAFETY x (L1 between the last two coarse grids'
+# distributions); chosen on the tuning set of benchmarks/results/bounds/ (bench_bounds.py), reported on its
+# held-out set.
+L1_SAFETY = 1.5
+# Bins of the L1 distances (as the validation: equal bins over the reference's range, mass outside counted fully)
+L1_BINS = 80
+
+
+def l1_distance(x: ArrayLike, ref: ArrayLike, bins: int = L1_BINS) -> float:
+    """L1 distance [1] between the densities of the samples ``x`` and ``ref`` on ``bins`` equal bins over
+    ``ref``'s range; the mass of ``x`` outside that range counts fully (0 identical, 2 disjoint)."""
+    x = np.asarray(x, float).ravel()
+    ref = np.asarray(ref, float).ravel()
+    lo, hi = float(ref.min()), float(ref.max())
+    if not hi > lo:
+        return float(np.mean(x != lo)) * 2.0
+    e = np.linspace(lo, hi, bins + 1)
+    a = np.histogram(x, bins=e)[0] / x.size
+    b = np.histogram(ref, bins=e)[0] / ref.size
+    return float(np.sum(np.abs(a - b)) + (1.0 - a.sum()))
+
+
+def _walk(g: np.ndarray, q: np.ndarray, pw: np.ndarray, rho: float, base: float, rng: np.random.Generator,
+          common: bool = False) -> np.ndarray:
+    """The local-response process over the shell groups ``(q, pw)`` from the gaps ``g`` (docstring of
+    :func:`multiscale_gap_samples`, step 2). ``common=True``: one antithetic set of normals per step, shared by
+    every row of ``g`` (shape ``(rows, paths)``; common random numbers for a smooth table in the start gap)."""
+    for qj, pj in zip(q, pw, strict=True):
+        # ln(eta_g zeta) = ln(rho |q| E*/2) - ln p(g),  ln p(g) = ln(gamma0/rho) - g/rho  (no exp: no overflow)
+        r = expit(base + math.log(qj) + g / rho)
+        v = pj * r * r
+        if common:
+            z = rng.standard_normal(g.shape[-1] // 2)
+            z = np.concatenate([z, -z])
+        else:
+            z = rng.standard_normal(g.shape)
+        g = g + v / (2.0 * rho) + np.sqrt(v) * z
+    return g
+
+
+def _mean_drift(g_start: np.ndarray, q: np.ndarray, pw: np.ndarray, rho: float, base: float,
+                rng: np.random.Generator, points: int = 65, paths: int = 4096) -> np.ndarray:
+    """``E[g_end | g_start] - g_start`` [length] at every start gap: the process depends on the pixel only through
+    its start gap, so a table over ``points`` start gaps (``paths`` antithetic common-random-number paths each;
+    Monte-Carlo error about ``std(g_end - g_start)/sqrt(paths)``, smooth in the start gap), linearly
+    interpolated."""
+    lo, hi = float(g_start.min()), float(g_start.max())
+    grid = np.linspace(lo, hi, points) if hi > lo else np.array([lo])
+    end = _walk(np.repeat(grid[:, None], paths, axis=1), q, pw, rho, base, rng, common=True)
+    return np.interp(g_start, grid, end.mean(axis=1) - grid)
+
+
+def _level_samples(g_coarse: np.ndarray, shift: float, bracket: float, q: np.ndarray, pw: np.ndarray, rho: float,
+                   base: float, samples: int, center: str, rng: np.random.Generator) -> np.ndarray:
+    """Samples of one coarse grid: its gap field ``g_coarse`` (with the shift ``shift`` of the unresolved shells
+    ``(q, pw)`` and the hybrid's bracket ``bracket``), the process under every (sampled) pixel, then centred."""
+    g_pix = np.asarray(g_coarse, float).ravel() - shift  # the bare gap: the pixel's pressure p_c
+    target = g_pix + shift - 0.5 * bracket  # a pixel's fine-averaged gap (module docstring, step 3)
+    if center == "sample" or g_pix.size <= samples:
+        reps = max(1, math.ceil(samples / g_pix.size))
+        start, target = np.repeat(g_pix, reps), np.repeat(target, reps)
+    else:  # more pixels than samples: a random subset of pixels, one sample each
+        pick = rng.choice(g_pix.size, size=samples, replace=False)
+        start, target, reps = g_pix[pick], target[pick], 1
+    if q.size == 0:
+        return start + shift if center != "none" else start
+    g = _walk(start.copy(), q, pw, rho, base, rng)
+    if center == "pixel":
+        g += target - start - _mean_drift(start, q, pw, rho, base, rng)
+    elif center == "sample":  # the earlier rule: each pixel's own sample mean (needs many samples per pixel)
+        gm = g.reshape(-1, reps)
+        gm += (target[::reps] - gm.mean(axis=1))[:, None]
+        g = gm.ravel()
+    elif center == "mean":
+        g += float(np.mean(target)) - float(g.mean())
+    return g
 
 
 def multiscale_gap_samples(
@@ -139,6 +223,8 @@ def multiscale_gap_samples(
     dlnq: float = 0.04,
     center: str = "pixel",
     finest: bool = True,
+    l1_tol: float = 0.15,
+    check: bool = True,
 ) -> MultiscaleGaps:
     """Gap samples [length] of the multiscale route (docs/theory.md, "Multiscale gap distribution").
 
@@ -158,15 +244,25 @@ def multiscale_gap_samples(
 
     3. Centring. The coarse solve used the mean-pressure shift ``Delta(sigma0)`` while step 2 adds each pixel's
        local one, so the raw samples disagree with the coarse solve by the hybrid's own error. ``center``:
-       "pixel" (default) shifts each pixel's samples so that their mean is the pixel's coarse gap (the fine modes
-       have zero mean, so a pixel's fine-averaged gap is its coarse gap) less half the hybrid's bracket
-       ``shift_error/2`` (the overall mean is then the hybrid's mean gap); "mean" shifts all samples by one
-       constant onto the hybrid's mean gap; "none" keeps them (each pixel's pressure then stays exactly
-       ``p_c``). "pixel" had the smallest worst-case L1 of the three on the tuning set of
-       docs/results/predictors_tuning.md (0.10 against 0.16 and 0.28), and is reported on its held-out set.
+       "pixel" (default) shifts each pixel's samples by one constant so that their *expected* mean is the
+       pixel's coarse gap (the fine modes have zero mean, so a pixel's fine-averaged gap is its coarse gap) less
+       half the hybrid's bracket ``shift_error/2`` (the overall mean is then the hybrid's mean gap). The expected
+       mean depends on the pixel only through its start gap, so it comes from a table over 65 start gaps (4096
+       antithetic common-random-number paths each), independent of how many samples a pixel gets: the fine
+       variance is kept in full at any grid size. "sample" is the earlier rule (each pixel's own sample mean,
+       which removes the fraction ``1/m`` of the fine variance with ``m`` samples per pixel, all of it at one);
+       "mean" shifts all samples by one constant onto the hybrid's mean gap; "none" keeps them (each pixel's
+       pressure then stays exactly ``p_c``).
+
+    4. Self-check (``check=True``): the same route from the ladder's previous, twice coarser grid (already
+       solved, no extra GFMD), and ``l1_change``, the L1 distance between the two sample sets (80 bins over this
+       one's range). ``l1_estimate = L1_SAFETY x l1_change`` estimates the L1 distance to GFMD (the factor chosen
+       on the tuning set of benchmarks/results/bounds/); where it exceeds ``l1_tol`` the status is
+       "l1_not_met" (where the hybrid's own status is "converged").
 
     ``lambda_s``: if given, modes finer than it are removed from ``heights`` first. ``samples``: about that many
-    (each pixel gets ``ceil(samples / n_c^2)``). Reproducible from ``seed``.
+    (each pixel gets ``ceil(samples / n_c^2)``; with more pixels than samples a random subset of ``samples``
+    pixels gets one each; "sample" keeps every pixel). Reproducible from ``seed``.
     """
     from gapsweep.theory import improved
 
@@ -179,8 +275,9 @@ def multiscale_gap_samples(
     e_star = chk.positive(e_star, "e_star")
     samples = chk.count(samples, "samples")
     dlnq = chk.positive(dlnq, "dlnq")
-    if center not in ("pixel", "mean", "none"):
-        raise ValueError(f"center must be 'pixel', 'mean' or 'none', got {center!r}")
+    l1_tol = chk.positive(l1_tol, "l1_tol")
+    if center not in ("pixel", "sample", "mean", "none"):
+        raise ValueError(f"center must be 'pixel', 'sample', 'mean' or 'none', got {center!r}")
     if lambda_s is not None:
         lambda_s = chk.positive(lambda_s, "lambda_s")
         if not lambda_s < lambda_l:
@@ -188,34 +285,33 @@ def multiscale_gap_samples(
         h = improved._lowpass(h, int(math.floor(length / lambda_s + 1e-9)))
     hyb = improved.hybrid(s, h, zeta_c="auto", rho=rho, gamma0=gamma0, lambda_l=lambda_l, length=length,
                           e_star=e_star, tol=tol, rtol=rtol, max_cost_fraction=max_cost_fraction, finest=finest)
-    res = hyb.result
     if hyb.status not in ("converged", "rtol_not_met"):
         raise RuntimeError(f"multiscale gap distribution: the coarse GFMD solve failed (status {hyb.status!r})")
-    g_pix = np.asarray(res.gap, float).ravel() - hyb.shift
-    q, pw = improved._grouped(*improved._Shells(h, length).fine(hyb.k_c), dlnq)
-    reps = max(1, math.ceil(samples / g_pix.size))
-    g = np.repeat(g_pix, reps)
-    rng = np.random.default_rng(seed)
-    # ln(eta_g zeta) = ln(rho |q| E*/2) - ln p(g),  ln p(g) = ln(gamma0/rho) - g/rho  (no exp: nothing overflows)
+    shells = improved._Shells(h, length)
     base = math.log(rho * e_star / 2.0) - math.log(gamma0 / rho)
-    for qj, pj in zip(q, pw, strict=True):
-        r = expit(base + math.log(qj) + g / rho)
-        v = pj * r * r
-        g = g + v / (2.0 * rho) + np.sqrt(v) * rng.standard_normal(g.size)
+    rng = np.random.default_rng(seed)
+
+    def level(k_c: int, res, shift: float, bracket: float) -> tuple[np.ndarray, int]:
+        q, pw = improved._grouped(*shells.fine(k_c), dlnq)
+        return _level_samples(res.gap, shift, bracket, q, pw, rho, base, samples, center, rng), int(q.size)
+
+    g, groups = level(hyb.k_c, hyb.result, hyb.shift, hyb.shift_error)
     if not np.all(np.isfinite(g)):
         raise FloatingPointError("multiscale gap distribution produced non-finite gaps")
-    if center == "pixel":
-        # each pixel's fine-averaged gap is its coarse gap (the fine modes have zero mean), less the hybrid's
-        # correction of the mean-pressure shift (half its bracket)
-        gm = g.reshape(g_pix.size, reps)
-        gm += (g_pix + hyb.shift - 0.5 * hyb.shift_error - gm.mean(axis=1))[:, None]
-        g = gm.ravel()
-    elif center == "mean":
-        g += hyb.mean_gap - float(g.mean())  # the hybrid's bracket middle: its best estimate of the mean gap
-    log.debug("multiscale gaps: n_c=%d k_c=%d groups=%d samples=%d status=%s", hyb.n_c, hyb.k_c, q.size, g.size,
-              hyb.status)
-    return MultiscaleGaps(g, hyb.n_c, hyb.k_c, int(q.size), hyb.cost, hyb.cost_fraction, hyb.status,
-                          hyb.mean_gap, hyb.error_estimate)
+    change = estimate = math.nan
+    if groups == 0:
+        estimate = 0.0  # nothing left unresolved: the samples are GFMD's own gap field
+    elif check and hyb.previous is not None:
+        k_p, _, shift_p, err_p, res_p = hyb.previous
+        change = l1_distance(level(k_p, res_p, shift_p, err_p)[0], g)
+        estimate = L1_SAFETY * change
+    status = hyb.status
+    if status == "converged" and estimate > l1_tol:
+        status = "l1_not_met"
+    log.debug("multiscale gaps: n_c=%d k_c=%d groups=%d samples=%d l1_change=%.3g status=%s", hyb.n_c, hyb.k_c,
+              groups, g.size, change, status)
+    return MultiscaleGaps(g, hyb.n_c, hyb.k_c, groups, hyb.cost, hyb.cost_fraction, status, hyb.mean_gap,
+                          hyb.error_estimate, change, estimate)
 
 
 def gap_distribution(

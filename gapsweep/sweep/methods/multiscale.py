@@ -6,7 +6,9 @@ of a full GFMD run's cost.
 Spec keys (``[methods.multiscale]``): those of ``[methods.hybrid]`` (``n``, ``rtol``, ``max_cost_fraction``,
 ``tol``) and ``samples`` (default 2^17). Columns: ``mean_gap`` (the hybrid's), ``error_estimate`` (its estimate),
 ``gap_std``, ``gap_min``, ``gap_max`` of the samples, ``h_rms``, ``g_rms``, ``count`` and the gap histogram over
-the job's bins. Exponential repulsion on a self-affine surface only.
+the job's bins. A row is ``not_converged`` where the hybrid misses ``rtol`` or the distribution's self-check
+(``l1_estimate`` above 0.15, docs/theory.md "Multiscale gap distribution") fails; the message says which.
+Exponential repulsion on a self-affine surface only.
 """
 
 from __future__ import annotations
@@ -50,11 +52,13 @@ class Multiscale(Method):
         yield from grid_tasks(spec, self.name, ns=spec.methods[self.name]["n"], with_hist=True)
 
     def cost(self, t: Task) -> float:
-        return t.opt("max_cost_fraction") * (0.02 + 20 * 1.5e-9 * t.n * t.n * math.log2(t.n)) + 2e-6 * t.opt(
+        # sampling: the samples, the previous grid's for the self-check and the drift tables (0.5-1 CPU s at 2^17
+        # samples, benchmarks/results/bounds/bounds_heldout.md)
+        return t.opt("max_cost_fraction") * (0.02 + 20 * 1.5e-9 * t.n * t.n * math.log2(t.n)) + 5e-6 * t.opt(
             "samples")
 
     def memory(self, t: Task) -> float:
-        return 8.0 * t.n * t.n * 12 + 8.0 * t.opt("samples") * 4
+        return 8.0 * t.n * t.n * 12 + 8.0 * t.opt("samples") * 8 + 8.0 * 65 * 4096 * 4  # + the drift table
 
     def set_key(self, t: Task) -> str:
         return surface_set(t)
@@ -73,5 +77,6 @@ class Multiscale(Method):
         v = {"mean_gap": float(ms.mean_gap), "error_estimate": float(ms.mean_gap_error), "h_rms": h_rms,
              "g_rms": g_rms, "gap_std": float(g.std()), "gap_min": float(g.min()), "gap_max": float(g.max())}
         ok = ms.status == "converged" and bool(np.all(np.isfinite(g)))
-        msg = "" if ok else f"multiscale: {ms.status} (mean-gap estimate {ms.mean_gap_error:.3g})"
+        msg = "" if ok else (f"multiscale: {ms.status} (mean-gap estimate {ms.mean_gap_error:.3g}, estimated L1 to "
+                             f"GFMD {ms.l1_estimate:.3g})")
         return TaskResult("done" if ok else "not_converged", msg, v, hist(t, g)), None

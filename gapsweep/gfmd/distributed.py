@@ -1,0 +1,609 @@
+"""One GFMD solve split over the ranks of a communicator (docs/gfmd.md, "One solve over several processes";
+docs/model.md M3).
+
+Each rank holds a slab of rows of the surface and of every real field, and a slab of columns of every half
+spectrum (:mod:`gapsweep.core.slab`): the elastic operator ``E* q/2`` and the preconditioner ``M(q)`` are diagonal
+there, the interaction is local in real space, so the only communication is the transposition inside the two
+distributed FFTs of a force evaluation and scalar reductions (norms, Parseval sums, the softmax normalisation
+``S = sum exp(w - max w)`` and its maximum, line-search slopes, the mean gap, contact counts).
+
+The minimisers are the single-process ones (same iteration, same decisions): the exponential law's
+:class:`gapsweep.gfmd._solvers._Problem` with the runners "cg", "lbfgs", "fire" on :class:`_SlabOps` (the array
+passes of :class:`gapsweep.gfmd._ops._Ops` with their sums combined over the ranks); the smooth minimiser
+(``gfmd._smooth``, adhesion and the exponential law on rectangles) and the hard wall (``gfmd._constrained``,
+methods "pcg" and "pk") on :class:`SlabGrid`, whose reductions (``mean``, ``dot``, ``amin``, ``mode0`` ...) combine
+over the ranks where :class:`gapsweep.gfmd._grid.Grid` reduces locally. Results therefore equal the single-process
+solve up to summation order (tests/mpi/test_distributed.py: mean gap and contact area to 1e-9).
+
+This module never imports mpi4py: the caller passes ``comm`` (an ``mpi4py.MPI.Comm``; on GPUs one rank per
+device, the device selected by the caller before the call)."""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from gapsweep.core import checks as chk
+from gapsweep.core.slab import Reducer, SlabFFT, check_comm, slab_rows
+from gapsweep.gfmd._grid import Grid
+from gapsweep.gfmd._ops import _is_cupy
+from gapsweep.gfmd._result import FIELDS, GFMDResult, host_fields
+from gapsweep.gfmd._solvers import _RUNNERS, _Problem
+from gapsweep.gfmd.interactions import Interaction, resolve
+
+__all__ = ["SlabGrid", "SlabResult", "solve", "solve_memory"]
+
+METHODS = {"softmax": ("cg", "lbfgs", "fire"), "variable": ("lbfgs",), "multiplier": ("pcg", "pk")}
+DEFAULT = {"softmax": "cg", "variable": "lbfgs", "multiplier": "pcg"}
+
+
+# ---------------------------------------------------------------------------------------------- the grid
+class SlabGrid(Grid):
+    """:class:`Grid` of one rank's slabs (module docstring): ``fwd``/``inv`` are the distributed transforms
+    (normalised coefficients ``a~ = rfft2(a)/(nx ny)``, spectrum layout ``[ky, kx]``), every reduction is combined
+    over the ranks. ``shape`` and ``size`` are the global grid's; ``real_shape`` the rank's rows."""
+
+    def __init__(self, shape: tuple[int, int], length: Any, comm: Any, backend: str = "numpy") -> None:
+        from gapsweep.gfmd._grid import lengths
+
+        nx, ny = (int(v) for v in shape)
+        self.shape = (nx, ny)
+        self.size = nx * ny
+        self.lx, self.ly = lengths(length)
+        self.backend = backend
+        self.slab = SlabFFT(self.shape, comm, backend="cupy" if backend == "cupy" else "numpy")
+        self.red = Reducer(comm)
+        self.xp = self.slab.xp
+        self._fft = None
+        self.q = self.slab.q(self.lx, self.ly)
+        self._w = self.slab.weights()
+        self.owner = self.slab.owns_zero
+
+    @property
+    def real_shape(self) -> tuple[int, int]:
+        return self.slab.real_shape
+
+    def spectrum_zeros(self) -> Any:
+        return self.xp.zeros(self.slab.spec_shape, dtype=self.xp.complex128)
+
+    def fwd(self, a: Any) -> Any:
+        return self.slab.rfft2(self.xp.ascontiguousarray(a)) * (1.0 / self.size)
+
+    def inv(self, a: Any) -> Any:
+        return self.slab.irfft2(a)
+
+    def dot(self, a: Any, b: Any) -> float:
+        return self.red.sum(Grid.dot(self, a, b))
+
+    def mean(self, a: Any) -> float:
+        return self.red.sum(float(self.xp.sum(a))) / self.size
+
+    def total(self, a: Any) -> float:
+        return self.red.sum(float(self.xp.sum(a)))
+
+    def amin(self, a: Any) -> float:
+        return self.red.min(float(a.min()) if a.size else math.inf)
+
+    def amax(self, a: Any) -> float:
+        return self.red.max(float(a.max()) if a.size else -math.inf)
+
+    def count(self, mask: Any) -> int:
+        return int(round(self.red.sum(float(self.xp.count_nonzero(mask)))))
+
+    def agree(self, flag: bool) -> bool:
+        return self.red.min(1.0 if flag else 0.0) > 0
+
+    def mode0(self, a: Any) -> complex:
+        v = complex(a[0, 0]) if self.owner else 0j
+        re, im = self.red.sum(v.real, v.imag)
+        return complex(re, im)
+
+    def set_mode0(self, a: Any, value: complex) -> None:
+        if self.owner:
+            a[0, 0] = value
+
+    def reduce_ops(self, ops: Any) -> Any:
+        return _ReducedPK(ops, self.red)
+
+    def synchronize(self) -> None:
+        if self.xp is not np:
+            self.xp.cuda.get_current_stream().synchronize()
+
+
+class _ReducedPK:
+    """The hard-wall passes of gfmd._constrained_ops on one rank's rows, their scalars combined over the ranks
+    (one collective per pass that returns any)."""
+
+    def __init__(self, ops: Any, red: Reducer) -> None:
+        self.ops, self.red = ops, red
+
+    def contact_sum(self, u, h, p) -> tuple[int, float]:
+        n, s = self.ops.contact_sum(u, h, p)
+        n, s = self.red.sum(float(n), s)
+        return int(round(n)), s
+
+    def gap(self, u, h, gbar: float, p, g, gs) -> tuple[float, float]:
+        s, mn = self.ops.gap(u, h, gbar, p, g, gs)
+        (s,), (mn,), _ = self.red.many(sums=(s,), mins=(mn,))
+        return s, mn
+
+    def zstats(self, z, gs, p) -> tuple[float, float]:
+        return tuple(self.red.sum(*self.ops.zstats(z, gs, p)))
+
+    def direction(self, t, z, zbar: float, c: float, p) -> None:
+        self.ops.direction(t, z, zbar, c, p)
+
+    def rstats(self, r, t, gs, p) -> tuple[float, float, float, float]:
+        return tuple(self.red.sum(*self.ops.rstats(r, t, gs, p)))
+
+    def update(self, p, t, g, tau: float) -> tuple[bool, int, float]:
+        clipped, n_ov, s = self.ops.update(p, t, g, tau)
+        (n_ov, s), _, (c,) = self.red.many(sums=(float(n_ov), s), maxs=(1.0 if clipped else 0.0,))
+        return c > 0, int(round(n_ov)), s
+
+    def rescale(self, p, u, r, scale: float, tau: float, follow: bool) -> None:
+        self.ops.rescale(p, u, r, scale, tau, follow)
+
+
+# ---------------------------------------------------------------------------------------------- exponential law
+class _SlabOps:
+    """The passes of :class:`gapsweep.gfmd._ops._Ops` on one rank's slabs: half spectra ``(nc, nx)`` with the
+    Parseval weights of their columns ``w`` (``(nc, 1)``), the ``q = 0`` mode only on its owner, and every
+    returned scalar combined over the ranks (several scalars of one pass in one collective)."""
+
+    def __init__(self, xp: Any, red: Reducer, w: Any, owner: bool) -> None:
+        self.xp, self.red, self.w, self.owner = xp, red, w, owner
+
+    def _l(self, a, b) -> float:
+        return float(self.xp.sum(self.w * (a.real * b.real + a.imag * b.imag)))
+
+    def dot(self, a, b) -> float:
+        return self.red.sum(self._l(a, b))
+
+    def trial(self, w, d, c: float, out) -> float:
+        self.xp.multiply(d, c, out=out)
+        out += w
+        return self.red.max(float(out.max()))
+
+    def expstats(self, w, m: float, e, d=None) -> tuple[float, float, float]:
+        xp = self.xp
+        xp.subtract(w, m, out=e)
+        xp.exp(e, out=e)
+        s = float(e.sum())
+        if d is None:
+            return self.red.sum(s), 0.0, 0.0
+        s1, s2 = self._moments(e, d)
+        return tuple(self.red.sum(s, s1, s2))
+
+    def _moments(self, e, d) -> tuple[float, float]:
+        ed = e * d
+        return float(ed.sum()), float(self.xp.vdot(ed.ravel(), d.ravel()))
+
+    def moments(self, e, d) -> tuple[float, float]:
+        return tuple(self.red.sum(*self._moments(e, d)))
+
+    def grad(self, X, E, c: float, k, G) -> None:
+        self.xp.multiply(k, X, out=G)
+        G -= c * E
+        if self.owner:
+            G[0, 0] = 0.0
+
+    def grad_step(self, X, D, alpha: float, E, c: float, k, G) -> float:
+        if alpha != 0.0:
+            self.axpy(X, alpha, D)
+        self.grad(X, E, c, k, G)
+        return self.dot(G, G)
+
+    def axpy(self, y, a: float, x) -> None:
+        y += a * x
+
+    def cg_dots(self, G, G_old, minv) -> tuple[float, float]:
+        Z = minv * G
+        s = self.red.sum(self._l(Z, G), self._l(Z, G_old) if G_old is not None else 0.0)
+        return s[0], s[1]
+
+    def cg_update(self, G, minv, D, beta: float, k, X) -> tuple[float, float, float]:
+        D *= beta
+        D -= minv * G
+        kD = k * D
+        return tuple(self.red.sum(self._l(G, D), self._l(kD, X), self._l(kD, D)))
+
+
+class _SlabCupyOps(_SlabOps):
+    """:class:`_SlabOps` on GPUs: every pass one fused cupy kernel without grid-sized temporaries (the weighted
+    Parseval sums reduce each spectrum row on the device, then the few row sums are weighted)."""
+
+    def __init__(self, xp: Any, red: Reducer, w: Any, owner: bool) -> None:
+        super().__init__(xp, red, w, owner)
+        self.w1 = xp.ascontiguousarray(w.ravel())
+        red_k, ew = xp.ReductionKernel, xp.ElementwiseKernel
+        self._rdot = red_k("complex128 a, complex128 b", "float64 y", "a.real() * b.real() + a.imag() * b.imag()",
+                           "a + b", "y = a", "0", "gapsweep_slab_rdot")
+        self._rkdot = red_k("complex128 a, complex128 b, float64 k", "float64 y",
+                            "k * (a.real() * b.real() + a.imag() * b.imag())", "a + b", "y = a", "0",
+                            "gapsweep_slab_rkdot")
+        self._m1 = red_k("float64 e, float64 d", "float64 y", "e * d", "a + b", "y = a", "0", "gapsweep_slab_m1")
+        self._m2 = red_k("float64 e, float64 d", "float64 y", "e * d * d", "a + b", "y = a", "0", "gapsweep_slab_m2")
+        self._grad = ew("float64 k, complex128 X, complex128 E, float64 c", "complex128 G", "G = k * X - c * E",
+                        "gapsweep_slab_grad")
+        self._axpy = ew("float64 a, complex128 x", "complex128 y", "y = y + a * x", "gapsweep_slab_axpy")
+        self._dir = ew("float64 beta, float64 minv, complex128 G", "complex128 D", "D = beta * D - minv * G",
+                       "gapsweep_slab_dir")
+
+    def _l(self, a, b) -> float:
+        return float(self.w1 @ self._rdot(a, b, axis=1))
+
+    def _lk(self, a, b, k) -> float:
+        return float(self.w1 @ self._rkdot(a, b, k, axis=1))
+
+    def _moments(self, e, d) -> tuple[float, float]:
+        # per-row sums, then the few row sums: cupy reduces a whole array to one scalar in a single block
+        # (28 ms at 4096^2 on an H200, 20x a row-wise reduction), so never reduce to a scalar in one kernel
+        return float(self._m1(e, d, axis=1).sum()), float(self._m2(e, d, axis=1).sum())
+
+    def grad(self, X, E, c: float, k, G) -> None:
+        self._grad(k, X, E, float(c), G)
+        if self.owner:
+            G[0, 0] = 0.0
+
+    def axpy(self, y, a: float, x) -> None:
+        self._axpy(float(a), x, y)
+
+    def cg_dots(self, G, G_old, minv) -> tuple[float, float]:
+        s = self.red.sum(self._lk(G, G, minv), self._lk(G, G_old, minv) if G_old is not None else 0.0)
+        return s[0], s[1]
+
+    def cg_update(self, G, minv, D, beta: float, k, X) -> tuple[float, float, float]:
+        self._dir(float(beta), minv, G, D)
+        return tuple(self.red.sum(self._l(G, D), self._lk(D, X, k), self._lk(D, D, k)))
+
+
+class _SlabProblem(_Problem):
+    """:class:`_Problem` on one rank's slabs: the same state and line search, the stiffness ``k`` and the
+    preconditioner on the rank's spectrum columns. ``h`` is the caller's surface (not copied); its mean
+    ``h_shift`` is subtracted inside the pass that forms ``W``."""
+
+    def __init__(self, h, x0, *, sigma0: float, rho: float, k: Any, h_shift: float, grid: SlabGrid,
+                 ops: _SlabOps) -> None:
+        xp = grid.xp
+        self.xp, self.n, self.fft, self.ops = xp, grid.shape[0], grid.slab, ops
+        self.sigma0, self.rho = sigma0, rho
+        self.k = k
+        self.minv = k + sigma0 / rho
+        xp.reciprocal(self.minv, out=self.minv)
+        if grid.owner:
+            self.minv[0, 0] = 0.0
+        self.h = h
+        self.X = x0
+        if grid.owner:
+            self.X[0, 0] = 0.0
+        self.W = _centred(h, self.fft.irfft2(self.X), h_shift, rho)
+        self.Wt = xp.empty_like(self.W)
+        self.e = xp.empty_like(self.W)
+        self.et = xp.empty_like(self.W)
+        self.G = xp.empty_like(self.X)
+        self.G_old = xp.empty_like(self.X)
+        self.nfev = 0
+        self.m = ops.trial(self.W, self.W, 0.0, self.Wt)
+        self.S, _, _ = ops.expstats(self.Wt, self.m, self.e)
+        self.r2 = self._gradient(None, 0.0)
+
+    @property
+    def mass(self) -> Any:  # FIRE's masses M(q), made when asked (not kept: memory)
+        return self.k + self.sigma0 / self.rho
+
+
+def _softmax(h, law: Any, grid: SlabGrid, *, sigma0: float, e_star: float, tol: float, method: str,
+             max_iter: int, initial: Any) -> tuple[dict, dict[str, Any]]:
+    """The exponential law (``gfmd._softmax``'s algorithm) on slabs; returns ``(scalars, fields)``."""
+    xp, slab = grid.xp, grid.slab
+    rho, n2 = law.rho, grid.size
+    h_shift = grid.mean(h)  # h is not copied: its mean is taken out where W is formed
+    ops = (_SlabOps if xp is np else _SlabCupyOps)(xp, grid.red, grid._w, grid.owner)
+    k, grid.q = grid.q, None  # E* q/2 in the grid's |q| array (this grid serves this solve only)
+    k *= 0.5 * e_star
+    if initial is None:  # linear response of M4 (the q = 0 mode of the uncentred h is dropped: <u> = 0)
+        x0 = slab.rfft2(h)
+        x0 *= (1.0 / n2) * (sigma0 / rho) / (k + sigma0 / rho)
+    else:
+        x0 = xp.asarray(slab.rfft2(_initial_field(initial, "displacement", grid)) * (1.0 / n2), dtype=xp.complex128)
+    history: list[float] = []
+    with np.errstate(all="ignore"):
+        pb = _SlabProblem(h, x0, sigma0=sigma0, rho=rho, k=k, h_shift=h_shift, grid=grid, ops=ops)
+        del x0
+        status = _RUNNERS[method](pb, tol, max_iter, history)
+        nfev = pb.nfev
+        u = slab.irfft2(pb.X)
+        pb.X = pb.G = pb.G_old = pb.Wt = pb.et = pb.minv = pb.W = None
+        w = _centred(h, u, h_shift, rho)
+        e = pb.e
+        m = grid.amax(w)
+        S, _, _ = ops.expstats(w, m, e)
+        lse = m + math.log(S / n2) if S > 0 else math.nan
+        g0 = law.mean_gap(lse, sigma0)
+        e *= sigma0 * n2 / S if S > 0 else math.nan
+        p = e
+        gap = w
+        gap *= -rho
+        gap += g0 - h_shift  # g = g0 + u - h with the caller's h (mean included), in w's memory
+        del w
+        U = grid.fwd(u)
+        F = k * U - grid.fwd(p)
+        grid.set_mode0(F, 0.0)
+        residual = math.sqrt(max(grid.dot(F, F), 0.0)) / sigma0
+        elastic = 0.5 * grid.dot(U, k * U)
+        del F, U
+        area = grid.count(law.contact(gap + h_shift, p)) / n2  # the law's criterion on the centred gap
+        load_error = abs(grid.mean(p) / sigma0 - 1.0)
+    fields_ok = math.isfinite(g0) and grid.all_finite(gap) and grid.all_finite(p)
+    if not fields_ok:
+        status = "non_finite"
+    converged = status == "converged" and residual <= tol and load_error <= tol and fields_ok
+    if status == "converged" and not converged:
+        status = "stalled"
+    scalars = dict(mean_gap=g0 - h_shift, iterations=nfev, converged=converged, residual=residual,
+                   load_error=load_error, method=method, status=status, history=history, contact_area=area,
+                   elastic_energy=elastic, diagnostics={"running_residual": history[-1] if history else math.inf})
+    return scalars, {"gap": gap, "pressure": p, "displacement": u}
+
+
+def _centred(h: Any, u: Any, h_shift: float, rho: float) -> Any:
+    """``W = (h - <h> - u) / rho`` as a new array (one temporary-free pass chain)."""
+    w = h - u
+    w -= h_shift
+    w *= 1.0 / rho
+    return w
+
+
+def _smooth_initial(initial: Any, grid: SlabGrid) -> Any:
+    """``((displacement rows, mean gap), source result or None)`` of the smooth laws' ``initial``, or None."""
+    if initial is None:
+        return None
+    if isinstance(initial, GFMDResult):
+        return (_initial_field(initial, "displacement", grid), float(initial.mean_gap)), initial
+    ok = isinstance(initial, (tuple, list)) and len(initial) == 2
+    g0 = float(initial[1]) if ok and np.ndim(initial[1]) == 0 else math.nan
+    if not grid.agree(math.isfinite(g0)):
+        raise ValueError("initial must be a result of a distributed solve of the same grid or a pair (this rank's "
+                         "rows of a displacement, mean gap)")
+    return (_initial_field(initial[0], "displacement", grid), g0), None
+
+
+def _initial_field(initial: Any, name: str, grid: SlabGrid) -> Any:
+    xp = grid.xp
+    a = getattr(initial, name) if isinstance(initial, GFMDResult) else initial
+    a = xp.asarray(a, dtype=xp.float64)
+    ok = tuple(a.shape) == tuple(grid.real_shape) and bool(xp.all(xp.isfinite(a)))
+    if not grid.agree(ok):
+        raise ValueError(f"initial must be a result of a distributed solve of the same grid or this rank's rows "
+                         f"of a finite {name} field, shape {grid.real_shape}")
+    return a
+
+
+# ---------------------------------------------------------------------------------------------- result
+@dataclass
+class SlabResult(GFMDResult):
+    """:class:`GFMDResult` of a distributed solve: the scalars (mean gap, contact area, energies, residual) are
+    global and equal on every rank; the fields ``gap``, ``pressure``, ``displacement`` are this rank's rows
+    (``rows`` of the global ``global_shape``). The histogram methods are collective (every rank calls them with
+    the same arguments) and return the global histogram on every rank."""
+
+    comm: Any = None
+    global_shape: tuple[int, int] = (0, 0)
+    rows: Any = None  # slice of the global rows this rank holds
+
+    @property
+    def n(self) -> int:
+        return int(self.global_shape[0])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (int(self.global_shape[0]), int(self.global_shape[1]))
+
+    def _red(self) -> Reducer:
+        return Reducer(self.comm)
+
+    def _hist(self, a: Any, bins: Any, range: tuple[float, float] | None) -> tuple[np.ndarray, np.ndarray]:
+        """Global counts and edges of the local values ``a`` (numpy's edges for the global data)."""
+        if isinstance(bins, str):
+            raise ValueError("a distributed result takes bins as a number or an array of edges, not a rule name")
+        red = self._red()
+        a = a.get() if _is_cupy(a) else np.asarray(a)
+        if range is None and isinstance(bins, (int, np.integer)):
+            lo = red.min(float(a.min()) if a.size else math.inf)
+            hi = red.max(float(a.max()) if a.size else -math.inf)
+            if not (math.isfinite(lo) and math.isfinite(hi)):
+                lo, hi = 0.0, 1.0
+            if lo == hi:
+                lo, hi = lo - 0.5, hi + 0.5
+            range = (lo, hi)
+        counts, edges = np.histogram(a, bins=bins, range=range)
+        total = red.sum(*[float(c) for c in counts])
+        return np.asarray(total if isinstance(total, list) else [total], dtype=np.float64), edges
+
+    def gap_histogram(self, bins: Any = 100, range: tuple[float, float] | None = None
+                      ) -> tuple[np.ndarray, np.ndarray, float]:
+        g = self.gap.get() if _is_cupy(self.gap) else np.asarray(self.gap)
+        free = g[g != 0.0]
+        n_free = self._red().sum(float(free.size))
+        atom = 1.0 - n_free / (self.shape[0] * self.shape[1])
+        if n_free == 0:
+            edges = np.linspace(0.0, 1.0, (bins if isinstance(bins, int) else 1) + 1)
+            return edges, np.zeros(edges.size - 1), atom
+        counts, edges = self._hist(free, bins, range)
+        return edges, counts / (self.shape[0] * self.shape[1] * np.diff(edges)), atom
+
+    def pressure_histogram(self, bins: Any = 100, range: tuple[float, float] | None = None
+                           ) -> tuple[np.ndarray, np.ndarray, float]:
+        p = self.pressure.get() if _is_cupy(self.pressure) else np.asarray(self.pressure)
+        loaded = p[p != 0.0]
+        n_l = self._red().sum(float(loaded.size))
+        atom = 1.0 - n_l / (self.shape[0] * self.shape[1])
+        if n_l == 0:
+            edges = np.linspace(0.0, 1.0, (bins if isinstance(bins, int) else 1) + 1)
+            return edges, np.zeros(edges.size - 1), atom
+        counts, edges = self._hist(loaded, bins, range)
+        return edges, counts / (self.shape[0] * self.shape[1] * np.diff(edges)), atom
+
+    def histogram(self, bins: Any = 100, range: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        counts, edges = self._hist(self.gap, bins, range)
+        return edges, counts / (counts.sum() * np.diff(edges))
+
+    def contact_atom(self) -> float:
+        g = self.gap.get() if _is_cupy(self.gap) else np.asarray(self.gap)
+        return self._red().sum(float(np.count_nonzero(g == 0.0))) / (self.shape[0] * self.shape[1])
+
+
+# ---------------------------------------------------------------------------------------------- driver
+def _global_shape(h: Any, red: Reducer, comm: Any) -> tuple[int, int]:
+    nr, ny = (int(v) for v in h.shape)
+    s, lo, hi = red.many(sums=(float(nr),), mins=(float(ny),), maxs=(float(ny),))
+    nx = int(round(s[0]))
+    if lo[0] != hi[0]:
+        raise ValueError(f"the ranks' row blocks have different numbers of columns ({int(lo[0])} .. {int(hi[0])})")
+    want = slab_rows(nx, comm)
+    if red.min(1.0 if nr == want.stop - want.start else 0.0) == 0:
+        raise ValueError(f"heights: rank {red.rank} holds {nr} rows of {nx}; each rank must hold its rows "
+                         f"heights[gapsweep.gfmd.slab_rows({nx}, comm)] (this rank: {want.start}:{want.stop})")
+    return nx, ny
+
+
+def _options(law: Interaction, shape: tuple[int, int], box: tuple[float, float], method: Any, backend: Any,
+             on_gpu: bool, max_iter: Any, memory: Any) -> tuple[str, str, str]:
+    """Checked ``(load control, method, backend)`` of a distributed solve."""
+    for name, v in (("max_iter", max_iter), ("memory", memory)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
+    control = law.load_control
+    if control == "softmax" and not (shape[0] == shape[1] and box[0] == box[1]):
+        control = "variable"  # as one process: the exponential law on rectangles runs on the smooth minimiser
+    methods = METHODS[control]
+    if not isinstance(method, str) or method not in ("auto", *methods):
+        raise ValueError(f"method must be one of {', '.join(map(repr, ('auto', *methods)))} for interaction "
+                         f"{law.name!r} in a distributed solve; got {method!r}")
+    method = DEFAULT[control] if method == "auto" else method
+    backend = ("cupy" if on_gpu else "numpy") if backend == "auto" else backend
+    if backend not in ("numpy", "cupy"):
+        raise ValueError(f"backend must be 'auto', 'numpy' or 'cupy' in a distributed solve; got {backend!r}")
+    return control, method, backend
+
+
+def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interaction = "exponential",
+          gamma0: float | None = None, rho: float | None = None, work: float | None = None, e_star: float = 1.0,
+          length: Any = 1.0, tol: float = 1e-6, method: str = "auto", backend: str = "auto", max_iter: int = 5000,
+          initial: Any = None, host: bool | tuple[str, ...] = True, memory: int = 2) -> SlabResult:
+    """Periodic equilibrium of docs/model.md M3 (and the hard wall and adhesion of docs/gfmd.md) with the grid
+    split over the ranks of ``comm``: ``h_local`` is this rank's rows ``heights[slab_rows(nx, comm)]`` (numpy, or
+    cupy for one GPU per rank; units of ``length``). Collective: every rank calls it with the same arguments.
+    Keywords as :func:`gapsweep.gfmd.solve`. Methods: exponential "cg" (default), "lbfgs", "fire" (square
+    grids; rectangles "lbfgs" on the smooth minimiser, as one process does); adhesive "lbfgs"; hard wall "pcg"
+    (default), "pk" ("mpcg"'s coarse levels are not distributed). Returns a :class:`SlabResult`: global scalars
+    on every rank, this rank's rows of the fields. ``initial``: a :class:`SlabResult` of the same grid (or this
+    rank's rows of a displacement; hard wall: of a pressure; adhesive: ``(displacement rows, mean gap)``).
+    ``memory``: pairs kept by the smooth laws' L-BFGS (adhesion, exponential rectangles), which runs in fixed
+    buffers (``gfmd._lean``: 8 + 2 ``memory`` arrays of the rank's rows, 12 at the default 2; one process keeps 8
+    pairs, so the two agree to the solver tolerance, not bit for bit; see :func:`solve_memory`)."""
+    t_start = time.perf_counter()
+    check_comm(comm)
+    red = Reducer(comm)
+    on_gpu = _is_cupy(h_local)
+    if not on_gpu:
+        h_local = np.asarray(h_local)
+        if not (np.issubdtype(h_local.dtype, np.floating) or np.issubdtype(h_local.dtype, np.integer)):
+            raise TypeError(f"heights must be a real array, got dtype {h_local.dtype}")
+    if h_local.ndim != 2:
+        raise ValueError(f"heights must be this rank's rows of a 2-D grid, got shape {h_local.shape}")
+    shape = _global_shape(h_local, red, comm)
+    if min(shape) < 2:
+        raise ValueError(f"heights must be at least 2 x 2, got {shape}")
+    law = resolve(interaction, gamma0=gamma0, rho=rho, work=work)
+    sigma0 = law.check_load(sigma0)
+    e_star = chk.positive(e_star, "e_star")
+    lx, ly = (chk.positive(v, "length") for v in np.broadcast_to(np.asarray(length, dtype=float), 2))
+    tol = chk.positive(tol, "tol")
+    control, method, backend = _options(law, shape, (lx, ly), method, backend, on_gpu, max_iter, memory)
+    host_fields(host)
+    length = lx if lx == ly and not isinstance(length, (tuple, list, np.ndarray)) else (lx, ly)
+    if backend == "cupy":
+        kind = {"softmax": "exponential", "variable": "smooth", "multiplier": "hard_wall"}[control]
+        _check_gpu_memory(shape, red, kind, memory, sigma0 < 0)
+    grid = SlabGrid(shape, (lx, ly), comm, backend)
+    h = grid.asarray(h_local)
+    if not grid.all_finite(h):
+        raise ValueError("heights contain NaN or inf")
+    rng = law.range()
+    if rng is not None and rng < min(lx / shape[0], ly / shape[1]) and law.name == "exponential" and red.rank == 0:
+        from gapsweep.gfmd._common import UnderResolvedWarning
+
+        warnings.warn(f"rho/dx = {rng / (lx / shape[0]):.3g} < 1: the interaction range is under-resolved",
+                      UnderResolvedWarning, stacklevel=2)
+    common = dict(sigma0=sigma0, e_star=e_star, length=length, tol=tol, method=method, backend=backend,
+                  max_iter=max_iter, threads=None, host=False, t_start=t_start, grid=grid)
+    if control == "softmax":
+        scalars, fields = _softmax(h, law, grid, sigma0=sigma0, e_star=e_star, tol=tol, method=method,
+                                   max_iter=max_iter, initial=initial)
+        r = None
+    elif control == "variable":
+        from gapsweep.gfmd import _lean
+
+        r = _lean.minimise(h, law, sigma0=sigma0, e_star=e_star, length=length, tol=tol, max_iter=max_iter,
+                           initial=_smooth_initial(initial, grid), memory=memory, grid=grid, t_start=t_start)
+    else:
+        from gapsweep.gfmd import _constrained
+
+        init = None if initial is None else _initial_field(initial, "pressure", grid)
+        r = _constrained.minimise(h, law, initial=init, **common)
+    if r is not None:
+        scalars = {k: getattr(r, k) for k in ("mean_gap", "iterations", "converged", "residual", "load_error",
+                                              "method", "status", "history", "contact_area", "elastic_energy",
+                                              "diagnostics")}
+        fields = {k: getattr(r, k) for k in FIELDS}
+    fields.update(grid.to_host_many({k: fields[k] for k in host_fields(host)}))
+    grid.synchronize()
+    scalars["diagnostics"] = {**scalars["diagnostics"], "ranks": red.size, "exchanges": grid.slab.exchanges,
+                              "reductions": grid.red.calls}
+    return SlabResult(
+        gap=fields["gap"], pressure=fields["pressure"], displacement=fields["displacement"],
+        wall_time=time.perf_counter() - t_start, backend=backend, sigma0=sigma0, rho=getattr(law, "rho", math.nan),
+        gamma0=getattr(law, "gamma0", math.nan), e_star=e_star, length=length, tol=tol, interaction=law.name,
+        params=law.params(), contact_criterion=law.contact_criterion, comm=comm, global_shape=shape,
+        rows=grid.slab.row, **scalars)
+
+
+def _check_gpu_memory(shape: tuple[int, int], red: Reducer, interaction: str, memory: int, tensile: bool) -> None:
+    """Refuse, on every rank, a GPU solve whose :func:`solve_memory` estimate exceeds the free memory of the
+    fullest GPU (an out-of-memory error on one rank would leave the others waiting in a collective)."""
+    import cupy
+
+    est = solve_memory(shape, red.size, interaction, memory=memory, tensile=tensile)
+    free = float(cupy.cuda.runtime.memGetInfo()[0]) + float(cupy.get_default_memory_pool().free_bytes())
+    free = red.min(free)
+    need = est["bytes_per_rank"] - est["array_bytes"]  # the caller's rows are on the GPU already
+    if need > free:
+        raise MemoryError(f"a distributed {interaction} solve of {shape[0]} x {shape[1]} on {red.size} GPUs needs "
+                          f"about {need / 1e9:.3g} GB per GPU beyond the surface (gfmd.distributed.solve_memory), "
+                          f"the fullest GPU has {free / 1e9:.3g} GB free: use more GPUs")
+
+
+def solve_memory(shape: tuple[int, int], ranks: int, interaction: str = "exponential",
+                 memory: int = 2, tensile: bool = False) -> dict[str, float]:
+    """Estimated peak memory per rank (bytes) of :func:`solve`: the minimiser's grid-sized arrays on the rank's
+    slabs plus the transform's scratch (send and receive buffers, 2 A, and the chunked 1-D transforms' and
+    elementwise passes' temporaries, within 1 A at 65536^2). Counted from the code (docs/gfmd.md, "One solve over
+    several processes"), ``A`` = one float64 field of the rank's rows, the surface ``h`` included (a half spectrum
+    of the rank's columns counts as 1 A, a real one as 1/2): exponential CG 12 A (h, W, Wt, e, et; X, G, G_old,
+    D; k and M^-1; the line search's real-space direction; one temporary of the array passes); adhesive and the
+    other smooth laws (``gfmd._lean``): 7 A (h, g, d; Z, G, D; k and M^-1) + 2 A per L-BFGS pair (``memory``;
+    the default 2: 11 A), 3 A more while a tensile load is followed (``tensile``); hard wall pcg 12 A; scratch
+    3 A. Checked on the CPU under mpiexec (tests/mpi/test_distributed.py: the traced numpy peak is within the
+    estimate) and on GPUs by benchmarks/bench_distributed.py (the memory pool's peak beside it)."""
+    nx, ny = (int(v) for v in shape)
+    a = 8.0 * math.ceil(nx / ranks) * ny
+    smooth = 7.0 + 2.0 * memory + (3.0 if tensile else 0.0)
+    arrays = {"exponential": 12.0, "adhesive": smooth, "smooth": smooth, "hard_wall": 12.0}[interaction]
+    return {"bytes_per_rank": (arrays + 3.0) * a, "array_bytes": a, "arrays": arrays, "scratch_arrays": 3.0}

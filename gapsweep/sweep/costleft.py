@@ -1,0 +1,198 @@
+"""The cost left in a store (``gapsweep status``; docs/running.md "The cost left").
+
+The method plug-ins' cost models (``Method.cost``, the estimate ``gapsweep plan`` prints) give each task a
+relative cost ``c_i`` [model s]. The store records the measured wall time ``w_i`` [s] of every finished row, so
+the model is calibrated per method ``m`` on the rows finished so far,
+
+    r_m = sum_{i in F_m} w_i / sum_{i in F_m} c_i        (F_m: done and not_converged rows of method m)
+
+leaving out of ``F_m`` the rows slower than 5 times the method's median ratio: a process's first task pays its
+imports and JIT compilation. Their mean excess over the calibrated model is the start-up time ``W`` of a process,
+added once per process of the last run (its MPI size) while rows remain.
+
+(the ratio over all methods where ``m`` has no finished row yet, 1 where no row has finished), and the cost left
+is ``sum_{i in R} r_{m(i)} c_i`` over the remaining rows ``R``: the rows ``--resume`` runs (pending, interrupted,
+timed out, damaged, incomplete) and the failed rows. Rows of tasks that need a GPU count in GPU-hours, the
+others in core-hours (one core per task). The time left divides the cost left by the rate of the current run
+(or of the last one): its finished rows times their mean measured wall time, over its elapsed time (for an
+MPI run that rate is about the number of working ranks).
+
+The store keeps wall time, not CPU time, per row: on a loaded machine the calibration includes the waiting.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from gapsweep.sweep import lease, storecheck
+from gapsweep.sweep import methods as registry
+from gapsweep.sweep import spec as specmod
+from gapsweep.sweep.schema import STATUS, TIMEOUT_PREFIX
+from gapsweep.sweep.store import open_read
+from gapsweep.sweep.tasks import expand
+
+__all__ = ["calibrate", "cost_left", "describe", "summary"]
+
+_FINISHED = (STATUS["done"], STATUS["not_converged"])
+OUTLIER = 5.0  # rows slower than this many times their method's median ratio are not calibrated on
+
+
+def calibrate(methods: list[str], model: np.ndarray, wall: np.ndarray, finished: np.ndarray,
+              ) -> tuple[dict[str, float], float | None, float]:
+    """Per-method ratios ``r_m = sum w / sum c`` over the finished rows with a measured wall time, the ratio over
+    all methods (None when no row has finished) and the start-up time of a process [s]. ``model``: model cost
+    per row [model s]; ``wall``: measured wall time per row [s] (NaN where none). The first task of a process also
+    pays its imports and JIT compilation: rows whose own ratio ``w/c`` exceeds ``OUTLIER`` times the median ratio
+    of their method are left out of ``r_m``, and their mean excess ``w - r_m c`` is the start-up time (0 when
+    there is no such row)."""
+    ok = finished & np.isfinite(wall) & (model > 0)
+    meth = np.asarray(methods)
+    keep = np.zeros_like(ok)
+    for m in sorted(set(methods)):
+        sel = ok & (meth == m)
+        if sel.any():
+            med = np.median(wall[sel] / model[sel])
+            keep |= sel & (wall <= OUTLIER * med * model)
+    ratios = {m: float(wall[keep & (meth == m)].sum() / model[keep & (meth == m)].sum())
+              for m in sorted(set(methods)) if (keep & (meth == m)).any()}
+    overall = float(wall[keep].sum() / model[keep].sum()) if keep.any() else None
+    slow = np.flatnonzero(ok & ~keep)
+    startup = float(np.mean([wall[i] - ratios[methods[i]] * model[i] for i in slow])) if slow.size else 0.0
+    return ratios, overall, startup
+
+
+def _time(text: str | None) -> _dt.datetime | None:
+    try:
+        return _dt.datetime.fromisoformat(text) if text else None
+    except ValueError:
+        return None
+
+
+def _rate(path: Path, runs: list[dict[str, Any]], finished_now: int, n: int, mean_wall: float | None,
+          now: _dt.datetime) -> dict[str, Any] | None:
+    """The rate of the current (or last) run in measured seconds of task time per second: rows it finished times
+    the mean measured row time, over its elapsed time."""
+    if not runs or mean_wall is None:
+        return None
+    last = runs[-1]
+    t0 = _time(last.get("started"))
+    held = lease.read(path)
+    running = held is not None and not last.get("finished") and not last.get("interrupted") \
+        and not last.get("stopped")
+    if running:
+        t1 = now
+        rows = finished_now - (n - int(last.get("todo", n)))
+    else:
+        t1 = _time(last.get("finished") or last.get("interrupted_at") or last.get("stopped_at"))
+        counts = last.get("counts") or {}
+        rows = sum(int(v) for v in counts.values()) if counts else int(last.get("todo", 0))
+    if t0 is None or t1 is None or rows <= 0:
+        return None
+    elapsed = (t1 - t0).total_seconds()
+    if elapsed <= 0:
+        return None
+    return {"run": "current" if running else "last", "rows": rows, "elapsed_s": elapsed,
+            "task_s_per_s": rows * mean_wall / elapsed}
+
+
+def cost_left(path: str | Path, now: _dt.datetime | None = None) -> dict[str, Any]:
+    """The cost left in a store as a JSON-ready dict: remaining rows by kind, core-hours and GPU-hours (the
+    calibrated cost model), the calibration (ratio and rows per method) and the time left at the current rate
+    (``eta_s``, None when no run has a rate yet)."""
+    p = Path(path)
+    with open_read(p, check=False) as f:
+        rep = storecheck.check(f, p)
+        rerun = set(storecheck.incomplete_rows(f, p, rep))
+        ids = [x.decode() for x in f["tasks"].fields("task_id")[...]] if rep.n_tasks else []
+        status = f["results"].fields("status")[...] if rep.n_tasks else np.zeros(0, "i1")
+        wall = f["results"].fields("wall_time")[...] if rep.n_tasks else np.zeros(0)
+        msg = f["results"].fields("message")[...] if rep.n_tasks else np.zeros(0, "S1")
+        spec_text, spec_dir = f.attrs["spec_text"], f.attrs.get("spec_dir", "")
+        runs = json.loads(f.attrs.get("runs", "[]"))
+    js = specmod.loads(spec_text.decode() if isinstance(spec_text, bytes) else spec_text,
+                       base=(spec_dir.decode() if isinstance(spec_dir, bytes) else spec_dir) or None)
+    by_id = {t.task_id: t for t in expand(js)}
+    tasks = [by_id.get(i) for i in ids]
+    model = np.array([registry.get(t.method).cost(t) if t else 0.0 for t in tasks], dtype=float)
+    gpu = np.array([bool(t and registry.get(t.method).needs_gpu(t)) for t in tasks], dtype=bool)
+    methods = [t.method if t else "?" for t in tasks]
+    finished = np.isin(status, _FINISHED) & ~np.isin(np.arange(len(ids)), sorted(rerun))
+    ratios, overall, startup = calibrate(methods, model, wall.astype(float), finished)
+    failed = {i for i in np.flatnonzero(status == STATUS["failed"]).tolist()
+              if not msg[i].startswith(TIMEOUT_PREFIX.encode())} - rerun
+    remaining = sorted(rerun | failed)
+    est = np.array([model[i] * ratios.get(methods[i], overall if overall is not None else 1.0)
+                    for i in remaining], dtype=float)
+    g = gpu[remaining] if remaining else np.zeros(0, bool)
+    fin_wall = wall[finished & np.isfinite(wall)]
+    mean_wall = float(fin_wall.mean()) if fin_wall.size else None
+    rate = _rate(p, runs, int((status != STATUS["pending"]).sum()), len(ids), mean_wall,
+                 now or _dt.datetime.now(_dt.timezone.utc))
+    procs = int(runs[-1].get("mpi_size", 1) or 1) if runs else 1
+    start_s = startup * procs if remaining else 0.0
+    core_s, gpu_s = float(est[~g].sum()) + start_s, float(est[g].sum())
+    eta = (core_s + gpu_s) / rate["task_s_per_s"] if rate else None
+    return {
+        "store": str(p), "tasks": len(ids),
+        "remaining": {"rows": len(remaining), "rerun_by_resume": len(rerun), "failed": len(failed)},
+        "core_seconds": core_s, "gpu_seconds": gpu_s, "core_hours": core_s / 3600, "gpu_hours": gpu_s / 3600,
+        "calibration": {"per_method": {m: {"ratio": r, "rows": int(np.sum(finished & (np.asarray(methods) == m)))}
+                                       for m, r in ratios.items()},
+                        "overall": overall, "model": "Method.cost (the estimate of gapsweep plan)",
+                        "startup_s": startup, "processes": procs,
+                        "calibrated": overall is not None},
+        "rate": rate, "eta_s": eta,
+    }
+
+
+def _dur(s: float) -> str:
+    if s is None or not math.isfinite(s):
+        return "unknown"
+    h, rest = divmod(int(round(s)), 3600)
+    return f"{h}h{rest // 60:02d}m{rest % 60:02d}s" if h else f"{rest // 60}m{rest % 60:02d}s"
+
+
+def describe(c: dict[str, Any]) -> list[str]:
+    """The lines ``gapsweep status`` prints about :func:`cost_left`."""
+    r = c["remaining"]
+    cal = c["calibration"]
+    how = ", ".join(f"{m} x{v['ratio']:.3g} ({v['rows']} rows)" for m, v in cal["per_method"].items())
+    lines = [f"cost left: {r['rows']} rows ({r['rerun_by_resume']} run by --resume, {r['failed']} failed): "
+             f"{c['core_hours']:.3g} core-h, {c['gpu_hours']:.3g} GPU-h "
+             + (f"(cost model calibrated by the measured rows: {how}; start-up {cal['startup_s']:.2g} s x "
+                f"{cal['processes']} process(es))" if cal["calibrated"]
+                else "(cost model not calibrated: no row finished yet)")]
+    if c["rate"]:
+        lines.append(f"time left: ~{_dur(c['eta_s'])} at the rate of the {c['rate']['run']} run "
+                     f"({c['rate']['task_s_per_s']:.2f} task-s per s)")
+    elif r["rows"]:
+        lines.append("time left: unknown (no run with a rate yet)")
+    return lines
+
+
+def summary(path: str | Path) -> dict[str, Any]:
+    """``gapsweep status --json``: the job, the row counts per method and status, the lease, the last run and
+    :func:`cost_left`."""
+    from gapsweep.sweep.store import read, read_attrs
+
+    attrs = read_attrs(path)
+    df = read(path)
+    counts = {str(m): {str(k): int(v) for k, v in g.status.value_counts().items()} for m, g in df.groupby("method")}
+    runs = json.loads(attrs.get("runs", "[]"))
+    held = lease.read(path)
+    return {"job": attrs.get("job_name"), "shard": attrs.get("shard", ""),
+            "counts": counts, "total": {str(k): int(v) for k, v in df.status.value_counts().items()},
+            "lease": held, "last_run": runs[-1] if runs else None, "cost_left": _cost_or_reason(path)}
+
+
+def _cost_or_reason(path: str | Path) -> dict[str, Any]:
+    try:
+        return cost_left(path)
+    except (specmod.SpecError, OSError) as e:  # the spec's height map moved: the counts still come
+        return {"error": str(e)}
