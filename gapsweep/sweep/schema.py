@@ -147,6 +147,10 @@ COMMON_RESULTS = ("wall_time", "rank")
 # The message prefix of a row that ran out of its time limit (--task-timeout): such failed rows are run again by
 # --resume (a slow node or a cold cache may have caused them).
 TIMEOUT_PREFIX = "timeout:"
+# The message prefix of a row whose task was cut by a signal or failed in a way that says it was interrupted (a
+# signal inside numba's JIT compilation, delivered in an llvmlite callback, surfaces as "no compiled object yet";
+# issue 31): never a result of the task's parameters, so --resume runs such rows again.
+INTERRUPTED_PREFIX = "interrupted:"
 # The kept fields of a GFMD task (docs/jobs.md "keep_fields", gapsweep.sweep.fields).
 FIELD_NAMES = ("gap", "pressure", "displacement", "height")
 
@@ -167,8 +171,11 @@ class Task:
 
     def surface_params(self) -> dict[str, Any]:
         """The ``surface.*`` options without their prefix: keyword arguments of ``surfaces.self_affine`` (for a
-        file surface, ``kind = "file"`` and the loading options of gapsweep.sweep.filesurface)."""
-        return {k[8:]: v for k, v in self.options if k.startswith("surface.")}
+        file surface, ``kind = "file"`` and the loading options of gapsweep.sweep.filesurface). A synthetic
+        surface's ``unit`` is a label of its lengths (``t.opt("surface.unit")``), not a generator argument (issue
+        31: every task of such a job failed with "unexpected keyword argument 'unit'")."""
+        file = self.opt("surface.kind") == "file"
+        return {k[8:]: v for k, v in self.options if k.startswith("surface.") and (file or k != "surface.unit")}
 
     @property
     def law(self) -> str:
@@ -395,7 +402,7 @@ def integrity_record(attrs: dict[str, Any], tasks: np.ndarray) -> str:
     return json.dumps({**items, "self": _record_digest(items)}, sort_keys=True, separators=(",", ":"))
 
 
-def integrity_problem(record: Any, attrs: dict[str, Any], tasks: Any) -> str | None:
+def integrity_problem(record: Any, attrs: dict[str, Any], tasks: Any, skip: tuple[str, ...] = ()) -> str | None:
     """The first item that fails its checksum, as the rest of a one-line message ("attribute 'units' fails its
     checksum"), or None. ``attrs``: the file's other attributes (an unreadable one as an exception instance);
     ``tasks``: a callable returning the ``/tasks`` table (read only when the attributes pass; None: none there,
@@ -414,7 +421,7 @@ def integrity_problem(record: Any, attrs: dict[str, Any], tasks: Any) -> str | N
         if isinstance(v, Exception) or _digest(_value_bytes(v)) != items[f"attr:{k}"]:
             return f"attribute {k!r} fails its checksum"
     for k in items:
-        if k.startswith("attr:") and k[5:] not in attrs:
+        if k.startswith("attr:") and k[5:] not in attrs and k not in skip:
             return f"attribute {k[5:]!r} is missing (it is in the store's checksums)"
     table = tasks()
     if table is not None and _digest(np.ascontiguousarray(table).tobytes()) != items.get("table:/tasks"):

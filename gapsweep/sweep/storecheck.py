@@ -24,6 +24,7 @@ from gapsweep.sweep.schema import (
     CHECKSUM,
     FORMAT,
     INTEGRITY,
+    INTERRUPTED_PREFIX,
     LAYOUTS,
     PRESSURE_HIST,
     RESULT_DTYPES,
@@ -39,7 +40,7 @@ from gapsweep.sweep.schema import (
 
 log = logging.getLogger("gapsweep.sweep.storecheck")
 
-__all__ = ["Report", "check", "incomplete_rows"]
+__all__ = ["Report", "check", "incomplete_rows", "run_records", "runs_problem"]
 
 
 
@@ -55,6 +56,7 @@ class Report:
     layout: Layout | None = None  # the store's layout (gapsweep.sweep.schema.LAYOUTS)
     tasks_damaged: bool = False  # format 4, check(tolerate_tasks=True): /tasks failed its checksum
     path: str = ""
+    runs_damaged: str | None = None  # why the run records (attribute runs) cannot be read; None: they can
 
     @property
     def rerun(self) -> list[int]:
@@ -67,6 +69,9 @@ class Report:
             out.append("table '/tasks' (task ids and parameters) fails its checksum: changed after it was "
                        "written; --resume restores it from the job (merge and export refuse the store, merge "
                        "--skip-damaged leaves out rows whose task is not the job's)")
+        if self.runs_damaged:
+            out.append(f"the run records (attribute 'runs') are damaged ({self.runs_damaged}): their history is "
+                       "lost; --resume starts a new list, the rows are not affected")
         if not self.checksums:
             out.append(f"no row checksums this version verifies (format {name}, written before 3c): rows are "
                        "checked for completeness only, not for changed bytes")
@@ -89,6 +94,30 @@ class Report:
         return out
 
 
+def runs_problem(value: Any) -> str | None:
+    """Why an attribute ``runs`` is not a JSON list of run records (objects), or None where it is one."""
+    if isinstance(value, bytes):
+        try:
+            value = value.decode("utf-8")
+        except UnicodeDecodeError:
+            return "not UTF-8"
+    try:
+        runs = json.loads(value)
+    except (ValueError, TypeError, RecursionError) as e:
+        return f"not JSON: {str(e)[:80]}"
+    if not isinstance(runs, list) or not all(isinstance(r, dict) for r in runs):
+        return "not a list of run records"
+    return None
+
+
+def run_records(value: Any) -> list[dict[str, Any]]:
+    """The run records of an attribute ``runs``; [] where it is damaged (issue 31: a damaged one blocked status,
+    resume and merge; the rows do not depend on it). :func:`runs_problem` says why."""
+    if runs_problem(value) is not None:
+        return []
+    return json.loads(value.decode("utf-8") if isinstance(value, bytes) else value)
+
+
 def _fail(path: Any, what: str) -> None:
     raise StoreError(f"store {path}: {what}")
 
@@ -108,7 +137,7 @@ def _attributes(f: Any) -> dict[str, Any]:
 _TASKS_PROBLEM = "table '/tasks'"
 
 
-def _integrity(f: Any, path: Any, tolerate_tasks: bool) -> bool:
+def _integrity(f: Any, path: Any, tolerate_tasks: bool, f_runs_damaged: list[str]) -> bool:
     """Format 4: every attribute and the ``/tasks`` table against their checksums (schema.integrity_record);
     the first that fails is named in one line."""
     try:
@@ -125,6 +154,12 @@ def _integrity(f: Any, path: Any, tolerate_tasks: bool) -> bool:
             _fail(path, f"cannot read /tasks ({exc}): damaged store")
 
     problem = integrity_problem(record, _attributes(f), tasks)
+    if problem and tolerate_tasks and problem.startswith("attribute 'runs' fails"):
+        # --resume rebuilds damaged run records (Report.runs_damaged); status shows them as damaged
+        log.warning("store %s: %s", path, problem)
+        f_runs_damaged.append(problem)
+        problem = integrity_problem(record, {k: v for k, v in _attributes(f).items() if k != "runs"}, tasks,
+                                    skip=("attr:runs",))
     if problem and tolerate_tasks and problem.startswith(_TASKS_PROBLEM):
         log.warning("store %s: %s", path, problem)
         return True
@@ -150,17 +185,13 @@ def check(f: Any, path: str | Path, *, tolerate_tasks: bool = False) -> Report:
     which restores task rows from the job; ``status``; ``merge --skip-damaged``): a ``/tasks`` table that
     fails its checksum is reported (``Report.tasks_damaged``) instead."""
     integrity = INTEGRITY in f.attrs
-    tasks_damaged = _integrity(f, path, tolerate_tasks) if integrity else False
+    runs_bad: list[str] = []
+    tasks_damaged = _integrity(f, path, tolerate_tasks, runs_bad) if integrity else False
     if f.attrs.get("format") != FORMAT:
         _fail(path, f"not a gapsweep store (format attribute {f.attrs.get('format')!r})")
     for name in ("spec_text", "spec_sha256"):
         if name not in f.attrs:
             _fail(path, f"attribute {name!r} missing (damaged or partial store)")
-    try:  # the run records: a JSON list (a bad one made every later run fail with a bare JSON error)
-        if not isinstance(json.loads(f.attrs.get("runs", "[]")), list):
-            raise ValueError("not a list")
-    except (ValueError, TypeError) as e:
-        _fail(path, f"attribute 'runs' is not a JSON list of run records ({e}): damaged; repair or remove it")
     for name in ("tasks", "results", "histograms/edges", "histograms/density"):
         if name not in f:
             _fail(path, f"dataset /{name} missing (damaged or partial store)")
@@ -191,6 +222,8 @@ def check(f: Any, path: str | Path, *, tolerate_tasks: bool = False) -> Report:
         _fail(path, f"histogram edges ({e.shape[1]}) and density ({d.shape[1]}) columns do not match")
     rep = Report(n, layout=_layout(f, path, r, integrity), tasks_damaged=tasks_damaged)
     rep.checksums = rep.layout.row_checksums == "column"
+    rep.runs_damaged = runs_problem(f.attrs.get("runs", "[]")) or (
+        "fails its checksum: changed after it was written" if runs_bad else None)
     if not n:
         return rep
     try:
@@ -232,8 +265,30 @@ def _damaged(f: Any, path: Any, n: int) -> list[int]:
     # A pending row is work still to do (a write that failed or was killed between a row's payload and its status
     # leaves one with a stale checksum): it runs again anyway and is not reported; every other row must match.
     pending = STATUS["pending"]
-    return [i for i in range(n) if int(r[i]["status"]) != pending
-            and int(r[i][CHECKSUM]) != row_checksum(t[i], r[i], (e[i], d[i], pe[i], pd[i]))]
+    bad = [i for i in range(n) if int(r[i]["status"]) != pending
+           and int(r[i][CHECKSUM]) != row_checksum(t[i], r[i], (e[i], d[i], pe[i], pd[i]))]
+    return [i for i in bad if not _settles(f, i)]
+
+
+def _settles(f: Any, i: int, tries: int = 4) -> bool:
+    """Whether a row that did not match its checksum does on reading it again (issue 31): a reader of a store
+    being written under mpio may see part of a row write (its tables are read one after the other, and a compound
+    row is not written atomically). The row is damaged only when two reads in a row give the same bytes and they
+    still do not match."""
+    prev = None
+    for _ in range(tries):
+        try:
+            t, r = f["tasks"][i], f["results"][i]
+            h = tuple(f[k][i] for k in ("histograms/edges", "histograms/density", *PRESSURE_HIST))
+        except (OSError, ValueError, KeyError):
+            return False
+        if int(r["status"]) == STATUS["pending"] or int(r[CHECKSUM]) == row_checksum(t, r, h):
+            return True
+        key = (t.tobytes(), r.tobytes(), *(x.tobytes() for x in h))
+        if key == prev:
+            return False
+        prev = key
+    return False
 
 
 def incomplete_rows(f: Any, path: str | Path, rep: Report | None = None) -> list[int]:
@@ -245,8 +300,9 @@ def incomplete_rows(f: Any, path: str | Path, rep: Report | None = None) -> list
     status = f["results"].fields("status")[...]
     msg = f["results"].fields("message")[...]
     # a row that timed out (--task-timeout) is run again: the limit may have been a slow node's or a cold cache's
+    # ... and so is one cut by a signal (issue 31: inside JIT compilation)
     timed_out = [i for i in np.flatnonzero(status == STATUS["failed"]).tolist()
-                 if msg[i].startswith(TIMEOUT_PREFIX.encode())]
+                 if msg[i].startswith((TIMEOUT_PREFIX.encode(), INTERRUPTED_PREFIX.encode()))]
     if timed_out:
         log.info("store %s: %d timed-out row(s) are run again", path, len(timed_out))
     return sorted(set(np.flatnonzero(status == STATUS["pending"]).tolist()) | set(rep.rerun) | set(timed_out))
