@@ -149,7 +149,10 @@ class Hold:
         self.folder.mkdir(parents=True, exist_ok=True)
 
     def env(self, **kw: str) -> dict[str, str]:
-        path = os.pathsep.join(x for x in (str(HOOKS), os.environ.get("PYTHONPATH", "")) if x)
+        from tests.hooks.gapsweep_test_hooks import pythonpath
+
+        # this barrier first, then the suite's fault injection (tests/hooks, chained by this sitecustomize)
+        path = os.pathsep.join([str(HOOKS), pythonpath(os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))])
         return {"FAULTS_HOLD": f"{self.folder}:{self.k}", "PYTHONPATH": path, **kw}
 
     def wait(self, proc: subprocess.Popen, timeout: float = 300) -> None:
