@@ -369,6 +369,7 @@ def _status(args: argparse.Namespace) -> int:
     merge job's check). The cost left needs the store's spec; a store whose spec no longer loads (a moved height
     map) still gets its summary, with the reason instead of the cost."""
     from gapsweep.sweep import costleft, store
+    from gapsweep.sweep.schema import StoreError
     from gapsweep.sweep.spec import SpecError
 
     if args.finished:
@@ -379,7 +380,7 @@ def _status(args: argparse.Namespace) -> int:
     print(store.status(args.store))
     try:
         print("\n".join(costleft.describe(costleft.cost_left(args.store))))
-    except (SpecError, OSError) as e:
+    except (SpecError, OSError, StoreError) as e:  # e.g. a damaged /tasks, which the summary names
         print(f"cost left: unknown ({e})")
     return 0
 

@@ -90,6 +90,27 @@ def test_adhesive_wavy_surface_johnson(n: int, tol_px: float) -> None:
         assert abs(r.contact_area - 2 * psi / math.pi) <= tol_px / n, (r.sigma0 / pstar, r.contact_area)
 
 
+def test_adhesive_path_ends_converged_then_detached() -> None:
+    """Every load of a fine load path (steps of 0.01 p*) converges up to pull-off and the first load beyond it
+    detaches: nothing in between ends "stalled" (the whole-span first step of the continuation after a failed
+    warm start, 8625117, ended the load -0.10 p* at N = 1280 "stalled"; found by a scan of N and step, not the
+    case the continuation's steps were chosen on). The pull-off load is bracketed below Johnson's -0.0959 p*
+    (a finite range rho = 4 dx carries a little more tension)."""
+    from gapsweep.gfmd import solve_path
+
+    n, lam, amp, alpha = 1280, 1.0, 0.05, 0.3
+    pstar = math.pi * amp / lam
+    w = alpha**2 * math.pi**2 * amp**2 / (2 * lam)
+    h, _ = wavy(n, amp, lam)
+    fracs = np.round(np.arange(0.30, -0.125, -0.01), 4)
+    path = solve_path(h, fracs * pstar, interaction="adhesive", work=w, rho=4 * lam / n, length=(lam, 2 * lam / n),
+                      tol=1e-8, backend="numpy", max_iter=20000)
+    assert path.stopped == "detached"
+    assert [r.status for r in path.results[:-1]] == ["converged"] * (len(path.results) - 1)
+    last, off = path.results[-2].sigma0 / pstar, path.results[-1].sigma0 / pstar
+    assert -0.11 <= off < -0.0959 < last + 0.01
+
+
 def test_exponential_approaches_hard_wall_monotonically() -> None:
     """At fixed load and fixed gamma0/rho, exponential repulsion tends to the hard wall as rho -> 0 (the
     discrete problem on one grid): mean gap, gap field and pressure field all approach it monotonically."""

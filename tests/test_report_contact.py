@@ -15,6 +15,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from gapsweep import store
+
 ROOT = Path(__file__).resolve().parents[1]
 JOB = ROOT / "jobs" / "contact_file.toml"
 ADHESION = ROOT / "jobs" / "adhesion_quick.toml"
@@ -42,6 +44,7 @@ def _copy(src: Path, dst: Path, **attrs) -> Path:
                 f.attrs.pop(k, None)
             else:
                 f.attrs[k] = v
+        store.seal_attrs(f)  # changed on purpose: the attribute checksums of format 4 follow
     return dst
 
 

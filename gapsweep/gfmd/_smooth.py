@@ -229,7 +229,8 @@ class _Solver:
         self.nfev += st.nfev
         return st, status
 
-    def follow(self, s_from: float, Z_from: Any, target: float, tol: float) -> tuple[_State | None, str]:
+    def follow(self, s_from: float, Z_from: Any, target: float, tol: float,
+               retry: bool = False) -> tuple[_State | None, str]:
         """Quasi-static unloading from the equilibrium ``Z_from`` at ``s_from`` to the tensile ``target``.
 
         Each step starts from the secant predictor ``Z_k + (Z_k - Z_{k-1}) ds_k / ds_{k-1}`` and is accepted
@@ -239,12 +240,17 @@ class _Solver:
         smallest step (``_MIN_STEP`` of the load scale) a converged step that jumps is accepted (a snap that
         the quasi-static path takes too: logged, counted in ``info["jumps"]``) and a step that detaches ends
         the branch: its last load is ``info["last_attached_load"]`` (the pull-off load to within that step),
-        and the target is then tried once from there. Returns the last state and its status."""
+        and the target is then tried once from there. Returns the last state and its status.
+
+        First step: at most ``_FIRST_STEP`` of the law's scale (a small target in one step) when nothing was
+        tried yet; ``_FIRST_STEP`` of the load scale ``min(|target - s_from|, law scale)`` when ``retry`` (a
+        solve straight from ``Z_from`` at ``target`` has just failed: a whole-span first step would repeat it,
+        and near pull-off land in the same stall)."""
         grid, law = self.grid, self.law
         span = target - s_from
         scale = min(abs(span), law.pressure_scale(0.0))
-        # first step: 1/16 of the law's scale (a load much smaller than that is reached in one step)
-        ds, ds_min = -min(abs(span), law.pressure_scale(0.0) * _FIRST_STEP), scale * _MIN_STEP
+        first = scale if retry else min(abs(span), law.pressure_scale(0.0) * _FIRST_STEP)
+        ds, ds_min = -(first * _FIRST_STEP if retry else first), scale * _MIN_STEP
         s_k, Z_k, Z_prev, ds_prev = s_from, Z_from, None, 0.0
         accepted = jumps = attempts = 0
         st: _State | None = None
@@ -278,8 +284,6 @@ class _Solver:
                     break
                 continue
             if status == "non_finite" or self.nfev >= self.max_iter:
-                break
-            if smallest and status == "stalled":
                 break
             if smallest:
                 # The branch ends between s_k and s_new (pull-off): no equilibrium connected to the contact
@@ -349,7 +353,7 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
                 and sigma0 < 0 and s_init > sigma0 and sv.nfev < max_iter):
             log.info("%s: %s at sigma0=%g from the initial state; following the load from %g", law.name, status,
                      sigma0, s_init)
-            st2, status = sv.follow(s_init, Z0, sigma0, tol)
+            st2, status = sv.follow(s_init, Z0, sigma0, tol, retry=True)
             st = st2 if st2 is not None else st
     return _result(sv, st, status, sigma0, e_star, length, tol, host, t_start)
 

@@ -42,6 +42,7 @@ from gapsweep.sweep.store import (
     read_histograms,
     read_pressure_histograms,
     result_row,
+    seal_attrs,
     status,
     task_rows,
     upgrade_results,
@@ -53,7 +54,8 @@ __all__ = [
     "PRESSURE_HIST",
     "RESULT_DTYPE", "RESULT_DTYPES", "RESULT_DTYPE_V1", "STATUS", "STATUS_NAMES", "TASK_DTYPE", "VOLATILE", "Store",
     "StoreError", "StoreWriteError", "diff", "empty_results", "export_netcdf", "io_failed", "merge", "open_fields",
-    "open_read", "read", "read_attrs", "read_histograms", "read_pressure_histograms", "result_row", "status",
+    "open_read", "read", "read_attrs", "read_histograms", "read_pressure_histograms", "result_row", "seal_attrs",
+    "status",
     "task_rows", "to_dataset", "upgrade_results",
 ]
 

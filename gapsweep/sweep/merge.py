@@ -82,7 +82,7 @@ def _write(tmp: Path, out: Path, tasks: list, attrs: dict, bins: int, results: n
             st.f[PRESSURE_HIST[1]][...] = pdens
             # rows of a format-1/2 shard get their checksum here; format-3 rows are checked above
             st.f["results"][...] = seal(st.f["tasks"][...], results, bins, edges, dens, pedges, pdens)
-        st.f.attrs["finished"] = provenance.now()
+        st.set_attrs({"finished": provenance.now()})
         st.f.flush()
     except (OSError, RuntimeError) as e:
         if isinstance(e, StoreError):
@@ -117,7 +117,7 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
         raise StoreError(f"merge: the output {outp} is also a shard (the same file, by device and inode); choose "
                          "another --out")
     _guard(outp, shards, overwrite, lambda o: None)  # exists, folder
-    metas = [read_attrs(s) for s in shards]
+    metas = [read_attrs(s, tolerate_tasks=skip_damaged) for s in shards]
     shas = {m["spec_sha256"] for m in metas}
     if len(shas) != 1:
         raise StoreError(f"merge: shards come from different job specs ({len(shas)} spec hashes)")
@@ -143,8 +143,8 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
     conflicts: list[str] = []
     damaged = 0
     for s in shards:
-        with open_read(s) as f:
-            rep = storecheck.check(f, s)
+        with open_read(s, tolerate_tasks=skip_damaged) as f:
+            rep = storecheck.check(f, s, tolerate_tasks=skip_damaged)
             if f["tasks"].shape[0] == 0:
                 continue
             if f["histograms/density"].shape[1] != bins:
@@ -165,6 +165,10 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
         for j, tid in enumerate(ids):
             if j in bad or r["status"][j] == STATUS["pending"]:
                 continue  # (a damaged task id of such a row is restored by --resume of its shard)
+            if tid not in index and rep.tasks_damaged:  # --skip-damaged: a task id changed since it was written
+                log.warning("merge: %s row %d: task id %r is not the job's (damaged /tasks): left out", s, j, tid)
+                damaged += 1
+                continue
             if tid not in index:
                 raise StoreError(f"merge: task {tid} of {s} is not in the job")
             i = index[tid]

@@ -262,7 +262,7 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
         return "create", list(range(len(tasks))), 0
     try:
         with open_read(path, check=False) as f:
-            report = storecheck.check(f, path)  # once: it reads and checksums every row
+            report = storecheck.check(f, path, tolerate_tasks=resume)  # once: it reads and checksums every row
             sha, shard = f.attrs.get("spec_sha256"), f.attrs.get("shard")
             todo = storecheck.incomplete_rows(f, path, report)
             moved, kept = _moved_rows(f, tasks, set(report.damaged), set(todo))
@@ -937,7 +937,7 @@ def _open_store(path: Path, mode: str, tasks: list[Task], attrs: dict[str, Any],
             if rank == 0:
                 tmp.unlink(missing_ok=True)
             raise
-    st = Store.open(path, comm=comm)
+    st = Store.open(path, comm=comm, repair_tasks=mode == "resume")
     if mode == "resume" and rank == 0 and (gone := remove_partial(fields_dir(path))):
         log.info("store %s: removed %d partial kept-field file(s) of an interrupted run", path, gone)
     if mode == "resume":  # task rows damaged since they were written come back from the spec (their rows re-run)
@@ -1021,7 +1021,7 @@ def _drive(r: _Run) -> None:
         def write(i: int, res: TaskResult) -> None:
             with r.stop.critical():
                 r.st.write(i, res)
-            r.prog.update(res)
+                r.prog.update(res)
 
         collective.run_collective(r.comm, r.tasks, r.units, r.work, r.ctx, _run_unit, r.todo, write, r.stop)
     elif r.comm is None:
@@ -1047,10 +1047,10 @@ def _serial(r: _Run) -> None:
         k = held.popleft()
         try:
             for i, res in r.units_of(k, farm.skip(k)):
-                with r.stop.critical():
+                with r.stop.critical():  # a row written is a row counted (a signal acts after both)
                     r.st.write(i, res)
-                farm.row(k, i)
-                r.prog.update(res)
+                    farm.row(k, i)
+                    r.prog.update(res)
                 if r.stop.requested():  # the stop file (a signal raises by itself)
                     raise Interrupted(r.stop.signum)
         except DeviceFault as e:

@@ -24,9 +24,30 @@ from typing import Any
 import numpy as np
 
 __all__ = [
-    "FLAG_DETACHED", "FLAG_JUMP", "FLOAT_RESULTS", "FORMAT", "FORMAT_VERSION", "INT_RESULTS", "RESULT_DTYPE",
-    "STATUS", "TASK_DTYPE", "JobSpec", "SpecError", "StoreError", "StoreWriteError", "Task", "TaskResult", "Unit",
-    "make_task", "task_id",
+    "FLAG_DETACHED",
+    "FLAG_JUMP",
+    "FLOAT_RESULTS",
+    "FORMAT",
+    "FORMAT_VERSION",
+    "INTEGRITY",
+    "INT_RESULTS",
+    "LAYOUTS",
+    "RESULT_DTYPE",
+    "STATUS",
+    "TASK_DTYPE",
+    "JobSpec",
+    "Layout",
+    "SpecError",
+    "StoreError",
+    "StoreWriteError",
+    "Task",
+    "TaskResult",
+    "Unit",
+    "integrity_problem",
+    "integrity_record",
+    "layout_of",
+    "make_task",
+    "task_id",
 ]
 
 # ---------------------------------------------------------------------------------------------------------
@@ -226,9 +247,10 @@ def make_task(method: str, hurst: float, rho: float, sigma0: float, seed: int, n
 # the store's layout (docs/store.md)
 
 FORMAT = "gapsweep-store"
-# 3: per-row checksums (column checksum) and error_estimate; 2: the issue-12 columns and pressure histograms;
-# 1: the first format
-FORMAT_VERSION = 3
+# One format version per layout (the table LAYOUTS below, docs/store.md "Formats"): 4: format 3's last table
+# with the attribute checksums (INTEGRITY); 3: per-row checksums (four layouts, written before the rule);
+# 2: the issue-12 columns and pressure histograms; 1: the first format
+FORMAT_VERSION = 4
 MESSAGE_LEN = 240
 
 TASK_DTYPE = np.dtype([
@@ -242,12 +264,78 @@ RESULT_DTYPE = np.dtype(
     + [(k, "i8") for k in INT_RESULTS]
     + [("checksum", "u8")]  # format 3: the row's checksum (row_checksum), written in the same write as the row
 )
-# The results table of format 1 (stores written before the issue-12 columns); such stores still open and read.
+# The results tables of older layouts (such stores still open, read, resume and merge), spelled out column by
+# column: a layout once written never changes (tests/test_store_formats.py holds their digests).
 NEW_IN_V2 = ("contact_area", "elastic_energy", "contact_atom", "pressure_atom", "mean_gap_persson", "flags")
 NEW_IN_V3 = ("error_estimate", "last_attached_load", "checksum")
-RESULT_DTYPE_V2 = np.dtype([(k, RESULT_DTYPE.fields[k][0]) for k in RESULT_DTYPE.names if k not in NEW_IN_V3])
-RESULT_DTYPE_V1 = np.dtype([(k, RESULT_DTYPE.fields[k][0]) for k in RESULT_DTYPE_V2.names if k not in NEW_IN_V2])
-RESULT_DTYPES = (RESULT_DTYPE, RESULT_DTYPE_V2, RESULT_DTYPE_V1)
+
+
+def _results_dtype(floats: Sequence[str], ints: Sequence[str], checksum: bool) -> np.dtype:
+    return np.dtype([("status", "i1"), ("message", f"S{MESSAGE_LEN}")] + [(k, "f8") for k in floats]
+                    + [(k, "i8") for k in ints] + ([("checksum", "u8")] if checksum else []))
+
+
+_F1 = ("mean_gap", "mean_gap_paper", "mean_gap_continuum", "mean_gap_discrete", "h_rms", "g_rms", "residual",
+       "load_error", "wall_time", "gap_std", "gap_min", "gap_max")
+_F2 = (*_F1, "contact_area", "elastic_energy", "contact_atom", "pressure_atom", "mean_gap_persson")
+_I1, _I2 = ("iterations", "count", "rank"), ("iterations", "count", "rank", "flags")
+RESULT_DTYPE_V1 = _results_dtype(_F1, _I1, False)
+RESULT_DTYPE_V2 = _results_dtype(_F2, _I2, False)
+RESULT_DTYPE_V3B = _results_dtype((*_F2, "error_estimate"), _I2, False)
+RESULT_DTYPE_V3C = _results_dtype((*_F2, "error_estimate"), _I2, True)
+RESULT_DTYPE_V3D = _results_dtype((*_F2, "error_estimate", "last_attached_load"), _I2, True)
+# The attribute of format 4 that holds the checksums of every other attribute and of /tasks (docs/store.md).
+INTEGRITY = "integrity"
+
+
+@dataclass(frozen=True)
+class Layout:
+    """One layout of a store ever written: its ``format_version`` attribute, its ``/results`` table, where its
+    row checksums live ("" none, "dataset": BLAKE2b in ``/checksums``, not verified by this version, "column":
+    CRC-32 in the row, :func:`row_checksum`), whether it carries the attribute checksums (:data:`INTEGRITY`),
+    and the commits that wrote it (docs/store.md "Formats"; fixtures in tests/data/stores)."""
+
+    name: str
+    version: int
+    results: np.dtype
+    row_checksums: str
+    integrity: bool
+    written_by: str
+
+    def digest(self) -> str:
+        """The layout's fingerprint: SHA-256 (16 hex digits) of its tables' columns with types and offsets,
+        its checksum kinds and its version."""
+        cols = [(n, self.results.fields[n][0].str, self.results.fields[n][1]) for n in self.results.names]
+        tcols = [(n, TASK_DTYPE.fields[n][0].str, TASK_DTYPE.fields[n][1]) for n in TASK_DTYPE.names]
+        text = json.dumps([self.version, cols, tcols, self.row_checksums, self.integrity], separators=(",", ":"))
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+LAYOUTS = (
+    Layout("1", 1, RESULT_DTYPE_V1, "", False, "fe3dd80 .. a678e7c"),
+    Layout("2", 2, RESULT_DTYPE_V2, "", False, "5619d0e .. 449a5c7"),
+    Layout("3a", 3, RESULT_DTYPE_V2, "dataset", False, "9282d8f .. ca6983b"),
+    Layout("3b", 3, RESULT_DTYPE_V3B, "dataset", False, "de98333"),
+    Layout("3c", 3, RESULT_DTYPE_V3C, "column", False, "9093b41 .. 6bc25eb"),
+    Layout("3d", 3, RESULT_DTYPE_V3D, "column", False, "be10c32 .. a6b475f"),
+    Layout("4", 4, RESULT_DTYPE, "column", True, "this version"),
+)
+CURRENT_LAYOUT = LAYOUTS[-1]
+RESULT_DTYPES = tuple(dict.fromkeys(x.results for x in LAYOUTS))
+
+
+def layout_of(version: Any, results: np.dtype, checksums_dataset: bool, integrity: bool) -> Layout | None:
+    """The layout of a store from its ``format_version`` attribute, ``/results`` dtype, whether it has a
+    ``/checksums`` dataset and the :data:`INTEGRITY` attribute; None: no layout ever written looks like this."""
+    try:
+        v = int(version)
+    except (TypeError, ValueError):
+        v = None
+    for x in LAYOUTS:
+        if (x.results == results and x.integrity == integrity
+                and (x.row_checksums == "dataset") == checksums_dataset and (v is None or v == x.version)):
+            return x
+    return None
 PRESSURE_HIST = ("histograms/pressure_edges", "histograms/pressure_density")
 # Format 3: each results row carries a checksum over its task parameters, itself (checksum field zero) and its
 # four histogram rows; written with the row, after its payload. A finished row whose bytes no longer match is
@@ -280,3 +368,62 @@ def row_checksum(task: np.void, result: np.void, hists: Sequence[np.ndarray]) ->
         c = zlib.crc32(a if isinstance(a, np.ndarray) and a.dtype == np.float64 and a.flags.c_contiguous
                        else np.ascontiguousarray(a, dtype=np.float64), c)
     return c | (1 << 32)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# format 4: checksums of the attributes and of /tasks (docs/store.md "Checksums")
+
+
+def _value_bytes(v: Any) -> bytes:
+    """An attribute's value as bytes with its kind (a str and the same bytes differ; so do 1 and 1.0)."""
+    if isinstance(v, bytes):
+        return b"b:" + v
+    if isinstance(v, str):
+        return b"s:" + v.encode("utf-8", "surrogateescape")
+    a = np.asarray(v)
+    return f"a:{a.dtype.str}:{a.shape}:".encode() + a.tobytes()
+
+
+def _digest(b: bytes) -> str:
+    return hashlib.sha256(b).hexdigest()[:16]
+
+
+def _record_digest(items: dict[str, str]) -> str:
+    return _digest(json.dumps(items, sort_keys=True, separators=(",", ":")).encode())
+
+
+def integrity_record(attrs: dict[str, Any], tasks: np.ndarray) -> str:
+    """The :data:`INTEGRITY` attribute: JSON of SHA-256 digests (16 hex digits) of every other attribute
+    (``attr:<name>``) and of the ``/tasks`` table's bytes (``table:/tasks``: task ids and parameters), with
+    ``self``, the digest of that map (a change of the record itself is told apart from a change of what it
+    covers)."""
+    items = {f"attr:{k}": _digest(_value_bytes(v)) for k, v in attrs.items() if k != INTEGRITY}
+    items["table:/tasks"] = _digest(np.ascontiguousarray(tasks).tobytes())
+    return json.dumps({**items, "self": _record_digest(items)}, sort_keys=True, separators=(",", ":"))
+
+
+def integrity_problem(record: Any, attrs: dict[str, Any], tasks: Any, skip: tuple[str, ...] = ()) -> str | None:
+    """The first item that fails its checksum, as the rest of a one-line message ("attribute 'units' fails its
+    checksum"), or None. ``attrs``: the file's other attributes (an unreadable one as an exception instance);
+    ``tasks``: a callable returning the ``/tasks`` table (read only when the attributes pass; None: none there,
+    which the structural check reports)."""
+    try:
+        rec = json.loads(record)
+        items = {k: v for k, v in rec.items() if k != "self"}
+        ok = isinstance(rec, dict) and all(isinstance(v, str) for v in rec.values())
+    except (TypeError, ValueError, AttributeError):
+        ok = False
+    if not ok or rec.get("self") != _record_digest(items):
+        return f"attribute {INTEGRITY!r} (the checksums of the others) is damaged"
+    for k, v in attrs.items():
+        if f"attr:{k}" not in items:
+            return f"attribute {k!r} is not in the store's checksums (added or renamed after the store was written)"
+        if isinstance(v, Exception) or _digest(_value_bytes(v)) != items[f"attr:{k}"]:
+            return f"attribute {k!r} fails its checksum"
+    for k in items:
+        if k.startswith("attr:") and k[5:] not in attrs and k not in skip:
+            return f"attribute {k[5:]!r} is missing (it is in the store's checksums)"
+    table = tasks()
+    if table is not None and _digest(np.ascontiguousarray(table).tobytes()) != items.get("table:/tasks"):
+        return "table '/tasks' (task ids and parameters) fails its checksum"
+    return None

@@ -42,6 +42,7 @@ from gapsweep.sweep.schema import (  # noqa: F401 - the store's layout, re-expor
     FORMAT,
     FORMAT_VERSION,
     INT_RESULTS,
+    INTEGRITY,
     MESSAGE_LEN,
     NEW_IN_V2,
     PRESSURE_HIST,
@@ -56,6 +57,7 @@ from gapsweep.sweep.schema import (  # noqa: F401 - the store's layout, re-expor
     StoreWriteError,
     Task,
     TaskResult,
+    integrity_record,
     row_checksum,
 )
 
@@ -247,6 +249,14 @@ def reseal(f: h5py.File) -> None:
                              g["pressure_edges"][...], g["pressure_density"][...])
 
 
+def seal_attrs(f: h5py.File, tasks: np.ndarray | None = None) -> None:
+    """Write the format-4 checksums of every attribute and of ``/tasks`` (``tasks``: the table, if the caller
+    has it) from what the file holds now (schema.integrity_record). Called by every writer of attributes; tests
+    and tools that change an attribute on purpose call it too (never on a store whose damage must show)."""
+    attrs = storecheck._attributes(f)
+    f.attrs[INTEGRITY] = integrity_record(attrs, f["tasks"][...] if tasks is None else tasks)
+
+
 def _locking_kw() -> dict[str, Any]:
     # A reader of a running store must not take (or wait for) HDF5's file lock.
     return {"locking": False} if h5py.version.hdf5_version_tuple >= (1, 10, 7) else {}
@@ -293,6 +303,9 @@ class Store:
         self._has_hist = (np.isfinite(self._edges[:, 0]) if n else np.zeros(0, bool)) if self._ck else None
         self._has_phist = (np.isfinite(self._pedges[:, 0]) if n else np.zeros(0, bool)) \
             if self._ck and self._pedges is not None else None
+        self._integrity = INTEGRITY in f.attrs  # format 4: attribute writes keep the checksums current
+        # ... of the task table as this process knows it (the same on every rank: read once, or the job's)
+        self._tasks_now = f["tasks"][...] if self._integrity else None
         self.parallel = comm is not None
         self.n_tasks = self._res.shape[0]
         self.bins = self._density.shape[1]
@@ -327,11 +340,12 @@ class Store:
             g.create_dataset("density", shape=(n, bins), dtype="f8", fillvalue=np.nan, dcpl=_early())
             g.create_dataset("pressure_edges", shape=(n, bins + 1), dtype="f8", fillvalue=np.nan, dcpl=_early())
             g.create_dataset("pressure_density", shape=(n, bins), dtype="f8", fillvalue=np.nan, dcpl=_early())
+            rows = task_rows(tasks)
             if comm is None or comm.rank == 0:
                 if n:
-                    rows = task_rows(tasks)
                     dt[...] = rows
                     dr[...] = seal(rows, empty_results(n), bins)
+            seal_attrs(f, rows)  # every rank the same (collective under mpio)
             f.flush()
             if comm is not None:
                 comm.Barrier()
@@ -346,13 +360,15 @@ class Store:
         return cls(f, comm)
 
     @classmethod
-    def open(cls, path: str | Path, *, comm: Any = None) -> Store:
+    def open(cls, path: str | Path, *, comm: Any = None, repair_tasks: bool = False) -> Store:
+        """Open an existing store for writing (validated; ``repair_tasks``: a ``/tasks`` table that fails its
+        checksum is accepted, for :meth:`repair_tasks` to restore from the job)."""
         try:
             f = _writer_file(path, "r+", comm)
         except OSError as e:
             raise StoreError(f"store {path}: cannot open for writing ({e})") from None
         try:
-            storecheck.check(f, path)
+            storecheck.check(f, path, tolerate_tasks=repair_tasks)
         except BaseException:
             f.close()
             raise
@@ -374,6 +390,8 @@ class Store:
             raise _failed(f"store {self.path}: restoring task rows failed ({e})") from None
         if self._task_rows is not None:
             self._task_rows = want
+        if self._integrity:
+            self._tasks_now = want
         return bad
 
     def force_histograms(self, rows: Iterable[int]) -> None:
@@ -486,6 +504,8 @@ class Store:
             with _quiet_dealloc():
                 for k, v in attrs.items():
                     self.f.attrs[k] = v
+                if self._integrity:
+                    seal_attrs(self.f, self._tasks_now)
                 if flush:
                     self.f.flush()
         except (OSError, RuntimeError) as e:
@@ -504,7 +524,7 @@ class Store:
 
 
 @contextmanager
-def open_read(path: str | Path, *, check: bool = True):
+def open_read(path: str | Path, *, check: bool = True, tolerate_tasks: bool = False):
     """Open a store read-only without taking HDF5's file lock (it may be running). With ``check`` the
     structure is validated (:mod:`gapsweep.storecheck`): a damaged store raises :class:`StoreError` naming the
     file and the problem."""
@@ -525,8 +545,10 @@ def open_read(path: str | Path, *, check: bool = True):
         raise StoreError(f"store {p}: not a readable HDF5 file ({e}): truncated or damaged") from None
     with f:
         if check:
-            storecheck.check(f, p)
+            storecheck.check(f, p, tolerate_tasks=tolerate_tasks)
         elif f.attrs.get("format") != FORMAT:
+            if INTEGRITY in f.attrs:  # format 4: a changed format attribute is named as such
+                storecheck.check(f, p)
             raise StoreError(f"store {p}: not a gapsweep store (format attribute {f.attrs.get('format')!r})")
         try:
             yield f
@@ -536,13 +558,13 @@ def open_read(path: str | Path, *, check: bool = True):
             raise StoreError(f"store {p}: read error ({e}): damaged store") from None
 
 
-def read_attrs(path: str | Path) -> dict[str, Any]:
-    """File attributes as Python values (strings decoded)."""
-    with open_read(path) as f:
+def read_attrs(path: str | Path, *, tolerate_tasks: bool = False) -> dict[str, Any]:
+    """File attributes as Python values (strings decoded). ``tolerate_tasks``: see :func:`storecheck.check`."""
+    with open_read(path, tolerate_tasks=tolerate_tasks) as f:
         return {k: (v.decode("utf-8", "replace") if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
 
 
-def read(path: str | Path, *, mark_damaged: bool = True):
+def read(path: str | Path, *, mark_damaged: bool = True, tolerate_tasks: bool = False):
     """One row per task: parameters, status (string), message and results (``docs/store.md``).
 
     Returns a ``pandas.DataFrame`` with columns task_id, method, chain, hurst, rho, sigma0, seed, n, lambda_l,
@@ -553,7 +575,7 @@ def read(path: str | Path, *, mark_damaged: bool = True):
     import pandas as pd
 
     with open_read(path, check=False) as f:
-        report = storecheck.check(f, path)
+        report = storecheck.check(f, path, tolerate_tasks=tolerate_tasks)
         t = f["tasks"][...]
         r = f["results"][...]
     if not mark_damaged:
@@ -614,10 +636,10 @@ def read_histograms(path: str | Path, task_ids: Iterable[str] | None = None,
 
 def status(path: str | Path) -> str:
     """A short text summary of a running or finished store (counts per method and status, runs, failures)."""
-    attrs = read_attrs(path)
-    df = read(path)
+    attrs = read_attrs(path, tolerate_tasks=True)  # a damaged /tasks is a line of the summary, not its end
+    df = read(path, tolerate_tasks=True)
     with open_read(path, check=False) as f:
-        report = storecheck.check(f, path)
+        report = storecheck.check(f, path, tolerate_tasks=True)
     lines = [f"store {path}: job {attrs.get('job_name')!r}, {len(df)} tasks"
              + (f", shard {attrs['shard']}" if attrs.get("shard") else "")]
     held = lease.read(path)

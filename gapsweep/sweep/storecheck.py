@@ -23,13 +23,18 @@ from gapsweep.sweep import methods as registry
 from gapsweep.sweep.schema import (
     CHECKSUM,
     FORMAT,
+    INTEGRITY,
     INTERRUPTED_PREFIX,
+    LAYOUTS,
     PRESSURE_HIST,
     RESULT_DTYPES,
     STATUS,
     TASK_DTYPE,
     TIMEOUT_PREFIX,
+    Layout,
     StoreError,
+    integrity_problem,
+    layout_of,
     row_checksum,
 )
 
@@ -48,6 +53,9 @@ class Report:
     done_incomplete: list[int] = field(default_factory=list)
     damaged: list[int] = field(default_factory=list)  # rows whose checksum does not match their bytes
     checksums: bool = True  # False: a store of format 1 or 2, whose rows carry no checksum
+    layout: Layout | None = None  # the store's layout (gapsweep.sweep.schema.LAYOUTS)
+    tasks_damaged: bool = False  # format 4, check(tolerate_tasks=True): /tasks failed its checksum
+    path: str = ""
     runs_damaged: str | None = None  # why the run records (attribute runs) cannot be read; None: they can
 
     @property
@@ -56,12 +64,20 @@ class Report:
 
     def lines(self) -> list[str]:
         out = []
+        name = self.layout.name if self.layout is not None else "?"
+        if self.tasks_damaged:
+            out.append("table '/tasks' (task ids and parameters) fails its checksum: changed after it was "
+                       "written; --resume restores it from the job (merge and export refuse the store, merge "
+                       "--skip-damaged leaves out rows whose task is not the job's)")
         if self.runs_damaged:
             out.append(f"the run records (attribute 'runs') are damaged ({self.runs_damaged}): their history is "
                        "lost; --resume starts a new list, the rows are not affected")
         if not self.checksums:
-            out.append("no row checksums (a store written before format 3): rows are checked for completeness "
-                       "only, not for changed bytes")
+            out.append(f"no row checksums this version verifies (format {name}, written before 3c): rows are "
+                       "checked for completeness only, not for changed bytes")
+        if self.layout is not None and not self.layout.integrity:
+            out.append(f"no attribute checksums (format {name}, written before format 4): units, spec, format "
+                       "version, task ids and run records are not verified")
         if self.damaged:
             out.append(f"{len(self.damaged)} damaged row(s): checksum mismatch (rows {self.damaged[:5]}"
                        f"{' ...' if len(self.damaged) > 5 else ''}): their parameters, results or histograms "
@@ -106,8 +122,71 @@ def _fail(path: Any, what: str) -> None:
     raise StoreError(f"store {path}: {what}")
 
 
-def check(f: Any, path: str | Path) -> Report:
-    """Validate an open store ``f`` (h5py.File); raise StoreError on a structural problem."""
+def _attributes(f: Any) -> dict[str, Any]:
+    """Every attribute but the checksums' own, an unreadable one (e.g. a string no longer UTF-8) as its error."""
+    out: dict[str, Any] = {}
+    for k in f.attrs.keys():
+        if k != INTEGRITY:
+            try:
+                out[k] = f.attrs[k]
+            except Exception as e:
+                out[k] = e
+    return out
+
+
+_TASKS_PROBLEM = "table '/tasks'"
+
+
+def _integrity(f: Any, path: Any, tolerate_tasks: bool, f_runs_damaged: list[str]) -> bool:
+    """Format 4: every attribute and the ``/tasks`` table against their checksums (schema.integrity_record);
+    the first that fails is named in one line."""
+    try:
+        record = f.attrs[INTEGRITY]
+    except Exception:
+        record = None
+
+    def tasks() -> Any:
+        if "tasks" not in f or not hasattr(f["tasks"], "dtype"):
+            return None  # named by the structural check
+        try:
+            return f["tasks"][...]
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            _fail(path, f"cannot read /tasks ({exc}): damaged store")
+
+    problem = integrity_problem(record, _attributes(f), tasks)
+    if problem and tolerate_tasks and problem.startswith("attribute 'runs' fails"):
+        # --resume rebuilds damaged run records (Report.runs_damaged); status shows them as damaged
+        log.warning("store %s: %s", path, problem)
+        f_runs_damaged.append(problem)
+        problem = integrity_problem(record, {k: v for k, v in _attributes(f).items() if k != "runs"}, tasks,
+                                    skip=("attr:runs",))
+    if problem and tolerate_tasks and problem.startswith(_TASKS_PROBLEM):
+        log.warning("store %s: %s", path, problem)
+        return True
+    if problem:
+        _fail(path, problem + " (changed after it was written: a damaged store)")
+    return False
+
+
+def _layout(f: Any, path: Any, r: Any, integrity: bool) -> Layout:
+    version = f.attrs.get("format_version")
+    lay = layout_of(version, r.dtype, "checksums" in f, integrity)
+    if lay is None:
+        same = [x.name for x in LAYOUTS if x.results == r.dtype and x.integrity == integrity]
+        shown = version.item() if hasattr(version, "item") else version
+        _fail(path, f"format_version {shown!r} with a /results table of format {'/'.join(same)}: no layout "
+              "ever written (a damaged attribute, or a store of a newer gapsweep)")
+    return lay
+
+
+def check(f: Any, path: str | Path, *, tolerate_tasks: bool = False) -> Report:
+    """Validate an open store ``f`` (h5py.File); raise StoreError on a structural problem (a format-4 store's
+    attributes and task table first: one that fails its checksum is named). ``tolerate_tasks`` (``--resume``,
+    which restores task rows from the job; ``status``; ``merge --skip-damaged``): a ``/tasks`` table that
+    fails its checksum is reported (``Report.tasks_damaged``) instead."""
+    integrity = INTEGRITY in f.attrs
+    runs_bad: list[str] = []
+    tasks_damaged = _integrity(f, path, tolerate_tasks, runs_bad) if integrity else False
     if f.attrs.get("format") != FORMAT:
         _fail(path, f"not a gapsweep store (format attribute {f.attrs.get('format')!r})")
     for name in ("spec_text", "spec_sha256"):
@@ -141,8 +220,10 @@ def check(f: Any, path: str | Path) -> Report:
               + "): damaged or partial store")
     if e.shape[1] != d.shape[1] + 1:
         _fail(path, f"histogram edges ({e.shape[1]}) and density ({d.shape[1]}) columns do not match")
-    rep = Report(n)
-    rep.runs_damaged = runs_problem(f.attrs.get("runs", "[]"))
+    rep = Report(n, layout=_layout(f, path, r, integrity), tasks_damaged=tasks_damaged)
+    rep.checksums = rep.layout.row_checksums == "column"
+    rep.runs_damaged = runs_problem(f.attrs.get("runs", "[]")) or (
+        "fails its checksum: changed after it was written" if runs_bad else None)
     if not n:
         return rep
     try:
@@ -165,7 +246,6 @@ def check(f: Any, path: str | Path) -> Report:
     edges_ok = np.all(np.isfinite(e[...]), axis=1)
     bad = done & (~np.isfinite(mean_gap) | (needs_hist & ~(hist_ok & edges_ok)))
     rep.done_incomplete = np.flatnonzero(bad).tolist()
-    rep.checksums = CHECKSUM in (r.dtype.names or ())
     if rep.checksums and not all(has_p):
         _fail(path, "row checksums present without the pressure histograms they cover (damaged or partial store)")
     if rep.checksums:

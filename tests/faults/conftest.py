@@ -135,6 +135,42 @@ def wait_done(path: Path, n: int, proc: subprocess.Popen | None = None, timeout:
     return done
 
 
+HOOKS = Path(__file__).resolve().parent / "hooks"
+
+
+class Hold:
+    """A barrier in a child run (tests/faults/hooks/sitecustomize.py): ``env()`` gives the environment that makes
+    the process stop at ``k`` -- right after its ``k``-th store row write (a number), or at a point of its start
+    ("import", "lease", "create") -- until :meth:`release` or a SIGINT/SIGTERM (or, after a row write, the store's
+    stop file); :meth:`wait` returns once a process has got there. Nothing depends on how fast either side runs."""
+
+    def __init__(self, folder: Path, k: int | str) -> None:
+        self.folder, self.k = Path(folder), k
+        self.folder.mkdir(parents=True, exist_ok=True)
+
+    def env(self, **kw: str) -> dict[str, str]:
+        from tests.hooks.gapsweep_test_hooks import pythonpath
+
+        # this barrier first, then the suite's fault injection (tests/hooks, chained by this sitecustomize)
+        path = os.pathsep.join([str(HOOKS), pythonpath(os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))])
+        return {"FAULTS_HOLD": f"{self.folder}:{self.k}", "PYTHONPATH": path, **kw}
+
+    def wait(self, proc: subprocess.Popen, timeout: float = 300) -> None:
+        """Until a process of the run holds at its point; fails if the run ended first (or never got there:
+        ``timeout`` only bounds a broken run, it decides nothing in a working one)."""
+        t0 = time.monotonic()
+        while not list(self.folder.glob("reached-*")):
+            if proc.poll() is not None:
+                raise AssertionError(f"the run ended (exit {proc.returncode}) before its hold point {self.k}: "
+                                     f"{proc.stderr.read() if proc.stderr else ''}")
+            if time.monotonic() - t0 > timeout:
+                raise AssertionError(f"hold point {self.k} not reached within {timeout} s")
+            time.sleep(0.01)
+
+    def release(self) -> None:
+        (self.folder / "release").touch()
+
+
 def kill(proc: subprocess.Popen, sig: int = signal.SIGKILL) -> None:
     try:
         os.kill(proc.pid, sig)

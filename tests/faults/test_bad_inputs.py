@@ -8,6 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from gapsweep import store
+
 from .conftest import HIST_JOB, THEORY_JOB, gs, one_line_error
 
 BASE = THEORY_JOB.read_text()
@@ -413,6 +415,7 @@ def test_store_with_non_json_runs(tmp_path, refs):
     s.write_bytes(refs["theory"].read_bytes())
     with h5py.File(s, "r+") as f:
         f.attrs["runs"] = "{not json"
+        store.seal_attrs(f)  # written so (a tool's bug), not damaged since: the checksums agree
     before = s.read_bytes()
     p = gs("status", s, timeout=60)
     assert p.returncode == 0 and "'runs'" in p.stdout and "damaged" in p.stdout, (p.stdout, p.stderr)
@@ -444,6 +447,7 @@ def test_merge_spec_error_names_the_shard(tmp_path, refs):
     s.write_bytes(refs["theory"].read_bytes())
     with h5py.File(s, "r+") as f:
         f.attrs["spec_text"] = f.attrs["spec_text"].replace("hurst = [0.3, 0.8]", "hurst = [0.3, 1.5]")
+        store.seal_attrs(f)  # a spec that no longer validates, not a damaged attribute (test_integrity.py)
     p = gs("merge", s, "--out", tmp_path / "m.h5")
     one_line_error(p, "merge", str(s), "grid.hurst[1]")
     assert not (tmp_path / "m.h5").exists()

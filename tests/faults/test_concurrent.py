@@ -1,5 +1,9 @@
 """Two runs on one store (docs/reliability.md, "Exclusive access"): the lease refuses the second writer
-whatever HDF5_USE_FILE_LOCKING says and for every writer; the first run finishes to the uninterrupted result."""
+whatever HDF5_USE_FILE_LOCKING says and for every writer; the first run finishes to the uninterrupted result.
+
+The first run holds after its third row write (conftest.Hold, a barrier) until the second process has been
+refused: the premise "the first run is still writing" is made true, not hoped for (on a loaded machine the first
+run used to finish before the second had started)."""
 
 from __future__ import annotations
 
@@ -10,13 +14,13 @@ from gapsweep import lease, store
 from .conftest import (
     JOBS,
     WRITERS,
+    Hold,
     finish,
     gs,
     gs_popen,
     mpi_cmd,
     needs_mpi,
     one_line_error,
-    wait_done,
 )
 
 SECOND = {
@@ -30,15 +34,14 @@ SECOND = {
 @pytest.mark.parametrize("locking", ["default", "FALSE"])
 @pytest.mark.parametrize("second", list(SECOND))
 def test_second_serial_run_refused(tmp_path, refs, second, locking):
-    path = tmp_path / "s.h5"
-    kw = {"GAPSWEEP_TEST_DELAY": "0.1"}
-    if locking == "FALSE":
-        kw["HDF5_USE_FILE_LOCKING"] = "FALSE"
-    first = gs_popen("run", JOBS["theory"], "--store", path, "--mpi", "off", "--progress", "none", **kw)
-    assert wait_done(path, 3, first) >= 3
+    path, hold = tmp_path / "s.h5", Hold(tmp_path / "hold", 3)
+    kw = {"HDF5_USE_FILE_LOCKING": "FALSE"} if locking == "FALSE" else {}
+    first = gs_popen("run", JOBS["theory"], "--store", path, "--mpi", "off", "--progress", "none", **hold.env(**kw))
+    hold.wait(first)
     p = gs("run", JOBS["theory"], "--store", path, "--mpi", "off", *SECOND[second], **kw)
-    assert first.poll() is None  # the premise: the first run was still writing
+    assert first.poll() is None  # the premise: the first run is still writing (held)
     one_line_error(p, "in use by", "alive")
+    hold.release()
     rc, _, err = finish(first)
     assert rc == 0, err
     assert store.diff(path, refs["theory"]) == []
@@ -46,13 +49,13 @@ def test_second_serial_run_refused(tmp_path, refs, second, locking):
 
 
 def test_merge_onto_running_store_refused(tmp_path, refs):
-    path = tmp_path / "s.h5"
-    first = gs_popen("run", JOBS["theory"], "--store", path, "--mpi", "off", "--progress", "none",
-                     GAPSWEEP_TEST_DELAY="0.1")
-    assert wait_done(path, 3, first) >= 3
+    path, hold = tmp_path / "s.h5", Hold(tmp_path / "hold", 3)
+    first = gs_popen("run", JOBS["theory"], "--store", path, "--mpi", "off", "--progress", "none", **hold.env())
+    hold.wait(first)
     p = gs("merge", refs["theory"], "--out", path, "--overwrite")
     assert first.poll() is None
     one_line_error(p, "in use by")
+    hold.release()
     rc, _, err = finish(first)
     assert rc == 0, err
     assert store.diff(path, refs["theory"]) == []
@@ -67,16 +70,17 @@ def test_second_run_during_mpi_run_refused(tmp_path, refs, writer):
 
     from .conftest import env
 
-    path = tmp_path / "s.h5"
+    path, hold = tmp_path / "s.h5", Hold(tmp_path / "hold", 3)
     first = subprocess.Popen(mpi_cmd(2, "run", JOBS["theory"], "--store", path, "--writer", writer, "--progress",
-                                     "none"), env=env(GAPSWEEP_TEST_DELAY="0.3", HDF5_USE_FILE_LOCKING="FALSE"),
+                                     "none"), env=env(**hold.env(HDF5_USE_FILE_LOCKING="FALSE")),
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    assert wait_done(path, 3, first) >= 3
+    hold.wait(first)
     for extra in (["--overwrite"], ["--resume"]):
         p = gs("run", JOBS["theory"], "--store", path, "--mpi", "off", "--progress", "none", *extra,
                HDF5_USE_FILE_LOCKING="FALSE")
         assert first.poll() is None
         one_line_error(p, "in use by")
+    hold.release()
     rc, _, err = finish(first, timeout=120)
     assert rc == 0, err
     assert store.diff(path, refs["theory"]) == []
@@ -102,14 +106,12 @@ def test_second_run_through_another_path_refused(tmp_path, refs, how, locking):
     the bind mount run beside the first (done rows went back to pending)."""
     import subprocess
 
-    path = tmp_path / "s.h5"
-    kw = {"GAPSWEEP_TEST_DELAY": "0.1"}
-    if locking == "FALSE":
-        kw["HDF5_USE_FILE_LOCKING"] = "FALSE"
-    first = gs_popen("run", JOBS["theory"], "--store", path, "--mpi", "off", "--progress", "none", **kw)
+    path, hold = tmp_path / "s.h5", Hold(tmp_path / "hold", 3)
+    kw = {"HDF5_USE_FILE_LOCKING": "FALSE"} if locking == "FALSE" else {}
+    first = gs_popen("run", JOBS["theory"], "--store", path, "--mpi", "off", "--progress", "none", **hold.env(**kw))
     mounted = None
     try:
-        assert wait_done(path, 3, first) >= 3
+        hold.wait(first)
         if how == "symlink":
             other = tmp_path / "link.h5"
             other.symlink_to(path)
@@ -127,9 +129,10 @@ def test_second_run_through_another_path_refused(tmp_path, refs, how, locking):
                 pytest.skip("bind mounts need root and mount permission")
             mounted = other
         p = gs("run", JOBS["theory"], "--store", other, "--mpi", "off", "--resume", "--progress", "none", **kw)
-        assert first.poll() is None  # the premise: the first run was still writing
+        assert first.poll() is None  # the premise: the first run is still writing (held)
         one_line_error(p, "in use by", "alive")
     finally:
+        hold.release()
         if mounted is not None:
             subprocess.run(["umount", str(mounted)], check=False)
     rc, _, err = finish(first)

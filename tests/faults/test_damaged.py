@@ -75,7 +75,7 @@ STRUCTURAL = {
     "no-tasks": (_del("tasks"), "/tasks missing"),
     "results-wrong-dtype": (_wrong_dtype, "/results has dtype"),
     "results-shorter": (_short_results, "different lengths"),
-    "no-format-attribute": (_no_format, "not a gapsweep store"),
+    "no-format-attribute": (_no_format, "attribute 'format' is missing"),  # format 4: its checksums say so
     "no-spec-attribute": (_no_spec, "spec_text"),
 }
 COMMANDS = ["status", "resume", "merge", "report"]

@@ -19,6 +19,7 @@ from gapsweep.sweep import lease
 from .conftest import (
     JOBS,
     WRITERS,
+    Hold,
     assert_done_kept,
     assert_only_done_pending,
     done_rows,
@@ -30,7 +31,6 @@ from .conftest import (
     needs_mpi,
     one_line_error,
     resume_to_ref,
-    wait_done,
 )
 
 
@@ -100,12 +100,12 @@ def test_fsize_limit_at_create(tmp_path, refs):
 def test_disk_fills_during_run(tmp_path, refs, small_fs, job):
     if small_fs is None:
         pytest.skip("cannot mount a tmpfs here (not root)")
-    path = small_fs / "s.h5"
-    p = gs_popen("run", JOBS[job], "--store", path, "--mpi", "off", "--progress", "none",
-                 GAPSWEEP_TEST_DELAY="0.04")
-    wait_done(path, 3, p)
+    path, hold = small_fs / "s.h5", Hold(tmp_path / "hold", 3)
+    p = gs_popen("run", JOBS[job], "--store", path, "--mpi", "off", "--progress", "none", **hold.env())
+    hold.wait(p)  # the disk fills while the run is certainly in the middle of its rows
     filler = _fill(small_fs)
     seen = done_rows(path)
+    hold.release()
     rc, _, err = finish(p)
     assert rc in (0, 1), err  # finishes (space was allocated at creation) or stops with a message
     assert "Traceback" not in err

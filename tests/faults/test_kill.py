@@ -17,6 +17,7 @@ from gapsweep.sweep import lease
 from .conftest import (
     JOBS,
     WRITERS,
+    Hold,
     assert_done_kept,
     assert_only_done_pending,
     done_rows,
@@ -27,7 +28,6 @@ from .conftest import (
     mpi_cmd,
     needs_mpi,
     resume_to_ref,
-    wait_done,
 )
 
 
@@ -82,13 +82,13 @@ def test_kill9_during_creation(tmp_path, refs):
 @pytest.mark.parametrize("writer", WRITERS)
 @pytest.mark.parametrize("victim", ["rank0", "rank1", "mpiexec"])
 def test_kill9_mpi(tmp_path, refs, writer, victim):
-    path, pids = tmp_path / "k.h5", tmp_path / "pids"
+    path, pids, hold = tmp_path / "k.h5", tmp_path / "pids", Hold(tmp_path / "hold", 6)
     pids.mkdir()
     p = subprocess.Popen(mpi_cmd(2, "run", JOBS["theory"], "--store", path, "--writer", writer, "--progress",
-                                 "none"), env=env(GAPSWEEP_TEST_DELAY="0.04", GAPSWEEP_TEST_PIDDIR=str(pids)),
+                                 "none"), env=env(**hold.env(GAPSWEEP_TEST_PIDDIR=str(pids))),
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        wait_done(path, 6, p)
+        hold.wait(p)  # a rank holds after its 6th row: the kill meets a run that has not finished
         seen = done_rows(path)
         if victim == "mpiexec":
             kill(p)
@@ -96,6 +96,7 @@ def test_kill9_mpi(tmp_path, refs, writer, victim):
             import os
 
             os.kill(int((pids / f"{victim}.pid").read_text()), signal.SIGKILL)
+        hold.release()  # a surviving rank goes on (and is stopped by mpiexec)
         rc, _, _ = finish(p, timeout=60)  # never a hang
     finally:
         if p.poll() is None:

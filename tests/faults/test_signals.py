@@ -17,6 +17,7 @@ from gapsweep.sweep import lease
 from .conftest import (
     JOBS,
     WRITERS,
+    Hold,
     assert_done_kept,
     assert_only_done_pending,
     done_rows,
@@ -27,7 +28,6 @@ from .conftest import (
     mpi_cmd,
     needs_mpi,
     resume_to_ref,
-    wait_done,
 )
 
 
@@ -38,10 +38,9 @@ def _last_run(path):
 @pytest.mark.parametrize("sig,code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 @pytest.mark.parametrize("job", ["theory", "hist"])
 def test_signal_serial(tmp_path, refs, sig, code, job):
-    path = tmp_path / "s.h5"
-    p = gs_popen("run", JOBS[job], "--store", path, "--mpi", "off", "--progress", "log",
-                 GAPSWEEP_TEST_DELAY="0.05")
-    wait_done(path, 4, p)
+    path, hold = tmp_path / "s.h5", Hold(tmp_path / "hold", 4)
+    p = gs_popen("run", JOBS[job], "--store", path, "--mpi", "off", "--progress", "log", **hold.env())
+    hold.wait(p)  # held after its 4th row: the signal meets a run in the middle of its work
     seen = done_rows(path)
     p.send_signal(sig)
     rc, _, err = finish(p)
@@ -64,13 +63,13 @@ def test_signal_serial(tmp_path, refs, sig, code, job):
 def test_stop_mpi(tmp_path, refs, writer, how):
     """Under mpiexec: SIGTERM to rank 0 or a <store>.stop file (what the Slurm scripts create) drains the farm;
     every rank exits 143, the store is closed and the run recorded as interrupted; no hang."""
-    path, pids = tmp_path / "s.h5", tmp_path / "pids"
+    path, pids, hold = tmp_path / "s.h5", tmp_path / "pids", Hold(tmp_path / "hold", 4)
     pids.mkdir()
     p = subprocess.Popen(mpi_cmd(2, "run", JOBS["theory"], "--store", path, "--writer", writer, "--progress",
-                                 "none"), env=env(GAPSWEEP_TEST_DELAY="0.05", GAPSWEEP_TEST_PIDDIR=str(pids)),
+                                 "none"), env=env(**hold.env(GAPSWEEP_TEST_PIDDIR=str(pids))),
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        wait_done(path, 4, p)
+        hold.wait(p)
         seen = done_rows(path)
         if how == "stop-file":
             (tmp_path / "s.h5.stop").touch()
@@ -78,6 +77,9 @@ def test_stop_mpi(tmp_path, refs, writer, how):
             import os
 
             os.kill(int((pids / "rank0.pid").read_text()), signal.SIGTERM)
+        # rank 0 has the request (the farm cannot have ended: a rank holds); a rank held without a signal of its
+        # own (rank 1, when only rank 0 was signalled) goes on and the farm drains
+        hold.release()
         t0 = time.monotonic()
         rc, _, err = finish(p, timeout=60)
         assert time.monotonic() - t0 < 30
@@ -122,10 +124,9 @@ def test_task_timeout_mpi_rank0_thread(tmp_path):
 
 
 def test_stop_file_serial(tmp_path, refs):
-    path = tmp_path / "s.h5"
-    p = gs_popen("run", JOBS["theory"], "--store", path, "--mpi", "off", "--progress", "none",
-                 GAPSWEEP_TEST_DELAY="0.05")
-    wait_done(path, 4, p)
+    path, hold = tmp_path / "s.h5", Hold(tmp_path / "hold", 4)
+    p = gs_popen("run", JOBS["theory"], "--store", path, "--mpi", "off", "--progress", "none", **hold.env())
+    hold.wait(p)
     seen = done_rows(path)
     (tmp_path / "s.h5.stop").touch()
     rc, _, err = finish(p)
@@ -153,17 +154,17 @@ def _clean_end(path, sig, rc, err):
     assert not list(path.parent.glob(f".{path.name}.tmp*"))
 
 
-@pytest.mark.parametrize("offset", [0.1, 0.3, 0.6])
+@pytest.mark.parametrize("point", ["import", "lease", "create"])
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_signal_at_startup(tmp_path, refs, sig, offset):
-    """A signal while the process starts (imports, spec, lease, store creation): the run is recorded as
-    interrupted (the store created, every row pending), the lease released, exit 130/143; a resume reaches the
-    uninterrupted result. The old code died by SIGTERM or a KeyboardInterrupt there (no record, or a stale
-    lease)."""
-    path = tmp_path / "s.h5"
-    p = gs_popen("run", JOBS["theory"], "--store", path, "--mpi", "off", "--progress", "none",
-                 GAPSWEEP_TEST_DELAY="0.05")
-    time.sleep(offset)
+def test_signal_at_startup(tmp_path, refs, sig, point):
+    """A signal while the process starts (the runner loading, the lease just taken, the store just created:
+    the process holds there, conftest.Hold): the run is recorded as interrupted (the store created, every row
+    pending), the lease released, exit 130/143; a resume reaches the uninterrupted result. The old code died by
+    SIGTERM or a KeyboardInterrupt there (no record, or a stale lease). (A signal before the interpreter runs
+    gapsweep's first statement kills any program: not a case.)"""
+    path, hold = tmp_path / "s.h5", Hold(tmp_path / "hold", point)
+    p = gs_popen("run", JOBS["theory"], "--store", path, "--mpi", "off", "--progress", "none", **hold.env())
+    hold.wait(p)
     p.send_signal(sig)
     rc, _, err = finish(p)
     _clean_end(path, sig, rc, err)
@@ -173,17 +174,17 @@ def test_signal_at_startup(tmp_path, refs, sig, offset):
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_signal_at_startup_of_resume(tmp_path, refs, sig):
     """The same at the start of a resumed run: its own run record says interrupted, the rows done before stay."""
-    path = tmp_path / "s.h5"
-    p = gs_popen("run", JOBS["theory"], "--store", path, "--mpi", "off", "--progress", "none",
-                 GAPSWEEP_TEST_DELAY="0.05")
-    wait_done(path, 4, p)
+    path, hold = tmp_path / "s.h5", Hold(tmp_path / "hold", 4)
+    p = gs_popen("run", JOBS["theory"], "--store", path, "--mpi", "off", "--progress", "none", **hold.env())
+    hold.wait(p)
     p.send_signal(signal.SIGTERM)
     finish(p)
     seen = done_rows(path)
     n_runs = len(json.loads(store.read_attrs(path)["runs"]))
+    hold = Hold(tmp_path / "hold2", "lease")
     p = gs_popen("run", JOBS["theory"], "--store", path, "--resume", "--mpi", "off", "--progress", "none",
-                 GAPSWEEP_TEST_DELAY="0.05")
-    time.sleep(0.2)
+                 **hold.env())
+    hold.wait(p)  # the resumed run has its lease, its store not yet opened
     p.send_signal(sig)
     rc, _, err = finish(p)
     _clean_end(path, sig, rc, err)
@@ -197,10 +198,9 @@ def test_signal_at_startup_of_resume(tmp_path, refs, sig):
 def test_two_signals_in_a_row(tmp_path, refs, first, second):
     """A second signal right behind the first (an impatient Ctrl-C, a launcher signalling the group and the
     process) must not cut the first one's clean-up: recorded as interrupted by the first, lease released."""
-    path = tmp_path / "s.h5"
-    p = gs_popen("run", JOBS["hist"], "--store", path, "--mpi", "off", "--progress", "none",
-                 GAPSWEEP_TEST_DELAY="0.05")
-    wait_done(path, 4, p)
+    path, hold = tmp_path / "s.h5", Hold(tmp_path / "hold", 4)
+    p = gs_popen("run", JOBS["hist"], "--store", path, "--mpi", "off", "--progress", "none", **hold.env())
+    hold.wait(p)
     seen = done_rows(path)
     p.send_signal(first)
     p.send_signal(second)
@@ -276,11 +276,12 @@ def _resume_plain(path, ref):
     assert store.diff(path, ref) == []
 
 
-def _mpi_popen(path, delay="0.3", writer="rank0"):
+def _mpi_popen(path, delay="0.3", writer="rank0", hold=None):
     import os
 
+    kw = hold.env(GAPSWEEP_TEST_DELAY=delay) if hold is not None else {"GAPSWEEP_TEST_DELAY": delay}
     return subprocess.Popen(mpi_cmd(2, "run", JOBS["theory"], "--store", path, "--writer", writer, "--progress",
-                                    "none"), env=env(GAPSWEEP_TEST_DELAY=delay), stdout=subprocess.PIPE,
+                                    "none"), env=env(**kw), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, preexec_fn=os.setsid)
 
 
@@ -303,12 +304,13 @@ def test_signal_to_mpiexec(tmp_path, refs, sig, target, task):
     done lost; a resume reaches the uninterrupted result. mpiexec's own exit status is its own (Open MPI 4: 1
     when it was signalled itself); the ranks exit 130/143. Long tasks (2 s) outlast Open MPI's 1-s grace before
     it SIGKILLs the ranks: the interruption is recorded the moment the farm starts stopping."""
-    path = tmp_path / "s.h5"
-    p = _mpi_popen(path, delay="0.3" if task == "short" else "2")
+    path, hold = tmp_path / "s.h5", Hold(tmp_path / "hold", 4 if task == "short" else 2)
+    p = _mpi_popen(path, delay="0.3" if task == "short" else "2", hold=hold)
     try:
-        wait_done(path, 4 if task == "short" else 2, p)
+        hold.wait(p)
         seen = done_rows(path)
         _signal_mpi(p, sig, target)
+        hold.release()
         rc, _, err = finish(p, timeout=60)
     finally:
         if p.poll() is None:

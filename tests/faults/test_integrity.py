@@ -1,0 +1,161 @@
+"""Checksums of everything a reader trusts (issue 31 item 1; docs/reliability.md "Checksums"): one flipped bit in
+any attribute of a format-4 store (units, spec text and hash, format version, run records, provenance) or in a
+task id is found on open by status, --resume, merge, export and report, and named in one line. Before format 4
+attributes were not checked at all (a flipped bit exported every length unit as ``om``; flips in spec_sha256 or
+format_version surfaced as "written for another job spec") and a task id flip in a pending row blocked every
+command with a misleading message: each case here fails on the old code.
+
+Older formats carry no attribute checksums: ``status`` says they are not verified (tests/test_store_formats.py)."""
+
+from __future__ import annotations
+
+import shutil
+
+import h5py
+import pytest
+
+from gapsweep import store
+
+from .conftest import ROOT, gs, one_line_error
+
+JOB = ROOT / "tests" / "faults" / "jobs" / "units.toml"
+# every attribute a format-4 store of this job has (test_every_attribute_is_listed keeps the list complete)
+ATTRS = ("created", "finished", "format", "format_version", "gapsweep_version", "git_commit", "job_name", "runs",
+         "shard", "spec_sha256", "spec_text", "units", "versions")
+
+
+@pytest.fixture(scope="module")
+def ref(tmp_path_factory):
+    path = tmp_path_factory.mktemp("integrity") / "u.h5"
+    p = gs("run", JOB, "--store", path, "--mpi", "off", "--progress", "none")
+    assert p.returncode == 0, p.stderr
+    return path
+
+
+def _copy(ref, tmp_path):
+    p = tmp_path / "s.h5"
+    shutil.copy(ref, p)
+    return p
+
+
+def flip_attr(path, name: str) -> None:
+    """Flip one bit of the attribute ``name`` (the lowest bit of its middle character, or of an integer; an empty
+    string gets one character), keeping its type."""
+    with h5py.File(path, "r+") as f:
+        v = f.attrs[name]
+        if isinstance(v, str):
+            b = bytearray(v.encode()) or bytearray(b"@")
+            i = len(b) // 2
+            while b[i] >= 0x80:  # an ASCII character: the flipped text stays valid UTF-8 (h5py can write it)
+                i += 1
+            b[i] ^= 1
+            f.attrs.modify(name, b.decode())
+        else:
+            f.attrs.modify(name, v ^ 1)
+
+
+def flip_task_id(path, row: int) -> None:
+    """Flip one bit of the task id of ``row`` in /tasks (hex digits stay ASCII)."""
+    with h5py.File(path, "r+") as f:
+        t = f["tasks"][...]
+        tid = bytearray(t["task_id"][row])
+        tid[3] ^= 1
+        t["task_id"][row] = bytes(tid)
+        f["tasks"][...] = t
+
+
+def test_every_attribute_is_listed(ref):
+    with h5py.File(ref, "r") as f:
+        assert set(f.attrs) - {"integrity"} == set(ATTRS)
+
+
+@pytest.mark.parametrize("name", ATTRS)
+def test_flipped_attribute_is_named_by_status(ref, tmp_path, name):
+    path = _copy(ref, tmp_path)
+    flip_attr(path, name)
+    before = path.read_bytes()
+    p = gs("status", path, timeout=60)
+    if name == "runs":  # the rows are not affected: status goes on and names the damage (--resume rebuilds it)
+        assert "attribute 'runs' fails its checksum" in p.stdout + p.stderr, p.stdout + p.stderr
+    else:
+        err = one_line_error(p, str(path), f"attribute {name!r} fails its checksum")
+        assert len([x for x in err.splitlines() if x.strip()]) == 1, err
+    assert path.read_bytes() == before  # a reader changes nothing
+    with pytest.raises(store.StoreError, match=f"attribute '{name}' fails its checksum"):
+        store.read(path)
+
+
+@pytest.mark.parametrize("name", ["units", "spec_sha256", "format_version", "runs", "spec_text"])
+def test_flipped_attribute_refused_by_every_command(ref, tmp_path, name):
+    """resume, merge, export and report refuse the store naming the attribute; nothing is written. (Damaged run
+    records are the exception for --resume, which rebuilds them: test_resume_rebuilds_damaged_run_records.)"""
+    pytest.importorskip("xarray")
+    path = _copy(ref, tmp_path)
+    flip_attr(path, name)
+    before = path.read_bytes()
+    need = f"attribute {name!r} fails its checksum"
+    resume = [] if name == "runs" else [["run", JOB, "--store", path, "--resume", "--mpi", "off", "--progress", "none"]]
+    for cmd in (*resume, ["merge", path, "--out", tmp_path / "m.h5"],
+                ["export", path, "--out", tmp_path / "x.nc"],
+                ["report", path, "--out", tmp_path / "rep"]):
+        one_line_error(gs(*cmd, timeout=120), str(path), need)
+    assert path.read_bytes() == before
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["s.h5"]
+
+
+def test_flipped_integrity_record_is_named(ref, tmp_path):
+    path = _copy(ref, tmp_path)
+    flip_attr(path, "integrity")
+    one_line_error(gs("status", path, timeout=60), str(path), "attribute 'integrity'", "damaged")
+
+
+def test_removed_attribute_is_named(ref, tmp_path):
+    """An attribute gone (e.g. `units`: the store would read as model units) is named, not taken as absent."""
+    path = _copy(ref, tmp_path)
+    with h5py.File(path, "r+") as f:
+        del f.attrs["units"]
+    one_line_error(gs("status", path, timeout=60), str(path), "attribute 'units' is missing")
+
+
+@pytest.mark.parametrize("status", ["done", "pending"])
+def test_flipped_task_id(ref, tmp_path, status):
+    """One bit in a task id, of a done or a pending row: ``status`` names /tasks (and goes on: the other rows
+    are readable), merge, export and report refuse the store in one line, ``merge --skip-damaged`` leaves the row
+    out; --resume restores the id from the job and re-runs that row (the store then reads and merges). The old
+    code refused a pending row's flip everywhere as "written for another job spec", --resume included."""
+    pytest.importorskip("xarray")
+    path = _copy(ref, tmp_path)
+    if status == "pending":
+        with h5py.File(path, "r+") as f:
+            r = f["results"][...]
+            r["status"][1] = 0
+            f["results"][...] = r
+    flip_task_id(path, 1)
+    need = "table '/tasks' (task ids and parameters) fails its checksum"
+    p = gs("status", path, timeout=60)
+    assert p.returncode == 0 and need in p.stdout and "--resume restores it" in p.stdout, p.stdout + p.stderr
+    for cmd in (["merge", path, "--out", tmp_path / "m.h5"], ["export", path, "--out", tmp_path / "x.nc"],
+                ["report", path, "--out", tmp_path / "rep"]):
+        one_line_error(gs(*cmd, timeout=120), str(path), need)
+    p = gs("merge", path, "--out", tmp_path / "m.h5", "--skip-damaged", timeout=120)
+    assert p.returncode == 0, p.stderr
+    assert (store.read(tmp_path / "m.h5")["status"] == "done").sum() == 1  # row 1 left out (pending or damaged)
+    (tmp_path / "m.h5").unlink()
+    p = gs("run", JOB, "--store", path, "--resume", "--mpi", "off", "--progress", "none", timeout=120)
+    assert p.returncode == 0, p.stderr
+    assert store.diff(path, ref) == []
+    assert (store.read(path)["status"] == "done").all()
+    assert gs("merge", path, "--out", tmp_path / "m.h5", timeout=120).returncode == 0
+
+
+def test_resume_rebuilds_damaged_run_records(ref, tmp_path):
+    """A flipped bit in `runs`: status names it, --resume starts a new list of run records (the rows are not
+    affected) and the store verifies again."""
+    path = _copy(ref, tmp_path)
+    flip_attr(path, "runs")
+    p = gs("status", path, timeout=60)
+    assert "attribute 'runs' fails its checksum" in p.stdout + p.stderr
+    p = gs("run", JOB, "--store", path, "--resume", "--mpi", "off", "--progress", "none", timeout=120)
+    assert p.returncode == 0, p.stderr
+    assert gs("status", path, timeout=60).returncode == 0
+    assert store.diff(path, ref) == []
