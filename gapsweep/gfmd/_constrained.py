@@ -9,8 +9,14 @@ constrained_conjugate_gradients); "pcg" (default on the GPU), the same iteration
 preconditioner: the search direction is built from ``z = P_S M P_S g`` with ``M = K^-1 = E* q/2`` (exact when
 everything is in contact; the FFT-based preconditioner of Vollebregt, J. Comput. Phys. 257, 333, 2014, in its
 simplest form); "mpcg" (default on the CPU), "pcg" started from the coarse-to-fine pressure of :func:`_coarse_start`
-(the coarsened surface solved to ``_COARSE_TOL``, recursively). Cost per iteration: ``K t`` (one FFT pair), ``M g``
-("pcg", one more), and ``K p`` afresh only when the projection clipped something (else ``u`` follows linearly).
+(the coarsened surface solved to ``_COARSE_TOL``, recursively). Cost per iteration, periodic grids on the CPU
+(:func:`_spectral_loop`, ``p~`` kept in Fourier space): ``M g`` ("pcg", one FFT pair), ``t~`` (one forward
+transform; the line search's ``<t K t>`` by Parseval, ``t`` made load-neutral in real space), ``u = K p~`` (one
+inverse) and the transform of ``p`` only when the projection clipped something: 2.5 pairs. Free boundaries and
+the GPU (:func:`_direct_loop`): ``K t`` (one pair), ``M g`` ("pcg", one more), and ``K p`` afresh when the
+projection clipped something (else ``u`` follows linearly): 3 pairs. Skipping the fresh ``K p`` (``u`` lagging
+by the clipped part, re-synced every few iterations) breaks the constrained CG (issue 30: 1.2-300x the
+iterations or no convergence; benchmarks/results/contact/issue30_lag_resync_512.txt).
 
 Convergence (decided on the returned fields, one more FFT pair): force balance ``u = K p`` and ``p = 0`` on the
 free surface hold by construction, so the residual is the constraint's violation in units of ``h_rms``:
