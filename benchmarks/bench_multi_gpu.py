@@ -1,16 +1,33 @@
-"""Sweeps on 1, 2, 4, 8 GPUs of one node, one store per GPU (docs/benchmarks.md, "Several GPUs").
+"""The farm on 1, 2 and 4 GPUs of one node, in one call (docs/benchmarks.md, "Several GPUs: the farm").
 
-For each GPU count G and job, G shard runs start together, shard i on GPU i (``CUDA_VISIBLE_DEVICES``), each an
-MPI farm of ``--ranks / G`` ranks (``--ranks-per-gpu`` of them on the GPU, the rest on CPU units) or a single
-process when that is 1; the shard stores are merged on the CPU (``gapsweep merge``) and the merged store is
-compared with the G = 1 store (bit for bit, and within the tolerance of benchmarks/compare_stores.py against
-``--reference`` stores, e.g. the CPU stores of docs/results/stores.tgz). Wall time is from the start of the
-first shard to the end of the last, merge excluded (reported beside it).
+For each set of jobs and each GPU count k: one launch ``mpiexec -n R --bind-to none python3 -m gapsweep run J1 J2
+... --store S1 --store S2 ...`` with ``CUDA_VISIBLE_DEVICES=0..k-1`` -- rank 0 coordinates, ranks 1..k are the
+GPU workers (one per GPU, no MPS), the others CPU workers (docs/running.md, "Which layout"); R is the same for
+every k. Sets: ``figs`` = jobs/gpu/fig6, fig4_5, fig2, fig3; ``pub`` = jobs/pub/fig2, fig3, fig4_5 (``--pub-seeds
+S``: S seeds instead of 16, copies written under OUT/jobs); ``sde`` = jobs/bench_sde_gpus.toml.
 
-    python benchmarks/bench_multi_gpu.py --out OUT --gpus 1 2 4 8 --jobs fig6 fig4_5 fig2 fig3 sde
-    python benchmarks/bench_multi_gpu.py --out OUT --gpus 1 2 --devices 0,0 --jobs fig6   # 2 shards, 1 GPU
+Per run: wall (launch to exit), start-up (launch to the farm's start, ``farm_started_unix`` of the first job's
+run record), sweep = wall - start-up, efficiency T1 / (k Tk) on both, GPU utilisation (nvidia-smi sampled every
+0.5 s, mean per GPU over the run), GFMD wall per solve (median, max), row counts, and every store compared bit for
+bit with the 1-GPU store of the same job (``store.diff``: every column but wall time and rank, the histograms).
 
-Jobs: ``figN`` = jobs/gpu/figN.toml; ``sde`` = jobs/bench_sde_gpus.toml (16 tasks x 10^8 realisations).
+``--fault-check``: figure 2 on 2 GPUs while a helper process holds all but 64 MB of GPU 1's memory (a real CUDA
+out-of-memory in that GPU worker): every row done and the store equal to the 1-GPU store; then with GPUs 0 and 1
+both held: the GPU rows stay pending, exit 5, one "no GPU left" line; the holders go and ``--resume`` gives the
+1-GPU store.
+
+``--budget SECONDS`` (default 470): a run whose estimate (its 1-GPU time / k, or a prior) would end past it is
+skipped and recorded as such, and no launch runs past the budget + 60 s; the fault check runs if at least 90 s
+of the budget are left (alone: ``--sets`` with no set).
+
+    python3 benchmarks/bench_multi_gpu.py --out OUT --work /tmp/farm --gpus 1 2 4 --sets pub sde figs
+    python3 benchmarks/bench_multi_gpu.py --out OUT --work /tmp/farm --sets --fault-check   # the fault check alone
+
+(the second writes OUT/fault_check.json and reuses the first's /tmp/farm/gpus1/fig2.h5 as its reference; the
+stores stay in --work, default --out).
+
+Writes OUT/results.json (every run, the node, the command) and OUT/table.md (OUT/fault_check.json for the fault
+check alone); logs in OUT/runs.log.
 """
 
 from __future__ import annotations
@@ -19,100 +36,326 @@ import argparse
 import json
 import os
 import shutil
+import statistics
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-JOBS = {"sde": ROOT / "jobs" / "bench_sde_gpus.toml"}
+SETS = {
+    "figs": [ROOT / "jobs" / "gpu" / f"{j}.toml" for j in ("fig6", "fig4_5", "fig2", "fig3")],
+    "pub": [ROOT / "jobs" / "pub" / f"{j}.toml" for j in ("fig2", "fig3", "fig4_5")],
+    "sde": [ROOT / "jobs" / "bench_sde_gpus.toml"],
+}
+PRIOR = {"figs": 60.0, "pub": 120.0, "sde": 45.0}  # 1-GPU seconds assumed before it is measured (issue 26)
+T_START = time.monotonic()
 
 
-def job_file(name: str) -> Path:
-    if name.endswith(".toml"):  # any job file (its stem names the stores)
-        return Path(name).resolve()
-    return JOBS.get(name, ROOT / "jobs" / "gpu" / f"{name}.toml")
+def env(devices: str) -> dict[str, str]:
+    e = dict(os.environ, CUDA_VISIBLE_DEVICES=devices, PYTHONUNBUFFERED="1", OMP_NUM_THREADS="1",
+             NUMBA_NUM_THREADS="1", GAPSWEEP_FFT_THREADS="1", OMPI_ALLOW_RUN_AS_ROOT="1",
+             OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1", OMPI_MCA_rmaps_base_oversubscribe="1")
+    e["PYTHONPATH"] = os.pathsep.join(x for x in (str(ROOT), os.environ.get("PYTHONPATH", "")) if x)
+    return e
 
 
-def run_job(job: str, g: int, devices: list[str], out: Path, ranks: int, per_gpu: int, log) -> dict:
-    name = Path(job).stem if job.endswith(".toml") else job
-    d = out / f"gpus{g}"
-    d.mkdir(parents=True, exist_ok=True)
-    per = max(1, ranks // g)
-    procs = []
+def elapsed() -> float:
+    return time.monotonic() - T_START
+
+
+class GpuSampler:
+    """nvidia-smi's utilisation of every GPU every 0.5 s while a run goes on; mean per GPU index."""
+
+    def __init__(self) -> None:
+        self.samples: dict[int, list[float]] = {}
+        self.proc = None
+        if shutil.which("nvidia-smi"):
+            self.proc = subprocess.Popen(["nvidia-smi", "--query-gpu=index,utilization.gpu",
+                                          "--format=csv,noheader,nounits", "-lms", "500"],
+                                         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+            self.thread = threading.Thread(target=self._read, daemon=True)
+            self.thread.start()
+
+    def _read(self) -> None:
+        for line in self.proc.stdout:
+            parts = [x.strip() for x in line.split(",")]
+            if len(parts) == 2 and parts[0].isdigit():
+                try:
+                    self.samples.setdefault(int(parts[0]), []).append(float(parts[1]))
+                except ValueError:
+                    pass
+
+    def stop(self, k: int) -> list[float | None]:
+        if self.proc is None:
+            return []
+        self.proc.terminate()
+        self.proc.wait()
+        self.thread.join(timeout=5)
+        return [round(statistics.fmean(self.samples[i]), 1) if self.samples.get(i) else None for i in range(k)]
+
+
+def launch(jobs: list[Path], stores: list[Path], devices: str, ranks: int, log, extra: list[str], timeout: float,
+           ) -> tuple[int, float]:
+    """One mpiexec launch of ``jobs`` into ``stores`` (new stores, or ``--resume`` in ``extra``); (exit code,
+    wall seconds)."""
+    args = [sys.executable, "-m", "gapsweep", "-q", "run", *map(str, jobs)]
+    for s in stores:
+        args += ["--store", str(s)]
+    args += [*([] if "--resume" in extra else ["--overwrite"]), "--progress", "none", *extra]
+    if ranks > 1:
+        args = ["mpiexec", "-n", str(ranks), "--bind-to", "none", *args]
+    log.write(f"$ CUDA_VISIBLE_DEVICES={devices} {' '.join(args)}\n")
+    log.flush()
     t0 = time.perf_counter()
-    for i in range(g):
-        store = d / (f"{name}.h5" if g == 1 else f"{name}_{i}of{g}.h5")
-        args = [sys.executable, "-m", "gapsweep", "run", str(job_file(job)), "--store", str(store), "--overwrite",
-                "--progress", "log", "--ranks-per-gpu", str(per_gpu)]
-        if g > 1:
-            args += ["--shard", f"{i}/{g}"]
-        if per > 1 and shutil.which("mpiexec"):
-            args = ["mpiexec", "-n", str(per), "--bind-to", "none", *args]
-        env = dict(os.environ, CUDA_VISIBLE_DEVICES=devices[i % len(devices)])
-        procs.append((store, subprocess.Popen(args, env=env, stdout=log, stderr=subprocess.STDOUT)))
-    rcs = [p.wait() for _, p in procs]
-    wall = time.perf_counter() - t0
-    res = {"job": name, "job_file": str(job_file(job)), "gpus": g, "ranks_per_shard": per, "wall_s": wall, "rc": rcs}
-    final = d / f"{name}.h5"
-    if g > 1:
-        t1 = time.perf_counter()
-        m = subprocess.run([sys.executable, "-m", "gapsweep", "merge", *[str(s) for s, _ in procs], "--out",
-                            str(final), "--overwrite"], stdout=log, stderr=subprocess.STDOUT)
-        res["merge_s"], res["merge_rc"] = time.perf_counter() - t1, m.returncode
-    res["store"] = str(final)
+    try:
+        rc = subprocess.run(args, env=env(devices), stdout=log, stderr=subprocess.STDOUT, timeout=timeout).returncode
+    except subprocess.TimeoutExpired:
+        rc = 124
+    return rc, time.perf_counter() - t0
+
+
+def run_record(path: Path) -> dict:
+    from gapsweep import store
+
+    try:
+        return json.loads(store.read_attrs(path)["runs"])[-1]
+    except Exception:
+        return {}
+
+
+def store_stats(path: Path) -> dict:
+    from gapsweep import store
+
+    try:
+        df = store.read(path)
+    except Exception as e:
+        return {"error": str(e)[:200]}
+    out = {"rows": {k: int(v) for k, v in df.status.value_counts().items()}}
+    g = df[(df.method == "gfmd") & (df.status != "pending")]
+    if len(g):
+        out["gfmd_solves"] = len(g)
+        out["gfmd_wall_median_s"] = round(float(g.wall_time.median()), 4)
+        out["gfmd_wall_max_s"] = round(float(g.wall_time.max()), 3)
+    return out
+
+
+def one_run(name: str, jobs: list[Path], k: int, out: Path, ranks: int, extra: list[str], log, timeout: float,
+            ) -> dict:
+    d = out / f"gpus{k}"
+    d.mkdir(parents=True, exist_ok=True)
+    stores = [d / f"{j.stem}.h5" for j in jobs]
+    sampler = GpuSampler()
+    t_launch = time.time()
+    rc, wall = launch(jobs, stores, ",".join(str(i) for i in range(k)), ranks, log, extra, timeout)
+    util = sampler.stop(k)
+    rec = run_record(stores[0])
+    start = rec.get("farm_started_unix")
+    r = {"set": name, "gpus": k, "ranks": ranks, "rc": rc, "wall_s": round(wall, 2),
+         "startup_s": round(start - t_launch, 2) if start else None, "gpu_util_pct": util,
+         "jobs": [j.name for j in jobs], "stores": {}}
+    r["sweep_s"] = round(wall - r["startup_s"], 2) if r["startup_s"] is not None else None
+    for j, s in zip(jobs, stores):
+        st = store_stats(s)
+        base = out / "gpus1" / s.name
+        if k > 1 and base.exists() and s.exists():
+            from gapsweep import store
+
+            diff = store.diff(s, base)
+            st["equal_to_1gpu"] = not diff
+            if diff:
+                st["diff"] = diff[:5]
+        st["run"] = {x: rec.get(x) for x in ("gpus", "device_faults", "stopped")} if s == stores[0] else None
+        r["stores"][j.stem] = st
+    return r
+
+
+def pub_jobs(out: Path, seeds: int | None) -> list[Path]:
+    if not seeds:
+        return SETS["pub"]
+    d = out / "jobs"
+    d.mkdir(parents=True, exist_ok=True)
+    res = []
+    for j in SETS["pub"]:
+        text = j.read_text().replace("seeds = {start = 0, count = 16}", f"seeds = {{start = 0, count = {seeds}}}")
+        (d / j.name).write_text(text)
+        res.append(d / j.name)
     return res
+
+
+def compile_kernels(log) -> float:
+    """Compile (or load from the disk cache) the GPU kernels once on GPU 0, as the first launch would."""
+    code = ("import cupy\nfrom gapsweep import gfmd, sde\nfrom gapsweep.surface import self_affine\n"
+            "h = cupy.asarray(self_affine(64, 0.3, lambda_l=0.25, lambda_s=4.0 / 64, seed=0))\n"
+            "gfmd.solve(h, sigma0=1e-2, gamma0=1e-3, rho=2e-2, backend='cupy', host=False)\n"
+            "sde.gap_histogram_counts(1e-2, hurst=0.3, h_rms=2.34e-3, rho=2e-3, gamma0=1e-3, lambda_l=0.25, "
+            "lambda_s=2.5e-3, c2=1.0, n=1000, device='cuda', bins=16)\n")
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-c", code], env=env("0"), stdout=log, stderr=subprocess.STDOUT, timeout=300)
+    return round(time.perf_counter() - t0, 1)
+
+
+class Holder:
+    """A process that holds all but 64 MB of one GPU's memory until it is told to go (a real out-of-memory for
+    any other process that opens a context there)."""
+
+    CODE = ("import sys, pathlib, cupy\nfree, total = cupy.cuda.runtime.memGetInfo()\n"
+            "x = cupy.empty(max(0, free - (64 << 20)), dtype=cupy.uint8)\nx[-1] = 1\n"
+            "cupy.cuda.Device().synchronize()\n"
+            "pathlib.Path(sys.argv[1]).write_text(f'{free} {total}')\nsys.stdin.read()\n")
+
+    def __init__(self, gpu: int, flag: Path) -> None:
+        self.flag = flag
+        flag.unlink(missing_ok=True)
+        self.proc = subprocess.Popen([sys.executable, "-c", self.CODE, str(flag)], env=env(str(gpu)),
+                                     stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        end = time.monotonic() + 60
+        while not flag.exists() and self.proc.poll() is None and time.monotonic() < end:
+            time.sleep(0.1)
+        self.ok = flag.exists()
+
+    def release(self) -> None:
+        self.proc.stdin.close()
+        try:
+            self.proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+
+
+def fault_check(out: Path, ranks: int, log) -> dict:
+    """Figure 2 on GPUs 0, 1 with GPU 1 held (then both held, then resumed), against the 1-GPU store."""
+    from gapsweep import store
+
+    job = SETS["figs"][2]
+    d = out / "fault"
+    d.mkdir(parents=True, exist_ok=True)
+    ref = out / "gpus1" / "fig2.h5"
+    res: dict = {"job": job.name}
+    if not ref.exists():
+        rc, wall = launch([job], [ref], "0", ranks, log, [], 300)
+        res["reference"] = {"rc": rc, "wall_s": round(wall, 2)}
+    held = Holder(1, d / "hold1")
+    try:
+        rc, wall = launch([job], [d / "one_held.h5"], "0,1", ranks, log, [], 300)
+    finally:
+        held.release()
+    rec = run_record(d / "one_held.h5")
+    res["one_gpu_held"] = {"holder_ok": held.ok, "rc": rc, "wall_s": round(wall, 2),
+                           "device_faults": rec.get("device_faults"), **store_stats(d / "one_held.h5"),
+                           "equal_to_1gpu": (d / "one_held.h5").exists() and not store.diff(d / "one_held.h5", ref)}
+    holders = [Holder(g, d / f"hold{g}") for g in (0, 1)]
+    try:
+        rc, wall = launch([job], [d / "both_held.h5"], "0,1", ranks, log, [], 300)
+    finally:
+        for h in holders:
+            h.release()
+    rec = run_record(d / "both_held.h5")
+    res["both_gpus_held"] = {"holder_ok": all(h.ok for h in holders), "rc": rc, "wall_s": round(wall, 2),
+                             "stopped": rec.get("stopped"), **store_stats(d / "both_held.h5")}
+    rc, wall = launch([job], [d / "both_held.h5"], "0,1", ranks, log, ["--resume"], 300)
+    res["resumed"] = {"rc": rc, "wall_s": round(wall, 2), **store_stats(d / "both_held.h5"),
+                      "equal_to_1gpu": (d / "both_held.h5").exists() and not store.diff(d / "both_held.h5", ref)}
+    return res
+
+
+def node() -> dict:
+    out = {"cores": len(os.sched_getaffinity(0)), "host": os.uname().nodename,
+           "date": time.strftime("%Y-%m-%d %H:%M:%S %Z")}
+    try:
+        out["gpus"] = subprocess.run(["nvidia-smi", "--query-gpu=index,name,memory.total,driver_version",
+                                      "--format=csv,noheader"], capture_output=True, text=True,
+                                     timeout=20).stdout.strip().splitlines()
+    except (OSError, subprocess.SubprocessError):
+        out["gpus"] = []
+    try:
+        out["commit"] = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True,
+                                       text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        out["commit"] = "unknown"
+    return out
+
+
+def table(rows: list[dict]) -> str:
+    one = {r["set"]: r for r in rows if r["gpus"] == 1 and r.get("wall_s")}
+    lines = ["| set | GPUs | ranks | wall [s] | start-up [s] | sweep [s] | eff. wall | eff. sweep | GPU util [%] | "
+             "stores = 1-GPU | rc |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for r in rows:
+        if r.get("skipped"):
+            lines.append(f"| {r['set']} | {r['gpus']} | | skipped: {r['skipped']} | | | | | | | |")
+            continue
+        b = one.get(r["set"])
+        eff = f"{100 * b['wall_s'] / (r['gpus'] * r['wall_s']):.0f} %" if b else "-"
+        effs = (f"{100 * b['sweep_s'] / (r['gpus'] * r['sweep_s']):.0f} %" if b and b.get("sweep_s")
+                and r.get("sweep_s") else "-")
+        eq = [s.get("equal_to_1gpu") for s in r["stores"].values()]
+        same = "-" if r["gpus"] == 1 else ("yes" if all(eq) else f"no ({eq})")
+        lines.append(f"| {r['set']} | {r['gpus']} | {r['ranks']} | {r['wall_s']:.1f} | {r.get('startup_s')} | "
+                     f"{r.get('sweep_s')} | {eff} | {effs} | {r.get('gpu_util_pct')} | {same} | {r['rc']} |")
+    return "\n".join(lines) + "\n"
 
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--out", required=True)
-    p.add_argument("--gpus", type=int, nargs="+", default=[1, 2, 4, 8])
-    p.add_argument("--jobs", nargs="+", default=["fig6", "fig4_5", "fig2", "fig3", "sde"])
-    p.add_argument("--devices", default=None, help="comma list of GPU ids to cycle through (default 0..G-1)")
-    p.add_argument("--ranks", type=int, default=os.cpu_count() or 1, help="MPI ranks per node, split over shards")
-    p.add_argument("--ranks-per-gpu", type=int, default=2)
-    p.add_argument("--reference", default=None, help="folder of reference stores <job>.h5 (compare_stores)")
+    p.add_argument("--gpus", type=int, nargs="+", default=[1, 2, 4])
+    p.add_argument("--sets", nargs="*", default=["pub", "sde", "figs"],
+                   help=f"job sets: {', '.join(SETS)}, or NAME=JOB.toml[,JOB.toml...] (e.g. a CPU smoke test)")
+    p.add_argument("--ranks", type=int, default=len(os.sched_getaffinity(0)),
+                   help="MPI ranks of every launch (default: the cores of this node)")
+    p.add_argument("--pub-seeds", type=int, default=None, help="seeds of the pub jobs (default: their 16)")
+    p.add_argument("--budget", type=float, default=470.0, help="seconds after which no run starts")
+    p.add_argument("--fault-check", action="store_true")
+    p.add_argument("--work", default=None, help="folder of the stores (default: --out); e.g. /tmp/farm, so that "
+                                                 "only the JSON, the table and the log land in --out")
+    p.add_argument("--run-args", default="", help="more `gapsweep run` options, e.g. '--lookahead 0'")
     a = p.parse_args()
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
+    work = Path(a.work) if a.work else out
+    work.mkdir(parents=True, exist_ok=True)
     sys.path.insert(0, str(ROOT))
-    from benchmarks.compare_stores import compare
-    from gapsweep import store
-
-    rows = []
+    extra = a.run_args.split()
+    rows: list[dict] = []
+    res: dict = {"command": " ".join(sys.argv), "node": node(), "runs": rows}
     with open(out / "runs.log", "a") as log:
-        for g in a.gpus:
-            devices = a.devices.split(",") if a.devices else [str(i) for i in range(g)]
-            for job in a.jobs:
-                log.write(f"== {job} on {g} GPU(s) {time.strftime('%H:%M:%S')}\n")
+        res["compile_s"] = compile_kernels(log) if shutil.which("nvidia-smi") else None
+        for name in a.sets:
+            name, _, files = name.partition("=")
+            jobs = ([Path(f).resolve() for f in files.split(",")] if files else
+                    pub_jobs(work, a.pub_seeds) if name == "pub" else SETS[name])
+            t1 = None
+            for k in sorted(a.gpus):
+                est = (t1 / k * 1.25 + 15) if t1 else PRIOR.get(name, 60.0)
+                if elapsed() + est > a.budget:
+                    rows.append({"set": name, "gpus": k, "skipped": f"budget ({elapsed():.0f} s + ~{est:.0f} s)"})
+                    continue
+                log.write(f"== {name} on {k} GPU(s), {elapsed():.0f} s into the call\n")
                 log.flush()
-                r = run_job(job, g, devices, out, a.ranks, a.ranks_per_gpu, log)
-                name = r["job"]
-                base = out / "gpus1" / f"{name}.h5"
-                if g > 1 and base.exists():
-                    r["diff_vs_1gpu"] = store.diff(r["store"], base)[:5]
-                if a.reference and (Path(a.reference) / f"{name}.h5").exists():
-                    c = compare(r["store"], str(Path(a.reference) / f"{name}.h5"))
-                    r["vs_reference_ok"] = c["ok"]
-                    r["vs_reference"] = c["methods"]
+                r = one_run(name, jobs, k, work, a.ranks, extra, log, timeout=max(30.0, a.budget + 60 - elapsed()))
                 rows.append(r)
-                print(json.dumps({k: v for k, v in r.items() if k != "vs_reference"}), flush=True)
-    (out / "results.json").write_text(json.dumps(rows, indent=1, default=float))
-    one = {r["job"]: r["wall_s"] for r in rows if r["gpus"] == 1}
-    lines = ["| GPUs | job | wall [s] | speed-up | efficiency | merge [s] | store = 1-GPU store |",
-             "| --- | --- | --- | --- | --- | --- | --- |"]
-    for r in rows:
-        sp = one.get(r["job"], float("nan")) / r["wall_s"]
-        same = "—" if r["gpus"] == 1 else ("yes" if not r.get("diff_vs_1gpu") else f"no: {r['diff_vs_1gpu'][:2]}")
-        lines.append(f"| {r['gpus']} | {r['job']} | {r['wall_s']:.1f} | {sp:.2f} | {100 * sp / r['gpus']:.0f} % | "
-                     f"{r.get('merge_s', 0):.1f} | {same} |")
-    (out / "table.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
-    return 0 if all(rc == 0 for r in rows for rc in r["rc"]) else 1
+                if k == 1:
+                    t1 = r["wall_s"]
+                print(json.dumps({x: r[x] for x in ("set", "gpus", "rc", "wall_s", "startup_s", "gpu_util_pct")}),
+                      flush=True)
+                (out / "results.json").write_text(json.dumps(res, indent=1))
+        if a.fault_check:
+            if elapsed() + 90 < a.budget:  # about four launches of figure 2
+                res["fault_check"] = fault_check(work, a.ranks, log)
+                print(json.dumps(res["fault_check"])[:2000], flush=True)
+            else:
+                res["fault_check"] = {"skipped": f"budget ({elapsed():.0f} s)"}
+    res["total_s"] = round(elapsed(), 1)
+    if rows:
+        (out / "results.json").write_text(json.dumps(res, indent=1))
+        (out / "table.md").write_text(table(rows))
+        print(table(rows))
+    else:  # the fault check alone: beside the scaling results of the same --out, not over them
+        (out / "fault_check.json").write_text(json.dumps(res, indent=1))
+    print(f"total {res['total_s']} s")
+    ok = all(r.get("rc", 0) == 0 for r in rows)
+    return 0 if ok else 1
 
 
 if __name__ == "__main__":
-    if shutil.which("mpiexec") is None:
-        print("note: mpiexec not found: shards run as single processes", file=sys.stderr)
     sys.exit(main())

@@ -3,7 +3,8 @@
 Exit codes: 0 success, 1 a task-independent error (a run that cannot start, a store that cannot be read or
 merged, a write error, a missing optional dependency, an output that exists), 2 an invalid job spec or argument
 (nothing is written), 3 a run in which every task failed, 4 ``status --finished`` of a store with pending
-tasks, 130 / 143 a run stopped by SIGINT / SIGTERM (recorded
+tasks, 5 a run that ended with some rows failed or left pending (no GPU left: docs/running.md), 130 / 143 a
+run stopped by SIGINT / SIGTERM (recorded
 as interrupted; finish it with --resume), 141 the reader of standard output went away (``gapsweep ... | head``).
 
 The library logs through ``logging.getLogger("gapsweep")``; :func:`main` attaches one stderr handler to it
@@ -34,7 +35,8 @@ and SDE / Fokker-Planck ensembles, over whole parameter grids (docs/model.md; jo
 """
 EPILOG = """\
 Open MPI as root needs OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1, and more ranks than cores
-OMPI_MCA_rmaps_base_oversubscribe=1 (docs/running.md). Exit codes: 0 ok, 1 error, 2 invalid spec or argument.
+OMPI_MCA_rmaps_base_oversubscribe=1 (docs/running.md). Exit codes: 0 ok, 1 error, 2 invalid spec or argument,
+3 every task of a run failed, 5 a run left rows failed or pending (`gapsweep status STORE` lists them).
 """
 
 
@@ -82,6 +84,9 @@ def _parser() -> argparse.ArgumentParser:
                         "the sweep, docs/benchmarks.md), auto (GPU chains with n <= 1024) or all (CPU backends too)")
     s.add_argument("--ranks-per-gpu", type=int, default=1, metavar="K",
                    help="ranks of a node that share one GPU (default 1: ranks beyond the GPU count work CPU units)")
+    s.add_argument("--lookahead", type=int, default=4, metavar="N",
+                   help="GPU units a GPU worker holds beyond the one it runs; their surfaces are made on N host "
+                        "threads while the GPU works (default 4; 0: none)")
     s.add_argument("--reuse", action="append", default=[], metavar="OTHER.h5",
                    help="copy the done rows of the same tasks (same task id) from another store instead of "
                         "running them, where their checksums verify (repeatable; the run record names the "
@@ -261,31 +266,7 @@ def _dispatch(args: argparse.Namespace) -> int:
                           ranks_per_gpu=args.ranks_per_gpu))
         return 0
     if args.command == "run":
-        from gapsweep.sweep import runner
-        from gapsweep.sweep import spec as specmod
-
-        if len(args.store) != len(args.job):
-            raise ValueError(f"--store: give one store per job, in order ({len(args.job)} job(s), "
-                             f"{len(args.store)} store(s))")
-        if len(args.job) > 1:  # every spec is validated before the first job runs
-            for job in args.job:
-                specmod.load(job)
-        rc = 0
-        for job, store in zip(args.job, args.store):
-            s = runner.run(job, store, resume=args.resume, overwrite=args.overwrite,
-                           shard=runner.parse_shard(args.shard), writer=args.writer, progress=args.progress,
-                           coordinator_works=args.coordinator_works, mpi=args.mpi, break_lease=args.break_lease,
-                           task_timeout=args.task_timeout, batch=args.batch, ranks_per_gpu=args.ranks_per_gpu,
-                           reuse=args.reuse)
-            if s["rank"] == 0 and args.progress != "none":
-                print(f"{s['store']}: {s['mode']}, {s['todo']} of {s['tasks']} tasks run: {s['done']} done, "
-                      f"{s['failed']} failed, {s['not_converged']} not converged")
-            if s["todo"] and s["failed"] == s["todo"]:
-                if s["rank"] == 0:
-                    print(f"gapsweep: every task of this run failed ({s['failed']}); see `gapsweep status "
-                          f"{s['store']}`", file=sys.stderr)
-                rc = 3
-        return rc
+        return _run(args)
     if args.command == "status":
         return _status(args)
     if args.command in ("submit", "requeue"):
@@ -315,6 +296,51 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "demo":
         return _demo(args)
     raise AssertionError(args.command)  # pragma: no cover
+
+
+def _run(args: argparse.Namespace) -> int:
+    """`gapsweep run`: the jobs one after the other in this launch."""
+    from gapsweep.sweep import runner
+    from gapsweep.sweep import spec as specmod
+
+    if len(args.store) != len(args.job):
+        raise ValueError(f"--store: give one store per job, in order ({len(args.job)} job(s), "
+                         f"{len(args.store)} store(s))")
+    if len(args.job) > 1:  # every spec is validated before the first job runs
+        for job in args.job:
+            specmod.load(job)
+    rc = 0
+    for job, store in zip(args.job, args.store):  # every job runs; the first non-zero code is returned
+        s = runner.run(job, store, resume=args.resume, overwrite=args.overwrite,
+                       shard=runner.parse_shard(args.shard), writer=args.writer, progress=args.progress,
+                       coordinator_works=args.coordinator_works, mpi=args.mpi, break_lease=args.break_lease,
+                       task_timeout=args.task_timeout, batch=args.batch, ranks_per_gpu=args.ranks_per_gpu,
+                       lookahead=args.lookahead, reuse=args.reuse)
+        if s["rank"] == 0 and args.progress != "none":
+            print(f"{s['store']}: {s['mode']}, {s['todo']} of {s['tasks']} tasks run: {s['done']} done, "
+                  f"{s['failed']} failed, {s['not_converged']} not converged"
+                  + (f", {s['pending']} left pending" if s.get("pending") else ""))
+        code = _run_code(s)
+        rc = rc or code
+    return rc
+
+
+def _run_code(s: dict) -> int:
+    """Exit code of one job's run (docs/running.md): 3 every task of the run failed, 5 rows failed or pending
+    are left in the store, else 0; the rank-0 process says why in one line."""
+    if s["todo"] and s["failed"] == s["todo"]:
+        if s["rank"] == 0:
+            print(f"gapsweep: every task of this run failed ({s['failed']}); see `gapsweep status "
+                  f"{s['store']}`", file=sys.stderr)
+        return 3
+    if s.get("unfinished"):
+        if s["rank"] == 0:
+            failed = s["unfinished"] - s.get("pending", 0)
+            print(f"gapsweep: store {s['store']}: {s['unfinished']} row(s) not done ({failed} failed, "
+                  f"{s.get('pending', 0)} pending): `gapsweep status {s['store']}` lists them; --resume runs the "
+                  "pending ones (exit 5)", file=sys.stderr)
+        return 5
+    return 0
 
 
 def _status(args: argparse.Namespace) -> int:

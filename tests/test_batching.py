@@ -187,7 +187,7 @@ def test_two_ranks_one_mocked_gpu(tmp_path, per_gpu, works, expect) -> None:
     path = tmp_path / "s.h5"
     p = mpirun(2, ["run", str(js), "--store", str(path), "--writer", "rank0", "--ranks-per-gpu", str(per_gpu),
                    "--coordinator-works", works], env={"GAPSWEEP_TEST_GPUS": "1"})
-    assert p.returncode in (0, 3), p.stdout + p.stderr  # the SDE rows may fail: no CUDA device here
+    assert p.returncode in (0, 3, 5), p.stdout + p.stderr  # the SDE rows may fail (no CUDA device here): 5 or 3
     rec = json.loads(store.read_attrs(path)["runs"])[-1]
     assert rec["gpus"] == expect
     r = _rows(path)

@@ -27,6 +27,7 @@ import numpy as np
 __all__ = ["Reducer", "SlabFFT", "block", "check_comm", "slab_cols", "slab_rows"]
 
 _EXTRA = "pip install 'gapsweep[distributed]'"
+DEFAULT_CHUNK = 1 << 26  # elements per chunk of 1-D transforms (64 Mi complex = 1 GiB)
 
 
 def check_comm(comm: Any) -> tuple[int, int]:
@@ -116,9 +117,9 @@ class SlabFFT:
     collective: every rank must call it in the same order. Memory: the send and receive buffers (each the size of
     the rank's spectrum) and the result; the input is not modified."""
 
-    def __init__(self, shape: tuple[int, int], comm: Any, backend: str = "numpy", chunk: int = 1 << 26) -> None:
+    def __init__(self, shape: tuple[int, int], comm: Any, backend: str = "numpy", chunk: int | None = None) -> None:
         self.size, self.rank = check_comm(comm)
-        self.chunk = int(chunk)  # elements per chunk of 1-D transforms (64 Mi complex = 1 GiB by default)
+        self.chunk = int(DEFAULT_CHUNK if chunk is None else chunk)  # elements per chunk of 1-D transforms
         nx, ny = (int(v) for v in shape)
         self.shape = (nx, ny)
         self.nyh = ny // 2 + 1
@@ -174,8 +175,9 @@ class SlabFFT:
         step = max(1, self.chunk // max(length, 1))
         return [slice(i, min(i + step, rows)) for i in range(0, rows, step)]
 
-    def rfft2(self, a: Any) -> Any:
-        """Unnormalised forward transform of the rank's rows ``a`` (``real_shape``) -> ``spec_shape``."""
+    def rfft2(self, a: Any, out: Any = None) -> Any:
+        """Unnormalised forward transform of the rank's rows ``a`` (``real_shape``) -> ``spec_shape`` (into
+        ``out``, a C-contiguous complex128 array of that shape, when given: no result array is allocated)."""
         xp = self.xp
         nx, ny = self.shape
         if tuple(a.shape) != self.real_shape:
@@ -192,7 +194,7 @@ class SlabFFT:
         recv = xp.empty(self.nc * nx, dtype=xp.complex128)
         self._alltoall(send, self._f_send, recv, self._f_recv)
         del send
-        out = xp.empty(self.spec_shape, dtype=xp.complex128)
+        out = xp.empty(self.spec_shape, dtype=xp.complex128) if out is None else _checked(out, self.spec_shape, xp)
         off = 0
         for s, rs in enumerate(self.rows):
             n = self._f_recv[s]
@@ -203,10 +205,11 @@ class SlabFFT:
             out[ch] = xp.fft.fft(out[ch], axis=1)
         return out
 
-    def irfft2(self, A: Any, norm: str = "forward") -> Any:
+    def irfft2(self, A: Any, norm: str = "forward", out: Any = None) -> Any:
         """Inverse of :meth:`rfft2`: the rank's rows of the real field. ``norm="forward"`` (default): the unscaled
         sum (``irfft2(rfft2(a)) = nx ny a``, gapsweep.core.fft's convention); ``"backward"``: numpy's ``irfft2``
-        (scaled by ``1/(nx ny)``, the same operations as ``numpy.fft.irfft2``: ifft along x, then irfft along y)."""
+        (scaled by ``1/(nx ny)``, the same operations as ``numpy.fft.irfft2``: ifft along x, then irfft along y).
+        ``out``: a C-contiguous float64 array of ``real_shape`` to write the result into (not ``A``'s memory)."""
         xp = self.xp
         nx, ny = self.shape
         if tuple(A.shape) != self.spec_shape:
@@ -231,7 +234,7 @@ class SlabFFT:
             b[:, cs] = recv[off:off + n].reshape(self._ncs[s], self.nr).T
             off += n
         del recv
-        out = xp.empty(self.real_shape, dtype=xp.float64)
+        out = xp.empty(self.real_shape, dtype=xp.float64) if out is None else _checked(out, self.real_shape, xp)
         for ch in self._chunks(self.nr, self.nyh):  # irfft along y of a chunk of rows
             out[ch] = xp.fft.irfft(b[ch], n=ny, axis=1, norm=norm)
         return out
@@ -262,6 +265,12 @@ class SlabFFT:
     def owns_zero(self) -> bool:
         """Whether this rank holds the ``q = 0`` mode (index ``[0, 0]`` of its spectrum)."""
         return self.col.start == 0
+
+
+def _checked(out: Any, shape: tuple[int, int], xp: Any) -> Any:
+    if tuple(out.shape) != tuple(shape) or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous array of shape {shape}, got {tuple(out.shape)}")
+    return out
 
 
 # ---------------------------------------------------------------------------------------------- NCCL (GPUs)

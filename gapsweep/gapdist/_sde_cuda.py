@@ -7,7 +7,9 @@ through cupy/NVRTC, built with -use_fast_math. Same scheme and same Philox strea
 from __future__ import annotations
 
 import functools
+import importlib.util
 import os
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -21,17 +23,15 @@ N_EXTRA = 3
 
 
 def enabled(device: str, scheme: str) -> bool:
-    """Whether ``device``/``scheme`` run on this engine: CUDA devices, the split scheme, cupy importable and
+    """Whether ``device``/``scheme`` run on this engine: CUDA devices, the split scheme, cupy installed and
     ``GAPSWEEP_SDE_ENGINE`` not "warp"."""
     if not device.startswith("cuda") or scheme != "split":
         return False
     if os.environ.get("GAPSWEEP_SDE_ENGINE", "auto") == "warp":
         return False
-    try:
-        import cupy  # noqa: F401
-    except Exception:
-        return False
-    return True
+    # whether cupy is installed, without importing it: a process that runs no GPU task (the farm's coordinator
+    # writing the run record) must not load the CUDA libraries
+    return "cupy" in sys.modules or importlib.util.find_spec("cupy") is not None
 
 
 def _device_index(device: str) -> int:

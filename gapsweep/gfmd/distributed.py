@@ -245,7 +245,9 @@ class _SlabCupyOps(_SlabOps):
         return float(self.w1 @ self._rkdot(a, b, k, axis=1))
 
     def _moments(self, e, d) -> tuple[float, float]:
-        return float(self._m1(e, d)), float(self._m2(e, d))
+        # per-row sums, then the few row sums: cupy reduces a whole array to one scalar in a single block
+        # (28 ms at 4096^2 on an H200, 20x a row-wise reduction), so never reduce to a scalar in one kernel
+        return float(self._m1(e, d, axis=1).sum()), float(self._m2(e, d, axis=1).sum())
 
     def grad(self, X, E, c: float, k, G) -> None:
         self._grad(k, X, E, float(c), G)
@@ -359,6 +361,20 @@ def _centred(h: Any, u: Any, h_shift: float, rho: float) -> Any:
     w -= h_shift
     w *= 1.0 / rho
     return w
+
+
+def _smooth_initial(initial: Any, grid: SlabGrid) -> Any:
+    """``((displacement rows, mean gap), source result or None)`` of the smooth laws' ``initial``, or None."""
+    if initial is None:
+        return None
+    if isinstance(initial, GFMDResult):
+        return (_initial_field(initial, "displacement", grid), float(initial.mean_gap)), initial
+    ok = isinstance(initial, (tuple, list)) and len(initial) == 2
+    g0 = float(initial[1]) if ok and np.ndim(initial[1]) == 0 else math.nan
+    if not grid.agree(math.isfinite(g0)):
+        raise ValueError("initial must be a result of a distributed solve of the same grid or a pair (this rank's "
+                         "rows of a displacement, mean gap)")
+    return (_initial_field(initial[0], "displacement", grid), g0), None
 
 
 def _initial_field(initial: Any, name: str, grid: SlabGrid) -> Any:
@@ -483,7 +499,7 @@ def _options(law: Interaction, shape: tuple[int, int], box: tuple[float, float],
 def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interaction = "exponential",
           gamma0: float | None = None, rho: float | None = None, work: float | None = None, e_star: float = 1.0,
           length: Any = 1.0, tol: float = 1e-6, method: str = "auto", backend: str = "auto", max_iter: int = 5000,
-          initial: Any = None, host: bool | tuple[str, ...] = True, memory: int = 8) -> SlabResult:
+          initial: Any = None, host: bool | tuple[str, ...] = True, memory: int = 2) -> SlabResult:
     """Periodic equilibrium of docs/model.md M3 (and the hard wall and adhesion of docs/gfmd.md) with the grid
     split over the ranks of ``comm``: ``h_local`` is this rank's rows ``heights[slab_rows(nx, comm)]`` (numpy, or
     cupy for one GPU per rank; units of ``length``). Collective: every rank calls it with the same arguments.
@@ -492,8 +508,9 @@ def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interact
     (default), "pk" ("mpcg"'s coarse levels are not distributed). Returns a :class:`SlabResult`: global scalars
     on every rank, this rank's rows of the fields. ``initial``: a :class:`SlabResult` of the same grid (or this
     rank's rows of a displacement; hard wall: of a pressure; adhesive: ``(displacement rows, mean gap)``).
-    ``memory``: pairs kept by the smooth laws' L-BFGS (adhesion; 8 as on one process; each pair costs two arrays
-    of the rank's spectrum, see :func:`solve_memory`)."""
+    ``memory``: pairs kept by the smooth laws' L-BFGS (adhesion, exponential rectangles), which runs in fixed
+    buffers (``gfmd._lean``: 8 + 2 ``memory`` arrays of the rank's rows, 12 at the default 2; one process keeps 8
+    pairs, so the two agree to the solver tolerance, not bit for bit; see :func:`solve_memory`)."""
     t_start = time.perf_counter()
     check_comm(comm)
     red = Reducer(comm)
@@ -516,8 +533,8 @@ def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interact
     host_fields(host)
     length = lx if lx == ly and not isinstance(length, (tuple, list, np.ndarray)) else (lx, ly)
     if backend == "cupy":
-        kind = {"softmax": "exponential", "variable": "adhesive", "multiplier": "hard_wall"}[control]
-        _check_gpu_memory(shape, red, kind, memory)
+        kind = {"softmax": "exponential", "variable": "smooth", "multiplier": "hard_wall"}[control]
+        _check_gpu_memory(shape, red, kind, memory, sigma0 < 0)
     grid = SlabGrid(shape, (lx, ly), comm, backend)
     h = grid.asarray(h_local)
     if not grid.all_finite(h):
@@ -535,12 +552,10 @@ def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interact
                                    max_iter=max_iter, initial=initial)
         r = None
     elif control == "variable":
-        from gapsweep.gfmd import _smooth
+        from gapsweep.gfmd import _lean
 
-        init = initial
-        if isinstance(initial, GFMDResult):
-            init = (_initial_field(initial, "displacement", grid), initial.mean_gap)
-        r = _smooth.minimise(h, law, initial=init, memory=memory, **common)
+        r = _lean.minimise(h, law, sigma0=sigma0, e_star=e_star, length=length, tol=tol, max_iter=max_iter,
+                           initial=_smooth_initial(initial, grid), memory=memory, grid=grid, t_start=t_start)
     else:
         from gapsweep.gfmd import _constrained
 
@@ -563,12 +578,12 @@ def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interact
         rows=grid.slab.row, **scalars)
 
 
-def _check_gpu_memory(shape: tuple[int, int], red: Reducer, interaction: str, memory: int) -> None:
+def _check_gpu_memory(shape: tuple[int, int], red: Reducer, interaction: str, memory: int, tensile: bool) -> None:
     """Refuse, on every rank, a GPU solve whose :func:`solve_memory` estimate exceeds the free memory of the
     fullest GPU (an out-of-memory error on one rank would leave the others waiting in a collective)."""
     import cupy
 
-    est = solve_memory(shape, red.size, interaction, memory=memory)
+    est = solve_memory(shape, red.size, interaction, memory=memory, tensile=tensile)
     free = float(cupy.cuda.runtime.memGetInfo()[0]) + float(cupy.get_default_memory_pool().free_bytes())
     free = red.min(free)
     need = est["bytes_per_rank"] - est["array_bytes"]  # the caller's rows are on the GPU already
@@ -579,14 +594,19 @@ def _check_gpu_memory(shape: tuple[int, int], red: Reducer, interaction: str, me
 
 
 def solve_memory(shape: tuple[int, int], ranks: int, interaction: str = "exponential",
-                 memory: int = 8) -> dict[str, float]:
+                 memory: int = 2, tensile: bool = False) -> dict[str, float]:
     """Estimated peak memory per rank (bytes) of :func:`solve`: the minimiser's grid-sized arrays on the rank's
-    slabs plus the transform's scratch (send and receive buffers and one FFT output). Counted from the code
-    (docs/gfmd.md, "One solve over several processes"), ``A`` = one float64 field of the rank's rows:
-    exponential CG 10 A (h, W, Wt, e, et; X, G, G_old, D; k and M^-1 half an array each) + the line search's
-    real-space direction 1 A + temporaries of the array passes 1 A; adhesive L-BFGS 12 A + 2 A per pair kept
-    (``memory``, 8: 28 A); hard wall pcg 12 A; transform scratch 3 A."""
+    slabs plus the transform's scratch (send and receive buffers, 2 A, and the chunked 1-D transforms' and
+    elementwise passes' temporaries, within 1 A at 65536^2). Counted from the code (docs/gfmd.md, "One solve over
+    several processes"), ``A`` = one float64 field of the rank's rows, the surface ``h`` included (a half spectrum
+    of the rank's columns counts as 1 A, a real one as 1/2): exponential CG 12 A (h, W, Wt, e, et; X, G, G_old,
+    D; k and M^-1; the line search's real-space direction; one temporary of the array passes); adhesive and the
+    other smooth laws (``gfmd._lean``): 7 A (h, g, d; Z, G, D; k and M^-1) + 2 A per L-BFGS pair (``memory``;
+    the default 2: 11 A), 3 A more while a tensile load is followed (``tensile``); hard wall pcg 12 A; scratch
+    3 A. Checked on the CPU under mpiexec (tests/mpi/test_distributed.py: the traced numpy peak is within the
+    estimate) and on GPUs by benchmarks/bench_distributed.py (the memory pool's peak beside it)."""
     nx, ny = (int(v) for v in shape)
     a = 8.0 * math.ceil(nx / ranks) * ny
-    arrays = {"exponential": 12.0, "adhesive": 12.0 + 2.0 * memory, "hard_wall": 12.0}[interaction]
+    smooth = 7.0 + 2.0 * memory + (3.0 if tensile else 0.0)
+    arrays = {"exponential": 12.0, "adhesive": smooth, "smooth": smooth, "hard_wall": 12.0}[interaction]
     return {"bytes_per_rank": (arrays + 3.0) * a, "array_bytes": a, "arrays": arrays, "scratch_arrays": 3.0}

@@ -40,6 +40,7 @@ from gapsweep.core.deadline import DeadlineExceeded
 from gapsweep.sweep import methods as registry
 from gapsweep.sweep.context import Context, use_gpu
 from gapsweep.sweep.execute import run_task
+from gapsweep.sweep.farm import DeviceFault, device_fault
 from gapsweep.sweep.methods.base import non_finite as _non_finite
 from gapsweep.sweep.methods.gfmd import gfmd_host_fields, gfmd_row
 from gapsweep.sweep.schema import StoreWriteError, Task, TaskResult, Unit
@@ -155,6 +156,14 @@ def run_batch(tasks: list[Task], unit: Unit, ctx: Context, todo: set[int], limit
             return
 
 
+def _failed(e: Exception) -> TaskResult:
+    """The failed row of an exception -- unless it is a device fault, which raises DeviceFault (gapsweep.farm)."""
+    why = device_fault(e)
+    if why:
+        raise DeviceFault(why) from e
+    return TaskResult("failed", f"{type(e).__name__}: {e}")
+
+
 def _solve_step(tasks: list[Task], probs: list, who: list[tuple[int, int]], ctx: Context, backend: str,
                 limit: float | None, state: dict[int, Any], limits: Any) -> dict[int, TaskResult]:
     """One chain step of a batch: rows of its tasks, and the next warm starts in ``state``."""
@@ -186,9 +195,10 @@ def _solve_step(tasks: list[Task], probs: list, who: list[tuple[int, int]], ctx:
             out[i] = TaskResult("failed", msg, {"wall_time": limit, "rank": ctx.rank})
             state[j] = None
         return out
-    except StoreWriteError:
+    except (StoreWriteError, DeviceFault):
         raise
-    except Exception as e:  # e.g. one bad input: one task at a time, so that only its row fails
+    except Exception as e:  # e.g. one bad input: one task at a time, so that only its row fails (a device fault
+        # raises DeviceFault from run_task there, and the farm runs the unit elsewhere)
         log.info("batch step failed as a whole (%s: %s): its tasks run one by one", type(e).__name__, e)
         out = {}
         for j, i in who:
@@ -211,10 +221,10 @@ def _solve_step(tasks: list[Task], probs: list, who: list[tuple[int, int]], ctx:
             bad = _non_finite(res) if res.status == "done" else []
             if bad:  # never store a NaN as success
                 res.status, res.message, nxt = "failed", f"non-finite result: {', '.join(bad)}", None
-        except StoreWriteError:
+        except (StoreWriteError, DeviceFault):
             raise
         except Exception as e:
-            res, nxt = TaskResult("failed", f"{type(e).__name__}: {e}"), None
+            res, nxt = _failed(e), None
         res.values["wall_time"] = share + time.perf_counter() - t1
         res.values["rank"] = ctx.rank
         out[i] = res

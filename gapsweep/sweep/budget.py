@@ -38,7 +38,8 @@ def gpu_memory(tasks: list[Task], ranks_per_gpu: int = 1) -> float:
 
 
 def gpu_memory_total() -> int:
-    """Memory of this process's GPU [bytes] (0 when there is none or cupy is missing)."""
+    """Memory of this process's GPU [bytes] (0 when there is none or cupy is missing). Opens a CUDA context: the
+    farm does not call it (gapsweep.sweep.gpus.memory reads nvidia-smi instead)."""
     try:
         import cupy
 

@@ -35,25 +35,24 @@ class Context:
         self._on_gpu: dict[tuple, Any] = {}  # GPU copies of the cached surfaces (GFMD with backend = "cupy")
         self._max = max_surfaces
         self.warmed: set[tuple] = set()  # kinds of task whose method was warmed up (runner.warm_up)
+        self._pool: Any = None  # host threads making surfaces ahead (prefetch), on GPU workers
+        self._ahead: dict[tuple, Any] = {}  # surface key -> its future
         self._delay = float(os.environ.get("GAPSWEEP_TEST_DELAY", "0") or 0)
         fail = os.environ.get("GAPSWEEP_TEST_FAIL", "")
         self._fail = {float(x) for x in fail.split(",") if x.strip()}
 
     def surface(self, t: Task, n: int) -> np.ndarray:
-        """The surface of ``t`` on an ``n x n`` grid, generated once per rank (M2)."""
-        from gapsweep.surfaces import synthetic as surface
-
+        """The surface of ``t`` on an ``n x n`` grid, generated once per rank (M2), or taken from
+        :meth:`prefetch` where that made it ahead."""
         sp = t.surface_params()
         key = self._key(t, n, sp)
         h = self._surfaces.get(key)
         if h is None:
-            if sp.get("kind") == "file":
-                from gapsweep.sweep.filesurface import file_surface_heights
-
-                h = file_surface_heights(sp)
+            fut = self._ahead.pop(key, None)
+            if fut is not None:
+                h, self._rms[key] = fut.result()
             else:
-                h = surface.self_affine(n, t.hurst, seed=t.seed, **sp)
-            h.setflags(write=False)
+                h = _make_surface(t, n, sp)
             self._surfaces[key] = h
             while len(self._surfaces) > self._max:
                 old = self._surfaces.popitem(last=False)[0]
@@ -64,23 +63,39 @@ class Context:
             self._surfaces.move_to_end(key)
         return h
 
+    def prefetch(self, t: Task, n: int) -> None:
+        """Start making the surface of ``t`` and its rms values on a host thread (:meth:`ahead` threads), so that
+        they are ready when a task needs them: a GPU worker's host work overlaps its GPU's. The same functions
+        make them, so they are the same bits. No-op without threads, or when it is cached or on its way."""
+        if self._pool is None:
+            return
+        key = self._key(t, n, t.surface_params())
+        if key not in self._surfaces and key not in self._ahead:
+            self._ahead[key] = self._pool.submit(_surface_and_rms, t, n, t.surface_params())
+
+    def ahead(self, threads: int) -> None:
+        """Use ``threads`` host threads for :meth:`prefetch` (0: none)."""
+        if threads > 0 and self._pool is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._pool = ThreadPoolExecutor(threads, thread_name_prefix="gapsweep-surface")
+
+    def close(self) -> None:
+        """Stop the prefetch threads (surfaces on their way are dropped)."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool = None
+        self._ahead.clear()
+
     def surface_rms(self, t: Task, n: int) -> tuple[float, float]:
         """``(h_rms, g_rms)`` of :meth:`surface` (M2), computed once per cached surface (``g_rms`` costs an FFT).
         A measured map's come from its spectrum taken right for its boundaries (``theory.spectrum.map_spectrum``:
         a non-periodic map's edge jump is no roughness)."""
-        from gapsweep.surfaces import synthetic as surface
-
         sp = t.surface_params()
         h = self.surface(t, n)
         key = self._key(t, n, sp)
         if key not in self._rms:
-            if sp.get("kind") == "file":
-                from gapsweep.theory.spectrum import map_spectrum
-
-                ms = map_spectrum(h, sp["length"], periodic=sp.get("periodic", True))
-                self._rms[key] = (ms.h_rms, ms.g_rms)
-            else:
-                self._rms[key] = (surface.rms_height(h), surface.rms_slope(h, sp["length"]))
+            self._rms[key] = _rms(h, sp)
         return self._rms[key]
 
     def spectrum(self, t: Task, n: int) -> Any:
@@ -113,6 +128,37 @@ class Context:
     def _key(t: Task, n: int, sp: dict[str, Any]) -> tuple:
         # list values (a file surface's [x, y] pixel size or length) as tuples: the key must be hashable
         return (t.hurst, t.seed, n, tuple(sorted((k, tuple(v) if isinstance(v, list) else v) for k, v in sp.items())))
+
+
+def _make_surface(t: Task, n: int, sp: dict[str, Any]) -> np.ndarray:
+    """The heights of ``t``'s surface on an ``n x n`` grid (read-only array): a file's map or a synthetic one."""
+    if sp.get("kind") == "file":
+        from gapsweep.sweep.filesurface import file_surface_heights
+
+        h = file_surface_heights(sp)
+    else:
+        from gapsweep.surfaces import synthetic as surface
+
+        h = surface.self_affine(n, t.hurst, seed=t.seed, **sp)
+    h.setflags(write=False)
+    return h
+
+
+def _rms(h: np.ndarray, sp: dict[str, Any]) -> tuple[float, float]:
+    """``(h_rms, g_rms)`` of heights ``h`` (see Context.surface_rms)."""
+    if sp.get("kind") == "file":
+        from gapsweep.theory.spectrum import map_spectrum
+
+        ms = map_spectrum(h, sp["length"], periodic=sp.get("periodic", True))
+        return ms.h_rms, ms.g_rms
+    from gapsweep.surfaces import synthetic as surface
+
+    return surface.rms_height(h), surface.rms_slope(h, sp["length"])
+
+
+def _surface_and_rms(t: Task, n: int, sp: dict[str, Any]) -> tuple[np.ndarray, tuple[float, float]]:
+    h = _make_surface(t, n, sp)
+    return h, _rms(h, sp)
 
 
 def moments(t: Task, ctx: Context) -> tuple[float, float]:

@@ -2,7 +2,9 @@
 
 :func:`run_task` never raises: an exception becomes a ``failed`` row with its message, a solver warning goes into
 the row's message, a non-finite mean gap of a ``done`` row turns it into ``failed`` (never a NaN stored as
-success), and every row gets its wall time and rank. Test hooks (``GAPSWEEP_TEST_DELAY``,
+success), and every row gets its wall time and rank. A device fault (gapsweep.sweep.farm.device_fault: out of GPU
+memory, a lost context, the driver's or the MPS server's refusal) is not the task's failure: it raises
+:class:`~gapsweep.sweep.farm.DeviceFault` and the farm runs the task elsewhere. Test hooks (``GAPSWEEP_TEST_DELAY``,
 ``GAPSWEEP_TEST_FAIL``) live in :class:`gapsweep.sweep.context.Context`.
 """
 
@@ -15,6 +17,7 @@ from typing import Any
 from gapsweep.core import deadline
 from gapsweep.sweep import methods as registry
 from gapsweep.sweep.context import Context
+from gapsweep.sweep.farm import DeviceFault, device_fault
 from gapsweep.sweep.methods.base import non_finite
 from gapsweep.sweep.schema import StoreWriteError, Task, TaskResult
 
@@ -31,7 +34,8 @@ def test_delay(seconds: float) -> None:
 
 
 def run_task(t: Task, ctx: Context, prev: Any = None) -> tuple[TaskResult, Any]:
-    """Run one task; never raises: an exception becomes status ``failed`` with the message.
+    """Run one task; an exception becomes status ``failed`` with the message -- except a device fault, which
+    raises :class:`DeviceFault` (and a store write error, which stops the run).
     Returns the result and the warm-start state for the next task of a chain (or None)."""
     t0 = time.perf_counter()
     try:
@@ -51,7 +55,12 @@ def run_task(t: Task, ctx: Context, prev: Any = None) -> tuple[TaskResult, Any]:
             state = None
     except StoreWriteError:  # the store's failure (kept fields not writable), not the task's: the run stops
         raise
+    except DeviceFault:
+        raise
     except Exception as e:  # the sweep goes on; the row records what happened
+        why = device_fault(e)
+        if why:  # the device's fault, not the task's: the farm runs it on another worker
+            raise DeviceFault(why) from e
         res, state = TaskResult("failed", f"{type(e).__name__}: {e}"), None
     res.values["wall_time"] = time.perf_counter() - t0
     res.values["rank"] = ctx.rank

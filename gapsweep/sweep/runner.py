@@ -32,11 +32,14 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-from gapsweep.sweep import batching, budget, gpus, lease, limits, provenance, storecheck
+import numpy as np
+
+from gapsweep.sweep import batching, budget, collective, gpus, lease, limits, provenance, storecheck
 from gapsweep.sweep import methods as registry
 from gapsweep.sweep import spec as specmod
 from gapsweep.sweep.context import Context
 from gapsweep.sweep.execute import run_task
+from gapsweep.sweep.farm import DeviceFault, Farm, Worker, device_fault
 from gapsweep.sweep.fields import fields_dir, remove_fields
 from gapsweep.sweep.limits import Interrupted, TaskTimeout
 from gapsweep.sweep.schema import PRESSURE_HIST, STATUS, Task, TaskResult, Unit
@@ -49,7 +52,7 @@ __all__ = ["Interrupted", "RunError", "parse_shard", "plan", "reusable_rows", "r
 
 log = logging.getLogger("gapsweep.runner")
 
-TAG_READY, TAG_WORK, TAG_ROW, TAG_STOP = 1, 2, 3, 4
+TAG_READY, TAG_WORK, TAG_ROW, TAG_STOP, TAG_FAULT, TAG_ERROR = 1, 2, 3, 4, 5, 6
 _MPI_ENV = ("OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_RANK", "MPI_LOCALNRANKS", "PMI_RANK")
 _MPI_SIZE_ENV = ("OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_SIZE", "MPI_LOCALNRANKS")
 
@@ -167,6 +170,8 @@ def plan(job: str | Path | specmod.JobSpec, shard: tuple[int, int] | None = None
                  "wall (rough model, see docs/jobs.md)")
     size = budget.store_bytes(len(tasks), spec.histogram["bins"], len(spec.text))
     lines.extend(_check_resources(tasks, ranks_per_gpu))
+    lines.extend(_check_collective(tasks, ranks))  # distributed tasks: their slabs on `ranks` ranks
+    lines.extend(_propose(units))
     lines.append(f"  store ~{budget.human(size)}")
     if store is not None:
         path = _store_path(store, shard)
@@ -175,6 +180,27 @@ def plan(job: str | Path | specmod.JobSpec, shard: tuple[int, int] | None = None
         if size > free:
             raise RunError(f"store {path}: needs ~{budget.human(size)}, only {budget.human(free)} free there")
     return "\n".join(lines)
+
+
+def _propose(units: list[Unit]) -> list[str]:
+    """The plan's lines about this node (GPUs from nvidia-smi or CUDA_VISIBLE_DEVICES, no CUDA context; cores)
+    and the layout to pick for the job here (gapsweep.sweep.gpus.layout)."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # pragma: no cover - not Linux
+        cores = os.cpu_count() or 1
+    n = gpus.visible_count()
+    found = gpus.query()
+    names = sorted({f"{g['name']}, {budget.human(g['memory'])}" for g in found}) if len(found) == n else []
+    gpu_units = sum(u.gpu for u in units)
+    lay = gpus.layout(n, cores, gpu_units, len(units) - gpu_units)
+    out = [f"  this node: {cores} core(s), {n} GPU(s)" + (f" ({'; '.join(names)})" if names else "")]
+    if gpu_units and not n:
+        out.append(f"  {gpu_units} GPU unit(s) but no GPU visible here: run the job on a GPU node")
+    out.append(f"  layout here: {lay.ranks} rank(s) -- {lay.gpu_workers} GPU worker(s) (one per GPU), "
+               f"{lay.cpu_workers} CPU worker(s)" + ("" if lay.ranks == 1 else ", rank 0 coordinates")
+               + f": {lay.args()} (docs/running.md, \"Which layout\")")
+    return out
 
 
 def _check_resources(tasks: list[Task], ranks_per_gpu: int = 1) -> list[str]:
@@ -190,11 +216,22 @@ def _check_resources(tasks: list[Task], ranks_per_gpu: int = 1) -> list[str]:
     need = budget.gpu_memory(tasks, ranks_per_gpu)
     if need:
         lines.append(f"  GPU memory ~{budget.human(need)} per GPU ({ranks_per_gpu} rank(s) per GPU)")
-        have = budget.gpu_memory_total()
+        have = gpus.memory()  # nvidia-smi: no CUDA context in this process
         if have and need > have:
             raise RunError(f"the GPU tasks need ~{budget.human(need)} per GPU, more than this GPU's "
                            f"{budget.human(have)}: use smaller grids (n), fewer ranks per GPU, or a larger GPU")
     return lines
+
+
+def _check_collective(tasks: list[Task], ranks: int) -> list[str]:
+    """gapsweep.sweep.collective.check_memory, its refusal as a RunError (the GPU's memory from nvidia-smi: no
+    CUDA context here)."""
+    if not collective.is_collective(tasks):
+        return []
+    try:
+        return collective.check_memory(tasks, ranks, on_gpu_total=gpus.memory())
+    except collective.DoesNotFit as e:
+        raise RunError(str(e)) from None
 
 
 def _store_path(path: str | Path, shard: tuple[int, int] | None) -> Path:
@@ -222,7 +259,7 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
         except OSError as e:
             raise RunError(f"store {path}: cannot be created ({e.strerror}: full disk or file-size limit, "
                            f"~{budget.human(size)} needed); nothing was written") from None
-        return "create", list(range(len(tasks)))
+        return "create", list(range(len(tasks))), 0
     try:
         with open_read(path, check=False) as f:
             report = storecheck.check(f, path)  # once: it reads and checksums every row
@@ -230,6 +267,8 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
             ids = [x.decode() for x in f["tasks"].fields("task_id")[...]] if f["tasks"].shape[0] else []
             todo = storecheck.incomplete_rows(f, path, report)
             damaged = set(report.damaged)
+            failed = set(np.flatnonzero(f["results"].fields("status")[...] == STATUS["failed"]).tolist()
+                         if report.n_tasks else []) - set(todo)
     except (OSError, StoreError) as e:
         raise RunError(f"{e}; pass --overwrite to replace it") from None
     if isinstance(sha, bytes):
@@ -242,7 +281,7 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
         raise RunError(f"store {path} was written for another job spec or shard; pass --overwrite to replace "
                        "it or choose another --store")
     if not todo:
-        return "noop", []
+        return "noop", [], len(failed)
     if not resume:
         raise RunError(f"store {path} exists with {len(todo)} of {len(tasks)} tasks pending: pass --resume to "
                        "finish it or --overwrite to start again")
@@ -251,7 +290,7 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
     except OSError as e:
         raise RunError(f"store {path}: no room to record a new run ({e.strerror}: full disk or file-size "
                        "limit); nothing was changed: free space and run again") from None
-    return "resume", todo
+    return "resume", todo, len(failed)
 
 
 class Progress:
@@ -353,7 +392,7 @@ def warm_up(t: Task, ctx: Context) -> None:
 def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = False, overwrite: bool = False,
         shard: tuple[int, int] | None = None, writer: str = "auto", progress: str = "auto",
         coordinator_works: str = "auto", mpi: str = "auto", break_lease: bool = False,
-        task_timeout: float | None = None, batch: str = "off", ranks_per_gpu: int = 1,
+        task_timeout: float | None = None, batch: str = "off", ranks_per_gpu: int = 1, lookahead: int = 4,
         reuse: Sequence[str | Path] = ()) -> dict[str, Any]:
     """Run a job into a store (serially or as an MPI task farm). Returns a summary dict on every rank.
 
@@ -362,8 +401,10 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     ``break_lease``: take over the lease of a run that is gone; ``task_timeout``: per-task wall-time limit [s];
     ``batch``: off (default: one solve at a time, faster in the sweep) | auto (GFMD chains batched on GPU ranks,
     gapsweep.batching) | all (also CPU backends: for tests and comparisons); ``ranks_per_gpu``: ranks sharing
-    one GPU (gapsweep.gpus); ``reuse``: other stores whose verified ``done`` rows of the same tasks (task id) are
-    copied instead of run (:func:`reusable_rows`; the run record names the sources).
+    one GPU (gapsweep.gpus); ``lookahead``: GPU units a GPU worker holds beyond the one it runs, their surfaces
+    made on as many host threads while its GPU works (0: none; docs/architecture.md, "The farm"); ``reuse``:
+    other stores whose verified ``done`` rows of the same tasks (task id) are copied instead of run
+    (:func:`reusable_rows`; the run record names the sources).
 
     Raises :class:`RunError` when the run cannot start or a write fails (rows finished before stay done),
     :class:`~gapsweep.limits.Interrupted` after a clean stop on SIGINT/SIGTERM or a ``<store>.stop`` file (the
@@ -376,13 +417,17 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     if batch not in batching.MODES:
         raise ValueError(f"--batch: expected one of {', '.join(batching.MODES)}, got {batch!r}")
     gpus.assign(None, 0, ranks_per_gpu)  # validates ranks_per_gpu
+    if isinstance(lookahead, bool) or not isinstance(lookahead, int) or not 0 <= lookahead <= 64:
+        raise ValueError(f"--lookahead: expected an integer in [0, 64], got {lookahead!r}")
     spec = _load(job)
     comm = _comm(mpi)
     rank, size = (comm.rank, comm.size) if comm is not None else (0, 1)
     if os.environ.get("GAPSWEEP_TEST_PIDDIR"):  # test hook: lets a test kill -9 one particular rank
         Path(os.environ["GAPSWEEP_TEST_PIDDIR"], f"rank{rank}.pid").write_text(str(os.getpid()))
     tasks, units = _select(spec, shard, batch)
-    _check_resources(tasks, ranks_per_gpu)  # the same refusal as `plan`
+    if collective.is_collective(tasks) and (task_timeout is not None or batch != "off"):
+        raise RunError("[methods.gfmd] distributed = true: every rank solves each task together; "
+                       "--task-timeout and --batch do not apply (leave them out)")
     path = _store_path(store, shard)
     shard_text = f"{shard[0]}/{shard[1]}" if shard else ""
 
@@ -393,12 +438,14 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     reused: dict[int, tuple[str, Any, tuple]] = {}
     if rank == 0:
         try:
+            _check_resources(tasks, ranks_per_gpu)  # the same refusal as `plan`, looked at once (rank 0)
+            _check_collective(tasks, size)  # every rank runs each distributed task together: its slabs fit?
             path.parent.mkdir(parents=True, exist_ok=True)
             held = lease.acquire(path, break_lease=break_lease)
             decision = (*_decide(path, spec, tasks, shard_text, resume, overwrite), held.run_id)
             if reuse and decision[0] != "noop":
                 reused = reusable_rows(reuse, path, tasks, decision[1], spec.histogram["bins"])
-                decision = (decision[0], [i for i in decision[1] if i not in reused], decision[2])
+                decision = (decision[0], [i for i in decision[1] if i not in reused], *decision[2:])
             _stop_file(path).unlink(missing_ok=True)  # a stop request of an earlier run
         except Exception as e:  # every rank must learn about it, or the others wait in bcast forever
             decision = e if isinstance(e, RunError) else RunError(
@@ -412,7 +459,7 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
         raise decision
     try:
         return _execute(spec, comm, rank, size, tasks, units, path, shard_text, decision, writer, progress,
-                        coordinator_works, task_timeout, held, (batch, ranks_per_gpu), reused)
+                        coordinator_works, task_timeout, held, (batch, ranks_per_gpu, lookahead), reused)
     finally:
         if held is not None:
             held.release()
@@ -475,132 +522,224 @@ def _stop_file(path: Path) -> Path:
     return path.with_name(path.name + ".stop")
 
 
-def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list[Task], units: list[Unit],
-             path: Path, shard_text: str, decision: tuple, writer: str, progress: str, coordinator_works: str,
-             task_timeout: float | None, held: lease.Lease | None, gpu_opts: tuple[str, int] = ("auto", 1),
-             reused: dict[int, tuple[str, Any, tuple]] | None = None) -> dict[str, Any]:
-    mode, todo_list, run_id = decision
-    summary: dict[str, Any] = {"store": str(path), "tasks": len(tasks), "todo": len(todo_list), "mode": mode,
-                               "mpi_size": size, "rank": rank, **dict.fromkeys(STATUS, 0)}
-    if mode == "noop":
-        if rank == 0 and progress != "none":
-            log.info("%s: all %d tasks finished already; nothing to do", path, len(tasks))
-        return summary
-
+def _writer_mode(comm: Any, writer: str) -> str:
+    """serial | mpio | rank0, from ``--writer`` (``GAPSWEEP_WRITER`` for auto) and h5py's build."""
     req = os.environ.get("GAPSWEEP_WRITER", "auto") if writer == "auto" else writer
     if req not in ("auto", "mpio", "rank0"):
         raise RunError(f"writer must be auto, mpio or rank0, got {req!r}")
     import h5py
 
     if comm is None:
-        wmode = "serial"
-    elif req == "rank0" or (req == "auto" and not h5py.get_config().mpi):
-        wmode = "rank0"
-    elif not h5py.get_config().mpi:
+        return "serial"
+    if req == "rank0" or (req == "auto" and not h5py.get_config().mpi):
+        return "rank0"
+    if not h5py.get_config().mpi:
         raise RunError("writer 'mpio' needs h5py built with MPI (h5py.get_config().mpi is False)")
-    else:
-        wmode = "mpio"
-    summary["writer"] = wmode
-    stop = limits.Stop("raise" if comm is None else "flag", _stop_file(path)).install()
-    st: Store | None = None
-    prog: Progress | None = None
-    record: dict[str, Any] = {}
+    return "mpio"
+
+
+def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list[Task], units: list[Unit],
+             path: Path, shard_text: str, decision: tuple, writer: str, progress: str, coordinator_works: str,
+             task_timeout: float | None, held: lease.Lease | None, gpu_opts: tuple = ("auto", 1, 0),
+             reused: dict[int, tuple[str, Any, tuple]] | None = None) -> dict[str, Any]:
+    mode, todo_list, old_failed, _ = decision
+    summary: dict[str, Any] = {"store": str(path), "tasks": len(tasks), "todo": len(todo_list), "mode": mode,
+                               "mpi_size": size, "rank": rank, **dict.fromkeys(STATUS, 0), "pending": 0,
+                               "unfinished": old_failed}
+    if mode == "noop":
+        if rank == 0 and progress != "none":
+            log.info("%s: all %d tasks finished already; nothing to do", path, len(tasks))
+        return summary
+    summary["writer"] = wmode = _writer_mode(comm, writer)
+    r = _Run(spec, comm, tasks, units, path, shard_text, decision, wmode, progress, coordinator_works,
+             task_timeout, held, gpu_opts)
+    r.reused = reused
     try:
-        # Static attributes and the run record come from rank 0 so that every rank writes identical values.
-        hosts = sorted(set(comm.allgather(socket.gethostname()))) if comm is not None else [socket.gethostname()]
-        attrs = provenance.store_attrs(spec, shard=shard_text) if rank == 0 else None
-        # rank 0 works (in a thread, beside coordinating) when asked, or by default with few ranks
-        works = comm is None or coordinator_works == "yes" or (coordinator_works == "auto" and size <= 4)
-        need_gpu = any(u.gpu for u in units)
-        gpu = gpus.rank_gpu(comm, works, gpu_opts[1]) if need_gpu else None
-        gpu_ranks = comm.allgather(gpu) if comm is not None else [gpu]
-        record = {"started": provenance.now(), "finished": None, "mpi_size": size, "hosts": hosts,
-                  "writer": wmode, "mode": mode, "todo": len(todo_list), "run_id": run_id,
-                  **(provenance.run_extras(spec, gpu_ranks=gpu_ranks, batch=gpu_opts[0],
-                                           batch_units=sum(u.kind == "batch" for u in units)) if rank == 0 else {})}
-        record.update(_reused_record(reused))
-        if comm is not None:
-            attrs, record = comm.bcast((attrs, record), root=0)
-        ctx = Context(rank=rank, gpu=gpu)
-        ctx.fields_dir = _fields_dir(path)  # kept GFMD fields, if the spec asks (gapsweep.dataset)
-        todo = set(todo_list)
-        work = [k for k, u in enumerate(units) if any(i in todo for i in u.tasks)]
-        if wmode == "mpio" or rank == 0:
-            with stop.critical():
-                st = _open_store(path, mode, tasks, attrs, spec.histogram["bins"], comm if wmode == "mpio" else None,
-                                 rank, run_id)
-                if held is not None:  # the file opened is the one leased (issue 19: keyed by device and inode)
-                    held.bind(path)
-                runs = json.loads(st.f.attrs.get("runs", "[]"))
-                st.set_attrs({"runs": json.dumps([*runs, record])}, flush=True)  # survives a kill -9
-                _copy_reused(st, reused)
-        if os.environ.get("GAPSWEEP_TEST_ABORT_RANK", "") == str(rank):
-            raise RuntimeError(f"injected error on rank {rank} (GAPSWEEP_TEST_ABORT_RANK)")
-        prog = Progress(len(todo), progress if rank == 0 else "none")
-        if comm is not None and rank == 0 and wmode == "rank0":  # issue 19: mpiexec's 1-s grace, see below
-            stop.on_request = lambda sig: _mark_interrupted(st, record, prog, held, sig)
-        if comm is None:
-            for k in work:
-                for i, res in _run_unit(tasks, units[k], ctx, todo, task_timeout, stop):
-                    with stop.critical():
-                        st.write(i, res)
-                    prog.update(res)
-                    if stop.requested():  # the stop file (a signal raises by itself)
-                        raise Interrupted(stop.signum)
-        elif rank == 0:
-            _coordinate(comm, tasks, units, work, todo, ctx, st, prog, works, wmode, gpu_ranks, task_timeout, stop)
-        else:
-            _work(comm, tasks, units, todo, ctx, st, wmode, task_timeout, stop)
-        prog.close()
-        counts = dict(prog.count)
-        stopped = stop.signum if stop.requested() else None
-        if comm is not None:
-            counts, stopped = comm.bcast((counts, stopped) if rank == 0 else None, root=0)
-            comm.Barrier()
-        summary.update(counts)
-        if stopped is not None:
-            record.update(_interrupted(stopped, counts))
-        else:
-            record["finished"] = provenance.now()
-        if comm is not None and wmode == "mpio":
-            record = comm.bcast(record, root=0)
-        if st is not None:
-            _close_record(st, record)
-            st = None
-        if stopped is not None:
-            raise Interrupted(stopped, counts)
+        r.start()
+        _drive(r)
+        r.finish(summary)
     except Interrupted as e:
-        if comm is not None or st is None:  # MPI: raised after the collective close above
+        if comm is not None or r.st is None:  # MPI: raised after the collective close in finish()
             raise
-        counts = dict(prog.count) if prog is not None else {}
-        if prog is not None:
-            prog.close()
-        record.update(_interrupted(e.signum, counts))
-        try:
-            _close_record(st, record)
-        except StoreError as w:
-            log.error("%s", w)
-        st = None
-        raise Interrupted(e.signum, counts) from None
+        r.interrupted(e)
     except (StoreWriteError, OSError) as e:
         if comm is None:
-            if st is not None:
-                record.update(stopped=str(e)[:200], stopped_at=provenance.now())
-                _abandon(st, record)
-                st = None
-            raise RunError(f"{e if isinstance(e, StoreWriteError) else f'store {path}: {e}'}; every row finished "
-                           "before is intact: fix the cause (free space, file-size limit) and run again with "
-                           "--resume") from None
+            r.write_failed(e)
         _abort(comm, rank, wmode, held, e)
     except BaseException as e:
         if comm is not None:
             _abort(comm, rank, wmode, held, e)
         raise
     finally:
-        stop.restore()
-        if st is not None and comm is None:
-            _abandon(st)
+        r.stop.restore()
+        if r.ctx is not None:
+            r.ctx.close()
+        if r.st is not None and comm is None:
+            _abandon(r.st)
     return summary
+
+
+class _Run:
+    """One job's run on this rank, from opening its store to closing it (driven by :func:`_execute`)."""
+
+    def __init__(self, spec: specmod.JobSpec, comm: Any, tasks: list[Task], units: list[Unit], path: Path,
+                 shard_text: str, decision: tuple, wmode: str, progress: str, coordinator_works: str,
+                 limit: float | None, held: lease.Lease | None, gpu_opts: tuple) -> None:
+        self.spec, self.comm, self.tasks, self.units, self.path = spec, comm, tasks, units, path
+        self.shard_text, self.wmode, self.progress, self.limit, self.held = shard_text, wmode, progress, limit, held
+        self.rank, self.size = (comm.rank, comm.size) if comm is not None else (0, 1)
+        self.mode, self.todo_list, self.old_failed, self.run_id = decision
+        self.batch, self.per_gpu, self.lookahead = gpu_opts
+        self.ctx: Context | None = None
+        # rank 0 works (in a thread, beside coordinating) when asked, or by default with few ranks
+        self.together = comm is not None and collective.is_collective(tasks)  # every rank solves (a GPU each)
+        self.works = (comm is None or self.together or coordinator_works == "yes"
+                      or (coordinator_works == "auto" and self.size <= 4))
+        self.stop = limits.Stop("raise" if comm is None else "flag", _stop_file(path)).install()
+        self.st: Store | None = None
+        self.prog: Progress | None = None
+        self.record: dict[str, Any] = {}
+        self.outcome: dict[str, Any] = {}  # the coordinator's: device faults, GPU units left pending
+        self.next_check = 0.0  # the coordinator's next look for a stop request
+        self.reused: dict[int, tuple[str, Any, tuple]] | None = None  # rows copied from other stores (rank 0)
+
+    def start(self) -> None:
+        """Place this rank (its GPU), agree on the run record, open the store and record the run."""
+        comm, rank = self.comm, self.rank
+        # Static attributes and the run record come from rank 0 so that every rank writes identical values.
+        hosts = sorted(set(comm.allgather(socket.gethostname()))) if comm is not None else [socket.gethostname()]
+        attrs = provenance.store_attrs(self.spec, shard=self.shard_text) if rank == 0 else None
+        need_gpu = any(u.gpu for u in self.units)
+        self.gpu = gpus.rank_gpu(comm, self.works, self.per_gpu) if need_gpu else None
+        self.gpu_of = comm.allgather(self.gpu) if comm is not None else [self.gpu]
+        record = {"started": provenance.now(), "finished": None, "mpi_size": self.size, "hosts": hosts,
+                  "writer": self.wmode, "mode": self.mode, "todo": len(self.todo_list), "run_id": self.run_id,
+                  **(provenance.run_extras(self.spec, gpu_ranks=self.gpu_of, batch=self.batch,
+                                           batch_units=sum(u.kind == "batch" for u in self.units))
+                     if rank == 0 else {})}
+        record.update(_reused_record(self.reused))
+        if comm is not None:
+            attrs, record = comm.bcast((attrs, record), root=0)
+        self.record = record
+        self.ctx = Context(rank=rank, gpu=self.gpu)
+        if self.gpu is not None:
+            self.ctx.ahead(self.lookahead)  # host threads for the surfaces of the units held ahead
+        self.ctx.fields_dir = _fields_dir(self.path)  # kept GFMD fields, if the spec asks (gapsweep.dataset)
+        self.todo = set(self.todo_list)
+        self.work = [k for k, u in enumerate(self.units) if any(i in self.todo for i in u.tasks)]
+        if self.wmode == "mpio" or rank == 0:
+            with self.stop.critical():
+                self.st = _open_store(self.path, self.mode, self.tasks, attrs, self.spec.histogram["bins"],
+                                      comm if self.wmode == "mpio" else None, rank, self.run_id)
+                if self.held is not None:  # the file opened is the one leased (issue 19: keyed by device and inode)
+                    self.held.bind(self.path)
+                runs = json.loads(self.st.f.attrs.get("runs", "[]"))
+                self.st.set_attrs({"runs": json.dumps([*runs, record])}, flush=True)  # survives a kill -9
+                _copy_reused(self.st, self.reused)
+        if os.environ.get("GAPSWEEP_TEST_ABORT_RANK", "") == str(rank):
+            raise RuntimeError(f"injected error on rank {rank} (GAPSWEEP_TEST_ABORT_RANK)")
+        self.prog = Progress(len(self.todo), self.progress if rank == 0 else "none")
+        if comm is not None and rank == 0 and self.wmode == "rank0":  # issue 19: mpiexec's 1-s grace, see below
+            self.stop.on_request = lambda sig: _mark_interrupted(self.st, record, self.prog, self.held, sig)
+        if rank == 0:  # when the farm starts (wall clock): start-up = this minus the launch (benchmarks)
+            record["farm_started_unix"] = round(time.time(), 3)
+        if rank == 0 and comm is not None and need_gpu:
+            ngpu = sum(g is not None for g in self.gpu_of)
+            log.info("farm: %d ranks: %d GPU worker(s), %d CPU worker(s), coordinator %s", self.size, ngpu,
+                     self.size - ngpu - (0 if self.works else 1), "works" if self.works else "only coordinates")
+
+    def finish(self, summary: dict[str, Any]) -> None:
+        """Agree on the counts and the outcome, record how the run ended, close the store."""
+        comm, prog = self.comm, self.prog
+        prog.close()
+        counts = dict(prog.count)
+        stopped = self.stop.signum if self.stop.requested() else None
+        outcome = self.outcome
+        if comm is not None:
+            _quiet_barrier(comm)  # ranks done early wait here without spinning on a core the GPU workers need
+            counts, stopped, outcome = comm.bcast((counts, stopped, outcome) if self.rank == 0 else None, root=0)
+            comm.Barrier()
+        summary.update(counts)
+        summary["pending"] = len(self.todo_list) - sum(counts.values())
+        summary["unfinished"] = self.old_failed + counts["failed"] + summary["pending"]
+        record = self.record
+        if outcome.get("faults"):
+            record["device_faults"] = outcome["faults"]
+        if outcome.get("no_gpu"):
+            record.update(stopped=outcome["no_gpu"], stopped_at=provenance.now(), pending=summary["pending"])
+        if stopped is not None:
+            record.update(_interrupted(stopped, counts))
+        else:
+            record["finished"] = provenance.now()
+        if comm is not None and self.wmode == "mpio":
+            record = comm.bcast(record, root=0)
+        if self.st is not None:
+            _close_record(self.st, record)
+            self.st = None
+        if stopped is not None:
+            raise Interrupted(stopped, counts)
+
+    def interrupted(self, e: Interrupted) -> None:
+        """Serial run: record the interruption, close the store, raise it again with the counts."""
+        counts = dict(self.prog.count) if self.prog is not None else {}
+        if self.prog is not None:
+            self.prog.close()
+        self.record.update(_interrupted(e.signum, counts))
+        try:
+            _close_record(self.st, self.record)
+        except StoreError as w:
+            log.error("%s", w)
+        self.st = None
+        raise Interrupted(e.signum, counts) from None
+
+    def write_failed(self, e: BaseException) -> None:
+        """Serial run: a write failed; record why the run stopped (if that can be written) and raise RunError."""
+        if self.st is not None:
+            self.record.update(stopped=str(e)[:200], stopped_at=provenance.now())
+            _abandon(self.st, self.record)
+            self.st = None
+        raise RunError(f"{e if isinstance(e, StoreWriteError) else f'store {self.path}: {e}'}; every row finished "
+                       "before is intact: fix the cause (free space, file-size limit) and run again with "
+                       "--resume") from None
+
+    def units_of(self, k: int, skip: frozenset[int]) -> Iterator[tuple[int, TaskResult]]:
+        """Rows of unit ``k`` (its wanted tasks but ``skip``, already recorded by a worker whose device failed).
+        A device fault outside a task (a batch's surfaces moving to the GPU) raises DeviceFault too."""
+        todo = self.todo - skip if skip else self.todo
+        try:
+            yield from _run_unit(self.tasks, self.units[k], self.ctx, todo, self.limit, self.stop)
+        except (DeviceFault, StoreError, Interrupted):
+            raise
+        except Exception as e:
+            why = device_fault(e)
+            if why:
+                raise DeviceFault(why) from e
+            raise
+
+    def ahead_ok(self) -> list[bool]:
+        """Units worth holding ahead: GPU units with surfaces to make (tasks on a grid, ``n > 0``)."""
+        return [u.gpu and any(self.tasks[i].n > 0 for i in u.tasks) for u in self.units]
+
+    def prefetch(self, k: int) -> None:
+        """A GPU unit just held: its surfaces start on the host threads (``ahead``) while the GPU works."""
+        u = self.units[k]
+        if not (u.gpu and self.gpu is not None):
+            return
+        for i in u.tasks:
+            t = self.tasks[i]
+            if t.n > 0 and i in self.todo:
+                self.ctx.prefetch(t, t.n)
+
+    def ended(self, farm: Farm) -> None:
+        """The coordinator, once every worker has left: what the run's record must say about devices."""
+        faults = [f"rank {w} (GPU {g}): {why}" for w, g, why in farm.faults]
+        left = sorted({i for k in farm.left for i in self.units[k].tasks if i in self.todo} - {
+            i for k in farm.left for i in farm.recorded.get(k, ())})
+        self.outcome = {"faults": faults}
+        if farm.no_gpu:
+            self.outcome["no_gpu"] = (f"{farm.no_gpu}: {len(left)} GPU task(s) left pending; run again with "
+                                      "--resume where a GPU works")
+            log.error("%s", self.outcome["no_gpu"])
 
 
 def _mark_interrupted(st: Store, record: dict[str, Any], prog: Progress, held: lease.Lease | None,
@@ -710,126 +849,250 @@ def _abort(comm: Any, rank: int, wmode: str, held: lease.Lease | None, e: BaseEx
     comm.Abort(1)
 
 
-def _coordinate(comm: Any, tasks: list[Task], units: list[Unit], work: list[int], todo: set[int], ctx: Context,
-                st: Store | None, prog: Progress, works: bool, wmode: str, gpu_of: list[int | None],
-                limit: float | None, stop: limits.Stop) -> None:
-    """Rank 0: hand out units largest-first to workers, optionally work on the smallest ones in a thread,
-    write rows sent by workers (rank0 writer) and track progress. A stop request (signal, stop file, a
-    worker's TAG_STOP) empties the queue: the units in flight finish, then every rank leaves the farm."""
+def _quiet_barrier(comm: Any) -> None:
+    """A barrier that sleeps while it waits (MPI's blocking calls spin on a core): a worker that has left the
+    farm while GPU workers finish their last units gives its core to their host threads."""
+    req = comm.Ibarrier()
+    delay = 1e-4
+    while not req.Test():
+        time.sleep(delay)
+        delay = min(2 * delay, 0.01)
+
+
+def _fault(rank: int, gpu: int | None, e: BaseException) -> str:
+    log.warning("rank %d: GPU %s failed (%s): this rank takes no more GPU tasks, its unit goes back to the queue",
+                rank, gpu, e)
+    return str(e)
+
+
+def _drive(r: _Run) -> None:
+    """This rank's part of the run: one process, a collective run (every rank solves each distributed task
+    together, gapsweep.sweep.collective), or the farm's coordinator or a worker."""
+    if r.together:
+        def write(i: int, res: TaskResult) -> None:
+            with r.stop.critical():
+                r.st.write(i, res)
+            r.prog.update(res)
+
+        collective.run_collective(r.comm, r.tasks, r.units, r.work, r.ctx, _run_unit, r.todo, write, r.stop)
+    elif r.comm is None:
+        _serial(r)
+    elif r.rank == 0:
+        _coordinate(r)
+    else:
+        _work(r)
+
+
+def _serial(r: _Run) -> None:
+    """One process: the farm with one worker (a device fault leaves the GPU units pending, the CPU units run)."""
+    farm = Farm([u.gpu for u in r.units], r.work, {0: Worker(gpu=r.gpu, ahead=r.lookahead)}, ahead_ok=r.ahead_ok())
+    held: deque = deque()
+    sends = farm.request(0)
+    while True:
+        for _, k in sends:
+            if k is not None:
+                held.append(k)
+                r.prefetch(k)
+        if not held:
+            break
+        k = held.popleft()
+        try:
+            for i, res in r.units_of(k, farm.skip(k)):
+                with r.stop.critical():
+                    r.st.write(i, res)
+                farm.row(k, i)
+                r.prog.update(res)
+                if r.stop.requested():  # the stop file (a signal raises by itself)
+                    raise Interrupted(r.stop.signum)
+        except DeviceFault as e:
+            held.clear()
+            sends = farm.fault(0, _fault(0, r.gpu, e))
+            continue
+        sends = farm.request(0, k)
+    r.ended(farm)
+
+
+class _Held:
+    """The units a worker holds (the one it runs, then those ahead), as sent by the coordinator: ``(unit, rows
+    to skip, epoch)``; a unit of an earlier epoch (sent before this worker's last device fault) is stale and
+    dropped. ``get(block)`` returns the next message from the coordinator (None: nothing arrived);
+    ``release(unit)`` hands a unit back unrun (after a stop request: its rows stay pending)."""
+
+    def __init__(self, r: _Run, get: Any, release: Any) -> None:
+        self.r, self.get, self.release = r, get, release
+        self.units: deque = deque()
+        self.epoch, self.done = 0, False
+
+    def next(self) -> tuple[int, frozenset[int]] | None:
+        """The next unit to run (waiting for one while none is held), or None: leave the farm."""
+        while not self.done:
+            if self.units and self.r.stop.requested():  # stopping: only the unit in progress finishes
+                while self.units:
+                    self.release(self.units.popleft()[0])
+            msg = self.get(not self.units)
+            if msg is None and self.units:  # nothing more arrived: run what is held
+                break
+            if msg is None:  # the coordinator's stop (it sends one only to a worker that holds nothing)
+                self.done = True
+            elif msg[2] == self.epoch:
+                self.units.append(msg[:2])
+                self.r.prefetch(msg[0])
+        return self.units.popleft() if self.units else None
+
+    def fault(self) -> None:
+        self.units.clear()
+        self.epoch += 1
+
+
+class _Local:
+    """The coordinator's own worker: a thread that runs units from the tail of the queue and reports through a
+    queue (rows, device faults, requests), so that every farm decision and every MPI call stays on rank 0's
+    main thread."""
+
+    def __init__(self, r: _Run) -> None:
+        self.r = r
+        self.inbox: queue.Queue = queue.Queue()
+        self.events: queue.Queue = queue.Queue()
+        self.thread = threading.Thread(target=self._main, name="gapsweep-rank0-worker", daemon=True)
+        self.thread.start()
+
+    def _get(self, block: bool) -> Any:
+        if block:
+            return self.inbox.get()
+        try:
+            return self.inbox.get_nowait()
+        except queue.Empty:
+            return None
+
+    def _main(self) -> None:
+        held = _Held(self.r, self._get, lambda k: self.events.put((TAG_READY, k)))
+        try:
+            self.events.put((TAG_READY, None))
+            while (msg := held.next()) is not None:
+                try:
+                    for i, res in self.r.units_of(*msg):
+                        self.events.put((TAG_ROW, (msg[0], i, res)))
+                except DeviceFault as e:
+                    held.fault()
+                    self.events.put((TAG_FAULT, _fault(0, self.r.gpu, e)))
+                    continue
+                self.events.put((TAG_READY, msg[0]))
+        except BaseException as e:  # surfaced on the main thread, which aborts the job
+            self.events.put((TAG_ERROR, e))
+
+
+def _coordinate(r: _Run) -> None:
+    """Rank 0: run the farm (gapsweep.sweep.farm) -- answer requests from the queue, write rows sent by workers
+    (rank0 writer), put the units of a failed device back, track progress. A stop request (signal, stop file, a
+    worker's TAG_STOP) empties the queue: the units held finish, then every worker leaves. Protocol:
+    docs/architecture.md, "The farm"."""
     from mpi4py import MPI
 
-    q = deque(work)  # unit indices, largest first
-    lock = threading.Lock()
-    # GPU units wait for a GPU rank only if some rank that works has one; otherwise any rank takes them.
-    any_gpu = any(g is not None for r, g in enumerate(gpu_of) if r > 0 or works)
-
-    def take(from_tail: bool, gpu_ok: bool) -> int | None:
-        with lock:
-            order = range(len(q) - 1, -1, -1) if from_tail else range(len(q))
-            if gpu_ok and any_gpu:
-                # a GPU rank takes GPU units first: only GPU ranks can run them, so they are the critical path;
-                # it helps with the CPU units once none is left
-                for j in order:
-                    if units[q[j]].gpu:
-                        k = q[j]
-                        del q[j]
-                        return k
-            for j in order:
-                if not units[q[j]].gpu or gpu_ok or not any_gpu:
-                    k = q[j]
-                    del q[j]
-                    return k
-        return None
-
-    results: queue.Queue = queue.Queue()
-
-    def local_worker() -> None:
-        try:
-            while (k := take(True, gpu_of[0] is not None)) is not None:
-                for item in _run_unit(tasks, units[k], ctx, todo, limit, stop):
-                    results.put(item)
-        except BaseException as e:  # surfaced on the main thread, which aborts the job
-            results.put(e)
-        results.put(None)
-
-    thread = None
-    if works:
-        thread = threading.Thread(target=local_worker, name="gapsweep-rank0-worker", daemon=True)
-        thread.start()
-    local_alive = works
-    active = set(range(1, comm.size))
-
-    def handle(item: Any, local: bool) -> None:
-        i, res = item
-        # rank0 writer: rank 0 writes every row; mpio: workers wrote theirs, rank 0 writes its own.
-        if st is not None and (wmode != "mpio" or local):
-            st.write(i, res)
-        prog.update(res)
-
+    comm = r.comm
+    workers = {w: Worker(gpu=r.gpu_of[w], ahead=r.lookahead) for w in range(1, comm.size)}
+    if r.works:
+        workers[0] = Worker(gpu=r.gpu_of[0], tail=True, ahead=r.lookahead)
+    farm = Farm([u.gpu for u in r.units], r.work, workers, ahead_ok=r.ahead_ok())
+    local = _Local(r) if r.works else None
     status = MPI.Status()
-    stopping, next_check = False, 0.0
-    while active or local_alive:
+    while farm.busy():
         progressed = False
-        now = time.monotonic()
-        if not stopping and (now >= next_check or stop.signum is not None):
-            next_check = now + 0.5
-            if stop.requested():
-                stopping = True
-                with lock:
-                    q.clear()
-                log.warning("stop requested (%s): finishing the tasks in flight",
-                            limits.SIGNAL_NAMES.get(stop.signum, stop.signum))
-                if stop.on_request is not None:
-                    stop.on_request(stop.signum)
-        while active and comm.Iprobe(source=MPI.ANY_SOURCE, tag=MPI.ANY_TAG, status=status):
+        _send(r, farm, local, _stop_check(r, farm))
+        while comm.Iprobe(source=MPI.ANY_SOURCE, tag=MPI.ANY_TAG, status=status):
             src, tag = status.Get_source(), status.Get_tag()
-            msg = comm.recv(source=src, tag=tag)
-            if tag == TAG_ROW:
-                handle(msg, False)
-            elif tag == TAG_STOP:
-                if stop.signum is None:
-                    stop.signum = msg
-                next_check = 0.0
-            elif tag == TAG_READY:
-                k = take(False, gpu_of[src] is not None)
-                comm.send(k, dest=src, tag=TAG_WORK)
-                if k is None:
-                    active.discard(src)
+            _send(r, farm, local, _on_message(r, farm, src, tag, comm.recv(source=src, tag=tag)))
             progressed = True
-        while local_alive:
+        while local is not None:
             try:
-                item = results.get_nowait()
+                tag, msg = local.events.get_nowait()
             except queue.Empty:
                 break
+            if tag == TAG_ERROR:
+                raise msg
+            _send(r, farm, local, _on_message(r, farm, 0, tag, msg))
             progressed = True
-            if item is None:
-                local_alive = False
-            elif isinstance(item, BaseException):
-                raise item
-            else:
-                handle(item, True)
         if not progressed:
-            time.sleep(2e-4 if local_alive else 2e-3)
-    if thread is not None:
-        thread.join()
+            time.sleep(2e-4 if local is not None else 2e-3)
+    if local is not None:
+        local.thread.join()
+    r.ended(farm)
 
 
-def _work(comm: Any, tasks: list[Task], units: list[Unit], todo: set[int], ctx: Context, st: Store | None,
-          wmode: str, limit: float | None, stop: limits.Stop) -> None:
-    """Worker rank: ask for a unit, run it, write (mpio) or send (rank0 writer) each row as it finishes. A
-    signal to this rank is passed on to rank 0 (TAG_STOP), which stops handing out work."""
-    told = False
+def _stop_check(r: _Run, farm: Farm) -> list[tuple[int, int | None]]:
+    """A stop request (signal, stop file: looked for every 0.5 s) empties the farm's queue, once."""
+    now = time.monotonic()
+    if farm.stopping or (now < r.next_check and r.stop.signum is None):
+        return []
+    r.next_check = now + 0.5
+    if not r.stop.requested():
+        return []
+    log.warning("stop requested (%s): finishing the tasks in flight", limits.SIGNAL_NAMES.get(r.stop.signum,
+                                                                                            r.stop.signum))
+    if r.stop.on_request is not None:
+        r.stop.on_request(r.stop.signum)
+    return farm.stop()
+
+
+def _on_message(r: _Run, farm: Farm, src: int, tag: int, msg: Any) -> list[tuple[int, int | None]]:
+    """One message of worker ``src`` (0: the coordinator's own thread); returns the farm's dispatches."""
+    if tag == TAG_ROW:
+        k, i, res = msg
+        farm.row(k, i)
+        # rank0 writer: rank 0 writes every row; mpio: workers wrote theirs, rank 0 writes its own.
+        if r.st is not None and (r.wmode != "mpio" or src == 0):
+            r.st.write(i, res)
+        r.prog.update(res)
+        return []
+    if tag == TAG_READY:
+        return farm.request(src, msg)
+    if tag == TAG_FAULT:
+        return farm.fault(src, msg)
+    if tag == TAG_STOP and r.stop.signum is None:
+        r.stop.signum = msg
+    r.next_check = 0.0
+    return []
+
+
+def _send(r: _Run, farm: Farm, local: _Local | None, sends: list[tuple[int, int | None]]) -> None:
+    """Hand out the farm's dispatches: ``(unit, rows to skip, epoch)`` or None (leave the farm)."""
+    for wid, k in sends:
+        msg = None if k is None else (k, farm.skip(k), farm.workers[wid].epoch)
+        if wid == 0:
+            local.inbox.put(msg)
+        else:
+            r.comm.send(msg, dest=wid, tag=TAG_WORK)
+
+
+def _work(r: _Run) -> None:
+    """Worker rank: ask for work, run the units it is sent (holding some ahead on a GPU worker), write (mpio)
+    or send (rank0 writer) each row as it finishes, and say when a unit is done (TAG_READY). A device fault is
+    reported (TAG_FAULT) instead of rows: the coordinator gives the units this rank held to other workers and
+    this rank only CPU units from then on. A signal to this rank is passed on to rank 0 (TAG_STOP), which stops
+    handing out work."""
+    comm, told = r.comm, False
+
+    def get(block: bool) -> Any:
+        if block or comm.Iprobe(source=0, tag=TAG_WORK):
+            return comm.recv(source=0, tag=TAG_WORK)
+        return None
+
+    held = _Held(r, get, lambda k: comm.send(k, dest=0, tag=TAG_READY))
     comm.send(None, dest=0, tag=TAG_READY)
-    while (k := comm.recv(source=0, tag=TAG_WORK)) is not None:
-        for i, res in _run_unit(tasks, units[k], ctx, todo, limit, stop):
-            if wmode == "mpio":
-                st.write(i, res)
-                res = TaskResult(res.status, "", {})  # rank 0 only counts it
-            comm.send((i, res), dest=0, tag=TAG_ROW)
-        if stop.signum is not None and not told:
-            comm.send(stop.signum, dest=0, tag=TAG_STOP)
+    while (msg := held.next()) is not None:
+        try:
+            for i, res in r.units_of(*msg):
+                if r.wmode == "mpio":
+                    r.st.write(i, res)
+                    res = TaskResult(res.status, "", {})  # rank 0 only counts it
+                comm.send((msg[0], i, res), dest=0, tag=TAG_ROW)
+        except DeviceFault as e:
+            held.fault()
+            comm.send(_fault(r.rank, r.gpu, e), dest=0, tag=TAG_FAULT)
+            continue
+        if r.stop.signum is not None and not told:
+            comm.send(r.stop.signum, dest=0, tag=TAG_STOP)
             told = True
-        comm.send(None, dest=0, tag=TAG_READY)
+        comm.send(msg[0], dest=0, tag=TAG_READY)
 
 
 def _fields_dir(store: str | Path) -> Path:

@@ -601,7 +601,25 @@ def status(path: str | Path) -> str:
                      f"sigma0={row.sigma0:g} seed={row.seed}: {row.message}")
     if len(bad) > 10:
         lines.append(f"  ... and {len(bad) - 10} more")
+    lines.extend(_unfinished(path, df))
     return "\n".join(lines)
+
+
+def _unfinished(path: str | Path, df: Any) -> list[str]:
+    """The status lines about rows a run left pending (which ones, and that ``--resume`` runs them) and about
+    failed rows (finished: ``--resume`` runs only the timed-out ones again)."""
+    out = []
+    pend = df[df.status == "pending"]
+    if len(pend):
+        ids = ", ".join(f"{r.task_id} ({r.method})" for r in pend.head(10).itertuples())
+        out.append(f"pending: {len(pend)} row(s) not run yet: {ids}" + (" ..." if len(pend) > 10 else ""))
+        out.append(f"  `gapsweep run JOB --store {path} --resume` runs them (JOB: this store's spec, attribute "
+                   "spec_text); nothing else is run again")
+    failed = int((df.status == "failed").sum())
+    if failed:
+        out.append(f"failed: {failed} row(s) (listed above); --resume runs the timed-out ones again, the others "
+                   "are finished (--overwrite starts the store again)")
+    return out
 
 
 def diff(a: str | Path, b: str | Path, *, ignore: Sequence[str] = VOLATILE) -> list[str]:

@@ -6,17 +6,20 @@ from __future__ import annotations
 
 import json
 import sys
+import tracemalloc
 import warnings
 
 import numpy as np
 from mpi4py import MPI
 
 from gapsweep import gfmd
+from gapsweep.core import slab
 from gapsweep.core.slab import SlabFFT
+from gapsweep.gfmd import _lean, distributed
 from gapsweep.surfaces.synthetic import self_affine, self_affine_rows
 
 comm = MPI.COMM_WORLD
-out: dict = {"ranks": comm.Get_size(), "transform": [], "surface": [], "solve": []}
+out: dict = {"ranks": comm.Get_size(), "transform": [], "surface": [], "solve": [], "memory": []}
 
 
 def gathered(value):
@@ -48,20 +51,21 @@ def surfaces() -> None:
         out["surface"].append({"n": n, "identical": all(gathered(same))})
 
 
-def compare(name: str, h: np.ndarray, **kw) -> None:
-    """Single process (numpy backend, every rank the same) against the distributed solve."""
+def compare(name: str, h: np.ndarray, dist: dict | None = None, strict: bool = True, **kw) -> None:
+    """Single process (numpy backend, every rank the same) against the distributed solve (with the extra keywords
+    ``dist``; ``strict``: the same minimiser, so the same iterations, else agreement to the solver tolerance)."""
     rows = gfmd.slab_rows(h.shape[0], comm)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         r1 = gfmd.solve(h, backend="numpy", **kw)
-        r = gfmd.solve(h[rows], comm=comm, **kw)
+        r = distributed.solve(h[rows], comm=comm, **kw, **(dist or {}))
     e1, d1, _ = r1.gap_histogram(40)
     e, d, _ = r.gap_histogram(40)
     gap_err = float(np.abs(r.gap - r1.gap[rows]).max() / np.abs(r1.gap).max())
     same_scalars = all(x == (r.mean_gap, r.contact_area, r.iterations) for x in
                        gathered((r.mean_gap, r.contact_area, r.iterations)))
     out["solve"].append({
-        "case": name, "shape": list(h.shape), "status": [r1.status, r.status],
+        "case": name, "shape": list(h.shape), "strict": strict, "tol": kw.get("tol"), "status": [r1.status, r.status],
         "iterations": [r1.iterations, r.iterations], "mean_gap": [r1.mean_gap, r.mean_gap],
         "contact_area": [r1.contact_area, r.contact_area], "elastic_energy": [r1.elastic_energy, r.elastic_energy],
         "gap_field": max(gathered(gap_err)), "same_on_ranks": same_scalars,
@@ -74,17 +78,51 @@ def solves() -> None:
     compare("exponential cg", h, sigma0=1e-2, gamma0=1e-3, rho=0.02, tol=1e-10)
     compare("exponential fire", h, sigma0=1e-2, gamma0=1e-3, rho=0.02, tol=1e-8, method="fire")
     compare("hard wall pcg", h, sigma0=1e-2, interaction="hard_wall", tol=1e-10, method="pcg")
-    compare("adhesive", h, sigma0=1e-3, interaction="adhesive", work=1e-3, rho=0.02, tol=1e-9)
-    compare("adhesive tensile", h, sigma0=-2e-3, interaction="adhesive", work=1e-3, rho=0.02, tol=1e-8)
+    # the lean L-BFGS (gfmd._lean) with one process's 8 pairs: the same iteration as gfmd._smooth
+    compare("adhesive", h, dict(memory=8), sigma0=1e-3, interaction="adhesive", work=1e-3, rho=0.02, tol=1e-9)
+    compare("adhesive tensile", h, dict(memory=8), sigma0=-2e-3, interaction="adhesive", work=1e-3, rho=0.02,
+            tol=1e-8)
+    # its default, 2 pairs (12 arrays): another iteration, the same equilibrium to the solver tolerance
+    for s0 in (1e-3, -2e-3):
+        compare(f"adhesive lean {s0:g}", h, strict=False, sigma0=s0, interaction="adhesive", work=1e-3, rho=0.02,
+                tol=1e-10)
     rect = np.random.default_rng(2).standard_normal((96, 160)) * 0.01
-    compare("exponential rectangle", rect, sigma0=1e-2, gamma0=1e-3, rho=0.01, tol=1e-10, length=(0.6, 1.0))
+    compare("exponential rectangle", rect, dict(memory=8), sigma0=1e-2, gamma0=1e-3, rho=0.01, tol=1e-10,
+            length=(0.6, 1.0))
     compare("hard wall rectangle", rect, sigma0=5e-2, interaction="hard_wall", tol=1e-10, method="pk",
             length=(0.6, 1.0))
+
+
+def memory() -> None:
+    """Peak memory per rank of distributed solves (numpy arrays traced by tracemalloc, 4-row chunks so that the
+    chunked passes' temporaries are small as at large n), in arrays ``A`` of the rank's rows (the surface counted
+    as one), against gfmd.distributed.solve_memory's estimate."""
+    n = 256
+    old = slab.DEFAULT_CHUNK, dict(_lean.CHUNK)
+    slab.DEFAULT_CHUNK, _lean.CHUNK["numpy"] = 4 * n, 4 * n
+    h = self_affine(n, 0.8, lambda_l=0.25, lambda_s=1 / 20, seed=5)[gfmd.slab_rows(n, comm)].copy()
+    a = 8.0 * -(-n // comm.Get_size()) * n
+    for kind, kw in [("exponential", dict(sigma0=1e-2, gamma0=1e-3, rho=0.01)),
+                     ("adhesive", dict(sigma0=1e-3, interaction="adhesive", work=1e-3, rho=0.01)),
+                     ("adhesive", dict(sigma0=-1e-3, interaction="adhesive", work=1e-3, rho=0.01))]:
+        tracemalloc.start()
+        base = tracemalloc.get_traced_memory()[0]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            r = distributed.solve(h, comm=comm, host=False, tol=1e-8, **kw)
+        peak = tracemalloc.get_traced_memory()[1] - base
+        tracemalloc.stop()
+        est = distributed.solve_memory((n, n), comm.Get_size(), kind, tensile=kw["sigma0"] < 0)
+        out["memory"].append({"kind": kind, "sigma0": kw["sigma0"], "status": r.status,
+                              "measured_arrays": 1.0 + max(gathered(peak)) / a,  # + the surface
+                              "estimated_arrays": est["arrays"] + est["scratch_arrays"]})
+    slab.DEFAULT_CHUNK, _lean.CHUNK = old
 
 
 transforms()
 surfaces()
 solves()
+memory()
 if comm.Get_rank() == 0:
     with open(sys.argv[1], "w") as f:
         json.dump(out, f, indent=1)

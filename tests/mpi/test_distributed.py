@@ -46,17 +46,28 @@ def test_distributed_equals_single_process(tmp_path, ranks):
     for t in d["transform"]:
         assert t["forward"] <= 1e-12 and t["inverse"] <= 1e-12, t
     assert [s["identical"] for s in d["surface"]] == [True, True]
-    assert len(d["solve"]) == 7
+    assert len(d["solve"]) == 9
     for s in d["solve"]:
         assert s["status"] == ["converged", "converged"], s
-        assert s["iterations"][0] == s["iterations"][1], s
+        if s["strict"]:  # the same minimiser: the same iteration
+            assert s["iterations"][0] == s["iterations"][1], s
         (g1, g), (a1, a), (e1, e) = s["mean_gap"], s["contact_area"], s["elastic_energy"]
         assert abs(g - g1) <= 1e-9 * abs(g1), s
         assert abs(a - a1) <= 1e-9, s
         assert 0.0 < a1 < 1.0, s  # a partial contact: the area is a real check
         assert abs(e - e1) <= 1e-9 * abs(e1), s
-        assert s["gap_field"] <= 1e-9 and s["histogram"] <= 1e-9, s
+        # the lean L-BFGS with 2 pairs (not strict): fields to 10x the solver tolerance (1e-10) of the largest gap
+        assert s["gap_field"] <= (1e-9 if s["strict"] else 10 * s["tol"]) and s["histogram"] <= 1e-9, s
         assert s["same_on_ranks"] and s["shape_reported"] == s["shape"], s
+    assert sum(not s["strict"] for s in d["solve"]) == 2
+    # memory: the traced peak per rank within the estimate of gfmd.distributed.solve_memory, adhesion (2 pairs)
+    # within 12 arrays + 3 of scratch
+    assert len(d["memory"]) == 3
+    for m in d["memory"]:
+        assert m["status"] == "converged", m
+        assert m["measured_arrays"] <= m["estimated_arrays"], m
+        if m["kind"] == "adhesive" and m["sigma0"] > 0:
+            assert m["estimated_arrays"] <= 12 + 3, m
 
 
 def test_comm_errors_name_the_extra():

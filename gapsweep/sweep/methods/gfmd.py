@@ -3,7 +3,8 @@ docs/gfmd.md) with any interaction law of gapsweep.gfmd.interactions.
 
 Spec keys (``[methods.gfmd]``, docs/jobs.md): ``n`` (grid sizes; a file surface: its own grid), ``tol``,
 ``max_iter``, ``method`` (the law's minimisers or "auto"), ``backend`` (FFT backend or "cupy"), ``warm_start``,
-``order`` (of the pressures along a chain), ``keep_fields``, ``extra`` (keywords of ``gapsweep.gfmd.solve``).
+``order`` (of the pressures along a chain), ``keep_fields``, ``distributed`` (each solve split over every MPI
+rank: ``gapsweep.sweep.collective``), ``extra`` (keywords of ``gapsweep.gfmd.solve``).
 Columns: mean gap, rms height and slope of the surface, residual, load error, iterations, gap statistics,
 contact area, elastic energy, contact and pressure atoms, flags; histograms of the gap and of the pressure.
 Expansion: (hurst, rho, seed, n) chains over the pressures in ``order``; with ``warm_start`` each chain runs in
@@ -64,7 +65,7 @@ def _keep_fields_option(key: str, v: Any) -> str:
 class GFMD(Method):
     name = "gfmd"
     order = 1
-    keys = ("n", "tol", "max_iter", "method", "backend", "warm_start", "order", "keep_fields")
+    keys = ("n", "tol", "max_iter", "method", "backend", "warm_start", "order", "keep_fields", "distributed")
     columns = ("mean_gap", "h_rms", "g_rms", "residual", "load_error", "iterations", "gap_std", "gap_min",
                "gap_max", "contact_area", "elastic_energy", "contact_atom", "pressure_atom", "flags", "count",
                "last_attached_load")
@@ -116,6 +117,9 @@ class GFMD(Method):
         o["order"] = rd.string(f"{key}.order", t.get("order", "decreasing"), ("decreasing", "increasing"))
         if "keep_fields" in t:  # only when asked: the task ids of other specs stay as they were
             o["keep_fields"] = _keep_fields_option(f"{key}.keep_fields", t["keep_fields"])
+        if rd.boolean(f"{key}.distributed", t.get("distributed", False)):  # only when asked, as keep_fields
+            o["distributed"] = True
+            _check_distributed(key, o, env)
         return o
 
     def check_job(self, spec: JobSpec) -> None:
@@ -147,14 +151,17 @@ class GFMD(Method):
         return cpu / 20 if t.opt("backend") == "cupy" else cpu  # an H200 solve is ~20x a CPU core
 
     def memory(self, t: Task) -> float:
+        if t.opt("distributed"):  # the whole surface (cached) and its rows per rank; the solver's slabs are sized
+            return 8.0 * t.n * t.n * 4  # with the rank count by gapsweep.sweep.collective.check_memory
         return 8.0 * t.n * t.n * 28  # 4 cached surfaces + solver vectors + complex FFT buffers
 
     def needs_gpu(self, t: Task) -> bool:
         return t.opt("backend") == "cupy"
 
     def gpu_memory(self, t: Task) -> float:
-        """The solver's GPU memory plan (gapsweep.gfmd._cuda.solve_memory; measured to 0.01 % at n >= 4096)."""
-        if not self.needs_gpu(t):
+        """The solver's GPU memory plan (gapsweep.gfmd._cuda.solve_memory; measured to 0.01 % at n >= 4096).
+        A distributed task's GPUs are sized with the rank count (gapsweep.sweep.collective.check_memory)."""
+        if not self.needs_gpu(t) or t.opt("distributed"):
             return 0.0
         from gapsweep.gfmd._cuda import solve_memory
 
@@ -222,9 +229,28 @@ def gfmd_host_fields(t: Task, ctx: Context) -> bool | tuple[str, ...]:
     return False
 
 
+def _check_distributed(key: str, o: dict[str, Any], env: Env) -> None:
+    """``distributed = true``: refuse what a solve split over ranks cannot do (docs/jobs.md)."""
+    if "keep_fields" in o:
+        raise SpecError(f"{key}.distributed: a distributed solve keeps its fields in slabs over the ranks, which "
+                        "the store's field files do not take: drop keep_fields, or distributed")
+    if o["backend"] not in ("auto", "numpy", "cupy"):
+        raise SpecError(f"{key}.backend: a distributed solve runs on 'numpy' (CPU ranks) or 'cupy' (one GPU per "
+                        f"rank), or 'auto'; got {o['backend']!r}")
+    from gapsweep.gfmd.distributed import METHODS
+    from gapsweep.gfmd.interactions import INTERACTIONS
+
+    allowed = METHODS[INTERACTIONS[env.law][0].load_control]
+    if o["method"] not in ("auto", *allowed):
+        raise SpecError(f"{key}.method: a distributed {env.law} solve runs {', '.join(map(repr, allowed))} or "
+                        f"'auto'; got {o['method']!r}")
+
+
 def run_gfmd(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
     from gapsweep import gfmd
 
+    if t.opt("distributed") and getattr(ctx, "comm", None) is not None:  # gapsweep.sweep.collective
+        return run_slab(t, ctx, prev)
     sp = t.surface_params()
     use_gpu(t, ctx)
     h = ctx.surface_on_gpu(t, t.n) if t.opt("backend") == "cupy" else ctx.surface(t, t.n)
@@ -252,7 +278,21 @@ def law_params(t: Task) -> dict[str, Any]:
     return {"interaction": law, "work": t.opt("work"), "rho": t.rho}
 
 
-def gfmd_row(t: Task, ctx: Context, res: Any, prev: Any = None) -> tuple[TaskResult, Any]:
+class LocalStats:
+    """The gap's statistics and histograms of a row from the whole field on this process (numpy or cupy);
+    gapsweep.sweep.collective has those of a field split over ranks."""
+
+    def gap(self, gap: Any, xp: Any) -> dict[str, float]:
+        return {"gap_std": float(xp.std(gap)), "gap_min": float(xp.min(gap)), "gap_max": float(xp.max(gap))}
+
+    def hist(self, t: Task, gap: Any, exclude_zero: bool) -> tuple[np.ndarray, np.ndarray, int]:
+        return hist(t, gap, exclude_zero=exclude_zero)
+
+    def pressure_hist(self, t: Task, p: Any, xp: Any) -> tuple[tuple[np.ndarray, np.ndarray], float]:
+        return _pressure_hist(t, p, xp)
+
+
+def gfmd_row(t: Task, ctx: Context, res: Any, prev: Any = None, stats: Any = None) -> tuple[TaskResult, Any]:
     """Store row of a GFMD result and the warm start it gives the next task of its chain (the converged
     result, else None). The gap's statistics and histogram are taken where the gap lives (numpy or cupy).
     Every law stores contact_area, elastic_energy, the pressure histogram and its atom at p = 0; the hard wall
@@ -260,6 +300,7 @@ def gfmd_row(t: Task, ctx: Context, res: Any, prev: Any = None) -> tuple[TaskRes
     laws) marks jumps along the load path in ``flags``."""
     from gapsweep.gfmd._ops import _is_cupy
 
+    stats = stats or LocalStats()
     gap = res.gap
     xp = np
     if _is_cupy(gap):
@@ -272,8 +313,8 @@ def gfmd_row(t: Task, ctx: Context, res: Any, prev: Any = None) -> tuple[TaskRes
         _keep_fields(t, ctx, res, ctx.surface(t, t.n), np.asarray(host(gap), dtype=float), sp["length"])
     v = {"mean_gap": float(res.mean_gap), "h_rms": h_rms, "g_rms": g_rms,
          "residual": float(res.residual), "load_error": float(getattr(res, "load_error", math.nan)),
-         "iterations": int(res.iterations), "gap_std": float(xp.std(gap)), "gap_min": float(xp.min(gap)),
-         "gap_max": float(xp.max(gap)), "contact_area": float(getattr(res, "contact_area", math.nan)),
+         "iterations": int(res.iterations), **stats.gap(gap, xp),
+         "contact_area": float(getattr(res, "contact_area", math.nan)),
          "elastic_energy": float(getattr(res, "elastic_energy", math.nan)), "flags": 0,
          # adhesion at a tensile load: where continuation from zero load stayed attached (the pull-off bracket)
          "last_attached_load": float(getattr(res, "diagnostics", {}).get("last_attached_load", math.nan))}
@@ -287,7 +328,7 @@ def gfmd_row(t: Task, ctx: Context, res: Any, prev: Any = None) -> tuple[TaskRes
         v["contact_atom"] = float(res.contact_atom())
     phist = None
     if getattr(res, "pressure", None) is not None:
-        phist, v["pressure_atom"] = _pressure_hist(t, res.pressure, xp)
+        phist, v["pressure_atom"] = stats.pressure_hist(t, res.pressure, xp)
     if getattr(res, "status", "") == "detached":
         v["flags"] |= FLAG_DETACHED
         msg = (f"gfmd: detached at sigma0 = {t.sigma0:g} (beyond pull-off: no equilibrium in contact; "
@@ -314,7 +355,7 @@ def gfmd_row(t: Task, ctx: Context, res: Any, prev: Any = None) -> tuple[TaskRes
     # fields are dropped with the result once the row is made); the other laws start from the whole result
     # (hard wall: its pressure; adhesive: displacement and mean gap) and it marks jumps.
     state = (res.displacement if t.law == "exponential" else res) if ok else None
-    return TaskResult(status, msg, v, hist(t, gap, exclude_zero=hard), phist), state
+    return TaskResult(status, msg, v, stats.hist(t, gap, hard), phist), state
 
 
 def _fill_quantities(t: Task, res: Any, v: dict[str, float], gap: Any, xp: Any) -> None:
@@ -354,3 +395,106 @@ def _pressure_hist(t: Task, p: Any, xp: Any) -> tuple[tuple[np.ndarray, np.ndarr
     counts, _ = xp.histogram(loaded, bins=xp.asarray(edges) if xp is not np else edges)
     counts = host(counts)
     return (edges, counts / (size * np.diff(edges))), atom
+
+
+# ---------------------------------------------------------------------------------------------- distributed
+class _SlabStats:
+    """The row's gap statistics and histograms of fields split in rows over the ranks (the same numbers as
+    ``gfmd.LocalStats`` of the whole field, up to summation order): reductions over ``comm``."""
+
+    def __init__(self, comm: Any) -> None:
+        from gapsweep.core.slab import Reducer
+
+        self.red = Reducer(comm)
+
+    def gap(self, gap: Any, xp: Any) -> dict[str, float]:
+        n = self.red.sum(float(gap.size))
+        (s,), (lo,), (hi,) = self.red.many(sums=(float(xp.sum(gap)),), mins=(_amin(gap),), maxs=(_amax(gap),))
+        mean = s / n
+        var = self.red.sum(float(xp.sum((gap - mean) ** 2))) / n
+        return {"gap_std": math.sqrt(var), "gap_min": lo, "gap_max": hi}
+
+    def _counts(self, a: Any, edges: np.ndarray, xp: Any) -> np.ndarray:
+        c, _ = xp.histogram(a, bins=xp.asarray(edges) if xp is not np else edges)
+        c = c.get() if xp is not np else c
+        return np.asarray(self.red.sum(*[float(x) for x in c]), dtype=np.float64).reshape(-1)
+
+    def hist(self, t: Task, gap: Any, exclude_zero: bool) -> tuple[np.ndarray, np.ndarray, int]:
+        """``gapsweep.sweep.context.hist`` of the whole field."""
+        xp = _xp(gap)
+        size = self.red.sum(float(gap.size))
+        a = gap[gap != 0.0] if exclude_zero else gap
+        a = a[xp.isfinite(a)]
+        rng = t.opt("range")
+        if rng != "auto":
+            r = (float(rng[0]), float(rng[1]))
+        else:
+            _, (lo,), (hi,) = self.red.many(mins=(_amin(a),), maxs=(_amax(a),))
+            r = (0.0, 1.0) if not math.isfinite(lo) else ((lo - 0.5, hi + 0.5) if lo == hi else (lo, hi))
+        edges = np.histogram_bin_edges(np.empty(0), bins=t.opt("bins"), range=r)
+        counts = self._counts(a, edges, xp)
+        total = counts.sum()
+        width = np.diff(edges)
+        dens = counts / (total * width) if total else np.zeros_like(width)
+        if exclude_zero:
+            dens = dens * (total / size if size else 0.0)
+        return edges, dens, int(total)
+
+    def pressure_hist(self, t: Task, p: Any, xp: Any) -> tuple[tuple[np.ndarray, np.ndarray], float]:
+        """``gfmd._pressure_hist`` of the whole field."""
+        loaded = p[p != 0.0]
+        n_all, n_l = self.red.sum(float(p.size), float(loaded.size))
+        atom = 1.0 - n_l / n_all
+        bins = t.opt("bins")
+        if n_l == 0:
+            return (np.linspace(0.0, 1.0, bins + 1), np.zeros(bins)), atom
+        _, (lo,), (hi,) = self.red.many(mins=(_amin(loaded),), maxs=(_amax(loaded),))
+        if lo == hi:
+            lo, hi = lo - 0.5 * abs(lo or 1.0), hi + 0.5 * abs(hi or 1.0)
+        edges = np.linspace(lo, hi, bins + 1)
+        counts = self._counts(loaded, edges, xp)
+        return (edges, counts / (n_all * np.diff(edges))), atom
+
+
+def _xp(a: Any) -> Any:
+    from gapsweep.gfmd._ops import _is_cupy
+
+    if _is_cupy(a):
+        import cupy
+
+        return cupy
+    return np
+
+
+def _amin(a: Any) -> float:
+    return float(a.min()) if a.size else math.inf
+
+
+def _amax(a: Any) -> float:
+    return float(a.max()) if a.size else -math.inf
+
+
+def run_slab(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
+    """One GFMD task solved by every rank of ``ctx.comm`` together (module docstring): each rank takes its rows
+    of the task's surface (made whole on every rank, as ``Context.surface`` does) and the row comes from the
+    global scalars and histograms (:class:`_SlabStats`). The same on every rank; collective."""
+    from gapsweep import gfmd
+
+    if t.opt("surface.periodic") is False:
+        raise ValueError("distributed = true: a distributed solve is periodic; this surface is solved with free "
+                         "boundaries (surface.periodic = false)")
+    comm = ctx.comm
+    sp = t.surface_params()
+    use_gpu(t, ctx)
+    rows = gfmd.slab_rows(t.n, comm)
+    h = np.ascontiguousarray(ctx.surface(t, t.n)[rows])
+    if t.opt("backend") == "cupy":
+        import cupy
+
+        h = cupy.asarray(h)
+    backend = t.opt("backend") if t.opt("backend") in ("numpy", "cupy") else "auto"
+    res = gfmd.solve(h, comm=comm, sigma0=t.sigma0, **law_params(t), e_star=t.opt("e_star"),
+                     length=sp["length"], tol=t.opt("tol"), method=t.opt("method"), backend=backend,
+                     max_iter=t.opt("max_iter"), initial=prev if t.opt("warm_start") else None, host=False,
+                     **extra(t))
+    return gfmd_row(t, ctx, res, prev, stats=_SlabStats(comm))

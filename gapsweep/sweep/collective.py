@@ -1,0 +1,117 @@
+"""Collective runs: a job whose GFMD tasks each span every MPI rank (``[methods.gfmd] distributed = true``;
+docs/jobs.md, docs/gfmd.md "One solve over several processes").
+
+Every rank goes through the job's units in the same order; a distributed task is solved by all ranks together
+(``gapsweep.gfmd.solve(h_rows, comm=comm)``: each rank holds its rows of the surface and of the fields), the
+row's scalars (global: mean gap, contact area, energies, the gap's statistics and histograms, reduced over the
+ranks) are the same on every rank and rank 0 writes them into the store, as for any row. Tasks of other methods
+in the same job run on rank 0 alone. This replaces the coordinator/worker farm for such a job (the farm hands
+whole tasks to single ranks); it is chosen by :func:`is_collective`. The task itself is solved by the GFMD
+plug-in (``gapsweep.sweep.methods.gfmd.run_slab``, when the runner gives the context a communicator).
+
+A distributed solve raises the same errors on every rank (its checks are collective), so a failed task is a
+failed row on every rank and the run goes on together; an error on one rank alone ends the job (``Abort``),
+as any error outside a task does in the farm."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Iterator
+from typing import Any
+
+from gapsweep.sweep import budget
+from gapsweep.sweep.context import Context
+from gapsweep.sweep.schema import Task, TaskResult, Unit
+
+__all__ = ["DoesNotFit", "check_memory", "is_collective", "run_collective"]
+
+log = logging.getLogger("gapsweep.runner")
+CUDA_CONTEXT = 0.5e9  # bytes a CUDA context and NCCL take on each GPU (as gapsweep.sweep.budget counts)
+
+
+def is_collective(tasks: list[Task]) -> bool:
+    """Whether the job asks for distributed tasks (then every rank runs the job together)."""
+    return any(t.opt("distributed") for t in tasks)
+
+
+def _kind(t: Task) -> str:
+    """``gfmd.distributed.solve_memory``'s kind of a task's solve."""
+    if t.law == "hard_wall":
+        return "hard_wall"
+    if t.law == "exponential":
+        return "exponential"
+    return "smooth"
+
+
+class DoesNotFit(RuntimeError):
+    """A distributed task's memory exceeds the GPU's or the host's (the runner raises it as its RunError)."""
+
+
+def check_memory(tasks: list[Task], ranks: int, on_gpu_total: float | None = None,
+                 host_total: float | None = None) -> list[str]:
+    """Plan lines for the distributed tasks over ``ranks`` ranks; raises :class:`DoesNotFit` when the largest
+    does not fit: on GPUs (``backend = "cupy"``, one GPU per rank) the solve's slabs
+    (``gfmd.distributed.solve_memory``) and a CUDA context against one GPU's memory; on the CPU the slabs of all
+    ranks (one node) and each rank's copy of the surface against the host's memory. ``on_gpu_total`` /
+    ``host_total``: the memory to check against (default: this machine's, 0 or None: not checked)."""
+    from gapsweep.gfmd.distributed import solve_memory
+
+    dist = [t for t in tasks if t.opt("distributed")]
+    if not dist:
+        return []
+    gpu_need = host_need = 0.0
+    for t in dist:
+        per_rank = solve_memory((t.n, t.n), ranks, _kind(t), tensile=t.sigma0 < 0)["bytes_per_rank"]
+        if t.opt("backend") == "cupy":
+            gpu_need = max(gpu_need, per_rank + CUDA_CONTEXT)
+        else:
+            host_need = max(host_need, per_rank)
+    lines = []
+    if gpu_need:
+        lines.append(f"  distributed GFMD: ~{budget.human(gpu_need)} per GPU ({ranks} GPUs, one rank each)")
+        have = budget.gpu_memory_total() if on_gpu_total is None else on_gpu_total
+        if have and gpu_need > have:
+            raise DoesNotFit(f"a distributed GFMD task needs ~{budget.human(gpu_need)} per GPU on {ranks} GPUs, more "
+                           f"than this GPU's {budget.human(have)}: use more GPUs (ranks) or smaller grids (n)")
+    if host_need:
+        lines.append(f"  distributed GFMD: ~{budget.human(host_need)} per rank for the solve ({ranks} ranks)")
+        ram = budget.memory_total() if host_total is None else host_total
+        whole = ranks * (host_need + budget.peak_memory(dist))
+        if ram and whole > ram:
+            raise DoesNotFit(f"a distributed GFMD task needs ~{budget.human(host_need)} per rank for the solve, "
+                           f"~{budget.human(whole)} over {ranks} ranks with their surfaces, more than this "
+                           f"machine's {budget.human(ram)}: use more nodes or smaller grids (n)")
+    return lines
+
+
+# ---------------------------------------------------------------------------------------------- the run
+def run_collective(comm: Any, tasks: list[Task], units: list[Unit], work: list[int], ctx: Context,
+                   run_unit: Callable[..., Iterator[tuple[int, TaskResult]]], todo: set[int],
+                   write: Callable[[int, TaskResult], None], stop: Any) -> None:
+    """Go through the units ``work`` in order on every rank (module docstring): a unit of distributed tasks on
+    all ranks (``ctx.comm = comm``), any other on rank 0 alone; rank 0 writes each row (``write``). A stop
+    request (signal or stop file, seen by rank 0) ends the run after the current task, on every rank.
+    ``run_unit(tasks, unit, ctx, todo, limit, stop)`` is the runner's unit loop."""
+    rank = comm.Get_rank()
+    ctx.comm = comm
+    if rank == 0:
+        n = sum(1 for k in work for i in units[k].tasks if tasks[i].opt("distributed") and i in todo)
+        log.info("collective run: %d distributed task(s), each solved by all %d ranks together", n,
+                 comm.Get_size())
+    for k in work:
+        unit = units[k]
+        together = any(tasks[i].opt("distributed") for i in unit.tasks)
+        if together or rank == 0:
+            for i, res in run_unit(tasks, unit, ctx, todo, None, None):
+                if rank == 0:
+                    write(i, res)
+                if together and _stopping(comm, stop):
+                    return
+        if _stopping(comm, stop):
+            return
+
+
+def _stopping(comm: Any, stop: Any) -> bool:
+    """Rank 0's view of a stop request, on every rank (one broadcast)."""
+    flag = bool(stop.requested()) if comm.Get_rank() == 0 else None
+    return bool(comm.bcast(flag, root=0))

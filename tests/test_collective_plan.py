@@ -1,0 +1,88 @@
+"""``gapsweep plan`` and ``run`` for jobs with ``[methods.gfmd] distributed = true`` (gapsweep.sweep.collective):
+the memory of a solve split over the ranks (gfmd.distributed.solve_memory) per GPU or per rank, refused when it
+does not fit, with the number named; the spec's refusals. The runs themselves: tests/mpi/test_collective.py."""
+
+from __future__ import annotations
+
+import pytest
+
+from gapsweep.sweep import budget, collective, runner, spec
+from gapsweep.sweep.schema import SpecError
+
+JOB = """
+[job]
+name = "dist"
+[grid]
+hurst = [0.8]
+rho = [2e-6]
+sigma0 = [1e-2]
+seeds = [0]
+[surface]
+lambda_l = 0.25
+lambda_s = {ls}
+rms_slope = 1.0
+[material]
+gamma0 = 1e-3
+[methods.gfmd]
+n = {n}
+backend = "{backend}"
+distributed = true
+"""
+
+
+def _tasks(tmp_path, n: int, backend: str = "numpy", law: str = ""):
+    text = JOB.format(n=n, backend=backend, ls=4.0 / n)
+    if law:
+        text = text.replace("[material]\ngamma0 = 1e-3", f'[interaction]\nkind = "{law}"\nwork = 1e-3')
+    p = tmp_path / "j.toml"
+    p.write_text(text)
+    s = spec.load(p)
+    return s, runner._select(s, None)[0]
+
+
+def test_gpu_memory_per_gpu_named_and_refused(tmp_path):
+    from gapsweep.gfmd.distributed import solve_memory
+
+    _, tasks = _tasks(tmp_path, 65536, "cupy", "adhesive")
+    assert collective.is_collective(tasks)
+    need = solve_memory((65536, 65536), 4, "adhesive")["bytes_per_rank"] + collective.CUDA_CONTEXT
+    # 11 arrays + 3 of scratch of a GPU's 16384 rows: 120 GB, fits one H200 (141 GB) on 4 GPUs
+    assert need == pytest.approx(14 * 8 * 16384 * 65536 + 0.5e9)
+    lines = collective.check_memory(tasks, 4, on_gpu_total=141e9, host_total=0)
+    assert len(lines) == 1 and "per GPU (4 GPUs" in lines[0]
+    with pytest.raises(collective.DoesNotFit, match=r"needs ~\S+ GB per GPU on 2 GPUs, more than this GPU's"):
+        collective.check_memory(tasks, 2, on_gpu_total=141e9, host_total=0)
+
+
+def test_cpu_memory_per_rank_refused(tmp_path, monkeypatch):
+    s, tasks = _tasks(tmp_path, 65536)
+    with pytest.raises(collective.DoesNotFit, match=r"needs ~\S+ GB per rank for the solve, ~\S+ [GT]B over 4 ranks"):
+        collective.check_memory(tasks, 4, host_total=64e9)
+    monkeypatch.setattr(budget, "memory_total", lambda: int(64e9))  # a 64 GB machine
+    s, tasks = _tasks(tmp_path, 32768)  # the surface per rank fits (34 GB), the slabs of 4 ranks do not
+    with pytest.raises(runner.RunError, match=r"needs ~32.\d GB per rank for the solve"):
+        runner.plan(s, ranks=4)
+    s, tasks = _tasks(tmp_path, 64)
+    text = runner.plan(s, ranks=2)
+    assert "distributed GFMD:" in text and "per rank for the solve (2 ranks)" in text
+
+
+def test_spec_refusals(tmp_path):
+    with pytest.raises(SpecError, match=r"methods\.gfmd\.distributed: expected true or false|distributed"):
+        p = tmp_path / "a.toml"
+        p.write_text(JOB.format(n=64, backend="numpy", ls=0.0625).replace("distributed = true", 'distributed = "yes"'))
+        spec.load(p)
+    p = tmp_path / "b.toml"
+    p.write_text(JOB.format(n=64, backend="numpy", ls=0.0625) + 'method = "mpcg"\n')
+    with pytest.raises(SpecError, match=r"methods\.gfmd\.method"):
+        spec.load(p)
+    p.write_text(JOB.format(n=64, backend="numpy", ls=0.0625) + 'keep_fields = {fields = ["gap"]}\n')
+    with pytest.raises(SpecError, match=r"methods\.gfmd\.distributed: .*drop keep_fields, or distributed"):
+        spec.load(p)
+
+
+def test_timeout_and_batch_refused(tmp_path):
+    s, _ = _tasks(tmp_path, 64)
+    with pytest.raises(runner.RunError, match="--task-timeout and --batch do not apply"):
+        runner.run(s, tmp_path / "s.h5", task_timeout=10.0, progress="none", mpi="off")
+    assert not (tmp_path / "s.h5").exists()
