@@ -136,23 +136,6 @@ def _kernels() -> Any:
         return s1, s2
 
     @jit
-    def zstats5(z, t, gs, p):
-        s1 = 0.0
-        s2 = 0.0
-        s3 = 0.0
-        s4 = 0.0
-        s5 = 0.0
-        zf, tf, gsf, pf = z.ravel(), t.ravel(), gs.ravel(), p.ravel()
-        for i in range(pf.size):
-            on = pf[i] > 0
-            s1 += zf[i] if on else 0.0
-            s2 += gsf[i] * zf[i]  # gs = 0 off S
-            s3 += tf[i] if on else 0.0
-            s4 += gsf[i] * tf[i]
-            s5 += gsf[i]
-        return s1, s2, s3, s4, s5
-
-    @jit
     def direction(t, z, zbar, c, p):
         tf, zf, pf = t.ravel(), z.ravel(), p.ravel()
         for i in range(pf.size):
@@ -205,7 +188,7 @@ def _kernels() -> Any:
     class K:
         pass
 
-    for f in (contact_sum, gap, zstats, zstats5, direction, rstats, update, rescale):
+    for f in (contact_sum, gap, zstats, direction, rstats, update, rescale):
         setattr(K, f.__name__, staticmethod(f))
     _NUMBA = K
     return K
@@ -231,7 +214,7 @@ class _PKNumba(_PKOps):
         return float(a), float(b)
 
     def zstats5(self, z, t, gs, p):
-        a, b, c, d, e = self.K.zstats5(z, t, gs, p)
+        a, b, c, d, e = spectral_kernels().zstats5(z, t, gs, p)
         return float(a), float(b), float(c), float(d), float(e)
 
     def direction(self, t, z, zbar, c, p):
@@ -253,13 +236,31 @@ _SPECTRAL: Any = None
 
 
 def spectral_kernels() -> Any:
-    """Fused passes on the half spectra of ``_constrained._SpectralFFTW`` (numba, serial)."""
+    """Fused passes of ``_constrained._spectral_loop`` (numba, serial): ``zstats5`` on the real fields, the rest
+    on the half spectra of ``_constrained._SpectralFFTW``."""
     global _SPECTRAL
     if _SPECTRAL is not None:
         return _SPECTRAL
     import numba
 
     jit = numba.njit(cache=True, fastmath={"reassoc", "contract", "nsz"}, nogil=True)
+
+    @jit
+    def zstats5(z, t, gs, p):
+        s1 = 0.0
+        s2 = 0.0
+        s3 = 0.0
+        s4 = 0.0
+        s5 = 0.0
+        zf, tf, gsf, pf = z.ravel(), t.ravel(), gs.ravel(), p.ravel()
+        for i in range(pf.size):
+            on = pf[i] > 0
+            s1 += zf[i] if on else 0.0
+            s2 += gsf[i] * zf[i]  # gs = 0 off S
+            s3 += tf[i] if on else 0.0
+            s4 += gsf[i] * tf[i]
+            s5 += gsf[i]
+        return s1, s2, s3, s4, s5
 
     @jit
     def copy_mul(P, src, kmul, cin):  # P = src, cin = kmul P
@@ -290,7 +291,7 @@ def spectral_kernels() -> Any:
     class K:
         pass
 
-    for f in (copy_mul, copy_energy, step_mul):
+    for f in (zstats5, copy_mul, copy_energy, step_mul):
         setattr(K, f.__name__, staticmethod(f))
     _SPECTRAL = K
     return K
