@@ -43,9 +43,9 @@ import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from analysis.predictors_heldout import FRESH, FRESH_P, HELDOUT, HELDOUT_P, TUNING, TUNING_P, _grid
 from gapsweep import gfmd, surface
 from gapsweep.theory import closure, improved
+from studies.predictors_heldout import FRESH, FRESH_P, HELDOUT, HELDOUT_P, TUNING, TUNING_P, _grid
 
 log = logging.getLogger("bench_bounds")
 

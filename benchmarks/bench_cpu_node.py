@@ -64,7 +64,7 @@ def worker_gfmd(n: int, evals: int, backend: str, threads: int, barrier: str) ->
 
     sys.path.insert(0, str(ROOT))
     from gapsweep import gfmd
-    from gapsweep.fft import get_backend
+    from gapsweep.core.fft import get_backend
     from gapsweep.surface import self_affine
 
     h = self_affine(n, 0.3, lambda_l=0.25, lambda_s=4.0 / n, rms_slope=1.0, seed=1)

@@ -30,7 +30,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from gapsweep import gfmd
-from gapsweep.fft import get_backend
+from gapsweep.core.fft import get_backend
 from gapsweep.surface import self_affine
 
 GAMMA0 = 1e-3

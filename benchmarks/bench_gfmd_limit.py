@@ -58,7 +58,7 @@ def bare_pair(n: int, repeat: int = 20) -> float:
     """Median seconds of irfft2 + rfft2 (gapsweep.fft's cuFFT plans) with a synchronisation."""
     import cupy
 
-    from gapsweep.fft import get_backend
+    from gapsweep.core.fft import get_backend
 
     fb = get_backend("cupy", n)
     h = cupy.random.default_rng(0).standard_normal((n, n))
@@ -149,7 +149,7 @@ def _phases(n: int) -> dict:
     import cupy
 
     from gapsweep import gfmd
-    from gapsweep.fft import _CupyBackend
+    from gapsweep.core.fft import _CupyBackend
     from gapsweep.gfmd import _cuda, _softmax
 
     sync = cupy.cuda.get_current_stream().synchronize
@@ -203,7 +203,7 @@ def _phases(n: int) -> dict:
 
 def _plan_work(n: int) -> int:
     """Bytes of the work areas of gapsweep.fft's two cuFFT plans of an n x n grid (0 if not readable)."""
-    from gapsweep.fft import get_backend
+    from gapsweep.core.fft import get_backend
 
     fb = get_backend("cupy", n)
     total = 0
@@ -216,7 +216,8 @@ def _plan_work(n: int) -> int:
 def part_memory(a, rows: list) -> None:
     import cupy
 
-    from gapsweep import fft, gfmd
+    from gapsweep import gfmd
+    from gapsweep.core import fft
 
     try:
         from gapsweep.gfmd._cuda import solve_memory
@@ -271,7 +272,8 @@ def _pool_peak(solve_fn, n: int) -> tuple[float, object]:
     """``(bytes the pool grew by during solve_fn(), its result)``, FFT plans and caches of every size dropped."""
     import cupy
 
-    from gapsweep import fft, gfmd
+    from gapsweep import gfmd
+    from gapsweep.core import fft
 
     pool = cupy.get_default_memory_pool()
     fft._PLANS.clear()

@@ -35,7 +35,7 @@ import numpy as np
 # appended, not prepended: PYTHONPATH=<another checkout> times that checkout's kernels (passes on two commits)
 sys.path.append(str(Path(__file__).resolve().parents[1]))
 
-from gapsweep.fft import get_backend
+from gapsweep.core.fft import get_backend
 from gapsweep.gfmd import solve
 from gapsweep.gfmd._constrained_ops import make_ops
 from gapsweep.surface import self_affine

@@ -160,7 +160,7 @@ def kernel_limit(args, fig6: dict, gpu_name: str, device_sync) -> None:
 
     warp = have_warp()
     if warp:
-        from gapsweep import _sde_kernels as K
+        from gapsweep.gapdist import _sde_kernels as K
     else:
         print("warp not installed: the warp rows are left out (CUDA engine and reference kernels only)", flush=True)
 

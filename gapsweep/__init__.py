@@ -9,49 +9,20 @@ The package is laid out as its data path (docs/architecture.md):
   calibration);
 * ``sweep``: job spec -> tasks -> method plug-ins (``sweep.methods``) -> result record -> HDF5 store, the MPI
   farm, xarray/netCDF views;
-* thin drivers: ``cli`` and ``demo``; the report lives in the top-level ``analysis`` package.
+* thin drivers: ``cli`` and ``demo``; and ``analysis`` (aggregation, figures, the report of ``gapsweep report``), a
+  consumer of stores that physics never imports.
 
-The flat names of version 0.1 (``gapsweep.surface``, ``gapsweep.store``, ``gapsweep.sde``, ...) stay the stable
-public face: importing one gives the module it now lives in (the table :data:`STABLE_NAMES`), the same module
-object, so attributes, monkeypatching and pickling behave as before.
+The flat names of version 0.1 (``gapsweep.surface``, ``gapsweep.store``, ``gapsweep.sde``, ...) are plain alias
+modules (``gapsweep/<name>.py``, :mod:`gapsweep._alias`): importing one gives the module it now lives in (the table
+:data:`STABLE_NAMES`), the same module object, so attributes, monkeypatching, pickling and ``importlib.reload``
+behave as before. Those in :data:`DEPRECATED_NAMES` warn and go in 0.4 (docs/architecture.md, "The 0.1 names").
+Importing gapsweep changes no process-wide state (no environment variable; numba's cache folder is set for
+gapsweep's own kernels only, :mod:`gapsweep.core.numba_cache`).
 """
 
 from __future__ import annotations
 
-import importlib
-import importlib.abc
-import importlib.machinery
-import os
-import sys
-
 __version__ = "0.2.0"
-
-
-def _numba_cache_dir() -> None:
-    """Point numba's on-disk cache (the GFMD CPU kernels are ``cache=True``) at a per-user folder before numba is
-    imported: ``$NUMBA_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/gapsweep/numba`` (``~/.cache/gapsweep/numba``),
-    else ``<tmp>/gapsweep-numba-<uid>``. Without it numba writes ``*.nbi``/``*.nbc`` into the source tree's
-    ``__pycache__`` (issue 19): a read-only or shared install, and another user's files in a checkout."""
-    if os.environ.get("NUMBA_CACHE_DIR"):
-        return
-    import tempfile
-
-    home = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    uid = os.getuid() if hasattr(os, "getuid") else 0
-    for d in (os.path.join(home, "gapsweep", "numba"),
-              os.path.join(tempfile.gettempdir(), f"gapsweep-numba-{uid}")):
-        try:
-            os.makedirs(d, exist_ok=True)
-        except OSError:
-            continue
-        if os.access(d, os.W_OK | os.X_OK):
-            os.environ["NUMBA_CACHE_DIR"] = d
-            if "numba" in sys.modules:  # imported before gapsweep: its config has read the environment already
-                sys.modules["numba"].config.CACHE_DIR = d
-            return
-
-
-_numba_cache_dir()
 
 # stable public name -> the module it lives in
 STABLE_NAMES: dict[str, str] = {
@@ -72,21 +43,9 @@ STABLE_NAMES: dict[str, str] = {
         "dataset")},
 }
 
-
-class _StableNames(importlib.abc.MetaPathFinder, importlib.abc.Loader):
-    """Import finder that answers a stable name with the module it now lives in (no copy, no warning)."""
-
-    def find_spec(self, name: str, path: object = None, target: object = None):
-        if name in STABLE_NAMES:
-            return importlib.machinery.ModuleSpec(name, self)
-        return None
-
-    def create_module(self, spec: importlib.machinery.ModuleSpec):
-        return importlib.import_module(STABLE_NAMES[spec.name])
-
-    def exec_module(self, module: object) -> None:  # the target module is already executed
-        return None
-
-
-if not any(isinstance(f, _StableNames) for f in sys.meta_path):
-    sys.meta_path.append(_StableNames())
+#: the 0.1 names of internals: importing one warns (DeprecationWarning); they go in gapsweep 0.4
+DEPRECATED_NAMES: frozenset[str] = frozenset({
+    "gapsweep._checks", "gapsweep._extras", "gapsweep.fft", "gapsweep._sde_kernels", "gapsweep._sde_cuda",
+    *(f"gapsweep.{m}" for m in ("tasks", "storecheck", "lease", "budget", "limits", "provenance", "batching",
+                                "gpus")),
+})

@@ -1,4 +1,4 @@
-"""Command-line interface (thin): ``gapsweep plan | run | status | merge | submit | report | export | demo``.
+"""Command-line interface (thin): ``gapsweep plan | run | jobs | status | merge | submit | report | export | demo``.
 
 Exit codes: 0 success, 1 a task-independent error (a run that cannot start, a store that cannot be read or
 merged, a write error, a missing optional dependency, an output that exists), 2 an invalid job spec or argument
@@ -28,6 +28,7 @@ and SDE / Fokker-Planck ensembles, over whole parameter grids (docs/model.md; jo
   gapsweep demo                                   the paper's figure 2 and a gap distribution (minutes on 2 cores)
   gapsweep plan JOB.toml                          validate a job spec, count its tasks, estimate the cost
   gapsweep run JOB.toml --store OUT.h5            run it (under mpiexec: an MPI task farm)
+  gapsweep jobs                                   the shipped job specs (gapsweep run fig2 --store OUT.h5)
   gapsweep submit JOB.toml OUT_DIR --shards N     run it on Slurm: N shards + a merge job (docs/running.md)
   gapsweep status OUT.h5                          counts, failures, the cost and time left
   gapsweep report OUT.h5 --out DIR                figures, tables and (for the paper's sets) verdicts
@@ -52,7 +53,7 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     s = sub.add_parser("plan", help="validate a job spec, print its task count and cost estimate")
-    s.add_argument("job", help="job spec (TOML), see docs/jobs.md")
+    s.add_argument("job", help="job spec (TOML, see docs/jobs.md), or the name of a shipped one (`gapsweep jobs`)")
     s.add_argument("--shard", help="i/n: plan only shard i of n")
     s.add_argument("--ranks", type=int, default=1, help="ranks for the wall-time estimate (default 1)")
     s.add_argument("--store", help="check that the store fits on the disk of this path")
@@ -60,8 +61,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="ranks sharing one GPU, for the GPU-memory check (default 1)")
 
     s = sub.add_parser("run", help="run a job into a store (serial, or under mpiexec as an MPI task farm)")
-    s.add_argument("job", nargs="+", help="job spec(s) (TOML); several run one after the other in one launch "
-                                          "(start-up paid once), each into its own --store")
+    s.add_argument("job", nargs="+", help="job spec(s) (TOML) or shipped job names (`gapsweep jobs`); several run "
+                                          "one after the other in one launch (start-up paid once), each into its "
+                                          "own --store")
     s.add_argument("--store", required=True, action="append",
                    help="HDF5 store path ({i} and {n} are replaced by the shard); once per job, in order")
     s.add_argument("--resume", action="store_true", help="finish the pending tasks of an existing store")
@@ -92,6 +94,9 @@ def _parser() -> argparse.ArgumentParser:
                         "running them, where their checksums verify (repeatable; the run record names the "
                         "sources)")
 
+    s = sub.add_parser("jobs", help="list the job specs shipped with gapsweep (run one by name: gapsweep run fig2 ...)")
+    s.add_argument("--path", metavar="NAME", help="print the path of the shipped spec NAME instead")
+
     s = sub.add_parser("status", help="summarise a running or finished store")
     s.add_argument("store", help="HDF5 store written by `gapsweep run`")
     s.add_argument("--finished", action="store_true",
@@ -120,7 +125,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--skip-damaged", action="store_true",
                    help="merge without the shard rows whose checksum does not match (default: refuse)")
 
-    s = sub.add_parser("report", help="figures, tables and verdicts from one or more stores (analysis package)")
+    s = sub.add_parser("report", help="figures, tables and verdicts from one or more stores (gapsweep.analysis)")
     s.add_argument("store", nargs="+", help="HDF5 stores; figures are chosen from their axes and methods")
     s.add_argument("--out", default="out/report", help="report folder (default: out/report)")
     s.add_argument("--overwrite", action="store_true", help="replace a report already in --out")
@@ -134,7 +139,7 @@ def _parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("demo", help="run the shipped demo job: GFMD vs field theory (figure 2) and a gap distribution")
     s.add_argument("--out", default="out", help="output directory (default: out)")
-    s.add_argument("--job", default=None, help="job spec (default: the demo.toml shipped with gapsweep)")
+    s.add_argument("--job", default=None, help="job spec or shipped job name (default: the shipped demo)")
     s.add_argument("--theory-only", action="store_true", help="only the field-theory figure-2 table and figure")
     return p
 
@@ -256,7 +261,26 @@ def _main(args: argparse.Namespace) -> int:
         return 1
 
 
+def _jobs(args: argparse.Namespace) -> int:
+    from gapsweep import jobs
+
+    if args.path:
+        print(jobs.path(args.path))
+        return 0
+    width = max(len(n) for n in jobs.names())
+    for n in jobs.names():
+        print(f"{n:<{width}}  {jobs.describe(n)}")
+    print(f"\n(gapsweep run NAME --store OUT.h5; the files: {jobs.path('demo').parent})")
+    return 0
+
+
 def _dispatch(args: argparse.Namespace) -> int:
+    if args.command in ("plan", "run"):
+        from gapsweep import jobs
+
+        args.job = jobs.resolve(args.job) if args.command == "plan" else [jobs.resolve(j) for j in args.job]
+    if args.command == "jobs":
+        return _jobs(args)
     if args.command == "plan":
         from gapsweep.sweep import runner
 
@@ -280,11 +304,8 @@ def _dispatch(args: argparse.Namespace) -> int:
               + ", ".join(f"{v} {k}" for k, v in counts.items()))
         return 0
     if args.command == "report":
-        try:
-            from analysis.report import main as report_main
-        except ImportError:
-            print("gapsweep report: the analysis package is not available", file=sys.stderr)
-            return 1
+        from gapsweep.analysis.report import main as report_main
+
         print(f"report: {report_main(args.store, args.out, overwrite=args.overwrite)}")
         return 0
     if args.command == "export":
@@ -394,7 +415,9 @@ def _finished(path: str) -> int:
     pending = int((df.status == "pending").sum())
     if not pending:
         return 0
-    runs = json.loads(store.read_attrs(path).get("runs", "[]"))
+    from gapsweep.sweep.storecheck import run_records
+
+    runs = run_records(store.read_attrs(path).get("runs", "[]"))
     last = runs[-1] if runs else {}
     how = (f"interrupted by {last['interrupted']}" if last.get("interrupted") else
            f"stopped: {last['stopped']}" if last.get("stopped") else
@@ -413,9 +436,7 @@ def _demo(args: argparse.Namespace) -> int:
         return 0
     from gapsweep import jobs
 
-    job = Path(args.job) if args.job else jobs.path("demo")
-    if not job.is_file():
-        raise FileNotFoundError(f"demo job spec {job}: no such file")
+    job = jobs.resolve(args.job) if args.job else jobs.path("demo")
     res = demo.run(job, out)
     print(res["status"])
     if res["table"]:

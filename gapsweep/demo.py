@@ -108,7 +108,7 @@ def run(job: str | Path, out_dir: str | Path = "out") -> dict[str, Any]:
 def draw(df: Any, hists: dict, out_dir: str | Path) -> list[Path]:
     """Figure 2 (GFMD with error bars, field theory, both limits; a panel per rho) and the gap distribution at
     the largest rho with SDE / Fokker-Planck runs, from a store frame and its histograms."""
-    from analysis import aggregate, figures
+    from gapsweep.analysis import aggregate, figures
 
     out = Path(out_dir)
     made: list[Path] = []

@@ -1,4 +1,4 @@
-"""Tests of the analysis package (docs/analysis.md) on synthetic store frames, and end to end on a quick job."""
+"""Tests of gapsweep.analysis (docs/analysis.md) on synthetic store frames, and end to end on a quick job."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from analysis import aggregate, compare, dataset, figures, report
+from gapsweep.analysis import aggregate, compare, dataset, figures, report
 
 ROOT = Path(__file__).resolve().parents[1]
 E_STAR, GAMMA0, LL, LS = 1.0, 1e-3, 0.25, 2.5e-3

@@ -14,7 +14,8 @@ import pytest
 import gapsweep
 
 PKG = Path(gapsweep.__file__).resolve().parent
-PHYSICS = ("gapsweep.core", "gapsweep.surfaces", "gapsweep.gfmd", "gapsweep.theory", "gapsweep.gapdist")
+PHYSICS = ("gapsweep.core", "gapsweep.surfaces", "gapsweep.gfmd", "gapsweep.theory", "gapsweep.gapdist",
+           "gapsweep.reference")
 
 
 def _module_name(path: Path) -> str:
@@ -150,12 +151,75 @@ def test_sweep_core_names_no_method():
         assert not found, f"gapsweep.sweep.{mod} names the method(s) {sorted(found)}"
 
 
-@pytest.mark.parametrize("old", sorted(gapsweep.STABLE_NAMES))
+ALIASES = sorted(gapsweep.STABLE_NAMES)
+
+
+@pytest.mark.parametrize("old", ALIASES)
 def test_stable_names_import_the_same_module(old):
-    mod = importlib.import_module(old)
+    """Each 0.1 name is a real file (so type checkers and IDEs see it) whose import gives the module it now lives
+    in, the same object; a deprecated one warns, naming the release it goes in; a stable one is silent."""
+    import sys
+    import warnings
+
+    assert (PKG / f"{old.rpartition('.')[2]}.py").is_file()
+    sys.modules.pop(old, None)
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        mod = sys.modules[__import__(old) and old]  # a plain import statement's frames
     assert mod is importlib.import_module(gapsweep.STABLE_NAMES[old])
     parent, _, child = old.rpartition(".")
     assert getattr(importlib.import_module(parent), child) is mod
+    assert mod.__spec__.name == gapsweep.STABLE_NAMES[old]  # the real module keeps its own spec
+    dep = [str(x.message) for x in w if issubclass(x.category, DeprecationWarning)]
+    if old in gapsweep.DEPRECATED_NAMES:
+        assert dep == [f"{old} is a deprecated 0.1 name and goes in gapsweep 0.4: import {gapsweep.STABLE_NAMES[old]}"]
+        assert w[0].filename == __file__  # attributed to the importer, not to the import machinery
+    else:
+        assert dep == []
+
+
+def test_reload_of_the_real_module_after_the_alias(monkeypatch):
+    """``importlib.reload`` of the real module (or of the alias, the same object) executes it again."""
+    import gapsweep.store
+    from gapsweep.sweep import api
+
+    assert gapsweep.store is api and api.__spec__.name == "gapsweep.sweep.api"
+    monkeypatch.setattr(api, "read", None)  # the alias shares it
+    assert gapsweep.store.read is None
+    assert importlib.reload(gapsweep.store) is api and callable(api.read)
+
+
+def test_python_m_of_an_alias_runs_the_real_module(tmp_path):
+    """``python -m gapsweep.runner`` (a 0.1 name) runs ``gapsweep.sweep.runner`` as ``__main__``, as ``python -m
+    gapsweep.sweep.runner`` does (a library module: it defines the farm and exits 0, no traceback)."""
+    import subprocess
+    import sys
+
+    for name in ("gapsweep.runner", "gapsweep.sweep.runner"):
+        r = subprocess.run([sys.executable, "-m", name], capture_output=True, text=True, timeout=120, cwd=tmp_path,
+                           env=_env())
+        assert r.returncode == 0 and r.stderr == "", (name, r.stderr[-2000:])
+
+
+def _env() -> dict[str, str]:
+    import os
+
+    return {**os.environ, "PYTHONPATH": str(PKG.parent) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+
+
+def test_the_package_uses_no_deprecated_name():
+    """Every module of gapsweep (aliases aside) imports with DeprecationWarning as an error: the library itself
+    never goes through a deprecated 0.1 name."""
+    import subprocess
+    import sys
+
+    aliases = {n.rpartition(".")[2] for n in gapsweep.STABLE_NAMES}
+    mods = [m for m in sorted(_modules()) if not (m.count(".") == 1 and m.split(".")[1] in aliases)
+            and m.rpartition(".")[2] not in ("__main__", "_sde_cuda", "_sde_kernels", "_cuda", "_warp_kernels")]
+    code = "import importlib, sys\nfor m in sys.argv[1:]:\n    importlib.import_module(m)\nprint('ok')"
+    r = subprocess.run([sys.executable, "-W", "error::DeprecationWarning", "-c", code, *mods], capture_output=True,
+                       text=True, timeout=300, env=_env())
+    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr[-3000:]
 
 
 def test_stable_names_of_the_readme_and_docs():
@@ -165,6 +229,34 @@ def test_stable_names_of_the_readme_and_docs():
     assert callable(sde.gap_samples) and callable(fokker_planck.solve)
     for f in ("read", "read_histograms", "diff", "merge", "to_dataset", "open_fields", "status"):
         assert callable(getattr(store, f)), f
+
+
+# Rooms (docs/architecture.md): who may import whom. analysis is a consumer on the sweep's side: it reads stores
+# (gapsweep.store = sweep/api) and uses physics; neither physics nor the sweep imports it.
+ROOMS = {
+    "physics": (PHYSICS, ("gapsweep.sweep", "gapsweep.analysis", "gapsweep.cli", "gapsweep.demo")),
+    "sweep": (("gapsweep.sweep",), ("gapsweep.analysis", "gapsweep.cli", "gapsweep.demo")),
+    "analysis": (("gapsweep.analysis",), ("gapsweep.cli", "gapsweep.demo")),
+}
+
+
+@pytest.mark.parametrize("room", sorted(ROOMS))
+def test_rooms(room):
+    g = _graph()
+    mine, forbidden = ROOMS[room]
+    bad = [(m, d) for m, deps in g.items() if m.startswith(mine) for d in deps if d.startswith(forbidden)]
+    assert bad == []
+    assert any(m.startswith(mine) for m in g)
+
+
+def test_no_top_level_analysis_package():
+    """Reports and aggregation are gapsweep.analysis; nothing but gapsweep is installed (pyproject.toml)."""
+    import tomllib
+
+    root = PKG.parent
+    assert not (root / "analysis").exists()
+    cfg = tomllib.loads((root / "pyproject.toml").read_text(encoding="utf-8"))
+    assert cfg["tool"]["setuptools"]["packages"]["find"]["include"] == ["gapsweep*"]
 
 
 # ---------------------------------------------------------------------------------------------------------

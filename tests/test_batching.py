@@ -11,7 +11,9 @@ import shutil
 import numpy as np
 import pytest
 
-from gapsweep import batching, gpus, runner, spec, store, tasks
+from gapsweep import runner, spec, store
+from gapsweep.sweep import batching, gpus, tasks
+from tests.hooks import gapsweep_test_hooks as hooks
 
 JOB = """
 [job]
@@ -77,7 +79,7 @@ def _rows(path) -> dict:
 def test_batched_sweep_equals_unbatched(tmp_path, monkeypatch) -> None:
     js = tmp_path / "job.toml"
     js.write_text(JOB)
-    monkeypatch.setenv("GAPSWEEP_TEST_FAIL", "0.01")  # the middle pressure of every chain fails
+    hooks.fail_at(monkeypatch, 0.01)  # the middle pressure of every chain fails
     a, b = tmp_path / "off.h5", tmp_path / "all.h5"
     runner.run(js, a, progress="none", mpi="off", batch="off")
     s = runner.run(js, b, progress="none", mpi="off", batch="all")
@@ -109,9 +111,9 @@ def test_batched_resume_finishes_partial_store(tmp_path, monkeypatch) -> None:
     ref = tmp_path / "ref.h5"
     runner.run(js, ref, progress="none", mpi="off", batch="off")
     part = tmp_path / "part.h5"
-    monkeypatch.setenv("GAPSWEEP_TEST_FAIL", "0.001")  # the chains' last step fails ...
-    runner.run(js, part, progress="none", mpi="off", batch="all")
-    monkeypatch.delenv("GAPSWEEP_TEST_FAIL")
+    with monkeypatch.context() as m:
+        hooks.fail_at(m, 0.001)  # the chains' last step fails ...
+        runner.run(js, part, progress="none", mpi="off", batch="all")
     # ... a failed row is final; mark them pending as a crash would leave them, and resume batched
     import h5py
 
@@ -147,12 +149,11 @@ def test_gpu_policy() -> None:
 
 
 def test_gpu_count(monkeypatch) -> None:
-    monkeypatch.delenv("GAPSWEEP_TEST_GPUS", raising=False)
     monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "0,3")
     assert gpus.visible_count() == 2
     monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "-1")
     assert gpus.visible_count() == 0
-    monkeypatch.setenv("GAPSWEEP_TEST_GPUS", "8")
+    hooks.gpus(monkeypatch, 8)
     assert gpus.visible_count() == 8
     assert gpus.rank_gpu(None, True) == 0
 

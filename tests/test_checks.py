@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from gapsweep import _checks as chk
+from gapsweep.core import checks as chk
 
 
 @pytest.mark.parametrize("bad", [True, np.bool_(False), "1e-3", 1j, None, [1.0]])

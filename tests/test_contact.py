@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 
 from gapsweep.gfmd import solve
+from gapsweep.reference import johnson_wavy_adhesion as johnson_curve
+from gapsweep.reference import westergaard
 from gapsweep.surface import self_affine
 
 
@@ -16,19 +18,6 @@ def wavy(n: int, amplitude: float = 0.01, lam: float = 1.0) -> tuple[np.ndarray,
     """``h = amplitude cos(2 pi x / lam)`` on an ``n x 2`` grid (a 1-D wave extruded along y), and x."""
     x = np.arange(n) * (lam / n)
     return np.repeat((amplitude * np.cos(2 * np.pi * x / lam))[:, None], 2, axis=1), x
-
-
-def westergaard(x: np.ndarray, pbar: float, amplitude: float, e_star: float = 1.0, lam: float = 1.0):
-    """Westergaard (1939; Johnson, Contact Mechanics, eq. 13.11-13.12): contact half-width ``a`` with
-    ``pbar = p* sin^2(pi a/lam)``, ``p* = pi E* amplitude / lam``, and the pressure
-    ``p(x) = 2 pbar cos(pi x/lam) sqrt(sin^2(pi a/lam) - sin^2(pi x/lam)) / sin^2(pi a/lam)`` for ``|x| < a``."""
-    pstar = math.pi * e_star * amplitude / lam
-    s2 = pbar / pstar
-    a = lam / math.pi * math.asin(math.sqrt(s2))
-    xx = np.where(x > lam / 2, x - lam, x)
-    inside = np.abs(xx) < a
-    root = np.sqrt(np.clip(s2 - np.sin(np.pi * xx / lam) ** 2, 0.0, None))
-    return a, np.where(inside, 2 * pbar * np.cos(np.pi * xx / lam) * root / s2, 0.0)
 
 
 @pytest.mark.parametrize("frac", [0.3, 0.7])
@@ -68,26 +57,6 @@ def test_hard_wall_fields_consistent() -> None:
     # elastic energy per area = (1/2) <u p_el>
     assert r.elastic_energy == pytest.approx(0.5 * np.mean(r.displacement * p_el), rel=1e-10)
     assert r.contact_area == pytest.approx(np.mean(r.pressure > 0))
-
-
-def johnson_curve(alpha: float):
-    """Johnson (Int. J. Solids Struct. 32, 423, 1995), adhesive wavy surface in the JKR limit: with
-    ``psi = pi a / lam``, ``pbar / p* = sin^2 psi - alpha sqrt(tan psi)``, ``alpha^2 = 2 lam w / (pi^2 E* D^2)``
-    (Westergaard's pressure plus the periodic flat-punch term whose stress intensity factor meets Griffith's
-    ``K^2 = 2 E* w``). Returns ``(f, psi_c, psi_top)``: the curve and the ends of its stable (rising) branch;
-    ``f(psi_c)`` is the pull-off pressure under load control."""
-    from scipy.optimize import brentq
-
-    def f(psi: float) -> float:
-        return math.sin(psi) ** 2 - alpha * math.sqrt(math.tan(psi))
-
-    def fp(psi: float) -> float:
-        return math.sin(2 * psi) - alpha / (2 * math.sqrt(math.tan(psi)) * math.cos(psi) ** 2)
-
-    ps = np.linspace(1e-4, 1.5, 20001)
-    v = np.array([fp(p) for p in ps])
-    i, j = int(np.argmax(v > 0)), len(v) - 1 - int(np.argmax(v[::-1] > 0))
-    return f, brentq(fp, ps[i - 1], ps[i]), brentq(fp, ps[j], ps[j + 1])
 
 
 @pytest.mark.parametrize(("n", "tol_px"), [(1024, 16), pytest.param(4096, 8, marks=pytest.mark.slow)])
@@ -226,7 +195,7 @@ def test_exponential_on_rectangular_grid() -> None:
 
 
 def _cupy_or_skip():
-    from gapsweep import fft as gfft
+    from gapsweep.core import fft as gfft
 
     if "cupy" not in gfft.available_backends():
         pytest.skip("no GPU / cupy")

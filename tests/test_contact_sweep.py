@@ -16,7 +16,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gapsweep import spec, store, tasks
+from gapsweep import spec, store
+from gapsweep.sweep import tasks
 
 ROOT = Path(__file__).resolve().parents[1]
 JOB = ROOT / "jobs" / "contact_file.toml"
@@ -179,7 +180,7 @@ def test_contact_store_holds_every_quantity(contact_store):
 
 @pytest.mark.timeout(300)
 def test_contact_report_has_data_in_every_figure(contact_store, tmp_path):
-    from analysis import report
+    from gapsweep.analysis import report
 
     out = tmp_path / "rep"
     text = report.main([contact_store], out).read_text()
@@ -299,7 +300,7 @@ def test_merge_of_file_surface_shards(tmp_path):
     out = tmp_path / "m.h5"
     counts = store.merge(shards, out)
     assert counts["done"] == 10
-    assert store.read_attrs(out)["spec_dir"] == str(JOB.parent.resolve())
+    assert store.read_attrs(out)["spec_dir"] == str(JOB.resolve().parent)  # jobs/*.toml link to gapsweep/jobs
 
 
 def test_file_surface_with_a_pair_size_runs(tmp_path):

@@ -35,7 +35,9 @@ FLAT = JOB.read_text().replace('forms = ["paper", "continuum", "discrete"]', 'fo
 
 def _env(**kw: str) -> dict[str, str]:
     e = {k: v for k, v in os.environ.items() if not k.startswith(("GAPSWEEP_", "SLURM_"))}
-    e.update(PYTHONPATH=str(ROOT), **kw)
+    from tests.hooks.gapsweep_test_hooks import pythonpath
+
+    e.update(PYTHONPATH=pythonpath(str(ROOT)), **kw)  # with the fault injection of tests/hooks
     return e
 
 

@@ -55,7 +55,7 @@ def test_to_dataset_by_path_cf_attrs_and_theory_broadcast(mixed):
     assert ds.attrs["Conventions"].startswith("CF-") and ds.attrs["gapsweep_job_name"] == "test-mixed"
     assert len(ds.attrs["gapsweep_spec_sha256"]) == 64 and "versions" in "".join(ds.attrs)
     # The analysis wrapper opens it by path too.
-    from analysis import dataset as adataset
+    from gapsweep.analysis import dataset as adataset
 
     assert adataset.to_dataset(mixed)["gfmd_mean_gap"].equals(ds["gfmd_mean_gap"])
 
@@ -163,3 +163,17 @@ def test_overwrite_with_another_spec_removes_the_old_fields(tmp_path, mixed):
     runner.run(ROOT / "jobs" / "test_mixed.toml", path, progress="none", mpi="off", overwrite=True)
     assert store.open_fields(path) == {}
     assert (dataset.fields_dir(path) / "notes.txt").read_text() == "mine"
+
+
+def test_cf_units_angstrom_is_not_ampere():
+    """A job in Angstrom ("A") gets the UDUNITS spelling "angstrom" in the dataset (CF "A" is the ampere)."""
+    xr = pytest.importorskip("xarray")
+    from gapsweep.sweep.dataset import apply_units
+    from gapsweep.sweep.fields import _length_units, cf_unit
+
+    assert cf_unit("A") == "angstrom" and cf_unit("MPa A") == "MPa angstrom" and cf_unit("um") == "um"
+    assert _length_units({"length_unit": "A"}) == {"units": "angstrom"}
+    ds = xr.Dataset({"g": ("x", [1.0], {"units": "1", "reference_unit": "L"}),
+                     "e": ("x", [1.0], {"units": "1", "reference_unit": "E* L"})})
+    ds = apply_units(ds, {"length": "A", "pressure": "MPa"})
+    assert ds.g.attrs["units"] == "angstrom" and ds.e.attrs["units"] == "MPa angstrom"

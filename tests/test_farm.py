@@ -7,6 +7,7 @@ from __future__ import annotations
 import pytest
 
 from gapsweep.sweep.farm import DeviceFault, Farm, Worker, device_fault
+from tests.hooks import gapsweep_test_hooks as hooks
 
 # units 0..5, largest first; 0, 1, 3 need a GPU
 GPU = [True, True, False, True, False, False]
@@ -195,7 +196,7 @@ def fakegpu(monkeypatch, tmp_path):
     else:
         base.register(mod.FakeGPU)
     mod._ran.clear()
-    monkeypatch.setenv("GAPSWEEP_TEST_GPUS", "1")
+    hooks.gpus(monkeypatch, 1)
     monkeypatch.delenv("FAKEGPU_BROKEN", raising=False)
     job = tmp_path / "farm.toml"
     job.write_text(mod.JOB)
@@ -271,12 +272,12 @@ def test_cli_exit_codes_partial_failure_and_pending(fakegpu, tmp_path, monkeypat
     err = capsys.readouterr().err
     assert "16 row(s) not done (0 failed, 16 pending)" in err and "--resume" in err
     monkeypatch.delenv("FAKEGPU_BROKEN")
-    monkeypatch.setenv("GAPSWEEP_TEST_FAIL", "1.0")  # the first pressure of every GPU chain fails
+    hooks.fail_at(monkeypatch, 1.0)  # the first pressure of every GPU chain fails
     assert cli.main(["run", str(fakegpu), "--store", str(path), "--resume", "--mpi", "off"]) == 5
     err = capsys.readouterr().err
     assert "(4 failed, 0 pending)" in err
     # nothing left to run, but the store keeps failed rows: still not 0
-    monkeypatch.delenv("GAPSWEEP_TEST_FAIL")
+    hooks.fail_at(monkeypatch)  # no task fails any more
     assert cli.main(["run", str(fakegpu), "--store", str(path), "--resume", "--mpi", "off"]) == 5
     ok = tmp_path / "ok.h5"
     assert cli.main(["run", str(fakegpu), "--store", str(ok), "--mpi", "off", "--progress", "none"]) == 0
@@ -337,7 +338,7 @@ def test_plan_and_a_coordinators_work_touch_no_cuda(fakegpu, no_cupy, monkeypatc
     from gapsweep.sweep import gpus, provenance
     from gapsweep.sweep import spec as specmod
 
-    monkeypatch.setenv("GAPSWEEP_TEST_GPUS", "4")
+    hooks.gpus(monkeypatch, 4)
     monkeypatch.setattr(gpus, "query", lambda: [{"index": str(i), "uuid": f"GPU-{i}", "name": "NVIDIA H200",
                                                  "memory": 150 * 10**9} for i in range(4)])
     text = runner.plan(fakegpu)

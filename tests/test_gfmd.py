@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.special import logsumexp
 
-from gapsweep import fft as gfft
+from gapsweep.core import fft as gfft
 from gapsweep.gfmd import GFMDResult, UnderResolvedWarning, solve
 from gapsweep.surface import self_affine
 

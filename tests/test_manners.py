@@ -15,7 +15,7 @@ import pytest
 
 import gapsweep
 from gapsweep import cli
-from gapsweep._extras import MissingExtraError, require
+from gapsweep.core.extras import MissingExtraError, require
 
 ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
@@ -59,7 +59,8 @@ def test_closed_pipe_exits_cleanly(tmp_path):
 
 
 def test_import_selects_no_matplotlib_backend():
-    code = ("import sys, matplotlib, analysis, analysis.figures, analysis.report, gapsweep.demo, gapsweep.cli; "
+    code = ("import sys, matplotlib, gapsweep.analysis, gapsweep.analysis.figures, gapsweep.analysis.report, "
+            "gapsweep.demo, gapsweep.cli; "
             "assert 'matplotlib.pyplot' not in sys.modules, 'pyplot imported'; "
             "b = matplotlib.rcParams._get_backend_or_none(); assert b is None, b; print('ok')")
     env = {k: v for k, v in ENV.items() if k != "MPLBACKEND"}
@@ -103,7 +104,7 @@ def test_cupy_backend_without_cupy_names_gpu_extra():
     with pytest.raises(MissingExtraError, match=r"pip install 'gapsweep\[gpu\]'"):
         gfmd.solve(h, sigma0=1e-2, gamma0=1e-3, rho=2e-2, backend="cupy")
     # The same message in a plain interpreter (outside pytest's import machinery).
-    r = subprocess.run([sys.executable, "-c", "import sys; from gapsweep._extras import require; "
+    r = subprocess.run([sys.executable, "-c", "import sys; from gapsweep.core.extras import require; "
                         "require('cupy', 'GFMD on the GPU')"], capture_output=True, text=True, env=ENV, timeout=60)
     assert r.returncode != 0 and "gapsweep[gpu]" in r.stderr
 

@@ -1,11 +1,18 @@
-"""analysis.predictors: regime split and error definitions on a hand-made table."""
+"""studies.predictors: regime split and error definitions on a hand-made table."""
 
 from __future__ import annotations
+
+import sys
+from pathlib import Path
 
 import pandas as pd
 import pytest
 
-from analysis import predictors
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:  # studies/ is a folder of the checkout, not of the installed package
+    sys.path.insert(0, str(ROOT))
+
+from studies import predictors  # noqa: E402
 
 
 def test_per_point_errors_and_regimes():

@@ -47,7 +47,7 @@ def _copy(src: Path, dst: Path, **attrs) -> Path:
 
 def _figures(path: Path) -> dict:
     """The contact figures of one store, built as the report builds them."""
-    from analysis import contact, report
+    from gapsweep.analysis import contact, report
 
     df, hists, prov = report.load([path])
     points, persson = contact.tables(df)
@@ -135,7 +135,7 @@ def test_figures_bins_legends_and_units(stores, tmp_path, law, units):
 
 @pytest.mark.timeout(300)
 def test_contact_only_report_has_no_paper_claims_no_empty_csv_no_absolute_path(stores, tmp_path):
-    from analysis import report
+    from gapsweep.analysis import report
 
     work = tmp_path / "stores"
     work.mkdir()
@@ -164,7 +164,7 @@ def test_contact_only_report_has_no_paper_claims_no_empty_csv_no_absolute_path(s
 
 @pytest.mark.timeout(300)
 def test_missing_map_is_said_not_fatal(stores, tmp_path):
-    from analysis import report
+    from gapsweep.analysis import report
 
     path = _copy(stores["hard_wall"], tmp_path / "moved.h5", spec_dir=str(tmp_path / "gone"))
     out = tmp_path / "rep"
@@ -177,7 +177,7 @@ def test_missing_map_is_said_not_fatal(stores, tmp_path):
 
 
 def test_large_map_skips_the_solve_with_a_note():
-    from analysis import contact
+    from gapsweep.analysis import contact
 
     df = pd.DataFrame({"job": "big", "method": "gfmd", "status": "done", "n": 600, "seed": 0, "sigma0": [0.01],
                        "contact_area": [0.2], "task_id": ["t0"], "rho": 0.0, "e_star": 1.0,
@@ -191,7 +191,7 @@ def test_large_map_skips_the_solve_with_a_note():
 
 
 def test_units_attribute_parsing():
-    from analysis import contact
+    from gapsweep.analysis import contact
 
     assert contact.units({}) == {"length": None, "pressure": None}
     assert contact.units({"units": json.dumps({"length": "um", "pressure": None})}) == {"length": "um",

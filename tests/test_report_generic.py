@@ -26,7 +26,7 @@ def generic_store(tmp_path_factory):
 
 @pytest.mark.timeout(300)
 def test_generic_report_has_no_blank_figure(generic_store, tmp_path):
-    from analysis import report
+    from gapsweep.analysis import report
 
     out = tmp_path / "report"
     text = report.main([generic_store], out).read_text()

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from gapsweep import runner, spec, store, surface, theory
+from tests.hooks import gapsweep_test_hooks as hooks
 
 ROOT = Path(__file__).resolve().parent.parent
 THEORY_JOB = ROOT / "jobs" / "test_theory.toml"
@@ -59,7 +60,7 @@ def test_theory_rows_equal_direct_calls(theory_ref):
 
 def test_failure_isolation_and_rerun_noop(tmp_path, monkeypatch, theory_ref):
     fail = spec.load(THEORY_JOB).grid["sigma0"][2]
-    monkeypatch.setenv("GAPSWEEP_TEST_FAIL", repr(fail))
+    hooks.fail_at(monkeypatch, fail)
     path = tmp_path / "f.h5"
     s = _run(THEORY_JOB, path)
     assert s["failed"] == 8 and s["done"] == 40
@@ -152,7 +153,11 @@ def test_shards_merge_equal_single_run(tmp_path):
     assert store.diff(out, single) == []
     with pytest.raises(store.StoreError, match="exists"):
         store.merge(shards, out)
-    assert store.merge(shards[:2], out, overwrite=True)["pending"] > 0
+    # --overwrite replaces an earlier merge of the same job, but never with fewer done rows (issue 31)
+    with pytest.raises(store.StoreError, match="done"):
+        store.merge(shards[:2], out, overwrite=True)
+    assert store.merge(shards, out, overwrite=True)["pending"] == 0
+    assert store.diff(out, single) == []
 
 
 def test_mixed_job_rows(tmp_path):

@@ -223,7 +223,7 @@ PHILOX_KAT = [
 def test_philox_known_answers():
     # issue 9.7: the generator the SDE kernels use (gapsweep._sde_kernels.philox4x32), run by warp on the CPU
     wp = sde._warp()
-    from gapsweep._sde_kernels import philox4x32
+    from gapsweep.gapdist._sde_kernels import philox4x32
 
     @wp.kernel(module="unique")
     def kat(ctr: wp.array(dtype=wp.uint32), key: wp.array(dtype=wp.uint32), out: wp.array(dtype=wp.uint32)):
@@ -247,7 +247,7 @@ def test_philox_known_answers():
 def test_cuda_engine_devices_need_no_warp(monkeypatch):
     """Devices that the CUDA engine runs are validated without warp (a GPU node needs no warp for the figure
     jobs); CPU devices, or CUDA with the warp engine, still go through warp."""
-    from gapsweep import _sde_cuda
+    from gapsweep.gapdist import _sde_cuda
 
     def no_warp():
         raise AssertionError("warp imported")

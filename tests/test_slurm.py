@@ -178,7 +178,10 @@ def test_failed_shards_merge_runs_and_names_them(cluster, tmp_path):
     """Issue 19 item 13: every shard fails (a write error injected through the submitted environment). The
     merge, chained with afterany, still runs -- nothing stays queued (afterok waited forever) -- and its log
     names the unfinished shards; the site options and the setup hook are accepted by a real sbatch."""
+    from tests.hooks.gapsweep_test_hooks import pythonpath
+
     env = dict(cluster, GAPSWEEP=_gapsweep(), GAPSWEEP_TEST_WRITE_ERROR="3", GAPSWEEP_SETUP="echo site-hook",
+               PYTHONPATH=pythonpath(os.pathsep.join([str(ROOT), cluster.get("PYTHONPATH", "")])),
                GAPSWEEP_PARTITION="debug", GAPSWEEP_TIME="00:20:00", GAPSWEEP_MERGE_TIME="00:05:00")
     out = tmp_path / "out"
     p = subprocess.run(["bash", str(ROOT / "slurm" / "submit.sh"), str(JOB), str(out), "--shards", "2",

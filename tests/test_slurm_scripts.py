@@ -29,7 +29,9 @@ echo "$((1000 + n));cluster"
 
 def _env(**kw: str) -> dict[str, str]:
     e = {k: v for k, v in os.environ.items() if not k.startswith(("GAPSWEEP_", "SLURM_"))}
-    e.update(PYTHONPATH=str(ROOT), GAPSWEEP=GS, **kw)
+    from tests.hooks.gapsweep_test_hooks import pythonpath
+
+    e.update(PYTHONPATH=pythonpath(str(ROOT)), GAPSWEEP=GS, **kw)  # with the fault injection of tests/hooks
     return e
 
 

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from gapsweep import cli, spec, tasks
+from gapsweep import cli, spec
+from gapsweep.sweep import tasks
 
 ROOT = Path(__file__).resolve().parent.parent
 BASE = """

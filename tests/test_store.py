@@ -10,8 +10,9 @@ import h5py
 import numpy as np
 import pytest
 
-from gapsweep import provenance, spec, store, tasks
-from gapsweep.tasks import TaskResult
+from gapsweep import spec, store
+from gapsweep.sweep import provenance, tasks
+from gapsweep.sweep.tasks import TaskResult
 
 JOB = """
 [job]
@@ -115,7 +116,7 @@ def test_git_commit_outside_a_checkout_is_unknown(monkeypatch):
     or the commit given in GAPSWEEP_GIT_COMMIT."""
     import subprocess
 
-    from gapsweep import provenance
+    from gapsweep.sweep import provenance
 
     monkeypatch.delenv("GAPSWEEP_GIT_COMMIT", raising=False)
     monkeypatch.setattr(subprocess, "run", lambda *a, **k: subprocess.CompletedProcess(a, 128, "HEAD\n", "fatal"))
@@ -132,7 +133,7 @@ def test_lease_exclusive_stale_and_broken(tmp_path):
     import subprocess
     import sys
 
-    from gapsweep import lease
+    from gapsweep.sweep import lease
 
     path = tmp_path / "s.h5"
     held = lease.acquire(path)
@@ -145,7 +146,7 @@ def test_lease_exclusive_stale_and_broken(tmp_path):
     held.release()
     assert lease.read(path) is None
     # a lease of a process that has exited is stale: reported, broken only when asked
-    code = f"from gapsweep import lease; lease.acquire({str(path)!r})"
+    code = f"from gapsweep.sweep import lease; lease.acquire({str(path)!r})"
     subprocess.run([sys.executable, "-c", code], check=True)
     assert lease.read(path)["alive"] is False
     with pytest.raises(lease.LeaseError, match=r"no longer running.*--break-lease"):
@@ -156,7 +157,7 @@ def test_lease_exclusive_stale_and_broken(tmp_path):
 
 
 def test_storecheck_structural_and_row_problems(tmp_path):
-    from gapsweep import storecheck
+    from gapsweep.sweep import storecheck
 
     js = spec.loads(JOB)
     ts = tasks.expand(js)

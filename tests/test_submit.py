@@ -145,7 +145,9 @@ def test_bad_arguments_name_the_option(tmp_path, fake, args):
 def _partial(tmp_path: Path, at: int, store_path: Path | None = None, resume: bool = False) -> Path:
     path = store_path or tmp_path / "s.h5"
     e = {k: v for k, v in os.environ.items() if not k.startswith("GAPSWEEP_")}
-    e.update(PYTHONPATH=str(ROOT), GAPSWEEP_TEST_SIGNAL_AT_WRITE=str(at))
+    from tests.hooks.gapsweep_test_hooks import pythonpath
+
+    e.update(PYTHONPATH=pythonpath(str(ROOT)), GAPSWEEP_TEST_SIGNAL_AT_WRITE=str(at))  # tests/hooks injects it
     p = subprocess.run([sys.executable, "-m", "gapsweep", "run", str(JOB), "--store", str(path), "--mpi", "off",
                         "--progress", "none", *(["--resume"] if resume else [])], env=e, capture_output=True,
                        text=True, timeout=120)

@@ -10,8 +10,8 @@ runs sweeps in one process and writes reports. Everything else is an extra of ``
 | ``gpu`` | cupy | GFMD on an NVIDIA GPU (``backend="cupy"``) |
 | ``mpi`` | mpi4py | MPI task farms (``mpiexec -n P gapsweep run``) |
 | ``distributed`` | mpi4py (+ cupy with NCCL on GPUs) | one GFMD solve over MPI ranks (``gfmd.solve(comm=...)``) |
-| ``xarray`` | xarray, netCDF4 | ``gapsweep.store.to_dataset``, ``gapsweep export``, kept fields |
-| ``topography`` | SurfaceTopography | Gaussian-amplitude surfaces by a peer code (benchmarks) |
+| ``xarray`` | xarray, h5netcdf | ``store.to_dataset``, ``gapsweep export`` (netCDF4 via h5netcdf), kept fields |
+| ``topography`` | SurfaceTopography | height maps in SurfaceTopography's formats; peer-code surfaces |
 | ``progress`` | tqdm | a progress bar on a terminal (log lines otherwise) |
 """
 
@@ -31,7 +31,7 @@ EXTRAS: dict[str, tuple[str, str]] = {
     "cupyx": ("cupy-cuda12x", "gpu"),
     "mpi4py": ("mpi4py", "mpi"),
     "xarray": ("xarray", "xarray"),
-    "netCDF4": ("netCDF4", "xarray"),
+    "h5netcdf": ("h5netcdf", "xarray"),
     "SurfaceTopography": ("SurfaceTopography", "topography"),
     "tqdm": ("tqdm", "progress"),
 }

@@ -92,12 +92,12 @@ def _kernels() -> Any:
     global _NUMBA
     if _NUMBA is not None:
         return _NUMBA
-    import numba
+    from gapsweep.core.numba_cache import njit
 
     # Branch-free loops (selects instead of jumps, so LLVM vectorises them) and reassociated sums (SIMD partial
     # sums): the results differ from the serial order only at round-off. No 'nnan'/'ninf' flags: the free
     # surface's minimum starts at inf and must stay exact.
-    jit = numba.njit(cache=True, fastmath={"reassoc", "contract", "nsz"}, nogil=True)
+    jit = njit(fastmath={"reassoc", "contract", "nsz"}, nogil=True)
 
     @jit
     def contact_sum(u, h, p):

@@ -98,9 +98,10 @@ def _numba_kernels() -> Any:
         return _NUMBA
     from gapsweep.core.extras import require
 
-    numba = require("numba", "the fused CPU kernels of GFMD")
+    require("numba", "the fused CPU kernels of GFMD")
+    from gapsweep.core.numba_cache import njit
 
-    jit = numba.njit(cache=True, fastmath=False, nogil=True)
+    jit = njit(fastmath=False, nogil=True)
 
     @jit
     def wsum(nh, even, j):  # pragma: no cover - compiled

@@ -38,7 +38,7 @@ _DETACHED = 30.0  # every gap beyond this many ranges at a tensile load: the bod
 _STALL_WINDOW = 30
 _STALL_ENERGY = 1e-12
 # Continuation to tensile loads (docs/gfmd.md "Tensile loads"; chosen on the N = 128 surface of
-# tests/test_adhesion.py, seed 3, and reported on other seeds and sizes there and in benchmarks/bench_adhesion.py):
+# tests/test_adhesion.py, seed 3, and reported on other seeds and sizes there and in docs/benchmarks_gfmd.md):
 _STEP_TOL = 1e-6  # residual of the intermediate loads (they only have to stay in the basin of the branch)
 _FIRST_STEP = 1 / 16  # first load step at most, fraction of the law's pressure scale at zero load
 _MIN_STEP = 1e-3  # smallest load step, same fraction: the pull-off load is bracketed to this

@@ -1,6 +1,6 @@
 """The sweep's public reading and store functions: the stable face ``gapsweep.store`` of version 0.1.
 
-Users' scripts and the report (``analysis/``) read stores through these names only: :func:`read` (a pandas frame
+Users' scripts and the report (``gapsweep.analysis``) read stores through these names only: :func:`read` (a pandas frame
 of tasks and results), :func:`read_histograms`, :func:`read_pressure_histograms`, :func:`read_attrs`,
 :func:`status`, :func:`diff`, :func:`to_dataset` / :func:`export_netcdf` (xarray and netCDF views),
 :func:`open_fields` (kept GFMD fields), :func:`merge` (shards), and :class:`Store` for writing.

@@ -132,9 +132,9 @@ def run_batch(tasks: list[Task], unit: Unit, ctx: Context, todo: set[int], limit
         probs, who = [], []
         for j, i in live:
             t = tasks[i]
-            if t.sigma0 in ctx._fail:  # test hook, as in run_task
-                rows[i] = TaskResult("failed", f"RuntimeError: injected failure (GAPSWEEP_TEST_FAIL) at "
-                                     f"sigma0={t.sigma0!r}", {"wall_time": 0.0, "rank": ctx.rank})
+            if t.sigma0 in ctx._fail:  # fault-injection seam, as in run_task
+                rows[i] = TaskResult("failed", f"RuntimeError: injected failure at sigma0={t.sigma0!r}",
+                                     {"wall_time": 0.0, "rank": ctx.rank})
                 state[j] = None
                 continue
             if j not in heights:
@@ -149,6 +149,11 @@ def run_batch(tasks: list[Task], unit: Unit, ctx: Context, todo: set[int], limit
             who.append((j, i))
         if probs:
             rows.update(_solve_step(tasks, probs, who, ctx, backend, limit, state, limits))
+        if stop is not None and any(limits.is_interrupted(r.message) for r in rows.values() if r.status == "failed") \
+                and stop.requested():  # cut by a signal (issue 31): those rows stay pending
+            if stop.mode == "raise":
+                raise limits.Interrupted(stop.signum)
+            return
         for _, i in live:
             if i in todo:
                 yield i, rows[i]

@@ -22,8 +22,8 @@ __all__ = ["Context", "extra", "hist", "host", "moments", "use_gpu"]
 
 class Context:
     """Per-rank state: surface cache (one surface per (hurst, seed, n) and surface parameters), the GPU this
-    rank may use, and test hooks (``GAPSWEEP_TEST_DELAY`` seconds per task, ``GAPSWEEP_TEST_FAIL`` a comma list
-    of sigma0 values whose tasks raise)."""
+    rank may use, the test hook ``GAPSWEEP_TEST_DELAY`` (seconds per task) and the fault-injection seam ``_fail``
+    (sigma0 values whose tasks raise; empty unless a test fills it, tests/hooks)."""
 
     def __init__(self, rank: int = 0, gpu: int | None = None, max_surfaces: int = 4) -> None:
         self.rank = rank
@@ -38,8 +38,7 @@ class Context:
         self._pool: Any = None  # host threads making surfaces ahead (prefetch), on GPU workers
         self._ahead: dict[tuple, Any] = {}  # surface key -> its future
         self._delay = float(os.environ.get("GAPSWEEP_TEST_DELAY", "0") or 0)
-        fail = os.environ.get("GAPSWEEP_TEST_FAIL", "")
-        self._fail = {float(x) for x in fail.split(",") if x.strip()}
+        self._fail: set[float] = set()  # sigma0 values whose tasks fail: a fault-injection seam (tests/hooks)
 
     def surface(self, t: Task, n: int) -> np.ndarray:
         """The surface of ``t`` on an ``n x n`` grid, generated once per rank (M2), or taken from

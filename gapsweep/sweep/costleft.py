@@ -23,7 +23,6 @@ The store keeps wall time, not CPU time, per row: on a loaded machine the calibr
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import math
 from pathlib import Path
 from typing import Any
@@ -109,12 +108,12 @@ def cost_left(path: str | Path, now: _dt.datetime | None = None) -> dict[str, An
     with open_read(p, check=False) as f:
         rep = storecheck.check(f, p)
         rerun = set(storecheck.incomplete_rows(f, p, rep))
-        ids = [x.decode() for x in f["tasks"].fields("task_id")[...]] if rep.n_tasks else []
+        ids = [x.decode("utf-8", "replace") for x in f["tasks"].fields("task_id")[...]] if rep.n_tasks else []
         status = f["results"].fields("status")[...] if rep.n_tasks else np.zeros(0, "i1")
         wall = f["results"].fields("wall_time")[...] if rep.n_tasks else np.zeros(0)
         msg = f["results"].fields("message")[...] if rep.n_tasks else np.zeros(0, "S1")
         spec_text, spec_dir = f.attrs["spec_text"], f.attrs.get("spec_dir", "")
-        runs = json.loads(f.attrs.get("runs", "[]"))
+        runs = storecheck.run_records(f.attrs.get("runs", "[]"))
     js = specmod.loads(spec_text.decode() if isinstance(spec_text, bytes) else spec_text,
                        base=(spec_dir.decode() if isinstance(spec_dir, bytes) else spec_dir) or None)
     by_id = {t.task_id: t for t in expand(js)}
@@ -133,7 +132,7 @@ def cost_left(path: str | Path, now: _dt.datetime | None = None) -> dict[str, An
     fin_wall = wall[finished & np.isfinite(wall)]
     mean_wall = float(fin_wall.mean()) if fin_wall.size else None
     rate = _rate(p, runs, int((status != STATUS["pending"]).sum()), len(ids), mean_wall,
-                 now or _dt.datetime.now(_dt.timezone.utc))
+                 now or _dt.datetime.now(_dt.UTC))
     procs = int(runs[-1].get("mpi_size", 1) or 1) if runs else 1
     start_s = startup * procs if remaining else 0.0
     core_s, gpu_s = float(est[~g].sum()) + start_s, float(est[g].sum())
@@ -184,7 +183,7 @@ def summary(path: str | Path) -> dict[str, Any]:
     attrs = read_attrs(path)
     df = read(path)
     counts = {str(m): {str(k): int(v) for k, v in g.status.value_counts().items()} for m, g in df.groupby("method")}
-    runs = json.loads(attrs.get("runs", "[]"))
+    runs = storecheck.run_records(attrs.get("runs", "[]"))
     held = lease.read(path)
     return {"job": attrs.get("job_name"), "shard": attrs.get("shard", ""),
             "counts": counts, "total": {str(k): int(v) for k, v in df.status.value_counts().items()},

@@ -209,10 +209,8 @@ def to_dataset(path: str | Path, *, n: int | None = None, c2: float | None = Non
 def _drop_placeholders(ds: Any, spec_text: str) -> Any:
     """Leave out the axes a job does not have: ``hurst`` for a measured map (it is 0 there), ``rho`` for the
     hard wall (0: no interaction range)."""
-    try:
-        import tomllib
-    except ImportError:  # pragma: no cover - Python 3.10
-        import tomli as tomllib
+    import tomllib
+
     try:
         raw = tomllib.loads(spec_text)
     except (tomllib.TOMLDecodeError, TypeError):
@@ -231,8 +229,12 @@ def _drop_placeholders(ds: Any, spec_text: str) -> Any:
 def apply_units(ds: Any, units: Mapping[str, str | None]) -> Any:
     """Give every variable and coordinate measured in the model's length ``L`` or pressure ``E*`` the job's
     physical unit (CF ``units``, e.g. ``"um"``, ``"MPa"``, ``"MPa um"`` for an energy per area) when the store
-    records one (attribute ``units``, docs/store.md); model units stay ``"1"`` with ``reference_unit``."""
-    length, pressure = units.get("length"), units.get("pressure")
+    records one (attribute ``units``, docs/store.md), spelled for UDUNITS (``"A"`` is written ``"angstrom"``,
+    not ampere); model units stay ``"1"`` with ``reference_unit``. ``gapsweep_units`` keeps the job's own
+    spelling."""
+    from gapsweep.sweep.fields import cf_unit
+
+    length, pressure = cf_unit(units.get("length")), cf_unit(units.get("pressure"))
     phys = {"L": length, "E*": pressure, "E* L": f"{pressure} {length}" if pressure and length else None}
     for name in [*ds.data_vars, *ds.coords]:
         a = ds[name].attrs
@@ -248,23 +250,39 @@ def apply_units(ds: Any, units: Mapping[str, str | None]) -> Any:
 def export_netcdf(path: str | Path, out: str | Path, *, overwrite: bool = False, **kw: Any) -> Path:
     """Write :func:`to_dataset` of the store ``path`` to the netCDF4 file ``out`` (written to a temporary name
     and moved into place: never half-written). Refuses to replace ``out`` unless ``overwrite``."""
-    from gapsweep.sweep.outputs import guard_file_output
+    from gapsweep.sweep import outputs
 
     outp = Path(out)
-    guard_file_output(outp, [path], "export --out")  # never the store itself nor another store (issue 19)
-    if outp.exists() and not overwrite:
-        raise FileExistsError(f"export --out {outp}: exists (pass --overwrite to replace it)")
+    outputs.guard_file_output(outp, [path], "export --out")  # never the store itself nor another store (issue 19)
+    # issue 31: --overwrite replaces only an earlier export, never another file
+    outputs.guard_output(outp, [path], "export --out", overwrite=overwrite,
+                         own=lambda o: None if outputs.is_export(o) else "is not a netCDF file written by "
+                         "gapsweep export")
     ds = to_dataset(path, **kw)
     require("h5netcdf", "the netCDF4 export")
     outp.parent.mkdir(parents=True, exist_ok=True)
     tmp = outp.with_name(f".{outp.name}.tmp")
     try:
-        ds.to_netcdf(tmp, engine="h5netcdf", format="NETCDF4")
+        _write_nc(ds, tmp, outp)
         os.replace(tmp, outp)
     finally:
         if tmp.exists():
             tmp.unlink()
     return outp
+
+
+def _write_nc(ds: Any, tmp: Path, outp: Path) -> None:
+    """``ds.to_netcdf(tmp)``; a write error (full disk, file-size limit) becomes one line naming ``outp``. HDF5
+    crashes when the objects of a file whose write failed are released (issue 31: export segfaulted after its
+    message), so they are kept to the end of the process (store.write_failed) and the CLI leaves with os._exit."""
+    from gapsweep.sweep import store
+
+    try:
+        with store._quiet_dealloc():
+            ds.to_netcdf(tmp, engine="h5netcdf", format="NETCDF4")
+    except (OSError, RuntimeError) as e:
+        raise store.write_failed(f"export --out {outp}: writing failed ({e}); nothing was written, the store "
+                                 "is untouched") from None
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -2,10 +2,11 @@
 
 :func:`run_task` never raises: an exception becomes a ``failed`` row with its message, a solver warning goes into
 the row's message, a non-finite mean gap of a ``done`` row turns it into ``failed`` (never a NaN stored as
-success), and every row gets its wall time and rank. A device fault (gapsweep.sweep.farm.device_fault: out of GPU
-memory, a lost context, the driver's or the MPS server's refusal) is not the task's failure: it raises
-:class:`~gapsweep.sweep.farm.DeviceFault` and the farm runs the task elsewhere. Test hooks (``GAPSWEEP_TEST_DELAY``,
-``GAPSWEEP_TEST_FAIL``) live in :class:`gapsweep.sweep.context.Context`.
+success), an error that a signal caused (inside JIT compilation, say) is marked ``interrupted:`` (the runner leaves
+the row pending), and every row gets its wall time and rank. A device fault (gapsweep.sweep.farm.device_fault: out
+of GPU memory, a lost context, the driver's or the MPS server's refusal) is not the task's failure: it raises
+:class:`~gapsweep.sweep.farm.DeviceFault` and the farm runs the task elsewhere. The test hook
+``GAPSWEEP_TEST_DELAY`` and the fault-injection seam ``_fail`` live in :class:`gapsweep.sweep.context.Context`.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import warnings
 from typing import Any
 
 from gapsweep.core import deadline
+from gapsweep.sweep import limits
 from gapsweep.sweep import methods as registry
 from gapsweep.sweep.context import Context
 from gapsweep.sweep.farm import DeviceFault, device_fault
@@ -38,11 +40,12 @@ def run_task(t: Task, ctx: Context, prev: Any = None) -> tuple[TaskResult, Any]:
     raises :class:`DeviceFault` (and a store write error, which stops the run).
     Returns the result and the warm-start state for the next task of a chain (or None)."""
     t0 = time.perf_counter()
+    signals = limits.signal_count()
     try:
         if ctx._delay:
             test_delay(ctx._delay)
         if t.sigma0 in ctx._fail:
-            raise RuntimeError(f"injected failure (GAPSWEEP_TEST_FAIL) at sigma0={t.sigma0!r}")
+            raise RuntimeError(f"injected failure at sigma0={t.sigma0!r}")
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             res, state = registry.get(t.method).run(t, ctx, prev)
@@ -61,7 +64,10 @@ def run_task(t: Task, ctx: Context, prev: Any = None) -> tuple[TaskResult, Any]:
         why = device_fault(e)
         if why:  # the device's fault, not the task's: the farm runs it on another worker
             raise DeviceFault(why) from e
-        res, state = TaskResult("failed", f"{type(e).__name__}: {e}"), None
+        # an error caused by a signal (issue 31: one inside JIT compilation) is an interruption, not the task's
+        # result: the runner leaves such a row pending (or --resume runs it again)
+        msg = limits.interrupted_message(e) if limits.cut_by_signal(e, signals) else f"{type(e).__name__}: {e}"
+        res, state = TaskResult("failed", msg), None
     res.values["wall_time"] = time.perf_counter() - t0
     res.values["rank"] = ctx.rank
     return res, state

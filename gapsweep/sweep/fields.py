@@ -17,7 +17,8 @@ import numpy as np
 
 from gapsweep.sweep.schema import FIELD_NAMES, StoreWriteError
 
-__all__ = ["FIELD_META", "FIELD_NAMES", "field_selected", "fields_dir", "remove_fields", "write_fields"]
+__all__ = ["FIELD_META", "FIELD_NAMES", "field_selected", "fields_dir", "remove_fields", "remove_partial",
+           "write_fields"]
 
 _LEN = {"units": "1", "reference_unit": "L"}  # lengths in units of the spec's L
 # field -> (long_name, unit attributes)
@@ -63,6 +64,22 @@ def write_fields(directory: str | Path, task_id: str, arrays: Mapping[str, np.nd
                               "stays pending: free space or fix the folder and run again with --resume") from None
 
 
+def remove_partial(directory: str | Path) -> int:
+    """Delete the temporary kept-field files (``.<task_id>.<pid>.tmp``) left in ``directory`` by a run that was
+    killed while writing one (under MPI, ``MPI_Abort`` of another rank; issue 31). Called by a run that holds the
+    store's lease, so no other run writes there. Returns the count removed."""
+    d = Path(directory)
+    if not d.is_dir():
+        return 0
+    n = 0
+    for f in d.glob(".*.tmp"):
+        stem = f.name[1:].split(".", 1)[0]
+        if f.is_file() and len(stem) == 16 and all(c in "0123456789abcdef" for c in stem):
+            f.unlink(missing_ok=True)
+            n += 1
+    return n
+
+
 def remove_fields(directory: str | Path) -> int:
     """Delete the kept-field files that runs wrote into ``directory`` (``<task_id>.nc`` with a 16-hex-digit task
     id, and their temporary files) and the folder if it is then empty; anything else is left. Returns the count
@@ -84,9 +101,18 @@ def remove_fields(directory: str | Path) -> int:
     return n
 
 
+# a spec's length unit -> its UDUNITS (CF) string: "A" would read as ampere there
+CF_UNITS = {"A": "angstrom"}
+
+
+def cf_unit(u: str | None) -> str | None:
+    """The CF/UDUNITS spelling of a job's unit (``"A"`` -> ``"angstrom"``; the others are UDUNITS already)."""
+    return None if u is None else " ".join(CF_UNITS.get(w, w) for w in str(u).split())
+
+
 def _length_units(attrs: Mapping[str, Any]) -> dict[str, str]:
     u = attrs.get("length_unit")
-    return {"units": str(u)} if u else dict(_LEN)
+    return {"units": str(cf_unit(u))} if u else dict(_LEN)
 
 
 def _pressure_units(attrs: Mapping[str, Any]) -> dict[str, str]:
@@ -106,25 +132,38 @@ def _write_fields(directory: str | Path, task_id: str, arrays: Mapping[str, np.n
     lx, ly = (length, length) if np.isscalar(length) else length
     axes = {"x": (np.arange(nx) + 0.5) * (lx / nx), "y": (np.arange(ny) + 0.5) * (ly / ny)}
     chunk = (min(nx, 256), min(ny, 256))
+    f: Any = None
+    hdf5 = True  # an error before the file is closed comes from HDF5
     try:
-        with h5py.File(tmp, "w", track_order=True) as f:
-            for name, x in axes.items():
-                ds = f.create_dataset(name, data=x)
-                ds.make_scale(name)
-                ds.attrs.update({"long_name": f"{name} position of the cell centre", **_length_units(attrs)})
-            for name, a in arrays.items():
-                long_name, units = FIELD_META[name]
-                units = _length_units(attrs) if units is _LEN else _pressure_units(attrs)
-                ds = f.create_dataset(name, data=np.asarray(a, dtype=np.float64), chunks=chunk, compression="gzip",
-                                      compression_opts=4, shuffle=True)
-                ds.dims[0].attach_scale(f["x"])
-                ds.dims[1].attach_scale(f["y"])
-                ds.attrs.update({"long_name": long_name, **units})
-            f.attrs.update({"Conventions": "CF-1.10", "title": f"gapsweep kept fields of task {task_id}",
-                            "task_id": task_id})
-            for k, v in attrs.items():
-                f.attrs[k] = v if isinstance(v, (int, float, str, np.integer, np.floating)) else json.dumps(v)
+        f = h5py.File(tmp, "w", track_order=True)  # closed below, not by a with-block: see the except
+        for name, x in axes.items():
+            ds = f.create_dataset(name, data=x)
+            ds.make_scale(name)
+            ds.attrs.update({"long_name": f"{name} position of the cell centre", **_length_units(attrs)})
+        for name, a in arrays.items():
+            long_name, units = FIELD_META[name]
+            units = _length_units(attrs) if units is _LEN else _pressure_units(attrs)
+            ds = f.create_dataset(name, data=np.asarray(a, dtype=np.float64), chunks=chunk, compression="gzip",
+                                  compression_opts=4, shuffle=True)
+            ds.dims[0].attach_scale(f["x"])
+            ds.dims[1].attach_scale(f["y"])
+            ds.attrs.update({"long_name": long_name, **units})
+        f.attrs.update({"Conventions": "CF-1.10", "title": f"gapsweep kept fields of task {task_id}",
+                        "task_id": task_id})
+        for k, v in attrs.items():
+            f.attrs[k] = v if isinstance(v, (int, float, str, np.integer, np.floating)) else json.dumps(v)
+        f.close()
+        hdf5 = False
         os.replace(tmp, final)
+    except (OSError, RuntimeError) as e:
+        if not hdf5:
+            raise
+        # HDF5 crashes when a file whose write failed is closed or released (issue 31: a run keeping fields
+        # segfaulted on a full disk): the file is kept open to the end of the process, which leaves by os._exit
+        from gapsweep.sweep import store
+
+        raise store.write_failed(f"kept fields of task {task_id} in {d}: cannot be written ({e}); the row stays "
+                                 "pending: free space or fix the folder and run again with --resume") from None
     finally:
         if tmp.exists():
             tmp.unlink()

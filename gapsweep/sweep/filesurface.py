@@ -26,12 +26,18 @@ FILE_KEYS = ("kind", "path", "format", "key", "delimiter", "unit", "height_unit"
               "pixel_size", "detrend", "periodic")
 
 
+# Bounds of a map's box or pixel size in its unit (issue 31: pixel_size = 1e-308 with detrend = "plane" gave a
+# traceback from the plane fit): wide enough for any unit from pm to km.
+MIN_SIZE, MAX_SIZE = 1e-15, 1e15
+
+
 def _pair_or_num(key: str, v: Any) -> float | list[float]:
     if isinstance(v, list):
         if len(v) != 2:
-            raise SpecError(f"{key}: expected a number or a pair [x, y] of numbers > 0, got {v!r}")
-        return [rd.number(f"{key}[{i}]", x, gt=0.0) for i, x in enumerate(v)]
-    return rd.number(key, v, gt=0.0)
+            raise SpecError(f"{key}: expected a number or a pair [x, y] of numbers >= {MIN_SIZE:g} and <= "
+                            f"{MAX_SIZE:g}, got {v!r}")
+        return [rd.number(f"{key}[{i}]", x, ge=MIN_SIZE, le=MAX_SIZE) for i, x in enumerate(v)]
+    return rd.number(key, v, ge=MIN_SIZE, le=MAX_SIZE)
 
 
 def file_surface(s: dict, base: str | Path | None) -> tuple[dict[str, Any], int]:

@@ -9,9 +9,9 @@ GPU work). A process outside MPI (serial runs, ``--shard`` processes) is working
 per GPU with ``CUDA_VISIBLE_DEVICES=i`` (benchmarks/bench_multi_gpu.py does).
 
 Visible GPUs: ``CUDA_VISIBLE_DEVICES`` when set (its entries; ``""`` or ``-1``: none), else ``nvidia-smi -L``
-(no nvidia-smi: none). ``GAPSWEEP_TEST_GPUS=<count>`` replaces the count (test hook: the policy is tested on
-machines without GPUs). Under MPI one rank per node looks (``rank_gpu``) and tells the others: start-up does not
-grow with the rank count.
+(no nvidia-smi: none). The tests replace :func:`visible_count` to try the policy on machines without GPUs
+(tests/hooks). Under MPI one rank per node looks (``rank_gpu``) and tells the others: start-up does not grow with
+the rank count.
 
 No function here creates a CUDA context or imports cupy: the coordinator and the CPU ranks never touch a GPU.
 The memory of the GPUs (``memory``, for the checks of ``plan`` and ``run``) and their names come from
@@ -31,9 +31,6 @@ __all__ = ["Layout", "assign", "layout", "memory", "query", "rank_gpu", "visible
 
 def visible_count() -> int:
     """Number of GPUs this process may use (see the module docstring)."""
-    test = os.environ.get("GAPSWEEP_TEST_GPUS", "")
-    if test:
-        return int(test)
     vis = os.environ.get("CUDA_VISIBLE_DEVICES")
     if vis is not None:
         return len([x for x in vis.split(",") if x.strip() and x.strip() != "-1"])

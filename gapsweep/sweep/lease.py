@@ -14,6 +14,14 @@ checks the identity again after opening the store (:meth:`Lease.bind`), so a sto
 the lease is covered too. The identity lease is only as wide as the host (device numbers of a network file
 system differ between nodes); across nodes the path lease beside the store does the work.
 
+Neither file is enough alone (issue 31): a job with its own ``$TMPDIR`` or ``$GAPSWEEP_LEASE_DIR`` (Slurm gives
+each job one) does not see the identity lease of another, and a hard link in another folder has another path
+lease. So the holder also keeps an open-file-description lock (``F_OFD_SETLK``, :class:`FileLock`) on one byte
+of the store file itself, far beyond its end: every path to the file (hard link, symlink, bind mount, another
+``$TMPDIR``) meets it, the kernel drops it when the holder dies (no stale state), HDF5's own ``flock`` lock is
+independent of it (local file systems), and on NFS v4 / Lustre with ``flock`` it reaches other nodes. Where the
+file system has no such locks (``ENOLCK``, ``EOPNOTSUPP``) the files above still hold, with a warning.
+
 A lease whose process is gone (same host, pid dead or reused) is *stale*: it is reported and broken only when
 asked (``--break-lease``). A lease of another host cannot be checked from here; breaking it is the user's call.
 """
@@ -21,10 +29,12 @@ asked (``--break-lease``). A lease of another host cannot be checked from here; 
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import logging
 import os
 import socket
+import struct
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,7 +42,7 @@ from typing import Any
 
 from gapsweep.sweep import limits, provenance
 
-__all__ = ["Lease", "LeaseError", "acquire", "identity_path", "lease_path", "read"]
+__all__ = ["FileLock", "Lease", "LeaseError", "acquire", "identity_path", "lease_path", "read"]
 
 log = logging.getLogger("gapsweep.lease")
 
@@ -76,16 +86,29 @@ def _proc_start(pid: int) -> str:
     return f[19] if len(f) > 19 else ""
 
 
+_PID_MAX = 1 << 22  # Linux's pid_max limit (kernel.pid_max <= 2^22)
+
+
+def _pid(v: Any) -> int | None:
+    """The pid a lease names, or None where it names none that can be alive (missing, not an integer, <= 0,
+    beyond pid_max: a damaged or hand-written lease is stale, never an error)."""
+    try:
+        pid = int(v)
+    except (TypeError, ValueError, OverflowError):
+        return None
+    return pid if 0 < pid <= _PID_MAX else None
+
+
 def _alive(info: dict[str, Any]) -> bool | None:
     """True/False for a lease of this host, None for another host (cannot tell)."""
     if info.get("host") != socket.gethostname():
         return None
-    pid = int(info.get("pid", -1))
-    if pid <= 0:
+    pid = _pid(info.get("pid"))
+    if pid is None:
         return False
     try:
         os.kill(pid, 0)
-    except ProcessLookupError:
+    except (ProcessLookupError, OverflowError, ValueError):
         return False
     except PermissionError:
         pass
@@ -110,8 +133,10 @@ def _read_file(p: Path) -> dict[str, Any] | None:
         info = json.loads(text)
         if not isinstance(info, dict):
             raise ValueError
-    except ValueError:
+    except (ValueError, RecursionError):
         info = {"host": "?", "pid": -1, "run_id": "?", "started": "?", "damaged": True}
+    if not isinstance(info.get("host"), str):
+        info["host"] = "?"  # a lease of unknown host cannot be judged from here: breakable with --break-lease
     info["alive"] = _alive(info)
     return info
 
@@ -120,6 +145,71 @@ def describe(info: dict[str, Any]) -> str:
     state = {True: "alive", False: "no longer running", None: "on another host, cannot be checked"}[info["alive"]]
     return (f"run {info.get('run_id')} (host {info.get('host')}, pid {info.get('pid')}, started "
             f"{info.get('started')}; {state})")
+
+
+# The byte the lock covers: far beyond any store's end, so that no data access (HDF5, MPI-IO) ever locks it.
+_LOCK_AT = 1 << 62
+_NO_LOCKS = (errno.EINVAL, errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOTSUP, errno.ENOSYS, errno.EBADF)
+
+
+class FileLock:
+    """An exclusive open-file-description lock (Linux ``F_OFD_SETLK``) on one byte of a store file: held while
+    this object keeps its descriptor, dropped by the kernel when the process ends, met through every path to the
+    file (the same inode). :meth:`take` returns False where another description (process) holds it."""
+
+    def __init__(self) -> None:
+        self.fd: int | None = None
+        self.ino: tuple[int, int] | None = None
+
+    @staticmethod
+    def _flock(kind: int) -> bytes:
+        # struct flock: l_type, l_whence, l_start, l_len, l_pid (0 for OFD locks); native alignment
+        return struct.pack("@hhqqi", kind, os.SEEK_SET, _LOCK_AT, 1, 0).ljust(32, b"\0")
+
+    def take(self, path: str | Path) -> bool | None:
+        """True: locked (or already ours); False: held by another process; None: not supported here."""
+        import fcntl
+
+        setlk = getattr(fcntl, "F_OFD_SETLK", None)
+        if setlk is None:
+            return None
+        try:
+            fd = os.open(path, os.O_RDWR | getattr(os, "O_CLOEXEC", 0))
+        except OSError as e:
+            log.debug("store %s: cannot open it to lock it (%s)", path, e)
+            return None
+        st = os.fstat(fd)
+        if self.fd is not None and self.ino == (st.st_dev, st.st_ino):
+            os.close(fd)
+            return True
+        try:
+            fcntl.fcntl(fd, setlk, self._flock(fcntl.F_WRLCK))
+        except OSError as e:
+            os.close(fd)
+            if e.errno in (errno.EAGAIN, errno.EACCES):
+                return False
+            if e.errno in _NO_LOCKS:
+                return None
+            raise
+        self.release()
+        self.fd, self.ino = fd, (st.st_dev, st.st_ino)
+        return True
+
+    def release(self) -> None:
+        if self.fd is not None:
+            with contextlib.suppress(OSError):
+                os.close(self.fd)  # closing the description drops its lock
+            self.fd = self.ino = None
+
+
+def locked(path: str | Path) -> bool:
+    """Whether another process holds the writer's lock on the file at ``path`` (False where none, or where the
+    file system has no such locks)."""
+    lk = FileLock()
+    try:
+        return lk.take(path) is False
+    finally:
+        lk.release()
 
 
 @dataclass
@@ -131,9 +221,12 @@ class Lease:
     ident: Path | None = None
     info: dict[str, Any] | None = None
     break_lease: bool = False
+    lock: FileLock | None = None
 
     def release(self) -> None:
         with limits.deferred():  # a signal here must not leave half the lease behind
+            if self.lock is not None:
+                self.lock.release()
             if self.ident is not None:
                 _release_file(self.ident, self.run_id)
                 self.ident = None
@@ -149,30 +242,50 @@ class Lease:
                     continue
                 try:
                     info = json.loads(p.read_text())
-                    if info.get("run_id") != self.run_id:
+                    if not isinstance(info, dict) or info.get("run_id") != self.run_id:
                         continue
                     tmp = p.with_name(p.name + f".mark-{self.run_id}")
                     tmp.write_text(json.dumps({**info, "interrupted": True}))
                     os.replace(tmp, p)
+                except FileNotFoundError:
+                    continue  # released, or never taken from this host
                 except (OSError, ValueError) as e:
                     log.warning("lease %s: cannot mark it interrupted (%s)", p, e)
 
     def bind(self, store: str | Path) -> None:
         """Check the store's identity again (after it was opened, created or replaced): hold the identity lease
-        of the file now at ``store``; raise :class:`LeaseError` when another run holds that file."""
+        of the file now at ``store`` and the lock on the file itself; raise :class:`LeaseError` when another run
+        holds that file."""
         ident = identity_path(store)
-        if ident == self.ident:
-            return
+        if ident != self.ident:
+            self._take_identity(store, ident)
+        self._lock_file(store)
+
+    def _take_identity(self, store: str | Path, ident: Path | None) -> None:
         if ident is not None:
             try:
                 _take(ident, {**(self.info or {}), "run_id": self.run_id}, store, self.break_lease, self.path)
-            except OSError as e:  # no usable lease folder on this host: the path lease still holds
-                log.warning("store %s: cannot take its identity lease %s (%s); a second run through a hard link "
-                            "of this file would not be detected", store, ident, e)
+            except OSError as e:  # no usable lease folder on this host: the path lease and the file lock hold
+                log.debug("store %s: cannot take its identity lease %s (%s)", store, ident, e)
                 return
         if self.ident is not None:
             _release_file(self.ident, self.run_id)
         self.ident = ident
+
+    def _lock_file(self, store: str | Path) -> None:
+        if not Path(store).exists():
+            return
+        if self.lock is None:
+            self.lock = FileLock()
+        got = self.lock.take(store)
+        if got is False:
+            raise LeaseError(f"store {store} is in use by another writer (alive: it holds the lock on the file "
+                             "itself, through this or another path: a hard link, symlink or mount of the same "
+                             "file); wait for it to finish or stop it") from None
+        if got is None:
+            log.warning("store %s: the file itself cannot be locked (no file locks on its file system, or no write "
+                        "permission); a second run through another path (a hard link, another $TMPDIR) is detected "
+                        "only by the lease files", store)
 
     def __enter__(self) -> Lease:
         return self
@@ -181,12 +294,23 @@ class Lease:
         self.release()
 
 
+def mark_ended(store: str | Path, run_id: str) -> None:
+    """Any rank of an MPI job that is about to abort (issue 31): mark the run's lease files (found from the
+    store's path and the run id every rank knows) as ended -- the job does not survive ``MPI_Abort`` -- so that
+    the next run takes them over, without --break-lease, once their holder (rank 0) is seen dead."""
+    paths = [lease_path(store)]
+    ident = identity_path(store)
+    if ident is not None:
+        paths.append(ident)
+    Lease(paths[0], run_id, paths[1] if len(paths) > 1 else None).mark_interrupted()
+
+
 def _release_file(p: Path, run_id: str) -> None:
     try:
         info = json.loads(p.read_text())
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         return
-    if info.get("run_id") == run_id:
+    if isinstance(info, dict) and info.get("run_id") == run_id:
         with contextlib.suppress(FileNotFoundError):
             p.unlink()
 
@@ -195,7 +319,7 @@ def _orphan(old: dict[str, Any]) -> bool:
     """An identity lease whose path lease is gone (released or broken): left behind by a killed run, holds
     nothing -- removed without asking (the path lease is what --break-lease speaks for)."""
     lp = old.get("lease")
-    if not lp or old["alive"] is True:
+    if not lp or not isinstance(lp, str) or old["alive"] is True:
         return False
     other = _read_file(Path(lp))
     return other is None or other.get("run_id") != old.get("run_id")

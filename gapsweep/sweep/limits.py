@@ -40,6 +40,7 @@ _pending: int | None = None  # ... not yet acted on (deferred, or recorded for t
 _defer = 0  # depth of deferred() blocks
 _defer_all = False  # the run command: record only, the run's Stop acts on it
 _raised: int | None = None  # raised by the early handler; cleared by whoever reports the Interrupted (the CLI)
+_count = 0  # SIGINT/SIGTERM received by this process's handlers, ever (signal_count)
 
 
 class Interrupted(BaseException):
@@ -75,7 +76,8 @@ class Stop:
         self._old: dict[int, Any] = {}
 
     def _handler(self, signum: int, frame: Any) -> None:
-        global _received
+        global _received, _count
+        _count += 1
         first = self.signum is None
         if first:
             self.signum = signum
@@ -145,6 +147,47 @@ def timeout_message(seconds: float) -> str:
     return f"{TIMEOUT_PREFIX} task exceeded its time limit of {seconds:g} s (run again by --resume)"
 
 
+def signal_count() -> int:
+    """How many SIGINT/SIGTERM this process's handlers have received: a task compares it before and after, so
+    that an error caused by a signal (one raised inside C code and swallowed there, e.g. in an llvmlite callback
+    during JIT compilation) is known for an interruption, not recorded as the task's failure."""
+    return _count
+
+
+# Errors that say a computation was cut rather than that it failed: numba's dispatcher after a compilation whose
+# llvmlite callback swallowed the exception a signal handler raised.
+_CUT_MESSAGES = ("no compiled object yet",)
+
+
+def cut_by_signal(e: BaseException, count_before: int) -> bool:
+    """Whether the exception ``e`` of a task comes from an interruption: a signal arrived since
+    ``count_before`` (:func:`signal_count`), an Interrupted / KeyboardInterrupt in its chain, or a message that
+    only a cut computation gives (``_CUT_MESSAGES``)."""
+    if _count != count_before:
+        return True
+    seen: set[int] = set()
+    x: BaseException | None = e
+    while x is not None and id(x) not in seen:
+        seen.add(id(x))
+        if isinstance(x, (Interrupted, KeyboardInterrupt)) or any(m in str(x) for m in _CUT_MESSAGES):
+            return True
+        x = x.__cause__ or x.__context__
+    return False
+
+
+def interrupted_message(e: BaseException) -> str:
+    """The message of a row cut by an interruption; ``--resume`` runs rows with this prefix again."""
+    from gapsweep.sweep.schema import INTERRUPTED_PREFIX
+
+    return f"{INTERRUPTED_PREFIX} {type(e).__name__}: {e} (cut by a signal; run again by --resume)"
+
+
+def is_interrupted(message: str) -> bool:
+    from gapsweep.sweep.schema import INTERRUPTED_PREFIX
+
+    return message.startswith(INTERRUPTED_PREFIX)
+
+
 def is_timeout(message: str) -> bool:
     from gapsweep.sweep.schema import TIMEOUT_PREFIX
 
@@ -152,7 +195,8 @@ def is_timeout(message: str) -> bool:
 
 
 def _early(signum: int, frame: Any) -> None:
-    global _received, _pending
+    global _received, _pending, _count
+    _count += 1
     if _received is not None:  # a second signal: the first one's clean-up is under way
         return
     _received = signum

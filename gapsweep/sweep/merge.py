@@ -10,14 +10,15 @@ import logging
 import os
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from gapsweep.sweep import lease, provenance, storecheck
+from gapsweep.sweep import lease, outputs, provenance, storecheck
 from gapsweep.sweep import spec as specmod
 from gapsweep.sweep import tasks as tasksmod
 from gapsweep.sweep.schema import PRESSURE_HIST, STATUS, STATUS_NAMES, VOLATILE, StoreError
-from gapsweep.sweep.store import Store, _same, empty_results, open_read, read_attrs, seal, upgrade_results
+from gapsweep.sweep.store import Store, _same, empty_results, open_read, read, read_attrs, seal, upgrade_results
 
 __all__ = ["CONFLICT_CHOICES", "merge"]
 
@@ -38,6 +39,62 @@ def _row_equal(x: np.ndarray, y: np.ndarray, hx: tuple[np.ndarray, ...], hy: tup
     return all(_same(a, b) for a, b in zip(hx, hy, strict=True))
 
 
+def _not_own_merge(out: Path, sha: str, done: set[str]) -> str | None:
+    """Why ``merge --overwrite`` must not replace ``out`` (None: it may). Only an earlier merge output (attribute
+    ``merged_from``) of the same job (spec hash) that holds no done row the new merge lacks is replaced: never a
+    run's store, another job's store, a plain HDF5 file or any other file (issue 31)."""
+    if not outputs.is_store(out):
+        return "is not a gapsweep store written by merge (another file: a plain HDF5 file, a report, ...)"
+    a = outputs.hdf5_attrs(out) or {}
+    if "merged_from" not in a:
+        return "is a gapsweep store that a run wrote, not a merge output"
+    if a.get("spec_sha256") != sha:
+        return "is the merge output of another job (another spec hash)"
+    try:
+        old = read(out, mark_damaged=False)
+    except (OSError, StoreError) as e:
+        return f"is a merge output that cannot be read ({e})"
+    lost = sorted(set(old.task_id[old.status == "done"]) - done)
+    if lost:
+        return (f"holds {len(lost)} done row(s) this merge would not have (e.g. task {lost[0]}): add the shards "
+                "that hold them")
+    return None
+
+
+def _write(tmp: Path, out: Path, tasks: list, attrs: dict, bins: int, results: np.ndarray,
+           hists: tuple[np.ndarray, ...]) -> None:
+    """Write the merged store under its temporary name. A write error (full disk, file-size limit) is one line
+    naming the output; the file is then not closed -- HDF5 crashes closing or releasing a file whose write failed
+    (issue 31) -- and the CLI leaves with os._exit (store.write_failed)."""
+    from gapsweep.sweep.store import StoreWriteError, write_failed
+
+    try:
+        st = Store.create(tmp, tasks, attrs, bins)
+    except StoreWriteError as e:
+        raise StoreWriteError(f"merge --out {out}: cannot be written ({str(e).split(' failed ', 1)[-1].strip()}); "
+                              "nothing was written, the shards are untouched") from None
+    try:
+        if len(tasks):
+            edges, dens, pedges, pdens = hists
+            st.f["histograms/edges"][...] = edges
+            st.f["histograms/density"][...] = dens
+            st.f[PRESSURE_HIST[0]][...] = pedges
+            st.f[PRESSURE_HIST[1]][...] = pdens
+            # rows of a format-1/2 shard get their checksum here; format-3 rows are checked above
+            st.f["results"][...] = seal(st.f["tasks"][...], results, bins, edges, dens, pedges, pdens)
+        st.f.attrs["finished"] = provenance.now()
+        st.f.flush()
+    except (OSError, RuntimeError) as e:
+        if isinstance(e, StoreError):
+            raise
+        raise write_failed(f"merge --out {out}: writing failed ({e}); nothing was written, the shards are "
+                           "untouched") from None
+    except BaseException:
+        st.close()
+        raise
+    st.close()
+
+
 def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = False,
           on_conflict: str = "error", break_lease: bool = False, skip_damaged: bool = False) -> dict[str, int]:
     """Merge shard stores of one job into ``out`` (rows in the job's canonical task order, keyed by task id).
@@ -56,10 +113,10 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
     if on_conflict not in CONFLICT_CHOICES:
         raise ValueError(f"merge: on_conflict must be one of {', '.join(CONFLICT_CHOICES)}, got {on_conflict!r}")
     outp = Path(out)
-    if any(Path(x).resolve() == outp.resolve() for x in shards):
-        raise StoreError(f"merge: the output {outp} is also a shard; choose another --out")
-    if outp.exists() and not overwrite:
-        raise StoreError(f"merge: {outp} exists (pass --overwrite to replace it)")
+    if any(outputs.same_file(x, outp) or Path(x).resolve() == outp.resolve() for x in shards):
+        raise StoreError(f"merge: the output {outp} is also a shard (the same file, by device and inode); choose "
+                         "another --out")
+    _guard(outp, shards, overwrite, lambda o: None)  # exists, folder
     metas = [read_attrs(s) for s in shards]
     shas = {m["spec_sha256"] for m in metas}
     if len(shas) != 1:
@@ -72,7 +129,7 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
     index = {t.task_id: i for i, t in enumerate(tasks)}
     runs = []
     for m in metas:
-        runs.extend(json.loads(m.get("runs", "[]")))
+        runs.extend(storecheck.run_records(m.get("runs", "[]")))  # a damaged list: those records are lost
     attrs = provenance.store_attrs(js, shard="", extra={"merged_from": json.dumps([str(s) for s in shards]),
                                                         "runs": json.dumps(runs)})
     attrs["spec_sha256"] = metas[0]["spec_sha256"]
@@ -92,7 +149,7 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
                 continue
             if f["histograms/density"].shape[1] != bins:
                 raise StoreError(f"merge: {s} has {f['histograms/density'].shape[1]} histogram bins, the job {bins}")
-            ids = [x.decode() for x in f["tasks"].fields("task_id")[...]]
+            ids = [x.decode("utf-8", "replace") for x in f["tasks"].fields("task_id")[...]]
             r = upgrade_results(f["results"][...])  # a format-1 shard: by column name
             e, d = f["histograms/edges"][...], f["histograms/density"][...]
             if PRESSURE_HIST[0] in f:
@@ -106,10 +163,10 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
         damaged += len(rep.damaged)
         bad = set(rep.rerun)
         for j, tid in enumerate(ids):
+            if j in bad or r["status"][j] == STATUS["pending"]:
+                continue  # (a damaged task id of such a row is restored by --resume of its shard)
             if tid not in index:
                 raise StoreError(f"merge: task {tid} of {s} is not in the job")
-            if j in bad or r["status"][j] == STATUS["pending"]:
-                continue
             i = index[tid]
             new, old = _RANK[int(r["status"][j])], _RANK[int(results["status"][i])]
             if new < old:
@@ -131,23 +188,12 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
                          "--on-conflict first|last to choose, nothing was written")
     for c in conflicts:
         log.warning("merge: %s (kept the %s)", c, on_conflict)
-    with lease.acquire(outp, break_lease=break_lease, purpose="merge"):
+    done = {t.task_id for t, s in zip(tasks, results["status"], strict=True) if s == STATUS["done"]}
+    with lease.acquire(outp, break_lease=break_lease, purpose="merge"):  # a live writer is named first
+        _guard(outp, shards, overwrite, lambda o: _not_own_merge(o, metas[0]["spec_sha256"], done))
         tmp = outp.with_name(f".{outp.name}.tmp-{os.getpid()}")
         try:
-            st = Store.create(tmp, tasks, attrs, bins)
-            try:
-                if os.environ.get("GAPSWEEP_TEST_MERGE_DELAY"):  # test hook: a signal while the output is written
-                    __import__("time").sleep(float(os.environ["GAPSWEEP_TEST_MERGE_DELAY"]))
-                if len(tasks):
-                    st.f["histograms/edges"][...] = edges
-                    st.f["histograms/density"][...] = dens
-                    st.f[PRESSURE_HIST[0]][...] = pedges
-                    st.f[PRESSURE_HIST[1]][...] = pdens
-                    # rows of a format-1/2 shard get their checksum here; format-3 rows are checked above
-                    st.f["results"][...] = seal(st.f["tasks"][...], results, bins, edges, dens, pedges, pdens)
-                st.f.attrs["finished"] = provenance.now()
-            finally:
-                st.close()
+            _write(tmp, outp, tasks, attrs, bins, results, (edges, dens, pedges, pdens))
             os.replace(tmp, outp)
         except BaseException:
             tmp.unlink(missing_ok=True)
@@ -156,3 +202,11 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
     counts["conflicts"] = len(conflicts)
     counts["damaged"] = damaged
     return counts
+
+
+def _guard(outp: Path, shards: Sequence[str | Path], overwrite: bool, own: Any) -> None:
+    """The output rule (gapsweep.sweep.outputs) for ``merge --out``, raised as the merge's own StoreError."""
+    try:
+        outputs.guard_output(outp, shards, "merge --out", overwrite=overwrite, own=own)
+    except FileExistsError as e:
+        raise StoreError(str(e)) from None

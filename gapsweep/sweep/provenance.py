@@ -22,7 +22,7 @@ _PACKAGES = ("gapsweep", "numpy", "scipy", "h5py", "mpi4py", "pyfftw", "warp-lan
 
 def now() -> str:
     """UTC time, ISO 8601 with seconds."""
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
 
 
 @lru_cache(maxsize=1)

@@ -40,7 +40,7 @@ from gapsweep.sweep import spec as specmod
 from gapsweep.sweep.context import Context
 from gapsweep.sweep.execute import run_task
 from gapsweep.sweep.farm import DeviceFault, Farm, Worker, device_fault
-from gapsweep.sweep.fields import fields_dir, remove_fields
+from gapsweep.sweep.fields import fields_dir, remove_fields, remove_partial
 from gapsweep.sweep.limits import Interrupted, TaskTimeout
 from gapsweep.sweep.schema import PRESSURE_HIST, STATUS, Task, TaskResult, Unit
 from gapsweep.sweep.spec import check_extra
@@ -245,7 +245,7 @@ def _store_path(path: str | Path, shard: tuple[int, int] | None) -> Path:
 
 
 def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: str, resume: bool,
-            overwrite: bool) -> tuple[str, list[int]]:
+            overwrite: bool, *, reordered: bool = False) -> tuple[str, list[int], int]:
     """('create' | 'resume' | 'noop', task indices to run). Raises RunError when the store cannot be used.
     On resume the store is validated (docs/reliability.md): pending rows, rows of unknown status and done rows
     without a complete result are run again."""
@@ -264,24 +264,31 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
         with open_read(path, check=False) as f:
             report = storecheck.check(f, path)  # once: it reads and checksums every row
             sha, shard = f.attrs.get("spec_sha256"), f.attrs.get("shard")
-            ids = [x.decode() for x in f["tasks"].fields("task_id")[...]] if f["tasks"].shape[0] else []
             todo = storecheck.incomplete_rows(f, path, report)
-            damaged = set(report.damaged)
+            moved, kept = _moved_rows(f, tasks, set(report.damaged), set(todo))
+            runs_bad = report.runs_damaged is not None
             failed = set(np.flatnonzero(f["results"].fields("status")[...] == STATUS["failed"]).tolist()
                          if report.n_tasks else []) - set(todo)
     except (OSError, StoreError) as e:
+        from gapsweep.sweep.outputs import is_store
+
+        if not is_store(path):  # --overwrite would be refused too (the output rule): not ours to replace
+            raise RunError(f"{e}; it is not a gapsweep store: choose another --store") from None
         raise RunError(f"{e}; pass --overwrite to replace it") from None
     if isinstance(sha, bytes):
         sha = sha.decode()
-    want = [t.task_id for t in tasks]
-    # rows whose task parameters were damaged (checksum mismatch) are rewritten from the spec and run again
-    moved = {i for i, (a, b) in enumerate(zip(ids, want)) if a != b}
-    if sha not in (spec.sha256, spec.text_sha256) or shard != shard_text or len(ids) != len(want) \
-            or not moved <= damaged:
+    if (sha not in (spec.sha256, spec.text_sha256) and not reordered) or shard != shard_text or moved is None:
         raise RunError(f"store {path} was written for another job spec or shard; pass --overwrite to replace "
                        "it or choose another --store")
-    if not todo:
+    if kept:  # done rows whose results verify against the spec's task row: only their task row is restored
+        log.warning("store %s: %d done row(s) with a damaged task row verify against the job spec's: kept, their "
+                    "task rows are restored (rows %s)", path, len(kept), sorted(kept)[:5])
+        todo = [i for i in todo if i not in kept]
+    if not todo and not moved and not (resume and runs_bad):  # --resume rebuilds damaged run records
         return "noop", [], len(failed)
+    if not resume and not todo:
+        raise RunError(f"store {path}: {len(moved)} damaged task row(s) (rows {sorted(moved)[:5]}): pass --resume to "
+                       "restore them from the job spec (every done row is kept)")
     if not resume:
         raise RunError(f"store {path} exists with {len(todo)} of {len(tasks)} tasks pending: pass --resume to "
                        "finish it or --overwrite to start again")
@@ -291,6 +298,89 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
         raise RunError(f"store {path}: no room to record a new run ({e.strerror}: full disk or file-size "
                        "limit); nothing was changed: free space and run again") from None
     return "resume", todo, len(failed)
+
+
+def _order_free(spec: specmod.JobSpec) -> str:
+    """The spec's canonical JSON with the values of every axis list sorted (grid axes and method overrides):
+    equal for two specs that differ only in the order of axis values (docs/jobs.md: the order does not enter)."""
+    d = json.loads(spec.canonical())
+
+    def norm(x: Any) -> Any:
+        if isinstance(x, dict):
+            return {k: norm(v) for k, v in x.items()}
+        if isinstance(x, list) and all(isinstance(v, (int, float, str)) and not isinstance(v, bool) for v in x):
+            return sorted(x, key=lambda v: (isinstance(v, str), v))
+        return x
+
+    return json.dumps({**d, "grid": norm(d["grid"]), "methods": norm(d["methods"])}, sort_keys=True)
+
+
+def _stored_order(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: str,
+                  overwrite: bool) -> list[int] | None:
+    """Issue 31: a store written from the same spec with the values of an axis in another order (its hash
+    differs, its tasks are the same) is resumed in its own row order: the permutation (store row -> index into
+    ``tasks``), or None where there is nothing to reorder."""
+    if overwrite or not path.is_file():
+        return None
+    try:
+        with open_read(path, check=False) as f:
+            sha, text, shard = (f.attrs.get(k) for k in ("spec_sha256", "spec_text", "shard"))
+            ids = [x.decode("utf-8", "replace") for x in f["tasks"].fields("task_id")[...]] \
+                if f["tasks"].shape[0] else []
+    except (OSError, StoreError, KeyError):
+        return None  # _decide says what is wrong with it
+    sha, text = (x.decode("utf-8", "replace") if isinstance(x, bytes) else x for x in (sha, text))
+    if sha in (spec.sha256, spec.text_sha256) or shard != shard_text or not isinstance(text, str):
+        return None
+    try:
+        if _order_free(specmod.loads(text, base=spec.base_dir or None)) != _order_free(spec):
+            return None
+    except (specmod.SpecError, ValueError, AttributeError):
+        return None
+    index = {t.task_id: i for i, t in enumerate(tasks)}
+    if sorted(ids) != sorted(index):
+        return None
+    log.info("store %s: the job spec lists axis values in another order than the store's; resumed in the "
+             "store's row order", path)
+    return [index[x] for x in ids]
+
+
+def _store_order(tasks: list[Task], units: list[Unit], order: list[int] | None) -> tuple[list[Task], list[Unit]]:
+    """``tasks`` (and their ``units``) in the store's row order (:func:`_stored_order`); unchanged for None."""
+    if order is None:
+        return tasks, units
+    new = {old: k for k, old in enumerate(order)}
+    return [tasks[i] for i in order], [u.remap(new) for u in units]
+
+
+def _moved_rows(f: Any, tasks: list[Task], damaged: set[int], todo: set[int],
+                ) -> tuple[set[int] | None, set[int]]:
+    """Rows whose stored task row differs from the job's (a damaged task id or parameter, issue 31) and, of those,
+    the done rows whose stored checksum verifies against the job's task row (their results are intact: only the
+    task row is restored, the row stays done). None when the task table cannot be this job's: another length, or
+    a differing row that is neither damaged (checksum) nor to be run again (pending)."""
+    import numpy as np
+
+    from gapsweep.sweep.schema import CHECKSUM, PRESSURE_HIST, row_checksum
+    from gapsweep.sweep.store import task_rows
+
+    have = f["tasks"][...] if f["tasks"].shape[0] else np.zeros(0)
+    if len(have) != len(tasks):
+        return None, set()
+    want = task_rows(tasks)
+    moved = {i for i in range(len(want)) if have[i].tobytes() != want[i].tobytes()}
+    if not moved <= damaged | todo:
+        return None, set()
+    kept = set()
+    r = f["results"]
+    if CHECKSUM in (r.dtype.names or ()):
+        g = (f["histograms/edges"], f["histograms/density"], f[PRESSURE_HIST[0]], f[PRESSURE_HIST[1]])
+        for i in sorted(moved & damaged):
+            row = r[i]
+            if int(row["status"]) != STATUS["pending"] and \
+                    int(row[CHECKSUM]) == row_checksum(want[i], row, tuple(x[i] for x in g)):
+                kept.add(i)
+    return moved, kept
 
 
 class Progress:
@@ -354,10 +444,26 @@ def _run_unit(tasks: list[Task], unit: Unit, ctx: Context, todo: set[int], limit
     state = None
     for i in run:
         res, state = run_task(tasks[i], ctx, state) if not limit else _run_limited(tasks[i], ctx, state, limit)
+        if _cut(res, stop):
+            return
         if i in todo:
             yield i, res
         if stop is not None and stop.mode == "flag" and stop.requested():
             return
+
+
+def _cut(res: TaskResult, stop: limits.Stop | None) -> bool:
+    """A task cut by a stop request (its error says ``interrupted:``): its row is not written -- it stays pending,
+    run again by --resume (issue 31) -- and the unit ends; in raise mode (serial) the run stops now. Without a stop
+    request (an interruption seen only in the error) the row is written as failed with that prefix, and
+    --resume runs it again."""
+    if res.status != "failed" or not limits.is_interrupted(res.message):
+        return False
+    if stop is None or not stop.requested():
+        return False
+    if stop.mode == "raise":
+        raise Interrupted(stop.signum)
+    return True
 
 
 def _run_limited(t: Task, ctx: Context, state: Any, limit: float) -> tuple[TaskResult, Any]:
@@ -422,8 +528,6 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     spec = _load(job)
     comm = _comm(mpi)
     rank, size = (comm.rank, comm.size) if comm is not None else (0, 1)
-    if os.environ.get("GAPSWEEP_TEST_PIDDIR"):  # test hook: lets a test kill -9 one particular rank
-        Path(os.environ["GAPSWEEP_TEST_PIDDIR"], f"rank{rank}.pid").write_text(str(os.getpid()))
     tasks, units = _select(spec, shard, batch)
     if collective.is_collective(tasks) and (task_timeout is not None or batch != "off"):
         raise RunError("[methods.gfmd] distributed = true: every rank solves each task together; "
@@ -440,12 +544,16 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
         try:
             _check_resources(tasks, ranks_per_gpu)  # the same refusal as `plan`, looked at once (rank 0)
             _check_collective(tasks, size)  # every rank runs each distributed task together: its slabs fit?
+            _guard_store(path, _inputs(job, spec), overwrite)
             path.parent.mkdir(parents=True, exist_ok=True)
             held = lease.acquire(path, break_lease=break_lease)
-            decision = (*_decide(path, spec, tasks, shard_text, resume, overwrite), held.run_id)
-            if reuse and decision[0] != "noop":
-                reused = reusable_rows(reuse, path, tasks, decision[1], spec.histogram["bins"])
-                decision = (decision[0], [i for i in decision[1] if i not in reused], *decision[2:])
+            order = _stored_order(path, spec, tasks, shard_text, overwrite)
+            ordered = _store_order(tasks, [], order)[0]
+            decision = (order, *_decide(path, spec, ordered, shard_text, resume, overwrite,
+                                        reordered=order is not None), held.run_id)
+            if reuse and decision[1] != "noop":
+                reused = reusable_rows(reuse, path, ordered, decision[2], spec.histogram["bins"])
+                decision = (decision[0], decision[1], [i for i in decision[2] if i not in reused], *decision[3:])
             _stop_file(path).unlink(missing_ok=True)  # a stop request of an earlier run
         except Exception as e:  # every rank must learn about it, or the others wait in bcast forever
             decision = e if isinstance(e, RunError) else RunError(
@@ -457,12 +565,36 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
         decision = comm.bcast(decision, root=0)
     if isinstance(decision, RunError):
         raise decision
+    tasks, units = _store_order(tasks, units, decision[0])  # a reordered axis: the store's row order (issue 31)
+    decision = decision[1:]
     try:
         return _execute(spec, comm, rank, size, tasks, units, path, shard_text, decision, writer, progress,
                         coordinator_works, task_timeout, held, (batch, ranks_per_gpu, lookahead), reused)
     finally:
         if held is not None:
             held.release()
+
+
+def _inputs(job: str | Path | specmod.JobSpec, spec: specmod.JobSpec) -> list[Path]:
+    """The files a run reads: its job spec and a measured height map (``[surface] kind = "file"``)."""
+    from gapsweep.sweep.filesurface import _FILES
+
+    out = [] if isinstance(job, specmod.JobSpec) else [Path(job)]
+    if spec.surface.get("kind") == "file" and _FILES.get(spec.surface.get("sha256", "")):
+        out.append(Path(_FILES[spec.surface["sha256"]]))
+    return out
+
+
+def _guard_store(path: Path, inputs: list[Path], overwrite: bool) -> None:
+    """The output rule (gapsweep.sweep.outputs, issue 31) for ``run --store``: never an input (the job spec, the
+    height map; by device and inode) nor a folder; ``--overwrite`` replaces only a gapsweep store."""
+    from gapsweep.sweep import outputs
+
+    try:
+        outputs.guard_output(path, inputs, "run --store", overwrite=True, own=lambda o: None if not overwrite or
+                             outputs.is_store(o) else "is not a gapsweep store (a plain HDF5 file or another file)")
+    except FileExistsError as e:
+        raise RunError(str(e)) from None
 
 
 def reusable_rows(sources: Sequence[str | Path], path: Path, tasks: list[Task], todo: list[int], bins: int,
@@ -489,7 +621,7 @@ def reusable_rows(sources: Sequence[str | Path], path: Path, tasks: list[Task], 
                             f["histograms/density"].shape[1], bins)
                 continue
             n = f["tasks"].shape[0]
-            ids = [x.decode() for x in f["tasks"].fields("task_id")[...]] if n else []
+            ids = [x.decode("utf-8", "replace") for x in f["tasks"].fields("task_id")[...]] if n else []
             status = f["results"].fields("status")[...] if n else []
             bad = set(rep.rerun)
             take = [j for j, tid in enumerate(ids) if tid in want and want[tid] not in out and j not in bad
@@ -565,10 +697,10 @@ def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list
     except (StoreWriteError, OSError) as e:
         if comm is None:
             r.write_failed(e)
-        _abort(comm, rank, wmode, held, e)
+        _abort(comm, rank, wmode, held, e, (path, r.run_id))
     except BaseException as e:
         if comm is not None:
-            _abort(comm, rank, wmode, held, e)
+            _abort(comm, rank, wmode, held, e, (path, r.run_id))
         raise
     finally:
         r.stop.restore()
@@ -633,11 +765,11 @@ class _Run:
                                       comm if self.wmode == "mpio" else None, rank, self.run_id)
                 if self.held is not None:  # the file opened is the one leased (issue 19: keyed by device and inode)
                     self.held.bind(self.path)
-                runs = json.loads(self.st.f.attrs.get("runs", "[]"))
+                if self.mode == "resume":  # every byte of a re-run row is written again, NaN histograms included
+                    self.st.force_histograms(self.todo_list)
+                runs = _earlier_runs(self.st, self.path)
                 self.st.set_attrs({"runs": json.dumps([*runs, record])}, flush=True)  # survives a kill -9
                 _copy_reused(self.st, self.reused)
-        if os.environ.get("GAPSWEEP_TEST_ABORT_RANK", "") == str(rank):
-            raise RuntimeError(f"injected error on rank {rank} (GAPSWEEP_TEST_ABORT_RANK)")
         self.prog = Progress(len(self.todo), self.progress if rank == 0 else "none")
         if comm is not None and rank == 0 and self.wmode == "rank0":  # issue 19: mpiexec's 1-s grace, see below
             self.stop.on_request = lambda sig: _mark_interrupted(self.st, record, self.prog, self.held, sig)
@@ -752,7 +884,7 @@ def _mark_interrupted(st: Store, record: dict[str, Any], prog: Progress, held: l
     write is collective and cannot be done by rank 0 alone.)"""
     try:
         budget.probe_growth(st.path)  # a metadata write only where the file can grow
-        runs = json.loads(st.f.attrs.get("runs", "[]"))
+        runs = storecheck.run_records(st.f.attrs.get("runs", "[]")) or [{}]
         runs[-1] = {**record, **_interrupted(signum, dict(prog.count))}
         st.set_attrs({"runs": json.dumps(runs)}, flush=True)
     except (OSError, StoreError) as e:
@@ -760,6 +892,18 @@ def _mark_interrupted(st: Store, record: dict[str, Any], prog: Progress, held: l
         return
     if held is not None:
         held.mark_interrupted()
+
+
+def _earlier_runs(st: Store, path: Path) -> list[dict[str, Any]]:
+    """The store's run records before this run's; a damaged list (issue 31) is rebuilt: one record saying the
+    earlier ones were lost (the rows do not depend on them)."""
+    raw = st.f.attrs.get("runs", "[]")
+    why = storecheck.runs_problem(raw)
+    if why is None:
+        return storecheck.run_records(raw)
+    log.warning("store %s: its run records were damaged (%s); rebuilt as a new list (the earlier run history is "
+                "lost, every row is kept)", path, why)
+    return [{"rebuilt": provenance.now(), "note": f"the earlier run records were damaged ({why}) and are lost"}]
 
 
 def _interrupted(signum: int, counts: dict[str, int]) -> dict[str, Any]:
@@ -794,6 +938,8 @@ def _open_store(path: Path, mode: str, tasks: list[Task], attrs: dict[str, Any],
                 tmp.unlink(missing_ok=True)
             raise
     st = Store.open(path, comm=comm)
+    if mode == "resume" and rank == 0 and (gone := remove_partial(fields_dir(path))):
+        log.info("store %s: removed %d partial kept-field file(s) of an interrupted run", path, gone)
     if mode == "resume":  # task rows damaged since they were written come back from the spec (their rows re-run)
         fixed = st.repair_tasks(tasks, write=rank == 0)
         if fixed:
@@ -806,7 +952,7 @@ def _close_record(st: Store, record: dict[str, Any]) -> None:
     """Replace the run's record (the last one) and close the store (collective under mpio). The record is
     written only if the file can grow (budget.probe_growth; a failed metadata write can ruin an HDF5 file):
     otherwise it is left as it was (the run then reads as "running or killed") and a warning says why."""
-    runs = json.loads(st.f.attrs.get("runs", "[]"))
+    runs = storecheck.run_records(st.f.attrs.get("runs", "[]")) or [{}]
     runs[-1] = record
     new = {"runs": json.dumps(runs)}
     if record.get("finished"):
@@ -840,11 +986,14 @@ def _abandon(st: Store, record: dict[str, Any] | None = None) -> None:
         log.warning("closing %s after an error: %s", st.path, e)
 
 
-def _abort(comm: Any, rank: int, wmode: str, held: lease.Lease | None, e: BaseException) -> None:
+def _abort(comm: Any, rank: int, wmode: str, held: lease.Lease | None, e: BaseException,
+           run: tuple[Path, str] | None = None) -> None:
     log.error("rank %d: fatal error, aborting the MPI job: %s: %s", rank, type(e).__name__, e,
               exc_info=not isinstance(e, (StoreError, OSError)))
     if held is not None and wmode != "mpio":  # rank 0 alone wrote: its rows are flushed, the store is free
         held.release()
+    elif run is not None:  # issue 31: the lease says its run ended (MPI_Abort ends every rank); once its holder
+        lease.mark_ended(*run)  # is gone the next run takes it over without --break-lease
     sys.stderr.flush()
     comm.Abort(1)
 
@@ -1098,3 +1247,4 @@ def _work(r: _Run) -> None:
 def _fields_dir(store: str | Path) -> Path:
 
     return fields_dir(store)
+

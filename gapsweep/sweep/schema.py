@@ -126,6 +126,10 @@ COMMON_RESULTS = ("wall_time", "rank")
 # The message prefix of a row that ran out of its time limit (--task-timeout): such failed rows are run again by
 # --resume (a slow node or a cold cache may have caused them).
 TIMEOUT_PREFIX = "timeout:"
+# The message prefix of a row whose task was cut by a signal or failed in a way that says it was interrupted (a
+# signal inside numba's JIT compilation, delivered in an llvmlite callback, surfaces as "no compiled object yet";
+# issue 31): never a result of the task's parameters, so --resume runs such rows again.
+INTERRUPTED_PREFIX = "interrupted:"
 # The kept fields of a GFMD task (docs/jobs.md "keep_fields", gapsweep.sweep.fields).
 FIELD_NAMES = ("gap", "pressure", "displacement", "height")
 
@@ -146,8 +150,11 @@ class Task:
 
     def surface_params(self) -> dict[str, Any]:
         """The ``surface.*`` options without their prefix: keyword arguments of ``surfaces.self_affine`` (for a
-        file surface, ``kind = "file"`` and the loading options of gapsweep.sweep.filesurface)."""
-        return {k[8:]: v for k, v in self.options if k.startswith("surface.")}
+        file surface, ``kind = "file"`` and the loading options of gapsweep.sweep.filesurface). A synthetic
+        surface's ``unit`` is a label of its lengths (``t.opt("surface.unit")``), not a generator argument (issue
+        31: every task of such a job failed with "unexpected keyword argument 'unit'")."""
+        file = self.opt("surface.kind") == "file"
+        return {k[8:]: v for k, v in self.options if k.startswith("surface.") and (file or k != "surface.unit")}
 
     @property
     def law(self) -> str:

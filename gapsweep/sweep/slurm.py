@@ -339,12 +339,13 @@ def _progress_file(store: Path) -> Path:
 def attempt_progress(store: str | Path) -> tuple[int, int, int]:
     """(rows finished now, rows finished when the store's last run started, rows of the store): the last run's
     ``todo`` says how many rows it had to run."""
+    from gapsweep.sweep import storecheck
     from gapsweep.sweep.store import open_read
 
     with open_read(store, check=False) as f:
         n = f["results"].shape[0]
         done = int((f["results"].fields("status")[...] != 0).sum()) if n else 0
-        runs = json.loads(f.attrs.get("runs", "[]"))
+        runs = storecheck.run_records(f.attrs.get("runs", "[]"))
     todo = int(runs[-1].get("todo", n)) if runs else n
     return done, n - todo, n
 

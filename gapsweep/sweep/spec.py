@@ -18,7 +18,7 @@ import importlib
 import inspect
 import math
 import os
-import sys
+import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -28,16 +28,24 @@ from gapsweep.sweep.filesurface import file_surface
 from gapsweep.sweep.methods.base import GRID_AXES, Env
 from gapsweep.sweep.schema import JobSpec, SpecError
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
-
 __all__ = ["MAX_TASKS", "JobSpec", "SpecError", "check_extra", "load", "loads", "max_tasks"]
 
 # Cap on the tasks of one job (every rank holds the task list: ~1.5 kB per task); raise it with
 # GAPSWEEP_MAX_TASKS=<n> (docs/jobs.md, docs/reliability.md).
 MAX_TASKS = 200_000
+
+
+# Bounds of a synthetic surface's lengths (issue 31: 1e308 and 5e-324 gave tracebacks): the box L in the spec's
+# length unit, and at most MAX_WAVES shortest wavelengths lambda_s per box (a grid resolving them needs
+# n > 2 L / lambda_s points per side, far beyond any memory well before this bound).
+MIN_LENGTH, MAX_LENGTH, MAX_WAVES = 1e-12, 1e12, 1e9
+
+
+def _check_waves(length: float, lambda_s: float, given: Any) -> None:
+    """At most MAX_WAVES shortest wavelengths per box (issue 31: ``lambda_s = 5e-324`` gave an OverflowError)."""
+    if length / lambda_s > MAX_WAVES:
+        raise SpecError(f"surface.lambda_s: expected a number >= length / {MAX_WAVES:g} = {length / MAX_WAVES:g} "
+                        f"(at most {MAX_WAVES:g} shortest wavelengths per box), got {given!r}")
 
 
 def max_tasks() -> int:
@@ -226,9 +234,10 @@ def loads(text: str, base: str | Path | None = None) -> JobSpec:
     else:
         rd.known("surface", s, ("kind", "lambda_l", "lambda_s", "length", "rms_slope", "rms_height", "c0",
                               "amplitudes", "unit"))
-        length = rd.number("surface.length", s.get("length", 1.0), gt=0.0)
+        length = rd.number("surface.length", s.get("length", 1.0), ge=MIN_LENGTH, le=MAX_LENGTH)
         lambda_l = rd.number("surface.lambda_l", s.get("lambda_l", 0.25), gt=0.0, le=length)
         lambda_s = rd.number("surface.lambda_s", s.get("lambda_s", 2.5e-3), gt=0.0, lt=lambda_l)
+        _check_waves(length, lambda_s, s.get("lambda_s"))
         norms = [k for k in ("rms_slope", "rms_height", "c0") if k in s]
         if len(norms) > 1:
             raise SpecError(f"surface: give exactly one of rms_slope, rms_height, c0; got {', '.join(norms)}")

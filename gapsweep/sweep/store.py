@@ -25,10 +25,8 @@ written and flushed at creation. Reliability (leases, validation, write errors):
 
 from __future__ import annotations
 
-import json
 import logging
 import math
-import os
 from collections.abc import Iterable, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -118,6 +116,34 @@ def _quiet_dealloc():
             log.debug("HDF5 release after a failed write: %s", caught)
 
 
+def one_line(msg: str) -> str:
+    """An HDF5 error message in one line: its long "(... file write failed: time = ..., errno = 28, error message
+    = 'No space left on device', ...)" part (which holds a newline) reduced to the error message and errno; the
+    text around it is kept."""
+    import re
+
+    m = re.search(r"errno = (\d+), error message = '([^']*)'", msg)
+    if m:
+        start = msg.rfind(" (", 0, m.start())
+        while start > 0 and msg.rfind(" (", 0, start) > 0 and msg.count("(", 0, start) > msg.count(")", 0, start):
+            start = msg.rfind(" (", 0, start)  # the outermost parenthesis around the HDF5 text
+        depth, end = 0, len(msg)
+        for k in range(start + 1, len(msg)):
+            depth += {"(": 1, ")": -1}.get(msg[k], 0)
+            if depth == 0:
+                end = k + 1
+                break
+        if start >= 0:
+            msg = f"{msg[:start]} ({m.group(2)}, errno {m.group(1)}){msg[end:]}"
+    return " ".join(msg.split())
+
+
+def write_failed(msg: str) -> StoreWriteError:
+    """:func:`_failed` for other writers of HDF5 files (merge, the netCDF export): the error to raise inside the
+    ``except`` of a failed write; the command then leaves without HDF5's exit handlers (cli.main)."""
+    return _failed(msg)
+
+
 def _failed(msg: str) -> StoreWriteError:
     """The error to raise after a failed HDF5 write (called inside the ``except``). HDF5 may crash when the
     objects of a file whose write failed are released, so they (and the failing frames) are kept alive to the
@@ -129,7 +155,7 @@ def _failed(msg: str) -> StoreWriteError:
     _io_failed = True
     _kept.append(sys.exc_info()[2])
     _kept.extend(o for o in gc.get_objects() if isinstance(o, (h5py.File, h5py.Group, h5py.Dataset, Store)))
-    return StoreWriteError(msg)
+    return StoreWriteError(one_line(msg))
 
 
 def _early() -> Any:
@@ -226,6 +252,25 @@ def _locking_kw() -> dict[str, Any]:
     return {"locking": False} if h5py.version.hdf5_version_tuple >= (1, 10, 7) else {}
 
 
+def _writer_file(path: str | Path, mode: str, comm: Any) -> h5py.File:
+    """Open a store for writing. Serial: with HDF5's own file lock where the file system supports it
+    (``locking="best-effort"``; ``HDF5_USE_FILE_LOCKING=FALSE`` still switches it off) -- beside the lease's lock
+    on the file (gapsweep.sweep.lease.FileLock), which is what excludes a second gapsweep writer. Where HDF5's lock
+    is refused although the lease is held (NFS emulates ``flock`` by the same byte-range locks), the file is
+    opened without it. ``mpio`` takes no file lock (HDF5 does not support one there)."""
+    if comm is not None:
+        return h5py.File(path, mode, driver="mpio", comm=comm)
+    if h5py.version.version_tuple[:2] < (3, 5):
+        return h5py.File(path, mode)
+    try:
+        return h5py.File(path, mode, locking="best-effort")
+    except OSError as e:
+        if "lock" not in str(e).lower():
+            raise
+        log.debug("store %s: HDF5's file lock refused (%s); opened under the lease's lock", path, e)
+        return h5py.File(path, mode, locking=False)
+
+
 class Store:
     """An open store for writing. Create with :meth:`create` (collective under mpio) or :meth:`open`."""
 
@@ -252,6 +297,9 @@ class Store:
         self.n_tasks = self._res.shape[0]
         self.bins = self._density.shape[1]
         self._nan_rows = (np.full(self.bins + 1, np.nan), np.full(self.bins, np.nan))  # a row without histogram
+        # rows that are pending now: a row that is not (run again: timed out, damaged, incomplete) is first marked
+        # pending, so that no reader sees its old status beside its new payload (issue 31: false "damaged")
+        self._fresh = self.statuses() == STATUS["pending"]
 
     @classmethod
     def create(cls, path: str | Path, tasks: Sequence[Task], attrs: dict[str, Any], bins: int, *,
@@ -266,7 +314,7 @@ class Store:
                 comm: Any) -> Store:
         n = len(tasks)
         try:
-            f = h5py.File(path, "w", driver="mpio", comm=comm) if comm is not None else h5py.File(path, "w")
+            f = _writer_file(path, "w", comm)
         except (OSError, RuntimeError) as e:
             raise _failed(f"store {path}: cannot create ({e})") from None
         try:
@@ -300,7 +348,7 @@ class Store:
     @classmethod
     def open(cls, path: str | Path, *, comm: Any = None) -> Store:
         try:
-            f = h5py.File(path, "r+", driver="mpio", comm=comm) if comm is not None else h5py.File(path, "r+")
+            f = _writer_file(path, "r+", comm)
         except OSError as e:
             raise StoreError(f"store {path}: cannot open for writing ({e})") from None
         try:
@@ -328,11 +376,22 @@ class Store:
             self._task_rows = want
         return bad
 
+    def force_histograms(self, rows: Iterable[int]) -> None:
+        """Make the next write of each of ``rows`` write its histograms even when it has none (NaN rows): a row
+        run again on --resume may hold damaged bytes where its histograms should be NaN (issue 31: a theory,
+        SDE or Fokker-Planck row whose NaN histogram or pressure histogram was damaged stayed damaged)."""
+        if self._has_hist is None:
+            return
+        for i in rows:
+            self._has_hist[i] = True
+            if self._has_phist is not None:
+                self._has_phist[i] = True
+
     def statuses(self) -> np.ndarray:
         return self._res.fields("status")[...] if self.n_tasks else np.zeros(0, dtype="i1")
 
     def task_ids(self) -> list[str]:
-        return [x.decode() for x in self.f["tasks"].fields("task_id")[...]] if self.n_tasks else []
+        return [x.decode("utf-8", "replace") for x in self.f["tasks"].fields("task_id")[...]] if self.n_tasks else []
 
     def write(self, i: int, res: TaskResult, *, flush: bool = True) -> None:
         """Write row ``i`` (independent I/O under mpio): payload first (histogram), status row last, so that a
@@ -354,6 +413,7 @@ class Store:
         phist = (np.asarray(res.phist[0], dtype=np.float64), np.asarray(res.phist[1], dtype=np.float64)) \
             if res.phist is not None else (nan_e, nan_d)
         try:
+            self._mark_pending(i, flush)
             # A checksummed row's histograms on disk must be what its checksum covers: a row without one writes
             # NaN rows only where an earlier run of it left a histogram (else the creation's NaN rows are there).
             wrote = False
@@ -378,6 +438,16 @@ class Store:
         except (OSError, RuntimeError) as e:
             raise _failed(f"store {self.path}: writing row {i} failed ({e})") from None
 
+    def _mark_pending(self, i: int, flush: bool) -> None:
+        """A row that is not pending in the file (run again: timed out, damaged, incomplete) is first written back
+        to pending, so that no reader (and no kill) meets its old status beside its new payload (issue 31)."""
+        if self._fresh[i]:
+            return
+        self._res[i] = empty_results(1, self._rdtype)[0]  # status pending (0): no checksum to match
+        if flush and not self.parallel:
+            self.f.flush()
+        self._fresh[i] = True
+
     def copy_row(self, i: int, row: np.void, hists: tuple[np.ndarray, ...]) -> None:
         """Write row ``i`` as a finished row taken from another store (``gapsweep run --reuse``): its results row
         (copied by column name) and histograms (gap and pressure: edges, density), payload first, with the
@@ -389,6 +459,7 @@ class Store:
                 r[k] = row[k]
         with _quiet_dealloc():
             try:
+                self._mark_pending(i, True)
                 self._edges[i], self._density[i] = e, d
                 if self._pedges is not None:
                     self._pedges[i], self._pdensity[i] = pe, pd
@@ -405,29 +476,9 @@ class Store:
             except (OSError, RuntimeError) as exc:
                 raise _failed(f"store {self.path}: writing row {i} failed ({exc})") from None
 
-    _writes = 0
-
     def _inject(self) -> None:
-        # Test hook (tests/faults): GAPSWEEP_TEST_WRITE_ERROR=k makes the k-th row write of this process fail
-        # between its payload and its status, as a full disk would.
-        # GAPSWEEP_TEST_KILL_AT_WRITE=k kills the process (SIGKILL) at that same point.
-        # GAPSWEEP_TEST_SIGNAL_AT_WRITE=k sends it SIGTERM there (a clean stop after that row, as on Slurm's
-        # time-limit warning).
-        k = os.environ.get("GAPSWEEP_TEST_WRITE_ERROR", "")
-        kill = os.environ.get("GAPSWEEP_TEST_KILL_AT_WRITE", "")
-        term = os.environ.get("GAPSWEEP_TEST_SIGNAL_AT_WRITE", "")
-        if k or kill or term:
-            Store._writes += 1
-            if term and Store._writes == int(term):
-                import signal
-
-                os.kill(os.getpid(), signal.SIGTERM)
-            if kill and Store._writes == int(kill):
-                import signal
-
-                os.kill(os.getpid(), signal.SIGKILL)
-            if k and Store._writes == int(k):
-                raise OSError(28, "No space left on device (injected by GAPSWEEP_TEST_WRITE_ERROR)")
+        """Fault-injection seam between a row's payload and its status: does nothing here. The fault suite
+        replaces it from outside the package (a full disk, a kill -9 at that point; tests/hooks)."""
 
     def set_attrs(self, attrs: dict[str, Any], *, flush: bool = False) -> None:
         """Set file attributes (collective under mpio: every rank passes the same values)."""
@@ -488,7 +539,7 @@ def open_read(path: str | Path, *, check: bool = True):
 def read_attrs(path: str | Path) -> dict[str, Any]:
     """File attributes as Python values (strings decoded)."""
     with open_read(path) as f:
-        return {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
+        return {k: (v.decode("utf-8", "replace") if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
 
 
 def read(path: str | Path, *, mark_damaged: bool = True):
@@ -512,7 +563,7 @@ def read(path: str | Path, *, mark_damaged: bool = True):
                     len(report.damaged), report.damaged[:5])
     cols: dict[str, Any] = {}
     for k in TASK_DTYPE.names:
-        cols[k] = [x.decode() for x in t[k]] if TASK_DTYPE[k].kind == "S" else t[k]
+        cols[k] = [x.decode("utf-8", "replace") for x in t[k]] if TASK_DTYPE[k].kind == "S" else t[k]
     cols["status"] = [STATUS_NAMES.get(int(s), "unknown") for s in r["status"]]
     for i in report.damaged:
         cols["status"][i] = "damaged"
@@ -530,7 +581,7 @@ def read_pressure_histograms(path: str | Path, task_ids: Iterable[str] | None = 
     with open_read(path) as f:
         if PRESSURE_HIST[0] not in f or not f["tasks"].shape[0]:
             return {}
-        ids = [x.decode() for x in f["tasks"].fields("task_id")[...]]
+        ids = [x.decode("utf-8", "replace") for x in f["tasks"].fields("task_id")[...]]
         atom = f["results"].fields("pressure_atom")[...]
         e_all, d_all = f[PRESSURE_HIST[0]][...], f[PRESSURE_HIST[1]][...]
     want = set(task_ids) if task_ids is not None else None
@@ -546,7 +597,7 @@ def read_histograms(path: str | Path, task_ids: Iterable[str] | None = None,
     """``{task_id: (edges, density, count)}`` for tasks that have a histogram (density integrates to 1 over
     the bins; count = samples or pixels binned). ``task_ids`` restricts the selection."""
     with open_read(path) as f:
-        ids = [x.decode() for x in f["tasks"].fields("task_id")[...]] if f["tasks"].shape[0] else []
+        ids = [x.decode("utf-8", "replace") for x in f["tasks"].fields("task_id")[...]] if f["tasks"].shape[0] else []
         count = f["results"].fields("count")[...] if ids else np.zeros(0, dtype="i8")
         want = set(task_ids) if task_ids is not None else None
         out = {}
@@ -586,7 +637,7 @@ def status(path: str | Path) -> str:
         if len(done):
             lines.append(f"wall time of finished tasks: {np.nansum(done.wall_time):.1f} s "
                          f"(max {np.nanmax(done.wall_time):.2f} s)")
-    runs = json.loads(attrs.get("runs", "[]"))
+    runs = storecheck.run_records(attrs.get("runs", "[]"))
     for r in runs:
         end = r.get("finished") or "(running or killed)"
         if r.get("interrupted"):

@@ -23,6 +23,7 @@ from gapsweep.sweep import methods as registry
 from gapsweep.sweep.schema import (
     CHECKSUM,
     FORMAT,
+    INTERRUPTED_PREFIX,
     PRESSURE_HIST,
     RESULT_DTYPES,
     STATUS,
@@ -34,7 +35,7 @@ from gapsweep.sweep.schema import (
 
 log = logging.getLogger("gapsweep.sweep.storecheck")
 
-__all__ = ["Report", "check", "incomplete_rows"]
+__all__ = ["Report", "check", "incomplete_rows", "run_records", "runs_problem"]
 
 
 
@@ -47,6 +48,7 @@ class Report:
     done_incomplete: list[int] = field(default_factory=list)
     damaged: list[int] = field(default_factory=list)  # rows whose checksum does not match their bytes
     checksums: bool = True  # False: a store of format 1 or 2, whose rows carry no checksum
+    runs_damaged: str | None = None  # why the run records (attribute runs) cannot be read; None: they can
 
     @property
     def rerun(self) -> list[int]:
@@ -54,6 +56,9 @@ class Report:
 
     def lines(self) -> list[str]:
         out = []
+        if self.runs_damaged:
+            out.append(f"the run records (attribute 'runs') are damaged ({self.runs_damaged}): their history is "
+                       "lost; --resume starts a new list, the rows are not affected")
         if not self.checksums:
             out.append("no row checksums (a store written before format 3): rows are checked for completeness "
                        "only, not for changed bytes")
@@ -73,6 +78,30 @@ class Report:
         return out
 
 
+def runs_problem(value: Any) -> str | None:
+    """Why an attribute ``runs`` is not a JSON list of run records (objects), or None where it is one."""
+    if isinstance(value, bytes):
+        try:
+            value = value.decode("utf-8")
+        except UnicodeDecodeError:
+            return "not UTF-8"
+    try:
+        runs = json.loads(value)
+    except (ValueError, TypeError, RecursionError) as e:
+        return f"not JSON: {str(e)[:80]}"
+    if not isinstance(runs, list) or not all(isinstance(r, dict) for r in runs):
+        return "not a list of run records"
+    return None
+
+
+def run_records(value: Any) -> list[dict[str, Any]]:
+    """The run records of an attribute ``runs``; [] where it is damaged (issue 31: a damaged one blocked status,
+    resume and merge; the rows do not depend on it). :func:`runs_problem` says why."""
+    if runs_problem(value) is not None:
+        return []
+    return json.loads(value.decode("utf-8") if isinstance(value, bytes) else value)
+
+
 def _fail(path: Any, what: str) -> None:
     raise StoreError(f"store {path}: {what}")
 
@@ -84,11 +113,6 @@ def check(f: Any, path: str | Path) -> Report:
     for name in ("spec_text", "spec_sha256"):
         if name not in f.attrs:
             _fail(path, f"attribute {name!r} missing (damaged or partial store)")
-    try:  # the run records: a JSON list (a bad one made every later run fail with a bare JSON error)
-        if not isinstance(json.loads(f.attrs.get("runs", "[]")), list):
-            raise ValueError("not a list")
-    except (ValueError, TypeError) as e:
-        _fail(path, f"attribute 'runs' is not a JSON list of run records ({e}): damaged; repair or remove it")
     for name in ("tasks", "results", "histograms/edges", "histograms/density"):
         if name not in f:
             _fail(path, f"dataset /{name} missing (damaged or partial store)")
@@ -118,6 +142,7 @@ def check(f: Any, path: str | Path) -> Report:
     if e.shape[1] != d.shape[1] + 1:
         _fail(path, f"histogram edges ({e.shape[1]}) and density ({d.shape[1]}) columns do not match")
     rep = Report(n)
+    rep.runs_damaged = runs_problem(f.attrs.get("runs", "[]"))
     if not n:
         return rep
     try:
@@ -160,8 +185,30 @@ def _damaged(f: Any, path: Any, n: int) -> list[int]:
     # A pending row is work still to do (a write that failed or was killed between a row's payload and its status
     # leaves one with a stale checksum): it runs again anyway and is not reported; every other row must match.
     pending = STATUS["pending"]
-    return [i for i in range(n) if int(r[i]["status"]) != pending
-            and int(r[i][CHECKSUM]) != row_checksum(t[i], r[i], (e[i], d[i], pe[i], pd[i]))]
+    bad = [i for i in range(n) if int(r[i]["status"]) != pending
+           and int(r[i][CHECKSUM]) != row_checksum(t[i], r[i], (e[i], d[i], pe[i], pd[i]))]
+    return [i for i in bad if not _settles(f, i)]
+
+
+def _settles(f: Any, i: int, tries: int = 4) -> bool:
+    """Whether a row that did not match its checksum does on reading it again (issue 31): a reader of a store
+    being written under mpio may see part of a row write (its tables are read one after the other, and a compound
+    row is not written atomically). The row is damaged only when two reads in a row give the same bytes and they
+    still do not match."""
+    prev = None
+    for _ in range(tries):
+        try:
+            t, r = f["tasks"][i], f["results"][i]
+            h = tuple(f[k][i] for k in ("histograms/edges", "histograms/density", *PRESSURE_HIST))
+        except (OSError, ValueError, KeyError):
+            return False
+        if int(r["status"]) == STATUS["pending"] or int(r[CHECKSUM]) == row_checksum(t, r, h):
+            return True
+        key = (t.tobytes(), r.tobytes(), *(x.tobytes() for x in h))
+        if key == prev:
+            return False
+        prev = key
+    return False
 
 
 def incomplete_rows(f: Any, path: str | Path, rep: Report | None = None) -> list[int]:
@@ -173,8 +220,9 @@ def incomplete_rows(f: Any, path: str | Path, rep: Report | None = None) -> list
     status = f["results"].fields("status")[...]
     msg = f["results"].fields("message")[...]
     # a row that timed out (--task-timeout) is run again: the limit may have been a slow node's or a cold cache's
+    # ... and so is one cut by a signal (issue 31: inside JIT compilation)
     timed_out = [i for i in np.flatnonzero(status == STATUS["failed"]).tolist()
-                 if msg[i].startswith(TIMEOUT_PREFIX.encode())]
+                 if msg[i].startswith((TIMEOUT_PREFIX.encode(), INTERRUPTED_PREFIX.encode()))]
     if timed_out:
         log.info("store %s: %d timed-out row(s) are run again", path, len(timed_out))
     return sorted(set(np.flatnonzero(status == STATUS["pending"]).tolist()) | set(rep.rerun) | set(timed_out))

@@ -24,8 +24,12 @@ MPI_ENV = {"OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
 
 
 def env(**kw: str) -> dict[str, str]:
+    """The child's environment: no inherited GAPSWEEP_TEST_*, the fault injection of tests/hooks on PYTHONPATH."""
+    from tests.hooks.gapsweep_test_hooks import pythonpath
+
     e = {k: v for k, v in os.environ.items() if not k.startswith("GAPSWEEP_TEST_")}
     e.update(MPI_ENV)
+    e["PYTHONPATH"] = pythonpath(os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
     e.update(kw)
     return e
 

@@ -348,13 +348,17 @@ def test_export_never_replaces_a_store(tmp_path, refs, case):
 
 
 def test_export_overwrite_replaces_its_own(tmp_path, refs):
+    """--overwrite replaces an earlier export (of any store), and nothing else (issue 31: one rule for every
+    command that writes; tests/faults/test_outputs.py has the other cases)."""
     out = tmp_path / "s.nc"
-    assert gs("export", refs["theory"], "--out", out).returncode == 0
-    first = out.read_bytes()
-    out.write_bytes(b"not the export")
+    assert gs("export", refs["hist"], "--out", out).returncode == 0
     p = gs("export", refs["theory"], "--out", out, "--overwrite")
     assert p.returncode == 0, p.stderr
-    assert out.read_bytes()[:8] == first[:8] == b"\x89HDF\r\n\x1a\n"
+    assert out.read_bytes()[:8] == b"\x89HDF\r\n\x1a\n"
+    out.write_bytes(b"not the export")
+    p = gs("export", refs["theory"], "--out", out, "--overwrite")
+    one_line_error(p, "export --out", "not a netCDF file written by gapsweep export")
+    assert out.read_bytes() == b"not the export"
 
 
 # --- issue 19 item 10: unreadable inputs are one-line errors naming the file ------------------------------------
@@ -396,21 +400,31 @@ def test_bad_height_map(tmp_path, case, name, make, extra, needles):
 
 
 def test_store_with_non_json_runs(tmp_path, refs):
-    """A store whose `runs` attribute is not JSON: status, resume and merge name the file and the attribute
-    (a bare JSONDecodeError, not naming the file, before); the store is not changed by the attempt."""
+    """A store whose `runs` attribute is not JSON (a bare JSONDecodeError before issue 19; a refusal that blocked
+    status, resume and merge until issue 31): status names the damage, merge works, a plain run changes nothing,
+    --resume rebuilds the list (one record saying the earlier ones were lost); every row is kept."""
+    import json
+
     import h5py
+
+    from gapsweep import store
 
     s = tmp_path / "s.h5"
     s.write_bytes(refs["theory"].read_bytes())
     with h5py.File(s, "r+") as f:
         f.attrs["runs"] = "{not json"
     before = s.read_bytes()
-    for cmd in (["status", s], ["run", THEORY_JOB, "--store", s, "--resume", "--mpi", "off"],
-                ["merge", s, "--out", tmp_path / "m.h5"]):
-        p = gs(*cmd, timeout=60)
-        one_line_error(p, str(s), "'runs'", "JSON")
-    assert s.read_bytes() == before
-    assert not (tmp_path / "m.h5").exists()
+    p = gs("status", s, timeout=60)
+    assert p.returncode == 0 and "'runs'" in p.stdout and "damaged" in p.stdout, (p.stdout, p.stderr)
+    p = gs("merge", s, "--out", tmp_path / "m.h5", timeout=60)
+    assert p.returncode == 0, p.stderr
+    p = gs("run", THEORY_JOB, "--store", s, "--mpi", "off", timeout=60)
+    assert p.returncode == 0 and s.read_bytes() == before, p.stderr
+    p = gs("run", THEORY_JOB, "--store", s, "--resume", "--mpi", "off", timeout=60)
+    assert p.returncode == 0, p.stderr
+    runs = json.loads(store.read_attrs(s)["runs"])
+    assert "rebuilt" in runs[0] and runs[-1]["finished"]
+    assert store.diff(s, refs["theory"]) == []
 
 
 @pytest.mark.parametrize("pattern", ["x{i}.h5", "x{n}.h5", "x{i}of{n}.h5"])

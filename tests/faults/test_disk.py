@@ -13,7 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from gapsweep import lease, store
+from gapsweep import store
+from gapsweep.sweep import lease
 
 from .conftest import (
     JOBS,

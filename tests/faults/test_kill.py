@@ -11,7 +11,8 @@ import time
 
 import pytest
 
-from gapsweep import lease, store
+from gapsweep import store
+from gapsweep.sweep import lease
 
 from .conftest import (
     JOBS,

@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from gapsweep import lease
+from gapsweep.sweep import lease
 
 from .conftest import JOBS, WRITERS, mpirun, needs_mpi
 

@@ -84,7 +84,8 @@ def test_sde_cuda_float32_matches_cpu(engine: str, monkeypatch) -> None:
     _engine(monkeypatch, engine)
     from scipy import stats
 
-    from gapsweep import _sde_kernels, sde
+    from gapsweep import sde
+    from gapsweep.gapdist import _sde_kernels
 
     common = dict(P, rho=2e-3, c2=0.5, n=20_000, seed=7, dzeta=0.01, dtype="float32")
     ref = sde.gap_samples(1e-4, device="cpu", **common)

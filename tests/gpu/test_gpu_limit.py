@@ -122,7 +122,7 @@ def test_solve_memory_against_measured_pool() -> None:
     pool = cupy.get_default_memory_pool()
     for law, kw in (("exponential", dict(gamma0=1e-3, rho=0.01, tol=1e-6)),
                     ("hard_wall", dict(interaction="hard_wall", tol=1e-8))):
-        from gapsweep import fft
+        from gapsweep.core import fft
 
         fft._PLANS.clear()  # plans (and their buffers) made fresh inside the solve
         pool.free_all_blocks()

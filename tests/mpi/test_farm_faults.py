@@ -42,7 +42,10 @@ WRITERS = [pytest.param("mpio", marks=pytest.mark.skipif(not _h5py_mpi(), reason
 def fake(n: int, *args, **env: str) -> subprocess.CompletedProcess:
     """``gapsweep ARGS`` with the fake GPU method, under ``mpiexec -n n`` (n = 1: one process, no MPI)."""
     e = {k: v for k, v in os.environ.items() if not k.startswith(("GAPSWEEP_TEST_", "FAKEGPU_"))}
-    e.update(ENV, PYTHONPATH=os.pathsep.join([str(ROOT), e.get("PYTHONPATH", "")]), **env)
+    from tests.hooks.gapsweep_test_hooks import pythonpath
+
+    # with the fault injection of tests/hooks (GAPSWEEP_TEST_GPUS, GAPSWEEP_TEST_FAIL act through it)
+    e.update(ENV, PYTHONPATH=pythonpath(os.pathsep.join([str(ROOT), e.get("PYTHONPATH", "")])), **env)
     if e.pop("FAKE_UNSET_CUDA", None):  # every GPU of the node visible: nvidia-smi says which
         e.pop("CUDA_VISIBLE_DEVICES", None)
     cmd = [sys.executable, str(FAKE), *map(str, args)]

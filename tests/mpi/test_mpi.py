@@ -50,6 +50,11 @@ def mpirun(n: int, args: list[str], env: dict[str, str] | None = None, timeout: 
     # oversubscription via OMPI_MCA_rmaps_base_oversubscribe (Open MPI); MPICH needs no flag and rejects one
     cmd = ["mpiexec", "-n", str(n), sys.executable, "-m", "gapsweep", *args]
     e = dict(os.environ, **ENV, **(env or {}))
+    if any(k.startswith("GAPSWEEP_TEST_") for k in e):  # fault injection from outside the package
+        from tests.hooks.gapsweep_test_hooks import pythonpath
+
+        e["PYTHONPATH"] = pythonpath(os.pathsep.join([str(Path(__file__).resolve().parents[2]),
+                                                      e.get("PYTHONPATH", "")]))
     if popen:
         return subprocess.Popen(cmd, env=e, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     return subprocess.run(cmd, env=e, capture_output=True, text=True, timeout=timeout)

@@ -10,7 +10,7 @@
   low-pressure (rigid, Gaussian) reference of M5 (dashed).
 * :func:`fig_agreement` -- the agreement tiers of the theory against ``h_rms/rho`` and pressure.
 
-Every function takes the frames of :mod:`analysis.aggregate` / :mod:`analysis.compare` and returns a
+Every function takes the frames of :mod:`gapsweep.analysis.aggregate` / :mod:`gapsweep.analysis.compare` and returns a
 ``matplotlib.figure.Figure`` built with the object-oriented API: importing this module never selects a backend
 (Jupyter keeps its own), and :func:`save` writes PNG and PDF through the figure's own canvas. Each figure carries
 a footer with the grid size ``N`` and the number of seeds behind its points (:func:`footer`); GFMD points whose
@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from analysis.aggregate import HistogramStats
+from gapsweep.analysis.aggregate import HistogramStats
 
 __all__ = ["STYLE", "fig_agreement", "fig_gap_distribution", "fig_mean_gap_hurst", "fig_mean_gap_pressure", "footer",
            "has_data", "save"]

@@ -2,19 +2,20 @@
 hold the paper's parameter sets (docs/model.md M6).
 
 ``main(store_paths, out_dir)`` reads the stores (``gapsweep.store.read`` / ``read_histograms``), aggregates
-(:mod:`analysis.aggregate`), compares (:mod:`analysis.compare`), draws (:mod:`analysis.figures`) and writes into
-``out_dir``: ``report.md``, ``report.html``, the figures (PNG + PDF) that :func:`plan_figures` chooses from the
-stores' axes and methods (``fig2`` .. ``fig6`` for jobs matching the paper's sets, ``gap_vs_pressure_*``,
-``gap_vs_hurst_*``, ``gap_distribution_*`` for any other sweep, ``fig_agreement``), ``figures.csv`` (each figure
-with the data points of its emptiest panel; a figure with an empty panel is never written), and the CSV tables
-``status.csv``, ``mean_gap.csv``, ``theory_vs_gfmd.csv``, ``agreement_points.csv``, ``agreement_summary.csv``,
-``hist_distances.csv``, ``histograms.csv`` (merged densities, long format). :func:`build` does the same from a
-DataFrame and a histogram dict (no store), which is what the tests use.
+(:mod:`gapsweep.analysis.aggregate`), compares (:mod:`gapsweep.analysis.compare`), draws
+(:mod:`gapsweep.analysis.figures`) and writes into ``out_dir``: ``report.md``, ``report.html``, the figures (PNG +
+PDF) that :func:`plan_figures` chooses from the stores' axes and methods (``fig2`` .. ``fig6`` for jobs matching the
+paper's sets, ``gap_vs_pressure_*``, ``gap_vs_hurst_*``, ``gap_distribution_*`` for any other sweep,
+``fig_agreement``), ``figures.csv`` (each figure with the data points of its emptiest panel; a figure with an empty
+panel is never written), and the CSV tables ``status.csv``, ``mean_gap.csv``, ``theory_vs_gfmd.csv``,
+``agreement_points.csv``, ``agreement_summary.csv``, ``hist_distances.csv``, ``histograms.csv`` (merged densities,
+long format). :func:`build` does the same from a DataFrame and a histogram dict (no store), which is what the tests
+use.
 
 Verdict rules (stated in the report too): the theory "agrees" with GFMD on a curve when every point that is not
-ill-conditioned (``|g0| >= 0.25 h_rms``, see :mod:`analysis.compare`) has ``|rel_err| <= 5 %``; a trend is read
-from Spearman's rank correlation; the SDE "matches" GFMD when ``L1 <= 0.1`` (at most 5 % of the probability mass
-misplaced). A claim whose points are not in the stores gets "not enough data".
+ill-conditioned (``|g0| >= 0.25 h_rms``, see :mod:`gapsweep.analysis.compare`) has ``|rel_err| <= 5 %``; a trend is
+read from Spearman's rank correlation; the SDE "matches" GFMD when ``L1 <= 0.1`` (at most 5 % of the probability
+mass misplaced). A claim whose points are not in the stores gets "not enough data".
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from analysis import aggregate, compare, contact, figures
+from gapsweep.analysis import aggregate, compare, contact, figures
 
 __all__ = ["AGREE", "MATCH_L1", "build", "load", "main", "paper_matches", "plan_figures", "provenance", "quick_jobs",
            "verdicts"]
@@ -612,7 +613,7 @@ def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
     """Write the report and every figure and table into ``out_dir`` from a store frame and its histograms
     (module docstring); returns the path of ``report.md``. ``figures.csv`` lists every figure with the number
     of data points in its emptiest panel. Jobs with a contact law (hard wall, adhesion: an ``interaction``
-    column) go to the contact section (:mod:`analysis.contact`, with ``phists`` the pressure histograms); the
+    column) go to the contact section (:mod:`gapsweep.analysis.contact`, with ``phists`` the pressure histograms); the
     field-theory figures and tables take the others."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -908,8 +909,11 @@ def main(store_paths: Sequence[str | Path] | str | Path, out_dir: str | Path, *,
                     f"{foreign[0]}; its manifest {MANIFEST} does not list them); --overwrite replaces only a "
                     "report's own files: move them or choose another folder")
     df, hists, prov = load(paths)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+    except OSError as e:
+        raise _write_error(out, e) from None
     old = tmp.with_name(tmp.name + ".old")
     try:
         build(df, hists, tmp, prov, phists=load_pressure(paths))
@@ -920,12 +924,24 @@ def main(store_paths: Sequence[str | Path] | str | Path, out_dir: str | Path, *,
             os.replace(out, old)  # checked above: only the previous report's files
         os.replace(tmp, out)
         shutil.rmtree(old, ignore_errors=True)
-    except BaseException:
+    except BaseException as e:
         shutil.rmtree(tmp, ignore_errors=True)
         if old.exists() and not out.exists():
             os.replace(old, out)
+        if isinstance(e, OSError):
+            raise _write_error(out, e) from None
         raise
     return out / "report.md"
+
+
+class ReportWriteError(RuntimeError):
+    """The report could not be written (full disk, file-size limit, permissions): one line naming the folder."""
+
+
+def _write_error(out: Path, e: OSError) -> ReportWriteError:
+    what = e.strerror or str(e)
+    return ReportWriteError(f"report --out {out}: writing failed ({what}{f': {e.filename}' if e.filename else ''}); "
+                            "nothing was replaced, the stores are untouched")
 
 
 def _inside(child: Path, parent: Path) -> bool:

@@ -24,8 +24,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from analysis.aggregate import HistogramStats, rebin_density
 from gapsweep import theory
+from gapsweep.analysis.aggregate import HistogramStats, rebin_density
 
 __all__ = [
     "ILL_CONDITIONED",

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from analysis import figures
+from gapsweep.analysis import figures
 from gapsweep.theory import persson
 
 __all__ = ["CONTACT_LAWS", "Labels", "fig_contact", "fig_distributions", "fig_map", "is_contact", "job_info",

@@ -7,7 +7,7 @@ Usage (after running the full jobs, e.g. on the GPU machine)::
     gapsweep run jobs/fig3.toml   --store out/fig3.h5
     gapsweep run jobs/fig4_5.toml --store out/fig4_5.h5
     gapsweep run jobs/fig6.toml   --store out/fig6.h5
-    python -m analysis.make_results out/fig2.h5 out/fig3.h5 out/fig4_5.h5 out/fig6.h5 --out docs/results
+    python -m studies.make_results out/fig2.h5 out/fig3.h5 out/fig4_5.h5 out/fig6.h5 --out docs/results
 
 Only aggregated data is written (no raw fields): the CSV tables are a few hundred kB at most.
 """
@@ -19,7 +19,7 @@ import logging
 import sys
 from pathlib import Path
 
-from analysis import report
+from gapsweep.analysis import report
 
 logger = logging.getLogger("gapsweep.analysis.make_results")
 
@@ -30,7 +30,7 @@ def _write_pressure_trend(out: Path) -> None:
     """``pressure_trend.csv``: the M6 pressure trend per surface family (job), from ``theory_vs_gfmd.csv``."""
     import pandas as pd
 
-    from analysis import compare
+    from gapsweep.analysis import compare
 
     if not (out / "theory_vs_gfmd.csv").is_file():  # contact-only stores: no field theory, no trend (no empty CSV)
         return
@@ -41,7 +41,7 @@ def _write_pressure_trend(out: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Command line: stores (default: the four full-job stores under out/) and ``--out`` (default docs/results)."""
-    p = argparse.ArgumentParser(prog="python -m analysis.make_results", description=__doc__,
+    p = argparse.ArgumentParser(prog="python -m studies.make_results", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("stores", nargs="*", default=list(DEFAULT_STORES), help="store files (HDF5) of the full jobs")
     p.add_argument("--out", default="docs/results", help="output directory (default: docs/results)")

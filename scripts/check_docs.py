@@ -1,0 +1,299 @@
+"""Docs that cannot drift: check the numbers quoted in README.md ("At a glance") and docs/benchmarks*.md against
+the result files they name (issue 29 item 5). Run by tests/test_docs.py (so by scripts/test.sh and CI):
+
+    python scripts/check_docs.py            # exit 0, or 1 with one line per problem
+
+The convention (docs/benchmarks.md, "How numbers are checked"):
+
+* A **checked number** is a Markdown link whose text starts with the number as quoted and whose target is a
+  result file with a key after ``#``:  ``[0.27 s](benchmarks/results/gfmd_limit/new_h200.json#rows[n=16384].t_s)``.
+  Paths are relative to the Markdown file. Keys:
+
+  - JSON / CSV: a path of dict keys and list indices separated by dots; ``*`` takes every element of a list;
+    ``[k=v]`` keeps the elements whose ``k`` reads ``v``; then operations after ``|``: ``min``, ``max``,
+    ``median``, ``mean``, ``sum``, ``len``, ``abs``, ``*F``, ``/F`` (F a number), ``inv`` (1/x).
+    A CSV file is a list of rows (dicts by column name), numbers converted.
+  - any file read as text (.txt, .log, .md, also .json): ``re:REGEX`` whose first group is the number (write the
+    target in ``<...>`` when the regex has spaces or parentheses; a literal ``|`` is ``\x7c``, since ``|`` starts
+    an operation); ``re*:REGEX`` takes every match, for the ``|`` operations.
+
+  The quoted number matches when the file's value rounds to it at the quoted precision (``0.27`` matches
+  0.2651...0.2749...; ``38`` matches 37.5...38.49); ``~1e-10`` (a tilde) matches within half a decade; ``≤ x`` /
+  ``< x`` (before the number, inside the link text) match any value up to x. Thousands separators are read.
+* **Strict sections** (README's "At a glance", and any section of docs/benchmarks*.md with the line
+  ``<!-- check: strict -->``): every number outside code spans must be a checked number. Parameters of a run
+  (``N = 2048``, ``tol 1e-6``) are written as code.
+* **Sourced sections** (every other ``##`` section of docs/benchmarks*.md that quotes numbers): name at least one
+  result file (``benchmarks/results/...`` or ``docs/results/...``) that exists.
+* Every ``benchmarks/results/...`` path a checked file mentions exists (a path written as a stem, e.g.
+  ``contact_cpu_{a,b}`` or ``hardwall_*``, when some file starts with it).
+* A section whose numbers come from a run whose raw output was not kept (or that only gives a command not run
+  yet, naming the files it will write) says so with
+  ``<!-- check: unsourced REASON -->``: it is listed as a debt (``--debts``), not a failure, and
+  :data:`KNOWN_DEBTS` caps their number, so a new one fails the check until it is sourced or the cap is raised
+  in review.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import re
+import statistics
+import sys
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+LINK = re.compile(r"\[([^\]]*)\]\((<[^>]*>|[^)\s]*)\)")
+CODE = re.compile(r"`[^`]*`")
+NUMBER = re.compile(r"(?<![\w.])([~≈]|[≤<]\s*)?(\d[\d,]*(?:\.\d+)?(?:[eE][-+]?\d+)?|\.\d+)")
+RESULT_PATH = re.compile(r"(?:\.\./)?(?:benchmarks/results|docs/results)/[\w./-]+\w")
+STRICT_MARK = "<!-- check: strict -->"
+UNSOURCED = re.compile(r"<!-- check: unsourced (.*?)-->", re.S)
+KNOWN_DEBTS = 7  # sections quoting numbers of runs whose raw output was not kept, or not run yet (issue 27)
+DEBTS: list[str] = []
+
+
+class CheckError(ValueError):
+    pass
+
+
+# --- reading a value from a result file --------------------------------------------------------------------------
+
+
+def _num(x: Any) -> Any:
+    if isinstance(x, str):
+        try:
+            return float(x.replace(",", ""))
+        except ValueError:
+            return x
+    return x
+
+
+def _load(path: Path) -> Any:
+    if path.suffix == ".json":
+        return json.loads(path.read_text(encoding="utf-8"))
+    if path.suffix == ".csv":
+        with open(path, newline="", encoding="utf-8") as f:
+            return [{k: _num(v) for k, v in row.items()} for row in csv.DictReader(f)]
+    return path.read_text(encoding="utf-8", errors="replace")
+
+
+def _step(node: Any, part: str) -> Any:
+    m = re.fullmatch(r"(\w*)\[(\w+)=([^\]]*)\]", part)
+    if m:  # filter a list of dicts
+        if m[1]:
+            node = node[m[1]]
+        keep = [x for x in node if isinstance(x, dict) and m[2] in x and _same(x[m[2]], m[3])]
+        if not keep:
+            raise CheckError(f"no element with {m[2]} = {m[3]}")
+        return keep if len(keep) > 1 else keep[0]
+    if part == "*":
+        return list(node)
+    if isinstance(node, list) and not re.fullmatch(r"-?\d+", part):  # a key of every element
+        return [x[part] for x in node]
+    if isinstance(node, list):
+        return node[int(part)]
+    if part not in node:
+        raise CheckError(f"no key {part!r} (keys: {', '.join(map(str, list(node)[:12]))})")
+    return node[part]
+
+
+def _same(value: Any, text: str) -> bool:
+    v = _num(value)
+    if isinstance(v, (int, float)) and not isinstance(v, bool):
+        try:
+            return math.isclose(float(v), float(text), rel_tol=1e-12)
+        except ValueError:
+            return False
+    return str(value) == text
+
+
+def _split_path(path: str) -> list[str]:
+    return [p for p in re.split(r"\.(?![^\[]*\])", path) if p]
+
+
+def _apply(value: Any, op: str) -> Any:
+    vals = value if isinstance(value, list) else None
+    ops = {"min": min, "max": max, "median": statistics.median, "mean": statistics.fmean, "sum": sum, "len": len}
+    if op in ops:
+        if vals is None:
+            raise CheckError(f"'{op}' needs a list")
+        return ops[op]([_num(v) for v in vals] if op != "len" else vals)
+    if op in ("abs", "inv") or op[:1] in "*/":
+        f = {"abs": abs, "inv": lambda x: 1.0 / x}.get(op) or (
+            (lambda x: x * float(op[1:])) if op[0] == "*" else (lambda x: x / float(op[1:])))
+        return [f(_num(v)) for v in vals] if vals is not None else f(_num(value))
+    raise CheckError(f"unknown operation {op!r}")
+
+
+def value_of(path: Path, key: str) -> float:
+    """The number ``key`` names in the result file ``path`` (see the module docstring)."""
+    expr, *ops = key.split("|")
+    data = path.read_text(encoding="utf-8", errors="replace") if expr.startswith("re") else _load(path)
+    if expr.startswith(("re:", "re*:")):
+        pat = expr.split(":", 1)[1]
+        found = re.findall(pat, data, re.M)
+        if not found:
+            raise CheckError(f"no match of {pat!r}")
+        node: Any = [_num(f if isinstance(f, str) else f[0]) for f in found]
+        if expr.startswith("re:"):
+            node = node[0]
+    else:
+        node = data
+        for part in _split_path(expr):
+            node = _step(node, part)
+    for op in ops:
+        node = _apply(node, op)
+    node = _num(node)
+    if not isinstance(node, (int, float)) or isinstance(node, bool):
+        raise CheckError(f"not a number: {str(node)[:60]!r}")
+    return float(node)
+
+
+# --- comparing a quoted number -----------------------------------------------------------------------------------
+
+
+def quoted(text: str) -> tuple[str, float, str]:
+    """(kind, number, as written) of the first number in a link text; kind is '=', '~' or '<='."""
+    m = NUMBER.search(text.replace("−", "-"))
+    if not m:
+        raise CheckError(f"no number in the link text {text!r}")
+    lead = (m[1] or "").strip()
+    kind = "~" if lead in ("~", "≈") else "<=" if lead[:1] in ("≤", "<") else "="
+    written = m[2].replace(",", "")
+    return kind, float(written), written
+
+
+def matches(kind: str, q: float, written: str, v: float) -> bool:
+    if kind == "<=":
+        return v <= q * (1 + 1e-12)
+    if kind == "~":
+        return q > 0 and v > 0 and abs(math.log10(v / q)) <= 0.5
+    mant = written.lower().split("e")[0]
+    exp = int(written.lower().split("e")[1]) if "e" in written.lower() else 0
+    decimals = len(mant.split(".")[1]) if "." in mant else 0
+    half = 0.5 * 10.0 ** (exp - decimals)
+    return abs(v - q) <= half * (1 + 1e-9) + 1e-300
+
+
+# --- the files -----------------------------------------------------------------------------------------------------
+
+
+def _sections(text: str) -> list[tuple[str, int, str]]:
+    """(heading, first line number, body) of each ``## `` section (the text before the first one: heading '')."""
+    out, head, start, buf = [], "", 1, []
+    for i, line in enumerate(text.splitlines(), 1):
+        if line.startswith("## "):
+            out.append((head, start, "\n".join(buf)))
+            head, start, buf = line[3:].strip(), i, []
+        else:
+            buf.append(line)
+    out.append((head, start, "\n".join(buf)))
+    return out
+
+
+def _target(md: Path, dest: str) -> tuple[Path, str] | None:
+    dest = dest[1:-1] if dest.startswith("<") else dest
+    path, _, key = dest.partition("#")
+    if not RESULT_PATH.search(path) or not key:
+        return None
+    return (md.parent / path).resolve(), key
+
+
+def check_links(md: Path, text: str, line0: int) -> tuple[list[str], str]:
+    """Check every checked number of ``text``; returns the problems and the text with checked links removed."""
+    problems = []
+
+    def one(m: re.Match) -> str:
+        tgt = _target(md, m[2])
+        if tgt is None:
+            return m[1]  # an ordinary link: its text stays in
+        where = f"{md.relative_to(ROOT)}:{line0 + text[: m.start()].count(chr(10))}"
+        path, key = tgt
+        try:
+            if not path.is_file():
+                raise CheckError(f"no file {path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}")
+            kind, q, written = quoted(m[1])
+            v = value_of(path, key)
+            if not matches(kind, q, written, v):
+                raise CheckError(f"quoted {m[1]!r} but {path.name}#{key} is {v:.6g}")
+        except (CheckError, KeyError, IndexError, TypeError, ValueError, OSError) as e:
+            problems.append(f"{where}: {e}")
+        return ""
+
+    return problems, LINK.sub(one, text)
+
+
+def check_file(md: Path, strict_sections: tuple[str, ...] = (), sourced: bool = False) -> list[str]:
+    text = md.read_text(encoding="utf-8")
+    problems: list[str] = []
+    for head, line0, body in _sections(text):
+        errs, rest = check_links(md, body, line0 + 1)
+        problems += errs
+        plain = CODE.sub("", rest)
+        plain = re.sub(r"<!--.*?-->", "", plain, flags=re.S)
+        strict = head.startswith(strict_sections) if strict_sections else False
+        bare = CODE.sub("", body)  # a marker quoted in a code span is no marker
+        strict = strict or STRICT_MARK in bare
+        if strict:
+            for i, line in enumerate(plain.splitlines()):
+                for m in NUMBER.finditer(line):
+                    problems.append(f"{md.relative_to(ROOT)}:{line0 + 1 + i}: the number {m[2]!r} names no "
+                                    f"result file (a checked link, or a parameter in code)")
+        elif UNSOURCED.search(bare):
+            DEBTS.append(f"{md.relative_to(ROOT)}:{line0}: {head}: {UNSOURCED.search(bare)[1].strip()}")
+        elif sourced and head and NUMBER.search(CODE.sub("", body)) and not _names_result(md, body):
+            problems.append(f"{md.relative_to(ROOT)}:{line0}: section {head!r} quotes numbers but names no "
+                            "result file that exists")
+        for p in RESULT_PATH.findall(body):
+            if UNSOURCED.search(bare):
+                break  # a command not run yet names the files it will write
+            if not _exists(md, p.rstrip(".,;:")):
+                problems.append(f"{md.relative_to(ROOT)}:{line0}: names {p}, which does not exist")
+    return problems
+
+
+def _exists(md: Path, p: str) -> bool:
+    for base in (md.parent, ROOT):
+        f = base / p
+        if f.exists() or (f.parent.is_dir() and any(f.parent.glob(glob_escape(f.name) + "*"))):
+            return True
+    return False
+
+
+def glob_escape(name: str) -> str:
+    return re.sub(r"([*?\[])", r"[\1]", name)
+
+
+def _names_result(md: Path, body: str) -> bool:
+    return any(_exists(md, p.rstrip(".,;:")) for p in RESULT_PATH.findall(body))
+
+
+def check(root: Path = ROOT) -> list[str]:
+    DEBTS.clear()
+    problems = check_file(root / "README.md", strict_sections=("At a glance",))
+    for md in sorted((root / "docs").glob("benchmarks*.md")):
+        problems += check_file(md, sourced=True)
+    if len(DEBTS) > KNOWN_DEBTS:
+        problems.append(f"{len(DEBTS)} unsourced sections, more than the {KNOWN_DEBTS} known: source the new one")
+    return problems
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    problems = check()
+    for p in problems:
+        print(p)
+    if "--debts" in argv:
+        for d in DEBTS:
+            print(f"debt: {d}")
+    print(f"check_docs: {len(problems)} problem(s)" if problems else
+          f"check_docs: every quoted number checked ({len(DEBTS)} unsourced section(s) listed by --debts)")
+    return 1 if problems else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,113 @@
+"""The installed package (issue 29 item 3): one top-level package, the shipped job specs run by name
+(``gapsweep jobs``, ``gapsweep run fig2_quick --store ...``), ``gapsweep report`` unaffected by a user's own
+``analysis.py``, and the wheel's contents (gapsweep only, with its jobs and their height maps; Requires-Python true
+to the pins of constraints.txt)."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from gapsweep import jobs
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+FIGURE_JOBS = ["fig2", "fig3", "fig4_5", "fig6", "fig6_grms1", "fig2_quick", "fig3_quick", "fig4_5_quick",
+               "fig6_quick"]
+EXAMPLES = ["demo", "contact_file", "measured_map", "adhesion_quick"]
+
+
+def _gs(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "gapsweep", *args], capture_output=True, text=True, cwd=cwd,
+                          env=ENV, timeout=300)
+
+
+def test_shipped_jobs_are_the_readmes():
+    """Every job the README runs by path is shipped, and the repository's jobs/<name>.toml is that file."""
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    used = set(re.findall(r"jobs/(\w+)\.toml", readme)) - {"gpu", "pub"}
+    assert used and used <= set(jobs.names()), used - set(jobs.names())
+    assert set(FIGURE_JOBS + EXAMPLES) <= set(jobs.names())
+    for n in jobs.names():
+        assert (ROOT / "jobs" / f"{n}.toml").resolve() == jobs.path(n).resolve(), n
+        assert jobs.describe(n), n
+
+
+def test_resolve_name_or_path(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert jobs.resolve("fig2") == jobs.path("fig2") == jobs.resolve("fig2.toml")
+    own = tmp_path / "fig2.toml"  # a file of the user's wins over the shipped name
+    own.write_text("[job]\nname = 'mine'\n")
+    assert jobs.resolve("fig2.toml") == Path("fig2.toml")
+    assert jobs.resolve(str(ROOT / "jobs" / "test_theory.toml")).name == "test_theory.toml"
+    with pytest.raises(FileNotFoundError, match=r"no such file, nor a shipped job name.*fig2, fig2_quick"):
+        jobs.resolve("nope")
+    with pytest.raises(FileNotFoundError):
+        jobs.resolve("sub/fig2")  # a folder: a path, not a name
+
+
+def test_jobs_lists_and_run_by_name(tmp_path):
+    r = _gs("jobs", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    listed = [line.split()[0] for line in r.stdout.splitlines() if line and not line.startswith("(")]
+    assert listed == jobs.names()
+    assert _gs("jobs", "--path", "fig2", cwd=tmp_path).stdout.strip() == str(jobs.path("fig2"))
+    r = _gs("run", "fig2_quick", "--store", "q.h5", "--progress", "none", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    from gapsweep import store
+
+    df = store.read(tmp_path / "q.h5")
+    assert len(df) > 0 and (df.status == "done").all()
+    r = _gs("run", "no_such_job", "--store", "x.h5", cwd=tmp_path)
+    assert r.returncode == 2 and "gapsweep jobs" in r.stderr and not (tmp_path / "x.h5").exists()  # a bad argument
+
+
+def test_report_with_a_users_analysis_module(tmp_path):
+    """``python -m gapsweep`` puts the working folder first on sys.path: a user's analysis.py (or analysis/) there
+    once replaced the report's package (exit 1). gapsweep.analysis cannot be shadowed."""
+    assert _gs("run", str(ROOT / "jobs" / "test_theory.toml"), "--store", "t.h5", "--progress", "none",
+               cwd=tmp_path).returncode == 0
+    (tmp_path / "analysis.py").write_text("raise ImportError('the user analysis module was imported')\n")
+    r = _gs("report", "t.h5", "--out", "rep", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert (tmp_path / "rep" / "report.md").is_file() and (tmp_path / "rep" / "mean_gap.csv").is_file()
+
+
+def _min_python() -> tuple[int, int]:
+    """The oldest Python the pinned numpy supports (numpy 2.3+ needs 3.11)."""
+    pin = re.search(r"^numpy==(\d+)\.(\d+)", (ROOT / "constraints.txt").read_text(), re.M)
+    assert pin
+    return (3, 11) if (int(pin[1]), int(pin[2])) >= (2, 3) else (3, 10)
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_wheel_contents(tmp_path):
+    """Build the wheel from a copy of the tree: only gapsweep (no top-level analysis, no studies), the shipped
+    jobs with their data, every 0.1 alias file, and Requires-Python >= the pins' oldest Python."""
+    pytest.importorskip("setuptools")
+    src = tmp_path / "src"
+    shutil.copytree(ROOT, src, symlinks=True, ignore=shutil.ignore_patterns(
+        ".venv", ".git", ".wt", "__pycache__", "*.h5", "build", "*.egg-info", "out", ".pytest_cache"))
+    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w",
+                        str(tmp_path / "dist"), str(src)], capture_output=True, text=True, timeout=500)
+    assert r.returncode == 0, r.stderr[-3000:]
+    (whl,) = (tmp_path / "dist").glob("gapsweep-*.whl")
+    names = zipfile.ZipFile(whl).namelist()
+    tops = {n.split("/")[0] for n in names if not n.split("/")[0].endswith(".dist-info")}
+    assert tops == {"gapsweep"}, tops
+    for n in jobs.names():
+        assert f"gapsweep/jobs/{n}.toml" in names, n
+    assert {"gapsweep/jobs/data/rough_tilted_256.npy", "gapsweep/jobs/data/measured_tilted_192x128.npz",
+            "gapsweep/analysis/report.py", "gapsweep/store.py", "gapsweep/_alias.py"} <= set(names)
+    assert not any(n.startswith("gapsweep/") and "/studies/" in n for n in names)
+    meta = zipfile.ZipFile(whl).read(next(n for n in names if n.endswith("dist-info/METADATA"))).decode()
+    lo = re.search(r"^Requires-Python: >=(\d+)\.(\d+)", meta, re.M)
+    assert lo and (int(lo[1]), int(lo[2])) == _min_python()
