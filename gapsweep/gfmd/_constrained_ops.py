@@ -241,9 +241,9 @@ def spectral_kernels() -> Any:
     global _SPECTRAL
     if _SPECTRAL is not None:
         return _SPECTRAL
-    import numba
+    from gapsweep.core.numba_cache import njit
 
-    jit = numba.njit(cache=True, fastmath={"reassoc", "contract", "nsz"}, nogil=True)
+    jit = njit(fastmath={"reassoc", "contract", "nsz"}, nogil=True)
 
     @jit
     def zstats5(z, t, gs, p):
