@@ -3,6 +3,8 @@
     OMP_NUM_THREADS=1 GAPSWEEP_FFT_THREADS=1 python benchmarks/bench_hardwall_cpu.py passes [--n 1024]
     OMP_NUM_THREADS=1 GAPSWEEP_FFT_THREADS=1 python benchmarks/bench_hardwall_cpu.py chain [--n 1024]
         [--sigma0 1e-3 3e-3 1e-2 3e-2 1e-1 2e-1] [--hurst 0.8]
+    OMP_NUM_THREADS=1 GAPSWEEP_FFT_THREADS=1 python benchmarks/bench_hardwall_cpu.py loops [--n 1024] [--hurst 0.8]
+        [--seed 1] [--sigma0 1e-3 1e-2 1e-1] [--loops real spectral real spectral] [--max-iter 5000]
 
 ``passes``: CPU ms of one iteration's element-wise passes (contact_sum, gap, zstats, direction, rstats, update,
 rescale; the three input copies the harness needs included) on a clustered contact set of the fig-2 surface
@@ -12,7 +14,14 @@ iteration). Run it on two commits to compare kernels.
 ``chain``: a sweep chain along increasing loads, each load solved cold ("mpcg", coarse-to-fine start) and warm
 (``initial=`` the previous load's result: its pressure rescaled to the new load, "pcg"); iterations, FFT pairs,
 CPU seconds side by side per load, and the mean gaps' relative difference (both to tol 1e-8). Surfaces: the
-fig-2/3 surfaces of benchmarks/bench_contact.py."""
+fig-2/3 surfaces of benchmarks/bench_contact.py.
+
+``loops`` (issue 30): the iteration loops of gapsweep/gfmd/_constrained.py side by side on one surface ("mpcg",
+tol 1e-8; lambda_s = 2.56 / n, so n = 1024 is the fig-2/3 surface and smaller n stay resolved): ``real`` (the
+real-space loop: ``r = K t`` and ``u = K p`` afresh after a clipping projection), ``spectral`` (``p~`` kept in
+Fourier space, the default on the CPU), or an integer ``K``: the real-space loop that skips the fresh ``K p`` after
+clipping and re-syncs ``u`` every ``K`` iterations (u lags K p in between). Iterations, FFT pairs per iteration,
+CPU seconds, residual, status and the mean gap's relative difference to the first loop listed."""
 
 from __future__ import annotations
 
@@ -101,6 +110,30 @@ def cmd_chain(a: argparse.Namespace) -> None:
         print(f"chain total: cold {tot_c:.2f} s, warm {tot_w:.2f} s, ratio {tot_c / tot_w:.2f}")
 
 
+def cmd_loops(a: argparse.Namespace) -> None:
+    from gapsweep.gfmd import _constrained as C
+
+    n = a.n
+    h = self_affine(n, a.hurst, lambda_l=0.25, lambda_s=2.56 / n, rms_slope=1.0, seed=a.seed)
+    solve(h[:64, :64].copy(), sigma0=1e-2, interaction="hard_wall")  # jit
+    solve(h, sigma0=1e-2, interaction="hard_wall", tol=1e-2)  # plans
+    for s0 in a.sigma0:
+        ref = None
+        for loop in a.loops:
+            C._LAG, C._SPECTRAL = loop.isdigit(), loop == "spectral"
+            C._RESYNC = int(loop) if loop.isdigit() else C._RESYNC
+            t0 = time.process_time()
+            r = solve(h, sigma0=s0, interaction="hard_wall", tol=1e-8, method="mpcg", max_iter=a.max_iter)
+            cpu = time.process_time() - t0
+            ref = ref or r
+            pairs = r.diagnostics["fft_pairs"]
+            print(f"n={n} H={a.hurst} seed={a.seed} sigma0={s0:g} loop={loop}: iterations {r.iterations} "
+                  f"(coarse {r.diagnostics['coarse_iterations']}), FFT pairs {pairs} "
+                  f"({pairs / max(r.iterations, 1):.2f} per iteration), CPU {cpu:.2f} s, residual {r.residual:.2e} "
+                  f"{r.status}, mean gap rel. diff {abs(r.mean_gap / ref.mean_gap - 1):.1e}", flush=True)
+    C._LAG, C._SPECTRAL = False, True
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -110,8 +143,15 @@ def main() -> None:
     c.add_argument("--n", type=int, default=1024)
     c.add_argument("--sigma0", type=float, nargs="+", default=[1e-3, 3e-3, 1e-2, 3e-2, 1e-1, 2e-1])
     c.add_argument("--hurst", type=float, nargs="+", default=[0.8])
+    lp = sub.add_parser("loops")
+    lp.add_argument("--n", type=int, default=1024)
+    lp.add_argument("--hurst", type=float, default=0.8)
+    lp.add_argument("--seed", type=int, default=1)
+    lp.add_argument("--sigma0", type=float, nargs="+", default=[1e-3, 1e-2, 1e-1])
+    lp.add_argument("--loops", nargs="+", default=["real", "spectral", "real", "spectral"])
+    lp.add_argument("--max-iter", type=int, default=5000)
     a = ap.parse_args()
-    {"passes": cmd_passes, "chain": cmd_chain}[a.cmd](a)
+    {"passes": cmd_passes, "chain": cmd_chain, "loops": cmd_loops}[a.cmd](a)
 
 
 if __name__ == "__main__":

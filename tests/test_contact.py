@@ -287,6 +287,28 @@ def test_adhesive_cupy_agrees() -> None:
 
 
 @pytest.mark.parametrize("method", ["pcg", "pk"])
+@pytest.mark.parametrize("backend", ["auto", "numpy"])
+def test_hard_wall_spectral_loop_matches_real_space_loop(monkeypatch, backend: str, method: str) -> None:
+    """Issue 30: the CPU loop that keeps the pressure's spectrum (load-neutral direction, ``<t K t>`` by
+    Parseval, ``u = K p~``) reaches the real-space loop's answer (an independent evaluation of every ``K``
+    product): mean gap and elastic energy within 1e-9 relative at tol 1e-10, the same contact area, in fewer
+    FFT pairs per iteration (2.5 against 3 when the projection clips)."""
+    from gapsweep.gfmd import _constrained
+
+    h = self_affine(128, 0.8, lambda_l=0.25, lambda_s=4 / 128, seed=7)
+    kw = dict(sigma0=5e-2, interaction="hard_wall", tol=1e-10, method=method, backend=backend)
+    a = solve(h, **kw)
+    monkeypatch.setattr(_constrained, "_SPECTRAL", False)
+    b = solve(h, **kw)
+    assert a.converged and b.converged and a.contact_area == b.contact_area
+    assert abs(a.mean_gap - b.mean_gap) <= 1e-9 * b.mean_gap
+    assert a.elastic_energy == pytest.approx(b.elastic_energy, rel=1e-9)
+    assert a.iterations <= b.iterations + max(2, b.iterations // 10)  # no more iterations
+    per_it = [r.diagnostics["fft_pairs"] / r.iterations for r in (a, b)]
+    assert per_it[0] < per_it[1] - (0.2 if method == "pcg" else 0.1)
+
+
+@pytest.mark.parametrize("method", ["pcg", "pk"])
 def test_hard_wall_generic_passes_match_numba(monkeypatch, method: str) -> None:
     """The array-namespace passes (the cupy code path) give the numba passes' answer on the CPU."""
     h = self_affine(64, 0.3, lambda_l=0.25, lambda_s=1 / 16, seed=4)

@@ -9,8 +9,14 @@ constrained_conjugate_gradients); "pcg" (default on the GPU), the same iteration
 preconditioner: the search direction is built from ``z = P_S M P_S g`` with ``M = K^-1 = E* q/2`` (exact when
 everything is in contact; the FFT-based preconditioner of Vollebregt, J. Comput. Phys. 257, 333, 2014, in its
 simplest form); "mpcg" (default on the CPU), "pcg" started from the coarse-to-fine pressure of :func:`_coarse_start`
-(the coarsened surface solved to ``_COARSE_TOL``, recursively). Cost per iteration: ``K t`` (one FFT pair), ``M g``
-("pcg", one more), and ``K p`` afresh only when the projection clipped something (else ``u`` follows linearly).
+(the coarsened surface solved to ``_COARSE_TOL``, recursively). Cost per iteration, periodic grids on the CPU
+(:func:`_spectral_loop`, ``p~`` kept in Fourier space): ``M g`` ("pcg", one FFT pair), ``t~`` (one forward
+transform; the line search's ``<t K t>`` by Parseval, ``t`` made load-neutral in real space), ``u = K p~`` (one
+inverse) and the transform of ``p`` only when the projection clipped something: 2.5 pairs. Free boundaries and
+the GPU (:func:`_direct_loop`): ``K t`` (one pair), ``M g`` ("pcg", one more), and ``K p`` afresh when the
+projection clipped something (else ``u`` follows linearly): 3 pairs. Skipping the fresh ``K p`` (``u`` lagging
+by the clipped part, re-synced every few iterations) breaks the constrained CG (issue 30: 1.2-300x the
+iterations or no convergence; benchmarks/results/contact/issue30_lag_resync_512.txt).
 
 Convergence (decided on the returned fields, one more FFT pair): force balance ``u = K p`` and ``p = 0`` on the
 free surface hold by construction, so the residual is the constraint's violation in units of ``h_rms``:
@@ -46,6 +52,9 @@ DEFAULT_METHOD_GPU = "pcg"
 _COARSEST = 128  # "mpcg": smallest grid side of a coarse level
 _COARSE_TOL = 1e-2  # "mpcg": tolerance of the coarse levels (a start only; the fine level decides convergence)
 _REFRESH = 25  # iterations between fresh K p when the update was unclipped (bounds the drift of u)
+_LAG = False  # lag the projection's K-correction up to _RESYNC iterations (measured: breaks convergence; issue 30)
+_RESYNC = 8  # used only with _LAG
+_SPECTRAL = True  # periodic grids: p~ kept in Fourier space (_spectral_loop)
 log = logging.getLogger("gapsweep.gfmd")
 
 
@@ -84,6 +93,208 @@ def _coarse_start(h: Any, law: Interaction, sigma0: float, e_star: float, length
     return p, [r.iterations, *r.diagnostics.get("coarse_iterations", [])]
 
 
+def _gap_residual(ops: Any, u: Any, h: Any, p: Any, g: Any, gs: Any, g_ref: float) -> tuple[int, float, float]:
+    """``g = u - h - gbar_S``, ``gs = P_S g``; returns ``(|S|, sum_S g^2, residual)`` (see the module docstring)."""
+    n_s, s_us = ops.contact_sum(u, h, p)
+    ns = max(n_s, 1)
+    sg2, gmin_free = ops.gap(u, h, s_us / ns, p, g, gs)
+    return ns, sg2, max(math.sqrt(sg2 / ns), max(0.0, -gmin_free)) / g_ref
+
+
+def _stop(res: float, tol: float, it: int, max_iter: int) -> str | None:
+    if not math.isfinite(res):
+        return "non_finite"
+    if res <= tol:
+        return "converged"
+    return "max_iter" if it >= max_iter else None
+
+
+def _direct_loop(grid: Grid, ops: Any, compliance: Any, h: Any, p: Any, stiff: Any, sigma0: float, tol: float,
+                 g_ref: float, max_iter: int, history: list[float]) -> tuple[Any, Any, int, str, int]:
+    """The iteration on real-space fields: ``r = K t`` (one FFT pair), ``z = M gs`` (one more with ``stiff``)
+    and ``u = K p`` afresh when the projection changed ``p`` (else ``u`` follows ``r`` linearly). Free
+    boundaries take this loop. Returns ``(p, u, iterations, status, fft_pairs)``."""
+    xp = grid.xp
+    t, g, gs, r = (xp.zeros(grid.real_shape) for _ in range(4))
+    z = xp.empty(grid.real_shape) if stiff is not None else None
+    delta, gz_old, fft_pairs, status = 0.0, 1.0, 1, "max_iter"
+    it = since_fresh = 0
+    stale = False  # u lags K p by the projection's corrections since the last fresh K p (_LAG only)
+    with np.errstate(all="ignore"):
+        u = compliance(p)
+        while True:
+            deadline.check()  # a task time limit ends the solve between iterations
+            ns, sg2, res = _gap_residual(ops, u, h, p, g, gs, g_ref)
+            if stale and not res > tol:  # converged on a lagging u: decide on a fresh K p
+                u = compliance(p, u)
+                fft_pairs += 1
+                since_fresh, stale = 0, False
+                continue
+            history.append(res)
+            stop = _stop(res, tol, it, max_iter)
+            if stop:
+                status = stop
+                break
+            it += 1
+            if stiff is not None:  # z = P_S M P_S g, kept load-neutral (zero mean on S)
+                z = grid.convolve(gs, stiff, z)
+                fft_pairs += 1
+                z_sum, gz = ops.zstats(z, gs, p)
+                zbar = z_sum / ns
+            else:
+                z, zbar, gz = gs, 0.0, sg2
+            ops.direction(t, z, zbar, delta * gz / gz_old, p)
+            gz_old = gz
+            r = compliance(t, r)
+            fft_pairs += 1
+            r_sum, rt, t_sum, gt = ops.rstats(r, t, gs, p)
+            rt -= (r_sum / ns) * t_sum  # <(r - rbar_S) t>_S
+            if not rt > 0:
+                status = "stalled" if math.isfinite(rt) else "non_finite"
+                break
+            tau = gt / rt
+            clipped, n_overlap, p_sum = ops.update(p, t, g, tau)
+            delta = 0.0 if n_overlap else 1.0
+            changed = clipped or n_overlap
+            follow = since_fresh < (_RESYNC if _LAG else (0 if changed else _REFRESH))
+            ops.rescale(p, u, r, sigma0 * grid.size / p_sum, tau, follow)
+            if follow:  # K is linear: u = scale (u - tau K t)
+                since_fresh += 1
+                stale = stale or changed
+            else:  # K p afresh
+                u = compliance(p, u)
+                fft_pairs += 1
+                since_fresh, stale = 0, False
+    return p, u, it, status, fft_pairs
+
+
+class _Spectral:
+    """``p~`` and ``t~`` of :func:`_spectral_loop` through ``grid.fwd`` / ``grid.inv`` (any periodic grid)."""
+
+    def __init__(self, grid: Grid, kinv_q: Any) -> None:
+        self.grid, self.kinv = grid, kinv_q
+        self.P = self.T = None
+
+    def refresh(self, p: Any) -> None:
+        self.P = self.grid.fwd(p)
+
+    def direction(self, t: Any) -> float:
+        self.T = self.grid.fwd(t)
+        return self.grid.size * self.grid.dot(self.T, self.kinv * self.T)
+
+    def advance(self, tau: float, scale: float) -> None:
+        self.P -= tau * self.T
+        self.P *= scale
+
+    def displacement(self, u: Any) -> Any:
+        u[...] = self.grid.inv(self.kinv * self.P)
+        return u
+
+
+class _SpectralFFTW(_Spectral):
+    """The same through the pyFFTW plans' own buffers and fused numba passes (no temporaries)."""
+
+    def __init__(self, grid: Grid, kinv_q: Any) -> None:
+        super().__init__(grid, kinv_q)
+        from gapsweep.gfmd._constrained_ops import spectral_kernels
+
+        self.K = spectral_kernels()
+        f = grid._fft
+        self.f = f
+        self.kmul = np.ascontiguousarray(kinv_q * (1.0 / grid.size))  # on the unnormalised spectra
+        self.kw = np.ascontiguousarray(grid._w * self.kmul)
+        self.P = np.empty_like(f._cout)
+        self.T = np.empty_like(f._cout)
+
+    def refresh(self, p: Any) -> None:
+        self.f._rin[...] = p
+        self.f._fwd.execute()
+        self.K.copy_mul(self.P, self.f._cout, self.kmul, self.f._cin)
+
+    def direction(self, t: Any) -> float:
+        self.f._rin[...] = t
+        self.f._fwd.execute()
+        return float(self.K.copy_energy(self.T, self.f._cout, self.kw))
+
+    def advance(self, tau: float, scale: float) -> None:
+        self.K.step_mul(self.P, self.T, float(tau), float(scale), self.kmul, self.f._cin)
+
+    def displacement(self, u: Any) -> Any:
+        self.f._inv.execute()  # _cin = K p~, written by refresh / advance
+        np.copyto(u, self.f._rout)
+        return u
+
+
+def _spectral_state(grid: Grid, kinv_q: Any) -> _Spectral:
+    from gapsweep.gfmd._constrained_ops import _have_numba
+
+    fft = getattr(grid, "_fft", None)
+    if fft is not None and getattr(fft, "name", "") == "pyfftw" and _have_numba() and type(grid) is Grid:
+        return _SpectralFFTW(grid, kinv_q)
+    return _Spectral(grid, kinv_q)
+
+
+def _spectral_loop(grid: Grid, ops: Any, h: Any, p: Any, kinv_q: Any, stiff: Any, sigma0: float, tol: float,
+                   g_ref: float, max_iter: int, history: list[float]) -> tuple[Any, Any, int, str, int]:
+    """Periodic grids: the same iteration with ``p~`` kept in Fourier space. The search direction ``t`` is made
+    load-neutral in real space (zero sum on S), so the line search needs only ``<t K t> = N <t~ K t~>``
+    (Parseval, from ``t~``: one forward transform); ``p~ <- s (p~ - tau t~)`` when the projection changed nothing,
+    else ``p~`` = the forward transform of the projected ``p``; ``u = K p~`` is one inverse transform and exact
+    every iteration. Transforms per iteration: 2 (``z = M gs``) + 1 (``t~``) + 1 (``u``) + 1 if the projection
+    changed ``p`` (the real-space loop: 2 + 2 + 2). Returns ``(p, u, iterations, status, fft_pairs)``."""
+    xp = grid.xp
+    t, g, gs = (xp.zeros(grid.real_shape) for _ in range(3))
+    z = xp.empty(grid.real_shape) if stiff is not None else None
+    delta, gz_old, status = 0.0, 1.0, "max_iter"
+    transforms = it = since_fresh = 0
+    sp = _spectral_state(grid, kinv_q)
+    with np.errstate(all="ignore"):
+        sp.refresh(p)
+        u = sp.displacement(xp.empty(grid.real_shape))
+        transforms += 2
+        while True:
+            deadline.check()  # a task time limit ends the solve between iterations
+            ns, _, res = _gap_residual(ops, u, h, p, g, gs, g_ref)
+            history.append(res)
+            stop = _stop(res, tol, it, max_iter)
+            if stop:
+                status = stop
+                break
+            it += 1
+            if stiff is not None:  # z = P_S M P_S g
+                z = grid.convolve(gs, stiff, z)
+                transforms += 2
+            else:
+                z = gs
+            # t = P_S (z + c t) - its mean on S (zero sum on S: the step keeps the load), in one pass
+            z_sum, gz, t_sum, gt_old, g_sum = ops.zstats5(z, t, gs, p)
+            c = delta * gz / gz_old
+            zbar = (z_sum + c * t_sum) / ns
+            ops.direction(t, z, zbar, c, p)
+            gt = gz + c * gt_old - zbar * g_sum  # sum gs t
+            gz_old = gz
+            rt = sp.direction(t)  # sum t K t
+            transforms += 1
+            if not rt > 0:
+                status = "stalled" if math.isfinite(rt) else "non_finite"
+                break
+            tau = gt / rt
+            clipped, n_overlap, p_sum = ops.update(p, t, g, tau)
+            delta = 0.0 if n_overlap else 1.0
+            scale = sigma0 * grid.size / p_sum
+            p *= scale
+            if clipped or n_overlap or since_fresh >= _REFRESH:
+                sp.refresh(p)
+                transforms += 1
+                since_fresh = 0
+            else:
+                sp.advance(tau, scale)
+                since_fresh += 1
+            u = sp.displacement(u)
+            transforms += 1
+    return p, u, it, status, (transforms + 1) // 2
+
+
 def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, length: Any, tol: float,
              method: str, backend: str, max_iter: int, initial: Any, threads: int | None, host: Any,
              t_start: float, periodic: bool = True, grid: Grid | None = None) -> GFMDResult:
@@ -105,6 +316,7 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
     with np.errstate(divide="ignore"):
         kinv = 1.0 / ((0.5 * e_star) * grid.q)
     grid.set_mode0(kinv, 0.0)
+    kinv_q = kinv  # on the normalised coefficients (grid.fwd / grid.inv)
     kinv = grid.multiplier(kinv)
 
     def compliance(a: Any, out: Any = None) -> Any:  # u = K a, <u> = 0
@@ -129,64 +341,16 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
                              "with a positive sum")
         p *= sigma0 / grid.mean(p)
     history: list[float] = []
-    status = "max_iter"
-    fft_pairs = 1
-    t = xp.zeros(grid.real_shape)
-    g = xp.empty(grid.real_shape)
-    gs = xp.empty(grid.real_shape)
     ops = grid.reduce_ops(make_ops(xp))
-    delta, gz_old = 0.0, 1.0
     precondition = method != "pk"
     stiff = grid.multiplier((0.5 * e_star) * grid.q)  # M = K^-1 = E* q/2, the Fourier preconditioner
-    z = xp.empty(grid.real_shape) if precondition else None
-    r = xp.empty(grid.real_shape)
-    it = since_fresh = 0
+    if _SPECTRAL and periodic and not _LAG and xp is np:  # the GPU keeps the real-space loop (its fused passes)
+        p, u, it, status, fft_pairs = _spectral_loop(grid, ops, h, p, kinv_q, stiff if precondition else None,
+                                                     sigma0, tol, g_ref, max_iter, history)
+    else:
+        p, u, it, status, fft_pairs = _direct_loop(grid, ops, compliance, h, p, stiff if precondition else None,
+                                                   sigma0, tol, g_ref, max_iter, history)
     with np.errstate(all="ignore"):
-        u = compliance(p)
-        while True:
-            deadline.check()  # a task time limit ends the solve between iterations
-            n_s, s_us = ops.contact_sum(u, h, p)
-            ns = max(n_s, 1)
-            sg2, gmin_free = ops.gap(u, h, s_us / ns, p, g, gs)
-            res = max(math.sqrt(sg2 / ns), max(0.0, -gmin_free)) / g_ref
-            history.append(res)
-            if not math.isfinite(res):
-                status = "non_finite"
-                break
-            if res <= tol:
-                status = "converged"
-                break
-            if it >= max_iter:
-                status = "max_iter"
-                break
-            it += 1
-            if precondition:  # z = P_S M P_S g, kept load-neutral (zero mean on S)
-                z = grid.convolve(gs, stiff, z)
-                fft_pairs += 1
-                z_sum, gz = ops.zstats(z, gs, p)
-                zbar = z_sum / ns
-            else:
-                z, zbar, gz = gs, 0.0, sg2
-            ops.direction(t, z, zbar, delta * gz / gz_old, p)
-            gz_old = gz
-            r = compliance(t, r)
-            fft_pairs += 1
-            r_sum, rt, t_sum, gt = ops.rstats(r, t, gs, p)
-            rt -= (r_sum / ns) * t_sum  # <(r - rbar_S) t>_S
-            if not rt > 0:
-                status = "stalled" if math.isfinite(rt) else "non_finite"
-                break
-            tau = gt / rt
-            clipped, n_overlap, p_sum = ops.update(p, t, g, tau)
-            delta = 0.0 if n_overlap else 1.0
-            follow = not (clipped or n_overlap) and since_fresh < _REFRESH
-            ops.rescale(p, u, r, sigma0 * grid.size / p_sum, tau, follow)
-            if follow:  # K is linear: u = scale (u - tau K t)
-                since_fresh += 1
-            else:  # K p afresh after the projection changed p
-                u = compliance(p, u)
-                fft_pairs += 1
-                since_fresh = 0
         # The returned fields and their residual (issue 9: decided on what is returned).
         u = compliance(p)
         fft_pairs += 2

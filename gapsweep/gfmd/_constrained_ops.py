@@ -39,6 +39,13 @@ class _PKOps:
         xp = self.xp
         return float(xp.sum(xp.where(p > 0, z, 0.0))), float(xp.sum(gs * z))
 
+    def zstats5(self, z, t, gs, p) -> tuple[float, float, float, float, float]:
+        """``(sum_S z, sum gs z, sum_S t, sum gs t, sum gs)``."""
+        xp = self.xp
+        S = p > 0
+        return (float(xp.sum(xp.where(S, z, 0.0))), float(xp.sum(gs * z)), float(xp.sum(xp.where(S, t, 0.0))),
+                float(xp.sum(gs * t)), float(xp.sum(gs)))
+
     def direction(self, t, z, zbar: float, c: float, p) -> None:
         """``t = (z - zbar) + c t`` on S, 0 elsewhere."""
         xp = self.xp
@@ -206,6 +213,10 @@ class _PKNumba(_PKOps):
         a, b = self.K.zstats(z, gs, p)
         return float(a), float(b)
 
+    def zstats5(self, z, t, gs, p):
+        a, b, c, d, e = spectral_kernels().zstats5(z, t, gs, p)
+        return float(a), float(b), float(c), float(d), float(e)
+
     def direction(self, t, z, zbar, c, p):
         self.K.direction(t, z, float(zbar), float(c), p)
 
@@ -219,6 +230,71 @@ class _PKNumba(_PKOps):
 
     def rescale(self, p, u, r, scale, tau, follow):
         self.K.rescale(p, u, r, float(scale), float(tau), bool(follow))
+
+
+_SPECTRAL: Any = None
+
+
+def spectral_kernels() -> Any:
+    """Fused passes of ``_constrained._spectral_loop`` (numba, serial): ``zstats5`` on the real fields, the rest
+    on the half spectra of ``_constrained._SpectralFFTW``."""
+    global _SPECTRAL
+    if _SPECTRAL is not None:
+        return _SPECTRAL
+    from gapsweep.core.numba_cache import njit
+
+    jit = njit(fastmath={"reassoc", "contract", "nsz"}, nogil=True)
+
+    @jit
+    def zstats5(z, t, gs, p):
+        s1 = 0.0
+        s2 = 0.0
+        s3 = 0.0
+        s4 = 0.0
+        s5 = 0.0
+        zf, tf, gsf, pf = z.ravel(), t.ravel(), gs.ravel(), p.ravel()
+        for i in range(pf.size):
+            on = pf[i] > 0
+            s1 += zf[i] if on else 0.0
+            s2 += gsf[i] * zf[i]  # gs = 0 off S
+            s3 += tf[i] if on else 0.0
+            s4 += gsf[i] * tf[i]
+            s5 += gsf[i]
+        return s1, s2, s3, s4, s5
+
+    @jit
+    def copy_mul(P, src, kmul, cin):  # P = src, cin = kmul P
+        Pf, sf, kf, cf = P.ravel(), src.ravel(), kmul.ravel(), cin.ravel()
+        for i in range(Pf.size):
+            v = sf[i]
+            Pf[i] = v
+            cf[i] = kf[i] * v
+
+    @jit
+    def copy_energy(T, src, kw):  # T = src; returns sum kw |T|^2
+        Tf, sf, kf = T.ravel(), src.ravel(), kw.ravel()
+        s = 0.0
+        for i in range(Tf.size):
+            v = sf[i]
+            Tf[i] = v
+            s += kf[i] * (v.real * v.real + v.imag * v.imag)
+        return s
+
+    @jit
+    def step_mul(P, T, tau, scale, kmul, cin):  # P = scale (P - tau T), cin = kmul P
+        Pf, Tf, kf, cf = P.ravel(), T.ravel(), kmul.ravel(), cin.ravel()
+        for i in range(Pf.size):
+            v = scale * (Pf[i] - tau * Tf[i])
+            Pf[i] = v
+            cf[i] = kf[i] * v
+
+    class K:
+        pass
+
+    for f in (zstats5, copy_mul, copy_energy, step_mul):
+        setattr(K, f.__name__, staticmethod(f))
+    _SPECTRAL = K
+    return K
 
 
 def make_ops(xp: Any) -> _PKOps:

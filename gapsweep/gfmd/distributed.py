@@ -135,6 +135,9 @@ class _ReducedPK:
     def zstats(self, z, gs, p) -> tuple[float, float]:
         return tuple(self.red.sum(*self.ops.zstats(z, gs, p)))
 
+    def zstats5(self, z, t, gs, p) -> tuple[float, float, float, float, float]:
+        return tuple(self.red.sum(*self.ops.zstats5(z, t, gs, p)))
+
     def direction(self, t, z, zbar: float, c: float, p) -> None:
         self.ops.direction(t, z, zbar, c, p)
 
