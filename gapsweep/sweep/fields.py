@@ -160,10 +160,10 @@ def _write_fields(directory: str | Path, task_id: str, arrays: Mapping[str, np.n
             raise
         # HDF5 crashes when a file whose write failed is closed or released (issue 31: a run keeping fields
         # segfaulted on a full disk): the file is kept open to the end of the process, which leaves by os._exit
-        from gapsweep.sweep import store
+        from gapsweep.sweep.writefail import write_failed
 
-        raise store.write_failed(f"kept fields of task {task_id} in {d}: cannot be written ({e}); the row stays "
-                                 "pending: free space or fix the folder and run again with --resume") from None
+        raise write_failed(f"kept fields of task {task_id} in {d}: cannot be written ({e}); the row stays "
+                           "pending: free space or fix the folder and run again with --resume") from None
     finally:
         if tmp.exists():
             tmp.unlink()

@@ -60,6 +60,7 @@ from gapsweep.sweep.schema import (  # noqa: F401 - the store's layout, re-expor
     integrity_record,
     row_checksum,
 )
+from gapsweep.sweep.writefail import KEEP_TYPES, io_failed, one_line, write_failed  # noqa: F401 - re-exported
 
 log = logging.getLogger("gapsweep.store")
 
@@ -77,19 +78,6 @@ __all__ = [
     "read_pressure_histograms",
     "status",
 ]
-
-# Set when an HDF5 write or close failed in this process: the library may then crash while tearing down at
-# interpreter exit (seen with ENOSPC / EFBIG), so the CLI ends such a process with os._exit after its message.
-_io_failed = False
-
-
-def io_failed() -> bool:
-    """Whether an HDF5 write failed in this process (see ``_io_failed``)."""
-    return _io_failed
-
-
-_kept: list[Any] = []
-
 
 @contextmanager
 def _quiet_dealloc():
@@ -118,46 +106,9 @@ def _quiet_dealloc():
             log.debug("HDF5 release after a failed write: %s", caught)
 
 
-def one_line(msg: str) -> str:
-    """An HDF5 error message in one line: its long "(... file write failed: time = ..., errno = 28, error message
-    = 'No space left on device', ...)" part (which holds a newline) reduced to the error message and errno; the
-    text around it is kept."""
-    import re
-
-    m = re.search(r"errno = (\d+), error message = '([^']*)'", msg)
-    if m:
-        start = msg.rfind(" (", 0, m.start())
-        while start > 0 and msg.rfind(" (", 0, start) > 0 and msg.count("(", 0, start) > msg.count(")", 0, start):
-            start = msg.rfind(" (", 0, start)  # the outermost parenthesis around the HDF5 text
-        depth, end = 0, len(msg)
-        for k in range(start + 1, len(msg)):
-            depth += {"(": 1, ")": -1}.get(msg[k], 0)
-            if depth == 0:
-                end = k + 1
-                break
-        if start >= 0:
-            msg = f"{msg[:start]} ({m.group(2)}, errno {m.group(1)}){msg[end:]}"
-    return " ".join(msg.split())
-
-
-def write_failed(msg: str) -> StoreWriteError:
-    """:func:`_failed` for other writers of HDF5 files (merge, the netCDF export): the error to raise inside the
-    ``except`` of a failed write; the command then leaves without HDF5's exit handlers (cli.main)."""
-    return _failed(msg)
-
-
 def _failed(msg: str) -> StoreWriteError:
-    """The error to raise after a failed HDF5 write (called inside the ``except``). HDF5 may crash when the
-    objects of a file whose write failed are released, so they (and the failing frames) are kept alive to the
-    end of the process."""
-    global _io_failed
-    import gc
-    import sys
-
-    _io_failed = True
-    _kept.append(sys.exc_info()[2])
-    _kept.extend(o for o in gc.get_objects() if isinstance(o, (h5py.File, h5py.Group, h5py.Dataset, Store)))
-    return StoreWriteError(one_line(msg))
+    """:func:`gapsweep.sweep.writefail.write_failed` (called inside the ``except`` of a failed write)."""
+    return write_failed(msg)
 
 
 def _early() -> Any:
@@ -734,3 +685,6 @@ def _eq(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 def _same(x: np.ndarray, y: np.ndarray) -> bool:
     return x.shape == y.shape and bool(np.all(_eq(x, y)))
+
+
+KEEP_TYPES.append(Store)  # a Store holds an h5py.File: kept alive after a failed write as well (writefail)
