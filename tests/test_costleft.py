@@ -8,6 +8,7 @@ measures a real job (GFMD, SDE, Fokker-Planck, theory)."""
 
 from __future__ import annotations
 
+import datetime as _dt
 import json
 import os
 import subprocess
@@ -22,7 +23,7 @@ from gapsweep import store
 from gapsweep.sweep import costleft
 from gapsweep.sweep import methods as registry
 from gapsweep.sweep import spec as specmod
-from gapsweep.sweep.store import reseal
+from gapsweep.sweep.store import reseal, seal_attrs
 from gapsweep.sweep.tasks import expand
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -77,8 +78,16 @@ def test_cost_left_of_planted_wall_times(tmp_path):
         fin = r["status"] != 0
         r["wall_time"][fin] = 3.0 * cost[fin]
         f["results"][...] = r
+        # the run took 10 s by its record (times are whole seconds: a run of 10 quick rows may start and end
+        # within one, and then has no rate)
+        runs = json.loads(f.attrs["runs"])
+        end = _dt.datetime.fromisoformat(runs[-1]["interrupted_at"])
+        runs[-1]["started"] = (end - _dt.timedelta(seconds=10)).isoformat(timespec="seconds")
+        f.attrs["runs"] = json.dumps(runs)
         reseal(f)
+        seal_attrs(f)
     c = costleft.cost_left(path)
+    assert c["rate"] is not None and c["rate"]["elapsed_s"] == 10.0
     assert fin.sum() == 10 and c["remaining"]["rows"] == 38 == c["remaining"]["rerun_by_resume"]
     assert c["core_seconds"] == pytest.approx(3.0 * cost[~fin].sum(), rel=1e-12)
     assert c["gpu_seconds"] == 0.0 and c["core_hours"] == pytest.approx(c["core_seconds"] / 3600, rel=1e-15)

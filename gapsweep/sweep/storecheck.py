@@ -154,8 +154,9 @@ def _integrity(f: Any, path: Any, tolerate_tasks: bool, f_runs_damaged: list[str
             _fail(path, f"cannot read /tasks ({exc}): damaged store")
 
     problem = integrity_problem(record, _attributes(f), tasks)
-    if problem and tolerate_tasks and problem.startswith("attribute 'runs' fails"):
-        # --resume rebuilds damaged run records (Report.runs_damaged); status shows them as damaged
+    if problem and problem.startswith("attribute 'runs' fails"):
+        # the rows do not depend on the run records (issue 31 item 5: a damaged one must block nothing): every
+        # reader names the damage and goes on, merge drops them, --resume rebuilds them (Report.runs_damaged)
         log.warning("store %s: %s", path, problem)
         f_runs_damaged.append(problem)
         problem = integrity_problem(record, {k: v for k, v in _attributes(f).items() if k != "runs"}, tasks,

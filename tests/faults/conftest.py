@@ -208,3 +208,20 @@ def resume_to_ref(path: Path, ref: Path, job: Path, *extra: str) -> None:
     p = gs("run", job, "--store", path, "--resume", "--mpi", "off", "--progress", "none", "--break-lease", *extra)
     assert p.returncode == 0, p.stderr
     assert store.diff(path, ref) == []
+
+
+def wait_gone(pid: int, limit: float = 60.0) -> None:
+    """Wait until process ``pid`` has exited (gone, or a zombie): an event, polled; ``limit`` only bounds a hang."""
+    import os
+    import time
+
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < limit:
+        try:
+            os.kill(pid, 0)
+            state = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]
+        except (ProcessLookupError, FileNotFoundError, IndexError):
+            return
+        if state in ("Z", "X"):
+            return
+        time.sleep(0.05)

@@ -28,6 +28,7 @@ from .conftest import (
     mpi_cmd,
     needs_mpi,
     resume_to_ref,
+    wait_gone,
 )
 
 
@@ -243,30 +244,13 @@ def _mpi_clean_end(path):
     assert_only_done_pending(path)
     info = lease.read(path)
     if info is not None and info["alive"] is True:  # mpiexec has returned, its SIGKILLed rank 0 may still be
-        _wait_gone(int(info["pid"]))                # exiting (under load): wait for that event, then judge
+        wait_gone(int(info["pid"]))                # exiting (under load): wait for that event, then judge
         info = lease.read(path)
     assert info is None or (info["alive"] is False and info.get("interrupted")), info
     ident = lease.identity_path(path)
     if ident is not None and ident.exists():
         assert json.loads(ident.read_text()).get("interrupted")
     assert sorted(x.name for x in path.parent.iterdir() if x.name.startswith(f".{path.name}")) == []
-
-
-def _wait_gone(pid: int, limit: float = 60.0) -> None:
-    """Wait until process ``pid`` has exited (gone, or a zombie): an event, polled; ``limit`` only bounds a hang."""
-    import os
-    import time
-
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < limit:
-        try:
-            os.kill(pid, 0)
-            state = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]
-        except (ProcessLookupError, FileNotFoundError, IndexError):
-            return
-        if state in ("Z", "X"):
-            return
-        time.sleep(0.05)
 
 
 def _resume_plain(path, ref):

@@ -1,0 +1,19 @@
+"""Suite-wide fixtures."""
+
+from __future__ import annotations
+
+import logging
+
+import pytest
+
+
+@pytest.fixture(autouse=True)
+def _gapsweep_logger_restored():
+    """A test that runs ``cli.main`` in-process leaves the CLI's handler on the ``gapsweep`` logger: put the
+    logger back as it was, so the next test sees the library's own logging (tests/test_manners.py)."""
+    log = logging.getLogger("gapsweep")
+    handlers, level, propagate = list(log.handlers), log.level, log.propagate
+    yield
+    log.handlers[:] = handlers
+    log.setLevel(level)
+    log.propagate = propagate
