@@ -107,6 +107,8 @@ def test_wheel_contents(tmp_path):
         assert f"gapsweep/jobs/{n}.toml" in names, n
     assert {"gapsweep/jobs/data/rough_tilted_256.npy", "gapsweep/jobs/data/measured_tilted_192x128.npz",
             "gapsweep/analysis/report.py", "gapsweep/store.py", "gapsweep/_alias.py"} <= set(names)
+    # the Slurm job scripts: `gapsweep submit` from an installed wheel (issue 28)
+    assert {f"gapsweep/sweep/jobscripts/{n}.sbatch" for n in ("array_job", "merge_job", "mpi_job")} <= set(names)
     assert not any(n.startswith("gapsweep/") and "/studies/" in n for n in names)
     meta = zipfile.ZipFile(whl).read(next(n for n in names if n.endswith("dist-info/METADATA"))).decode()
     lo = re.search(r"^Requires-Python: >=(\d+)\.(\d+)", meta, re.M)

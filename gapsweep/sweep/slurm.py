@@ -110,11 +110,12 @@ class Submission:
 
 
 def scripts_dir() -> Path:
-    """The job scripts (``slurm/`` of the source tree, beside the package)."""
-    d = Path(__file__).resolve().parents[2] / "slurm"
+    """The job scripts, shipped in the package (``gapsweep/sweep/jobscripts``; ``slurm/`` of a checkout links to
+    them), so that ``gapsweep submit`` works from an installed wheel too."""
+    d = Path(__file__).resolve().parent / "jobscripts"
     if not (d / "array_job.sbatch").is_file():
-        raise FileNotFoundError(f"the Slurm job scripts are not at {d}: gapsweep submit needs the source tree's "
-                                "slurm/ folder (install gapsweep from a checkout)")
+        raise FileNotFoundError(f"the Slurm job scripts are not at {d}: the installation is incomplete "
+                                "(reinstall gapsweep)")
     return d
 
 
