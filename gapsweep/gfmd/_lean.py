@@ -34,7 +34,7 @@ import numpy as np
 
 from gapsweep.core import deadline
 from gapsweep.gfmd._result import GFMDResult
-from gapsweep.gfmd._smooth import _DETACHED, _STALL_ENERGY, _STALL_WINDOW, _STEP_TOL, _Solver, _wolfe
+from gapsweep.gfmd._smooth import _STEP_TOL, _Solver, _stop, _wolfe
 
 log = logging.getLogger("gapsweep.gfmd")
 CHUNK = {"numpy": 1 << 22, "cupy": 1 << 25}  # elements per chunk of an elementwise pass (32 / 256 MiB of float64)
@@ -199,39 +199,6 @@ def _steepest(st: _LeanState, minv: Any, D: Any) -> None:
         D[ch] *= -1.0
 
 
-def _stalled(st: _LeanState, res: float, best: list) -> bool:
-    """``_smooth._lbfgs``'s stall test; ``best = [residual, energy, at]`` updated in place."""
-    grid = st.grid
-    f = st.energy()
-    f_scale = _STALL_ENERGY * (abs(f) + abs(st.e_law) + abs(st.sigma0 * grid.mode0(st.Z).real))
-    if res < 0.9 * best[0] or best[1] - f > f_scale:
-        best[:] = [min(res, best[0]), f, st.nfev]
-        return False
-    if st.nfev - best[2] >= _STALL_WINDOW:
-        log.debug("stalled: residual %.3g, energy unchanged for %d evaluations", res, _STALL_WINDOW)
-        return True
-    return False
-
-
-def _check(st: _LeanState, p_ref: float, tol: float, max_iter: int, rng: float | None, history: list[float],
-           best: list) -> str | None:
-    """The stopping tests of ``_smooth._lbfgs`` at the current point (None: go on)."""
-    grid = st.grid
-    g00 = grid.mode0(st.G)
-    rr = max(st.ps.dot(st.G, st.G) - abs(g00) ** 2, 0.0)
-    res = max(math.sqrt(rr), abs(g00.real)) / p_ref
-    history.append(res)
-    if not math.isfinite(res):
-        return "non_finite"
-    if res <= tol:
-        return "converged"
-    if st.sigma0 < 0 and rng is not None and grid.amin(st.g) > _DETACHED * rng:
-        return "detached"
-    if st.nfev >= max_iter:
-        return "max_iter"
-    return "stalled" if _stalled(st, res, best) else None
-
-
 def _lbfgs(st: _LeanState, minv: Any, p_ref: float, tol: float, max_iter: int, memory: int, rng: float | None,
            history: list[float]) -> str:
     """``_smooth._lbfgs`` on the lean state (module docstring): the status; ``st`` holds the last point."""
@@ -242,7 +209,7 @@ def _lbfgs(st: _LeanState, minv: Any, p_ref: float, tol: float, max_iter: int, m
     with np.errstate(all="ignore"):
         while True:
             deadline.check()  # a task time limit ends the solve between iterations
-            status = _check(st, p_ref, tol, max_iter, rng, history, best)
+            status = _stop(st, ps.dot, p_ref, tol, max_iter, rng, history, best)
             if status is not None:
                 return status
             _direction(st, pairs, minv, D)

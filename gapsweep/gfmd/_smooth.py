@@ -126,6 +126,40 @@ def _wolfe(st: _State, D: Any, slope: float, alpha: float, c1: float = 1e-4, c2:
     return (lo, d) if lo > 0 else None
 
 
+def _stalled(st: Any, res: float, best: list) -> bool:
+    """The stall test of :func:`_lbfgs` (its docstring); ``best = [residual, energy, at]`` updated in place."""
+    grid = st.grid
+    f = st.energy()
+    f_scale = _STALL_ENERGY * (abs(f) + abs(st.e_law) + abs(st.sigma0 * grid.mode0(st.Z).real))
+    if res < 0.9 * best[0] or best[1] - f > f_scale:
+        best[:] = [min(res, best[0]), f, st.nfev]
+        return False
+    if st.nfev - best[2] >= _STALL_WINDOW:
+        log.debug("stalled: residual %.3g, energy unchanged for %d evaluations", res, _STALL_WINDOW)
+        return True
+    return False
+
+
+def _stop(st: Any, dot: Any, p_ref: float, tol: float, max_iter: int, rng: float | None, history: list[float],
+          best: list) -> str | None:
+    """The stopping tests of :func:`_lbfgs` at the current point (None: go on); ``dot`` the Parseval product of
+    the state's spectra (``grid.dot``, or the lean path's own). Shared by ``gfmd._lean``."""
+    grid = st.grid
+    g00 = grid.mode0(st.G)
+    rr = max(dot(st.G, st.G) - abs(g00) ** 2, 0.0)
+    res = max(math.sqrt(rr), abs(g00.real)) / p_ref
+    history.append(res)
+    if not math.isfinite(res):
+        return "non_finite"
+    if res <= tol:
+        return "converged"
+    if st.sigma0 < 0 and rng is not None and grid.amin(st.g) > _DETACHED * rng:
+        return "detached"
+    if st.nfev >= max_iter:
+        return "max_iter"
+    return "stalled" if _stalled(st, res, best) else None
+
+
 def _lbfgs(st: _State, minv: Any, p_ref: float, tol: float, max_iter: int, memory: int, rng: float | None,
            history: list[float]) -> str:
     """L-BFGS from ``st`` until ``residual <= tol`` (module docstring), at most ``max_iter`` evaluations of
@@ -139,29 +173,13 @@ def _lbfgs(st: _State, minv: Any, p_ref: float, tol: float, max_iter: int, memor
     s_hist: list = []
     y_hist: list = []
     r_hist: list[float] = []
-    best_res, best_f, best_at = math.inf, math.inf, 0
+    best = [math.inf, math.inf, 0]
     with np.errstate(all="ignore"):
         while True:
             deadline.check()  # a task time limit ends the solve between iterations
-            g00 = grid.mode0(st.G)
-            rr = max(grid.dot(st.G, st.G) - abs(g00) ** 2, 0.0)
-            res = max(math.sqrt(rr), abs(g00.real)) / p_ref
-            history.append(res)
-            if not math.isfinite(res):
-                return "non_finite"
-            if res <= tol:
-                return "converged"
-            if st.sigma0 < 0 and rng is not None and grid.amin(st.g) > _DETACHED * rng:
-                return "detached"
-            if st.nfev >= max_iter:
-                return "max_iter"
-            f = st.energy()
-            f_scale = _STALL_ENERGY * (abs(f) + abs(st.e_law) + abs(st.sigma0 * grid.mode0(st.Z).real))
-            if res < 0.9 * best_res or best_f - f > f_scale:
-                best_res, best_f, best_at = min(res, best_res), f, st.nfev
-            elif st.nfev - best_at >= _STALL_WINDOW:
-                log.debug("stalled: residual %.3g, energy unchanged for %d evaluations", res, _STALL_WINDOW)
-                return "stalled"
+            status = _stop(st, grid.dot, p_ref, tol, max_iter, rng, history, best)
+            if status is not None:
+                return status
             q = st.G.copy()
             alphas = []
             for s, y, r in zip(reversed(s_hist), reversed(y_hist), reversed(r_hist)):

@@ -15,22 +15,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tests.gpu.cuda_skip import cupy_or_skip as _cupy
+
 pytestmark = pytest.mark.gpu
 
 # docs/model.md M6 parameters (g_rms = 1 at H = 0.3), as in tests/test_sde.py
 P = dict(hurst=0.3, h_rms=2.34e-3, gamma0=1e-3, lambda_l=0.25, lambda_s=2.5e-3)
 
 
-def _cupy():
-    try:
-        import cupy
-
-        if cupy.cuda.runtime.getDeviceCount() < 1:
-            raise RuntimeError("no CUDA device")
-        cupy.zeros(1).sum()  # a driver that cannot run a kernel fails here
-    except Exception as exc:
-        pytest.skip(f"no CUDA GPU for cupy ({type(exc).__name__}: {exc})")
-    return cupy
 
 
 def _warp_cuda():

@@ -12,18 +12,7 @@ import pytest
 
 from gapsweep.gfmd._cuda import solve_memory
 from gapsweep.surface import self_affine
-
-
-def _cupy():
-    try:
-        import cupy
-
-        if cupy.cuda.runtime.getDeviceCount() < 1:
-            raise RuntimeError("no CUDA device")
-        cupy.zeros(1).sum()
-    except Exception as exc:
-        pytest.skip(f"no CUDA GPU for cupy ({type(exc).__name__}: {exc})")
-    return cupy
+from tests.gpu.cuda_skip import cupy_or_skip as _cupy
 
 
 def _surface(n: int, seed: int, hurst: float = 0.3) -> np.ndarray:

@@ -16,20 +16,11 @@ from gapsweep import gfmd
 from gapsweep.core import slab
 from gapsweep.gfmd import _lean, distributed
 from gapsweep.surface import self_affine
+from tests.gpu.cuda_skip import cupy_or_skip as _cupy
 
 pytestmark = pytest.mark.gpu
 
 
-def _cupy():
-    try:
-        import cupy
-
-        if cupy.cuda.runtime.getDeviceCount() < 1:
-            raise RuntimeError("no CUDA device")
-        cupy.zeros(1).sum()
-    except Exception as exc:
-        pytest.skip(f"no CUDA GPU for cupy ({type(exc).__name__}: {exc})")
-    return cupy
 
 
 @pytest.mark.parametrize("sigma0", [1e-3, -1e-4])
