@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from gapsweep.core import deadline
+from gapsweep.gfmd._coarse import Start
 from gapsweep.gfmd._result import GFMDResult
 from gapsweep.gfmd._smooth import _STEP_TOL, _Solver, _stop, _wolfe
 
@@ -284,10 +285,13 @@ def minimise(h: Any, law: Any, *, sigma0: float, e_star: float, length: Any, tol
     """``gfmd._smooth.minimise`` on the lean solver (same starts, see there) for a :class:`SlabGrid`; ``h``
     this rank's rows, used as given (not copied, not centred: the gap ``z - h`` and the fields do not depend on
     ``<h>``, which the body's mean position ``z~(0)`` takes up). ``initial``: None or ``((displacement rows,
-    mean gap), the result it came from or None)`` (the result for the tensile fallback)."""
+    mean gap), the result it came from or None)`` (the result for the tensile fallback), or a
+    :class:`gapsweep.gfmd._coarse.Start` (the spectrum ``z~`` of the body's surface, taken over as the state)."""
     xp = grid.xp
     sv = LeanSolver(grid, law, h, e_star, max_iter, memory, chunk)
-    if initial is None:
+    if isinstance(initial, Start):  # coarse-to-fine start (gfmd._coarse): the body surface's spectrum, taken over
+        st, status = sv.at(sigma0, initial.take(), tol, own=True)
+    elif initial is None:
         Z = grid.spectrum_zeros()
         grid.set_mode0(Z, grid.amax(h))  # touching the highest summit, the body flat
         if sigma0 < 0:

@@ -51,6 +51,9 @@ def solve(
     host: bool | tuple[str, ...] = True,
     periodic: bool | None = None,
     comm: Any = None,
+    start: str = "flat",
+    levels: int | None = None,
+    coarse_tol: float | None = None,
 ) -> GFMDResult:
     """Equilibrium gap of an elastic half-space on the rigid surface ``heights`` at mean pressure ``sigma0``.
 
@@ -84,7 +87,23 @@ def solve(
     ``h[gapsweep.gfmd.slab_rows(nx, comm)]``, every rank calls ``solve`` with the same arguments, and the result
     (a ``SlabResult``) holds the global scalars on every rank and this rank's rows of the fields. Periodic only;
     ``threads`` is ignored there.
+
+    ``start``: "flat" (default; the starts above) or "coarse": the coarse-to-fine start (docs/gfmd.md,
+    "Coarse-to-fine start"; exponential and adhesive laws, periodic, compressive loads): the problem solved first
+    on ``levels`` grids coarser by 2, 4, ... (None: down to 64 pixels a side) to ``coarse_tol`` (None: 10
+    ``tol``), each started from the one before, the last one starting this grid. It runs on the distributed
+    solver's minimisers (:func:`gapsweep.gfmd.distributed.solve`; without ``comm`` on one process: the adhesive
+    law then keeps ``memory=2`` L-BFGS pairs) and returns a ``SlabResult`` whose ``diagnostics["levels"]`` lists
+    the coarse levels.
     """
+    if start != "flat" and comm is None:
+        if start != "coarse":
+            raise ValueError(f"start must be 'flat' or 'coarse', got {start!r}")
+        if periodic is False:
+            raise ValueError("start='coarse' is for periodic surfaces (periodic=True)")
+        from gapsweep.gfmd._coarse import SelfComm
+
+        comm = SelfComm()
     if comm is not None:
         if periodic is False:
             raise ValueError("comm: a distributed solve is periodic (free boundaries run on one process)")
@@ -92,7 +111,8 @@ def solve(
 
         return distributed.solve(heights, comm=comm, sigma0=sigma0, interaction=interaction, gamma0=gamma0,
                                  rho=rho, work=work, e_star=e_star, length=length, tol=tol, method=method,
-                                 backend=backend, max_iter=max_iter, initial=initial, host=host)
+                                 backend=backend, max_iter=max_iter, initial=initial, host=host, start=start,
+                                 levels=levels, coarse_tol=coarse_tol)
     t_start = time.perf_counter()
     from gapsweep.surfaces.topography import Topography
 

@@ -30,6 +30,7 @@ import numpy as np
 
 from gapsweep.core import checks as chk
 from gapsweep.core.slab import Reducer, SlabFFT, check_comm, slab_rows
+from gapsweep.gfmd._coarse import Start
 from gapsweep.gfmd._grid import Grid
 from gapsweep.gfmd._ops import _is_cupy
 from gapsweep.gfmd._result import FIELDS, GFMDResult, host_fields
@@ -310,7 +311,9 @@ def _softmax(h, law: Any, grid: SlabGrid, *, sigma0: float, e_star: float, tol: 
     ops = (_SlabOps if xp is np else _SlabCupyOps)(xp, grid.red, grid._w, grid.owner)
     k, grid.q = grid.q, None  # E* q/2 in the grid's |q| array (this grid serves this solve only)
     k *= 0.5 * e_star
-    if initial is None:  # linear response of M4 (the q = 0 mode of the uncentred h is dropped: <u> = 0)
+    if isinstance(initial, Start):  # coarse-to-fine start (gfmd._coarse): the displacement's spectrum, taken over
+        x0 = initial.take()
+    elif initial is None:  # linear response of M4 (the q = 0 mode of the uncentred h is dropped: <u> = 0)
         x0 = slab.rfft2(h)
         x0 *= (1.0 / n2) * (sigma0 / rho) / (k + sigma0 / rho)
     else:
@@ -364,9 +367,10 @@ def _centred(h: Any, u: Any, h_shift: float, rho: float) -> Any:
 
 
 def _smooth_initial(initial: Any, grid: SlabGrid) -> Any:
-    """``((displacement rows, mean gap), source result or None)`` of the smooth laws' ``initial``, or None."""
-    if initial is None:
-        return None
+    """``((displacement rows, mean gap), source result or None)`` of the smooth laws' ``initial``, or None (or
+    the coarse-to-fine start, passed on)."""
+    if initial is None or isinstance(initial, Start):
+        return initial
     if isinstance(initial, GFMDResult):
         return (_initial_field(initial, "displacement", grid), float(initial.mean_gap)), initial
     ok = isinstance(initial, (tuple, list)) and len(initial) == 2
@@ -499,7 +503,8 @@ def _options(law: Interaction, shape: tuple[int, int], box: tuple[float, float],
 def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interaction = "exponential",
           gamma0: float | None = None, rho: float | None = None, work: float | None = None, e_star: float = 1.0,
           length: Any = 1.0, tol: float = 1e-6, method: str = "auto", backend: str = "auto", max_iter: int = 5000,
-          initial: Any = None, host: bool | tuple[str, ...] = True, memory: int = 2) -> SlabResult:
+          initial: Any = None, host: bool | tuple[str, ...] = True, memory: int = 2, start: str = "flat",
+          levels: int | None = None, coarse_tol: float | None = None) -> SlabResult:
     """Periodic equilibrium of docs/model.md M3 (and the hard wall and adhesion of docs/gfmd.md) with the grid
     split over the ranks of ``comm``: ``h_local`` is this rank's rows ``heights[slab_rows(nx, comm)]`` (numpy, or
     cupy for one GPU per rank; units of ``length``). Collective: every rank calls it with the same arguments.
@@ -510,7 +515,17 @@ def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interact
     rank's rows of a displacement; hard wall: of a pressure; adhesive: ``(displacement rows, mean gap)``).
     ``memory``: pairs kept by the smooth laws' L-BFGS (adhesion, exponential rectangles), which runs in fixed
     buffers (``gfmd._lean``: 8 + 2 ``memory`` arrays of the rank's rows, 12 at the default 2; one process keeps 8
-    pairs, so the two agree to the solver tolerance, not bit for bit; see :func:`solve_memory`)."""
+    pairs, so the two agree to the solver tolerance, not bit for bit; see :func:`solve_memory`).
+
+    ``start``: "flat" (default: the starts above) or "coarse": the coarse-to-fine start of ``gfmd._coarse``
+    (docs/gfmd.md, "Coarse-to-fine start"): the same problem on ``levels`` grids ``(nx/2^l, ny/2^l)`` of the same
+    box (None: as many as keep ``>= 64`` pixels a side), each to ``coarse_tol`` (None: ``10 tol``) within
+    ``max_iter`` evaluations, the spectrally truncated surface on each, the answer prolonged by zero-padding its
+    spectrum; then the requested grid from there to ``tol``. Exponential and adhesive laws at compressive loads,
+    no ``initial``; the peak memory is the requested grid's own. ``iterations`` counts the requested grid's
+    evaluations; ``diagnostics["levels"]`` holds each coarse level's (shape, evaluations, status, residual, mean
+    gap, contact area, wall time) and ``diagnostics["coarse_cost"]`` their sum weighted by the grid size
+    (``sum_l evaluations_l 4^-l``, in evaluations of the requested grid)."""
     t_start = time.perf_counter()
     check_comm(comm)
     red = Reducer(comm)
@@ -530,6 +545,8 @@ def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interact
     lx, ly = (chk.positive(v, "length") for v in np.broadcast_to(np.asarray(length, dtype=float), 2))
     tol = chk.positive(tol, "tol")
     control, method, backend = _options(law, shape, (lx, ly), method, backend, on_gpu, max_iter, memory)
+    if start not in ("flat", "coarse"):
+        raise ValueError(f"start must be 'flat' or 'coarse', got {start!r}")
     host_fields(host)
     length = lx if lx == ly and not isinstance(length, (tuple, list, np.ndarray)) else (lx, ly)
     if backend == "cupy":
@@ -539,6 +556,13 @@ def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interact
     h = grid.asarray(h_local)
     if not grid.all_finite(h):
         raise ValueError("heights contain NaN or inf")
+    coarse = None
+    if start == "coarse":
+        coarse = _check_coarse(law, control, sigma0, initial, levels, coarse_tol, tol, shape, red.size)
+        kw = dict(comm=comm, sigma0=sigma0, interaction=law, e_star=e_star, length=length, method=method,
+                  backend=backend, max_iter=max_iter, host=False, memory=memory, tol=coarse[1])
+        initial, records = _run_coarse(h, grid, coarse[0], control != "softmax", kw)
+        coarse = records
     rng = law.range()
     if rng is not None and rng < min(lx / shape[0], ly / shape[1]) and law.name == "exponential" and red.rank == 0:
         from gapsweep.gfmd._common import UnderResolvedWarning
@@ -570,12 +594,50 @@ def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interact
     grid.synchronize()
     scalars["diagnostics"] = {**scalars["diagnostics"], "ranks": red.size, "exchanges": grid.slab.exchanges,
                               "reductions": grid.red.calls}
+    if coarse is not None:
+        scalars["diagnostics"]["levels"] = coarse
+        scalars["diagnostics"]["coarse_cost"] = sum(
+            rec["evaluations"] * rec["shape"][0] * rec["shape"][1] / (shape[0] * shape[1]) for rec in coarse)
     return SlabResult(
         gap=fields["gap"], pressure=fields["pressure"], displacement=fields["displacement"],
         wall_time=time.perf_counter() - t_start, backend=backend, sigma0=sigma0, rho=getattr(law, "rho", math.nan),
         gamma0=getattr(law, "gamma0", math.nan), e_star=e_star, length=length, tol=tol, interaction=law.name,
         params=law.params(), contact_criterion=law.contact_criterion, comm=comm, global_shape=shape,
         rows=grid.slab.row, **scalars)
+
+
+def _check_coarse(law: Interaction, control: str, sigma0: float, initial: Any, levels: Any, coarse_tol: Any,
+                  tol: float, shape: tuple[int, int], ranks: int) -> tuple[int, float]:
+    """Checked ``(levels, coarse tolerance)`` of ``start="coarse"``."""
+    from gapsweep.gfmd import _coarse
+
+    if control == "multiplier":
+        raise ValueError(f"start='coarse' is for the smooth laws (exponential, adhesive); interaction {law.name!r} "
+                         "takes start='flat'")
+    if not sigma0 > 0:
+        raise ValueError(f"start='coarse' needs a compressive load sigma0 > 0, got {sigma0!r} (tensile loads: "
+                         "start='flat', which follows the load from zero)")
+    if initial is not None:
+        raise ValueError("start='coarse' makes its own initial state: leave initial=None")
+    lv = _coarse.check_levels(levels, shape, ranks)
+    ctol = 10.0 * tol if coarse_tol is None else chk.positive(coarse_tol, "coarse_tol")
+    return lv, ctol
+
+
+def _run_coarse(h: Any, grid: SlabGrid, levels: int, smooth: bool, kw: dict) -> tuple[Any, list[dict]]:
+    """The coarse levels of ``start="coarse"`` (gfmd._coarse.chain): the requested grid's :class:`Start` (or None
+    when no level gave a finite answer) and the levels' records. On GPUs the memory pool's free blocks and
+    cupy's FFT plans of the coarse grids are dropped before the requested grid runs (its peak stays its own)."""
+    from gapsweep.gfmd import _coarse
+
+    def level(hl: Any, init: Any) -> Any:
+        return solve(hl, initial=init, start="flat", **kw)
+
+    Z, records = _coarse.chain(h, grid.slab, levels, level, smooth)
+    if grid.xp is not np:
+        grid.xp.fft.config.get_plan_cache().clear()
+        grid.xp.get_default_memory_pool().free_all_blocks()
+    return (None if Z is None else Start(Z)), records
 
 
 def _check_gpu_memory(shape: tuple[int, int], red: Reducer, interaction: str, memory: int, tensile: bool) -> None:

@@ -1,0 +1,176 @@
+"""Coarse-to-fine start of a distributed solve (docs/gfmd.md, "One solve over several processes", coarse-to-fine
+start; nested iteration as in full multigrid).
+
+The problem is solved first on grids ``(nx/2^l, ny/2^l)``, ``l = levels .. 1``, of the same box (the pixel
+``2^l`` times larger), each level started from the previous one, and the finest coarse answer starts the
+requested grid. Level ``l``'s surface is the spectral truncation of the caller's ``h``: its half-spectrum
+coefficients ``h~_l(q) = h~(q)`` for ``|kx| < nx_l/2`` and ``ky < ny_l/2`` (integer wave numbers; the Nyquist
+row and column and every shorter wavelength set to 0), ``h_l = irfft2(h~_l)`` on the coarse grid: a surface
+band-limited below the coarse Nyquist wavelength ``2 L/nx_l`` is the same continuous surface, sampled coarser.
+The state is carried to the next level by zero-padding its spectrum (prolongation: ``z~_{l-1}(q) = z~_l(q)`` on
+the shared modes, 0 elsewhere; ``z`` the displacement ``u`` for the exponential law, the body's surface
+``z = g0 + u`` for the smooth laws, so the mean gap travels in ``z~(0)``). Coefficients are normalised
+(``a~ = rfft2(a)/(nx ny)``), so they carry over between grids unchanged; the interaction law, ``E*``, the load
+and the box are the same on every level. Coarse levels stop at ``coarse_tol`` (their answer is only a start);
+the requested grid at the caller's ``tol``, so the answer is the plain solve's to that tolerance.
+
+Memory: a coarse level's arrays are ``4^-l`` of the requested grid's; while a level runs, the requested grid
+holds only the caller's ``h``; the surface of a level is made through one forward transform of ``h`` (1 array,
+freed before the level runs) and the start of the requested grid is one half spectrum, which its minimiser takes
+over as its state. The peak is therefore the requested grid's own. Moving coefficients between the layouts of
+two grids (each rank holds a block of ``ky`` columns, :mod:`gapsweep.core.slab`) takes point-to-point exchanges
+of the shared columns through host buffers, in chunks of at most ``CHUNK`` coefficients."""
+
+from __future__ import annotations
+
+import logging
+import math
+import warnings
+from typing import Any
+
+import numpy as np
+
+from gapsweep.core.slab import SlabFFT
+
+log = logging.getLogger("gapsweep.gfmd")
+CHUNK = 1 << 24  # coefficients per host buffer of the layout exchange (256 MiB)
+MIN_SIDE = 64  # the coarsest level keeps at least this many pixels per side (automatic levels)
+
+
+class Start:
+    """A start spectrum handed to the requested grid's minimiser (which takes it over: :meth:`take`)."""
+
+    def __init__(self, Z: Any) -> None:
+        self._Z = Z
+
+    def take(self) -> Any:
+        Z, self._Z = self._Z, None
+        return Z
+
+
+class SelfComm:
+    """The communicator of one process (the few methods :mod:`gapsweep.core.slab` calls), so that the
+    coarse-to-fine start runs without mpi4py on one process or one GPU (``gfmd.solve(..., start="coarse")``)."""
+
+    def Get_size(self) -> int:  # mpi4py's method names
+        return 1
+
+    def Get_rank(self) -> int:
+        return 0
+
+    def Allgather(self, send: Any, recv: Any) -> None:
+        recv[...] = np.reshape(send, recv.shape)
+
+    def bcast(self, value: Any, root: int = 0) -> Any:
+        return value
+
+    def py2f(self) -> int:
+        return -1
+
+
+def auto_levels(shape: tuple[int, int], ranks: int, min_side: int = MIN_SIDE) -> int:
+    """Most levels ``l`` with both sides divisible by ``2^l``, the coarse grid at least ``min_side`` per side and
+    at least ``2 ranks`` rows and half-spectrum columns (every rank holds some)."""
+    nx, ny = shape
+    lv = 0
+    while True:
+        f = 2 ** (lv + 1)
+        if nx % f or ny % f or min(nx // f, ny // f) < max(min_side, 2 * ranks):
+            return lv
+        lv += 1
+
+
+def check_levels(levels: Any, shape: tuple[int, int], ranks: int) -> int:
+    """Checked number of coarse levels (None: :func:`auto_levels`)."""
+    if levels is None:
+        return auto_levels(shape, ranks)
+    if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 0:
+        raise ValueError(f"levels must be None or an integer >= 0, got {levels!r}")
+    most = auto_levels(shape, ranks, min_side=2)
+    if levels > most:
+        raise ValueError(f"levels={levels} is too many for a {shape[0]} x {shape[1]} grid on {ranks} ranks: both "
+                         f"sides must divide by 2^levels and keep >= {2 * ranks} pixels (at most {most})")
+    return int(levels)
+
+
+def _overlap(a: slice, b: slice, stop: int) -> tuple[int, int]:
+    return max(a.start, b.start), min(a.stop, b.stop, stop)
+
+
+def remap(src: Any, f_src: SlabFFT, f_dst: SlabFFT) -> Any:
+    """Half-spectrum coefficients of grid ``f_src`` (this rank's columns ``src``) on grid ``f_dst``'s layout:
+    the modes both grids carry below their Nyquist wave numbers (module docstring) copied, every other mode 0.
+    Collective over the ranks of the two transforms' (same) communicator."""
+    xp, comm = f_dst.xp, f_dst.comm
+    size, rank = f_dst.size, f_dst.rank
+    (nxs, nys), (nxd, nyd) = f_src.shape, f_dst.shape
+    mx, my = min(nxs, nxd) // 2, min(nys, nyd) // 2
+    kx_s = np.r_[0:mx, nxs - mx + 1:nxs]
+    kx_d = np.r_[0:mx, nxd - mx + 1:nxd]
+    dst = xp.zeros(f_dst.spec_shape, dtype=xp.complex128)
+    step = max(1, CHUNK // len(kx_s))
+    for d in range(size):
+        to, frm = (rank + d) % size, (rank - d) % size
+        a0, a1 = _overlap(f_src.col, f_dst.cols[to], my)  # sent: my source columns that `to` holds
+        b0, b1 = _overlap(f_src.cols[frm], f_dst.col, my)  # received: `frm`'s source columns that I hold
+        n_send = max(0, math.ceil((a1 - a0) / step))
+        n_recv = max(0, math.ceil((b1 - b0) / step))
+        for c in range(max(n_send, n_recv)):
+            s0, s1 = a0 + c * step, min(a1, a0 + (c + 1) * step)
+            send = np.empty((max(s1 - s0, 0), len(kx_s)), dtype=np.complex128)
+            if s1 > s0:
+                part = src[s0 - f_src.col.start:s1 - f_src.col.start][:, kx_s]
+                send[...] = part.get() if xp is not np else part
+            r0, r1 = b0 + c * step, min(b1, b0 + (c + 1) * step)
+            if d == 0:
+                recv = send
+            else:
+                recv = np.empty((max(r1 - r0, 0), len(kx_d)), dtype=np.complex128)
+                comm.Sendrecv(send, dest=to, recvbuf=recv, source=frm)
+            if r1 > r0:
+                rows = dst[r0 - f_dst.col.start:r1 - f_dst.col.start]  # a view: the assignment writes dst
+                rows[:, kx_d] = xp.asarray(recv)
+    return dst
+
+
+def restrict(h: Any, f_fine: SlabFFT, f_coarse: SlabFFT) -> Any:
+    """This rank's rows of the coarse surface ``h_l`` (module docstring) from this rank's rows of ``h``."""
+    H = f_fine.rfft2(h)
+    H *= 1.0 / (f_fine.shape[0] * f_fine.shape[1])
+    Hc = remap(H, f_fine, f_coarse)
+    del H
+    return f_coarse.irfft2(Hc)
+
+
+def chain(h: Any, f_fine: SlabFFT, levels: int, solve_level: Any, smooth: bool) -> tuple[Any, list[dict]]:
+    """Solve the coarse levels ``levels .. 1`` in turn (``solve_level(h_l, initial)`` returns the level's
+    result, ``initial`` None or a :class:`Start`) and return the requested grid's start spectrum (this rank's
+    columns, normalised coefficients; the displacement's, or with ``smooth`` the body surface's ``z = g + h``)
+    and one record per level. A level whose answer is not finite is dropped (the next starts from the level
+    before it, or flat if there is none)."""
+    nx, ny = f_fine.shape
+    xp = f_fine.xp
+    Z, f_prev, records = None, None, []
+    for lv in range(levels, 0, -1):
+        f = SlabFFT((nx >> lv, ny >> lv), f_fine.comm, backend=f_fine.backend)
+        hl = restrict(h, f_fine, f)
+        init = None if Z is None else Start(remap(Z, f_prev, f))
+        with warnings.catch_warnings():  # a coarse level may resolve the range worse: only a start
+            warnings.simplefilter("ignore")
+            r = solve_level(hl, init)
+        rec = {"shape": [nx >> lv, ny >> lv], "evaluations": int(r.iterations), "status": r.status,
+               "residual": float(r.residual), "mean_gap": float(r.mean_gap), "contact_area": float(r.contact_area),
+               "wall_s": float(r.wall_time)}
+        records.append(rec)
+        log.info("coarse level %d x %d: %s after %d evaluations, residual %.3g, mean gap %.6g", nx >> lv, ny >> lv,
+                 r.status, r.iterations, r.residual, r.mean_gap)
+        ok = math.isfinite(r.residual) and math.isfinite(r.mean_gap) and r.status != "non_finite"
+        if ok:
+            z = r.gap + hl if smooth else r.displacement
+            Z = f.rfft2(xp.ascontiguousarray(z))
+            Z *= 1.0 / ((nx >> lv) * (ny >> lv))
+            f_prev = f
+        del r, hl
+    if Z is None:
+        return None, records
+    return remap(Z, f_prev, f_fine), records
