@@ -37,6 +37,13 @@ surface, every law). The full run (budget: under 9 minutes on 4 H200s):
    Source and assumptions: the constants as stated by the challenge (Muser et al., Tribol. Lett. 65:118, 2017)
    and used by Adhesion's rough adhesive example on its topography; gapsweep's M2 spectrum has no plateau below
    the roll-off (C = 0 for q < q_l, where the challenge keeps C constant), and the rms slope of 1 is assumed.
+   ``--start coarse`` (default): the coarse-to-fine start of gfmd._coarse (docs/gfmd.md "Coarse-to-fine
+   start"; automatic levels down to 64 pixels a side, coarse tolerance 10 tol, each level within the same
+   evaluation budget); ``iterations``/``s_per_evaluation`` are the 65536^2 grid's, the levels are recorded
+   beside them (shape, evaluations, status, residual, wall time; ``coarse_cost`` in 65536^2 evaluations).
+   Worst case with the default budgets (500 exponential, 250 adhesive evaluations at 0.24 / 0.65 s, coarse
+   levels within the same budgets): about 7 minutes; chosen on the CPU proxy
+   (benchmarks/bench_challenge_proxy.py).
 
 JSON to ``--out`` (rank 0 rewrites it after every case, so a run cut short keeps what it measured). A failure
 on any rank aborts the job (MPI_Abort) instead of leaving the others waiting in a collective."""
@@ -302,7 +309,8 @@ def scaling(out: Path, subs: dict, sizes: list[int], iters: int) -> None:
 
 
 def challenge(out: Path, subs: dict, n: int, rms_slope: float, exp_iter: int, adh_iter: int, tol: float,
-              lambda_s: float, ranks: int, pairs: int, laws: tuple[str, ...]) -> None:
+              lambda_s: float, ranks: int, pairs: int, laws: tuple[str, ...], start: str = "coarse",
+              levels: int | None = None) -> None:
     c = dict(CHALLENGE, lambda_s=lambda_s)
 
     def run(sub, n, law, max_iter):
@@ -320,10 +328,15 @@ def challenge(out: Path, subs: dict, n: int, rms_slope: float, exp_iter: int, ad
         t_surface = time.perf_counter() - t0
         params = dict(gamma0=c["work"]) if law == "exponential" else dict(work=c["work"], memory=pairs)
         r = distributed.solve(h, comm=sub, interaction=law, rho=c["rho"], sigma0=c["sigma0"], e_star=c["e_star"],
-                              length=c["length"], tol=tol, max_iter=max_iter, host=False, **params)
+                              length=c["length"], tol=tol, max_iter=max_iter, host=False, start=start,
+                              levels=levels, **params)
         sync(sub)
         pool, used = peak(sub), device_used(sub)
-        return {"skipped": False, "surface_s": t_surface, **summary(r), "s_per_evaluation": r.wall_time / r.iterations,
+        lv = r.diagnostics.get("levels") or []
+        fine_s = r.wall_time - sum(x["wall_s"] for x in lv)  # the requested grid's part (coarse levels apart)
+        return {"skipped": False, "surface_s": t_surface, **summary(r), "s_per_evaluation": fine_s / r.iterations,
+                "start": start, "levels": lv, "coarse_cost": r.diagnostics.get("coarse_cost", 0.0),
+                "coarse_wall_s": sum(x["wall_s"] for x in lv),
                 "peak_bytes_per_gpu": pool, "device_used_bytes_per_gpu": used, "estimate_bytes_per_gpu": est,
                 "pool_peak_over_estimate": pool / est, "array_bytes_per_gpu": arr,
                 "lbfgs_memory": pairs if law == "adhesive" else None, "mean_gap_nm": 1e3 * r.mean_gap,
@@ -351,7 +364,11 @@ def main() -> None:
     ap.add_argument("--scaling-iter", type=int, default=30)
     ap.add_argument("--big", type=int, default=65536)
     ap.add_argument("--big-iter", type=int, default=500, help="force evaluations allowed, exponential at --big")
-    ap.add_argument("--adhesive-iter", type=int, default=200, help="force evaluations allowed, adhesion at --big")
+    ap.add_argument("--adhesive-iter", type=int, default=250, help="force evaluations allowed, adhesion at --big "
+                    "(each coarse level of --start coarse may take as many of its own grid)")
+    ap.add_argument("--start", default="coarse", choices=["coarse", "flat"],
+                    help="start of the challenge solves: coarse-to-fine (default) or the plain start")
+    ap.add_argument("--levels", type=int, default=None, help="coarse levels of --start coarse (default: automatic)")
     ap.add_argument("--big-tol", type=float, default=1e-6)
     ap.add_argument("--rms-slope", type=float, default=1.0)
     ap.add_argument("--lambda-s", type=float, default=CHALLENGE["lambda_s"], help="short cut-off (um)")
@@ -385,7 +402,7 @@ def main() -> None:
         if not args.skip_big:
             challenge(args.out, subs, args.big, args.rms_slope, args.big_iter, args.adhesive_iter, args.big_tol,
                       args.lambda_s, args.big_ranks if args.big_ranks in subs else max(subs), args.lbfgs_memory,
-                      tuple(args.big_laws))
+                      tuple(args.big_laws), args.start, args.levels)
     RESULTS["total_wall_s"] = time.perf_counter() - t0
     save(args.out)
     log(f"done in {RESULTS['total_wall_s']:.1f} s -> {args.out}")

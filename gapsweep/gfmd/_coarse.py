@@ -109,6 +109,7 @@ def remap(src: Any, f_src: SlabFFT, f_dst: SlabFFT) -> Any:
     kx_d = np.r_[0:mx, nxd - mx + 1:nxd]
     dst = xp.zeros(f_dst.spec_shape, dtype=xp.complex128)
     step = max(1, CHUNK // len(kx_s))
+    ix_s, ix_d = xp.asarray(kx_s), xp.asarray(kx_d)  # index arrays on the arrays' device
     for d in range(size):
         to, frm = (rank + d) % size, (rank - d) % size
         a0, a1 = _overlap(f_src.col, f_dst.cols[to], my)  # sent: my source columns that `to` holds
@@ -119,7 +120,7 @@ def remap(src: Any, f_src: SlabFFT, f_dst: SlabFFT) -> Any:
             s0, s1 = a0 + c * step, min(a1, a0 + (c + 1) * step)
             send = np.empty((max(s1 - s0, 0), len(kx_s)), dtype=np.complex128)
             if s1 > s0:
-                part = src[s0 - f_src.col.start:s1 - f_src.col.start][:, kx_s]
+                part = src[s0 - f_src.col.start:s1 - f_src.col.start][:, ix_s]
                 send[...] = part.get() if xp is not np else part
             r0, r1 = b0 + c * step, min(b1, b0 + (c + 1) * step)
             if d == 0:
@@ -129,7 +130,7 @@ def remap(src: Any, f_src: SlabFFT, f_dst: SlabFFT) -> Any:
                 comm.Sendrecv(send, dest=to, recvbuf=recv, source=frm)
             if r1 > r0:
                 rows = dst[r0 - f_dst.col.start:r1 - f_dst.col.start]  # a view: the assignment writes dst
-                rows[:, kx_d] = xp.asarray(recv)
+                rows[:, ix_d] = xp.asarray(recv)
     return dst
 
 
