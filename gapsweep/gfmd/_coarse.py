@@ -114,9 +114,12 @@ def remap(src: Any, f_src: SlabFFT, f_dst: SlabFFT) -> Any:
         to, frm = (rank + d) % size, (rank - d) % size
         a0, a1 = _overlap(f_src.col, f_dst.cols[to], my)  # sent: my source columns that `to` holds
         b0, b1 = _overlap(f_src.cols[frm], f_dst.col, my)  # received: `frm`'s source columns that I hold
-        n_send = max(0, math.ceil((a1 - a0) / step))
-        n_recv = max(0, math.ceil((b1 - b0) / step))
-        for c in range(max(n_send, n_recv)):
+        # every rank makes the same number of exchanges in this round (the most chunks any rank sends in it), so
+        # that the i-th Sendrecv of each rank meets the i-th of its partners
+        rounds = max(math.ceil(max(0, min(f_src.cols[q].stop, f_dst.cols[(q + d) % size].stop, my)
+                                   - max(f_src.cols[q].start, f_dst.cols[(q + d) % size].start)) / step)
+                     for q in range(size))
+        for c in range(rounds):
             s0, s1 = a0 + c * step, min(a1, a0 + (c + 1) * step)
             send = np.empty((max(s1 - s0, 0), len(kx_s)), dtype=np.complex128)
             if s1 > s0:

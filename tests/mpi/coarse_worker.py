@@ -1,4 +1,4 @@
-"""Worker of tests/mpi/test_coarse.py, run as ``mpiexec -n P python tests/mpi/coarse_worker.py OUT``: the
+"""Worker of tests/mpi/test_coarse_mpi.py, run as ``mpiexec -n P python tests/mpi/coarse_worker.py OUT``: the
 coarse-to-fine start (gapsweep.gfmd._coarse) split over the ranks against the plain single-process solve, and its
 layout exchange against analytic values; rank 0 writes JSON to OUT. Not a test module (no ``test_`` prefix)."""
 
@@ -28,11 +28,13 @@ def field(mx: int, my: int) -> np.ndarray:
 
 def layouts() -> None:
     """A band-limited field prolonged from (24, 40) to 2x and 4x finer grids and restricted back: its exact
-    samples (rank counts whose column blocks differ in size and do not align between the grids)."""
+    samples (rank counts whose column blocks differ in size and do not align between the grids; once with
+    host buffers of 50 coefficients, so that rank pairs exchange different numbers of chunks)."""
     nx, ny = 24, 40
     fc = SlabFFT((nx, ny), comm)
     Z = fc.rfft2(field(nx, ny)[fc.row]) / (nx * ny)
-    for f in (2, 4):
+    for f, chunk in ((2, _coarse.CHUNK), (4, _coarse.CHUNK), (4, 50)):  # 50: many chunks per rank pair
+        _coarse.CHUNK = chunk
         ff = SlabFFT((f * nx, f * ny), comm)
         fine = ff.irfft2(_coarse.remap(Z, fc, ff))
         err = float(np.abs(fine - field(f * nx, f * ny)[ff.row]).max())
@@ -40,6 +42,7 @@ def layouts() -> None:
         back = _coarse.restrict(field(f * nx, f * ny)[ff.row], ff, fc)
         err = float(np.abs(back - field(nx, ny)[fc.row]).max())
         out["restrict"].append({"factor": f, "error": max(comm.allgather(err))})
+    _coarse.CHUNK = 1 << 24
 
 
 def solves() -> None:
@@ -55,7 +58,7 @@ def solves() -> None:
             warnings.simplefilter("ignore")
             r1 = gfmd.solve(hh, backend="numpy", **kw)
             rows = gfmd.slab_rows(hh.shape[0], comm)
-            r = distributed.solve(np.ascontiguousarray(hh[rows]), comm=comm, start="coarse", **kw)
+            r = distributed.solve(np.ascontiguousarray(hh[rows]), comm=comm, start="coarse", levels=2, **kw)
         gap_err = float(np.abs(r.gap - r1.gap[rows]).max() / np.abs(r1.gap).max())
         out["solve"].append({
             "case": name, "shape": list(hh.shape), "status": [r1.status, r.status],
