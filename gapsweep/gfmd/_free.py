@@ -51,15 +51,54 @@ METHODS = ("lbfgs",)
 log = logging.getLogger("gapsweep.gfmd")
 
 
+class _HostOps:
+    """The passes of the free-boundary L-BFGS as numpy array expressions (the CPU; the GPU's fused variant is
+    ``gfmd._cuda._FreeCupyOps`` with the same methods)."""
+
+    def __init__(self, pad: Grid) -> None:
+        self.pad = pad
+
+    def dot(self, a: Any, b: Any) -> float:
+        return self.pad.dot(a, b)
+
+    def kdot(self, a: Any, k: Any, b: Any) -> float:
+        """``<A k B>``, ``k`` real."""
+        return self.pad.dot(a, k * b)
+
+    def axpy(self, y: Any, a: float, x: Any) -> None:
+        _axpy_into(a, x, y)
+
+    def grad(self, k: Any, U: Any, c: float, F: Any) -> Any:
+        return k * U - c * F
+
+    def trial(self, g: Any, a: float, d: Any) -> Any:
+        return g + a * d
+
+    def mean(self, a: Any) -> float:
+        return float(np.mean(a))
+
+    def mean_product(self, p: Any, d: Any) -> float:
+        return float(np.mean(p * d))
+
+
+def _make_ops(pad: Grid) -> Any:
+    if pad.xp is np:
+        return _HostOps(pad)
+    from gapsweep.gfmd._cuda import _FreeCupyOps
+
+    return _FreeCupyOps(pad.xp, (pad.shape[0], pad.shape[1] // 2 + 1), pad.shape[1] % 2 == 0)
+
+
 class _FreeState:
     """Point ``(u~, delta)`` with the map's gap, pressure, energy and gradient ``(G_u, G_delta)``; the interface
     that :func:`gapsweep.gfmd._smooth._wolfe` uses (``line``, ``phi``, ``e_law``, ``energy``)."""
 
     def __init__(self, free: FreeGrid, pad: Grid, law: SmoothInteraction, h: Any, k: Any, sigma0: float,
-                 U: Any, delta: float) -> None:
+                 U: Any, delta: float, ops: Any = None) -> None:
         self.free, self.pad, self.law, self.h, self.k, self.sigma0 = free, pad, law, h, k, sigma0
         self.ratio = pad.size / free.size  # N_pad / N_map
         self.xp = pad.xp
+        self.ops = ops if ops is not None else _make_ops(pad)
         self.U, self.delta = U, float(delta)
         self.g = self.map_field(U) + self.delta - h
         self.nfev = 0
@@ -67,44 +106,44 @@ class _FreeState:
 
     def map_field(self, A: Any) -> Any:
         """The map block of the real field of the normalised doubled-grid coefficients ``A`` (only the map's
-        rows are transformed back: FreeGrid.pad_inv)."""
-        return self.free.pad_inv(A * float(self.pad.size))
+        rows are transformed back: FreeGrid.pad_inv); on the GPU a view of a transform buffer (use it at once)."""
+        return self.free.pad_sum(A)
 
     def _evaluate(self) -> None:
-        xp = self.xp
+        xp, ops = self.xp, self.ops
         self.p = self.law.pressure(self.g, xp)
-        self.e_law = float(xp.mean(self.law.energy(self.g, xp)))
+        self.e_law = ops.mean(self.law.energy(self.g, xp))
         # FFT of p zero-padded to the doubled grid, normalised (FreeGrid.pad_fwd never forms the padding)
-        self.Gu = self.k * self.U - (self.ratio / self.pad.size) * self.free.pad_fwd(self.p)
-        self.Gd = self.sigma0 - float(self.p.mean())
+        self.Gu = ops.grad(self.k, self.U, self.ratio / self.pad.size, self.free.pad_fwd(self.p))
+        self.Gd = self.sigma0 - ops.mean(self.p)
         self.nfev += 1
 
     def dot(self, a: tuple[Any, float], b: tuple[Any, float]) -> float:
-        return self.pad.dot(a[0], b[0]) + a[1] * b[1]
+        return self.ops.dot(a[0], b[0]) + a[1] * b[1]
 
     def energy(self) -> float:
-        return 0.5 * self.pad.dot(self.U, self.k * self.U) + self.e_law + self.sigma0 * self.delta
+        return 0.5 * self.ops.kdot(self.U, self.k, self.U) + self.e_law + self.sigma0 * self.delta
 
     def line(self, D: tuple[Any, float]) -> tuple[Any, float, float, float]:
         """Real-space direction of the map's gap and the scalars of ``phi(alpha) = F(x + alpha D)``."""
         DU, dd = D
         d = self.map_field(DU) + dd
-        a = self.pad.dot(DU, self.k * self.U)
-        b = self.pad.dot(DU, self.k * DU)
+        a = self.ops.kdot(DU, self.k, self.U)
+        b = self.ops.kdot(DU, self.k, DU)
         return d, a, b, dd
 
     def phi(self, alpha: float, d: Any, a: float, b: float, d0: float, e0: float) -> tuple[float, float]:
         """``(phi(alpha) - phi(0) + e_law(0), phi'(alpha))`` without FFT (``d0``: the step of ``delta``)."""
-        xp = self.xp
-        g = self.g + alpha * d
-        f = alpha * a + 0.5 * alpha * alpha * b + float(xp.mean(self.law.energy(g, xp))) + self.sigma0 * alpha * d0
-        df = a + alpha * b - float(xp.mean(self.law.pressure(g, xp) * d)) + self.sigma0 * d0
+        xp, ops = self.xp, self.ops
+        g = ops.trial(self.g, alpha, d)
+        f = alpha * a + 0.5 * alpha * alpha * b + ops.mean(self.law.energy(g, xp)) + self.sigma0 * alpha * d0
+        df = a + alpha * b - ops.mean_product(self.law.pressure(g, xp), d) + self.sigma0 * d0
         return f, df
 
     def move(self, alpha: float, D: tuple[Any, float], d: Any) -> None:
         self.U = self.U + alpha * D[0]
         self.delta += alpha * D[1]
-        self.g = self.g + alpha * d
+        self.g = self.ops.trial(self.g, alpha, d)
         self._evaluate()
 
 
@@ -169,12 +208,14 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
     r_hist: list[float] = []
     status = "max_iter"
 
+    ops = st.ops
+
     def precondition(G: tuple[Any, float]) -> tuple[Any, float]:
         return minv_u * G[0], minv_d * G[1]
 
     def axpy(a: float, x: tuple[Any, float], y: tuple[Any, float]) -> tuple[Any, float]:
         """``y + a x``, in place on ``y`` (a direction being built by the two-loop recursion, owned here)."""
-        _axpy_into(a, x[0], y[0])
+        ops.axpy(y[0], a, x[0])
         return y[0], y[1] + a * x[1]
 
     with np.errstate(all="ignore"):
@@ -182,7 +223,7 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
             deadline.check()  # a task time limit ends the solve between iterations
             grad = (st.Gu, st.Gd)
             # G_u = ratio FFT[f - p 1_map]/N_pad: sqrt(dot/ratio) is the imbalance's rms normalised to the map
-            res = max(math.sqrt(max(pad.dot(st.Gu, st.Gu), 0.0) / ratio), abs(st.Gd)) / p_ref
+            res = max(math.sqrt(max(ops.dot(st.Gu, st.Gu), 0.0) / ratio), abs(st.Gd)) / p_ref
             history.append(res)
             if not math.isfinite(res):
                 status = "non_finite"
@@ -205,7 +246,8 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
             q0 *= minv_u
             q = (q0, minv_d * q[1])
             if y_hist:
-                yhy = st.dot(y_hist[-1], precondition(y_hist[-1]))
+                y_last = y_hist[-1]  # <y M^-1 y> in one pass (no preconditioned copy)
+                yhy = ops.kdot(y_last[0], minv_u, y_last[0]) + y_last[1] * (minv_d * y_last[1])
                 if yhy > 0:
                     sc = 1.0 / (r_hist[-1] * yhy)
                     q0 *= sc
