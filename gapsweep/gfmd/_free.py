@@ -48,6 +48,11 @@ except ImportError:  # pragma: no cover - scipy is a dependency
         return y
 
 METHODS = ("lbfgs",)
+# Stored (s, y) pairs of the L-BFGS. On the GPU the two-loop recursion over the doubled grid's spectra is most of
+# an evaluation's memory traffic (about 40 grid arrays of the map's size per pair and iteration; a periodic
+# evaluation moves about 36): benchmarks/bench_gpu_floor.py times other values side by side.
+_CPU_MEMORY = 12
+_GPU_MEMORY = 12
 log = logging.getLogger("gapsweep.gfmd")
 
 
@@ -159,13 +164,14 @@ def _axpy_into(a: float, x: Any, y: Any) -> None:
 
 def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: float, length: Any, tol: float,
              method: str, backend: str, max_iter: int, initial: Any, threads: int | None, host: Any,
-             t_start: float, periodic: bool = False, memory: int = 12) -> GFMDResult:
+             t_start: float, periodic: bool = False, memory: int | None = None) -> GFMDResult:
     """Smooth ``law`` on the finite map ``heights`` with free boundaries (module docstring; inputs validated by
     ``gfmd.solve``). ``initial``: None (the body flat, touching the highest summit) or a GFMDResult of a free
     solve of the same map (its pressure is turned into the displacement on the doubled grid)."""
     if periodic:
         raise ValueError("gfmd._free solves finite maps only (periodic=False)")
     on_gpu = _is_cupy(heights)
+    memory = (_GPU_MEMORY if on_gpu else _CPU_MEMORY) if memory is None else int(memory)
     free = FreeGrid(heights.shape, length, backend, threads, on_gpu)
     nx, ny = free.shape
     pad = Grid((2 * nx, 2 * ny), (2 * free.lx, 2 * free.ly), free.backend, threads, on_gpu)
