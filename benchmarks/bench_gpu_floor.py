@@ -43,10 +43,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from gapsweep import gfmd  # noqa: E402
-from gapsweep.core.fft import get_backend  # noqa: E402
-from gapsweep.gfmd import _free  # noqa: E402
-from gapsweep.surfaces import self_affine  # noqa: E402
+from gapsweep import gfmd
+from gapsweep.core.fft import get_backend
+from gapsweep.gfmd import _free
+from gapsweep.surfaces import self_affine
 
 GAMMA0, RHO = 1e-3, 2e-3
 warnings.simplefilter("ignore", gfmd.UnderResolvedWarning)

@@ -33,16 +33,23 @@ _NSLOTS = 20
 _CUFFT_WORK = 1.0
 # Grid-sized arrays of one solve besides cuFFT's work areas and the caller's surface, per (interaction, method),
 # on the GPU: "real" n x n float64, "half" n x (n/2+1) complex128 spectra, "halfreal" n x (n/2+1) float64. The
-# exponential law's are counted from gfmd/_softmax.py::_solve_lean; the L-BFGS and FIRE counts of half spectra and
-# the hard wall's total were read off the pool's high-water mark at n = 4096 and checked at n = 16384 (L-BFGS,
-# hard wall) and 2048 (all): docs/benchmarks_gfmd.md, "GPU at the limit".
+# exponential law's are counted from gfmd/_softmax.py::_solve_lean; the L-BFGS and FIRE counts of half spectra
+# were read off the pool's high-water mark at n = 4096 and checked at n = 16384 and 2048: docs/benchmarks_gfmd.md,
+# "GPU at the limit". The hard wall's (issue 30) are counted from gfmd/_constrained.py (its peak is in the
+# iteration, _direct_loop): the centred heights h; p, t, g, gs, r, z, u; |q|, K^-1 and M = E* q/2 (half a grid
+# each); the cuFFT backend's one C2R input buffer (gapsweep.core.fft._CupyBackend.convolve transforms into it,
+# multiplies in place and writes C2R straight into the caller's array): 10.5, plus 1 of margin for the pool's
+# fragmentation. The result's residual, contact set and elastic energy (<p u>/2) need real fields only, fewer
+# than the iteration frees. tests/test_gfmd_memory.py traces the same code on numpy against this count. The plan
+# before (K^-1 twice, the Parseval weights, rfft2's and irfft2's output buffers, a temporary spectrum per
+# convolution, spectra in the result) measured 18.13 at n = 4096 and 16384.
 _ARRAYS = {
     # W, Wt, e, et, cuFFT's real output; X, G, D, cuFFT's complex input copy and output; k, M, M^-1, cached |q|
     ("exponential", "cg"): {"real": 5, "half": 5, "halfreal": 4},
     ("exponential", "lbfgs"): {"real": 5, "half": 20, "halfreal": 4},  # + G_old, 5 (s, y) pairs, temporaries
     ("exponential", "fire"): {"real": 5, "half": 9, "halfreal": 4},  # + G_old, V, F, F/M, temporaries
-    # heights centred, K^-1, M, p, u, t, g, gs, z, r, convolution temporaries (method "pcg", the GPU default)
-    ("hard_wall", "pcg"): {"real": 18.13},
+    # heights centred, p, u, t, g, gs, z, r; |q|, K^-1, M; the C2R input buffer; 1 of margin (method "pcg")
+    ("hard_wall", "pcg"): {"real": 8, "halfreal": 3, "half": 1, "margin": 1.0},
 }
 _DEFAULT_METHOD = {"exponential": "cg", "hard_wall": "pcg"}
 
@@ -71,6 +78,7 @@ def solve_memory(n: int, *, interaction: str = "exponential", method: str = "aut
     a = _ARRAYS[(interaction, method)]
     parts = {"solver real fields": int(a.get("real", 0) * real), "solver half spectra": a.get("half", 0) * half,
              "stiffness and preconditioner": a.get("halfreal", 0) * half // 2,
+             "margin (memory pool fragmentation)": int(a.get("margin", 0) * real),
              "cuFFT work areas (R2C + C2R plans)": int(2 * _CUFFT_WORK * half),
              "heights": real if heights_on_gpu else 0}
     total = sum(parts.values())

@@ -50,13 +50,20 @@ class Grid:
         kx = xp.fft.fftfreq(nx, d=1.0 / nx) * (2 * math.pi / self.lx)
         ky = xp.fft.rfftfreq(ny, d=1.0 / ny) * (2 * math.pi / self.ly)
         self.q = xp.sqrt(kx[:, None] ** 2 + ky[None, :] ** 2)
-        nyh = ny // 2 + 1
-        w = xp.full((nx, nyh), 2.0)
+        self._edge_weights = True  # w is 2 but for the columns ky = 0 and Nyquist (Grid.dot's BLAS path relies on it)
+
+    def __getattr__(self, name: str) -> Any:
+        # ``_w``, the Parseval weights of the half spectrum, made on first use (a hard-wall solve on the GPU
+        # needs them only for its result: half a grid array less at its peak, gfmd._cuda.solve_memory)
+        if name != "_w" or "shape" not in self.__dict__:
+            raise AttributeError(name)
+        nx, ny = self.shape
+        w = self.xp.full((nx, ny // 2 + 1), 2.0)
         w[:, 0] = 1.0
         if ny % 2 == 0:
             w[:, -1] = 1.0
-        self._w = w  # Parseval weights of the half spectrum
-        self._edge_weights = True  # w is 2 but for the columns ky = 0 and Nyquist (Grid.dot's BLAS path relies on it)
+        self._w = w
+        return w
 
     def asarray(self, a: Any) -> Any:
         return self.xp.asarray(a, dtype=self.xp.float64)
