@@ -9,16 +9,17 @@ summary table. Parts (``--parts``, default all):
 * ``hardwall``: the hard wall at N = 4096 (same surface, tol 1e-8, default GPU method "pcg"), sigma0 = 1e-3,
   1e-2, 1e-1: wall time, iterations, FFT pairs, ms per iteration and pairs per iteration.
 * ``free``: free boundaries (``periodic=False``) against a periodic solve of the same map, N = 4096:
-  exponential (L-BFGS on the doubled grid; also with fewer stored pairs, ``--free-memory``) and hard wall
-  (sigma0 = 1e-2): time ratio per solve and per evaluation (issue 30's goal <= 4).
-* ``big``: the hard wall at 32768^2 on one GPU (sigma0 = 1e-2, tol 1e-6, at most 600 iterations, the surface
-  generated on the GPU): ``solve_memory``'s estimate, cupy's pool peak (excluding and including the surface),
-  the device, time, iterations and status; not run (the numbers reported) when the estimate exceeds the free
-  memory.
+  exponential (L-BFGS on the doubled grid; also with fewer stored pairs, ``--free-memory``, and the opt-in
+  nonlinear CG, method "cg") and hard wall (sigma0 = 1e-2): time ratio per solve and per evaluation (issue
+  30's goal <= 4).
+* ``big``: the hard wall at 4096^2 (a check of the memory plan) and 32768^2 on one GPU (sigma0 = 1e-2, tol 1e-6,
+  at most 600 iterations, the surface generated on the GPU): ``solve_memory``'s estimate, cupy's pool peak
+  (excluding and including the surface), the device, time, iterations and status; not run (the numbers
+  reported) when the estimate exceeds the free memory (``--force``: run anyway).
 
 ``--quick`` (< 1 min on an H200): N = 1024, 2048 for the pairs, 2048 for the hard wall and the free maps, the
-big grid estimated only. ``--backend numpy`` runs the same logic on the CPU at toy sizes (a check of the script,
-not a measurement). Run with the tree first on the path:
+32768 grid estimated only (4096 measured). ``--backend numpy`` runs the same logic on the CPU at toy sizes (a
+check of the script, not a measurement). Run with the tree first on the path:
 
     PYTHONPATH=. python benchmarks/bench_gpu_floor.py --out benchmarks/results/gpu_floor/h200     (~4-5 min)
     PYTHONPATH=. python benchmarks/bench_gpu_floor.py --out /tmp/gpu_floor --quick                 (< 1 min)
@@ -165,45 +166,79 @@ def part_free(dev: Device, a, rows: list) -> None:
                 dev, h, "exponential", sigma0=1e-2, gamma0=GAMMA0, rho=RHO, tol=1e-6, max_iter=5000)))
     finally:
         _free._GPU_MEMORY, _free._CPU_MEMORY = saved
+    if a.free_cg:  # the free map's nonlinear CG (method "cg"): one direction instead of the L-BFGS pairs
+        per = dev.solve(h, periodic=True, sigma0=1e-2, gamma0=GAMMA0, rho=RHO, tol=1e-6, max_iter=5000)
+        free = dev.solve(h, periodic=False, method="cg", sigma0=1e-2, gamma0=GAMMA0, rho=RHO, tol=1e-6,
+                         max_iter=5000)
+        e_p, e_f = max(per.iterations, 1), max(free.iterations, 1)
+        rows.append(_row("free", n=n, law="exponential (free method cg)", periodic_s=per.wall_time,
+                         periodic_evals=per.iterations, free_s=free.wall_time, free_evals=free.iterations,
+                         ratio_per_solve=free.wall_time / per.wall_time,
+                         ratio_per_eval=(free.wall_time / e_f) / (per.wall_time / e_p),
+                         status=f"{per.status}/{free.status}"))
     rows.append(_row("free", n=n, **_free_vs_periodic(dev, h, "hard_wall", sigma0=1e-2, interaction="hard_wall",
                                                       tol=1e-8, max_iter=5000)))
+
+
+def _release(dev: Device) -> None:
+    """Drop cached FFT plans and buffers of earlier parts and empty the pool (bench_gfmd_limit._pool_peak)."""
+    from gapsweep.core import fft
+
+    fft._PLANS.clear()
+    gfmd._solvers._half_q_cached.cache_clear()
+    if dev.xp is not np:
+        dev.xp.fft.config.get_plan_cache().clear()
+        dev.pool.free_all_blocks()
+
+
+def _hard_wall_memory(dev: Device, n: int, row: dict, max_iter: int) -> None:
+    """Surface on the device, then one hard-wall solve (sigma0 = 1e-2, tol 1e-6, fields left there): time,
+    status and the pool's high-water mark against ``solve_memory`` (into ``row``)."""
+    from gapsweep.gfmd._cuda import solve_memory
+
+    _release(dev)
+    t = time.perf_counter()
+    h = dev.surface(n)
+    dev.sync()
+    row["surface_s"] = time.perf_counter() - t
+    if dev.pool is not None:
+        dev.pool.free_all_blocks()  # the surface's temporaries
+    base = dev.pool.total_bytes() if dev.pool is not None else 0  # the surface itself
+    r = gfmd.solve(h, sigma0=1e-2, interaction="hard_wall", tol=1e-6, max_iter=max_iter, backend=dev.backend,
+                   host=False)
+    dev.sync()
+    peak = (dev.pool.total_bytes() - base) if dev.pool is not None else math.nan
+    est = solve_memory(n, interaction="hard_wall")["bytes"]
+    row.update({"status": r.status, "iterations": r.iterations, "solve_s": r.wall_time, "residual": r.residual,
+                "contact_area": r.contact_area, "pool_peak_GB_excl_heights": peak / 1e9,
+                "pool_peak_GB_incl_heights": (peak + base) / 1e9, "arrays_measured": (peak + base) / (8 * n * n),
+                "estimate/measured": est / (peak + base) if peak == peak else math.nan})
+    del r, h
+    _release(dev)
 
 
 def part_big(dev: Device, a, rows: list) -> None:
     from gapsweep.gfmd._cuda import solve_memory
 
-    n = a.n_big
-    est = solve_memory(n, interaction="hard_wall")
-    free, total = dev.free_bytes()
-    row = {"n": n, "device": dev.name, "estimate_GB": est["bytes"] / 1e9, "estimate_arrays": est["arrays"],
-           "gpu_free_GB": free / 1e9, "gpu_total_GB": total / 1e9}
-    if a.quick:
-        rows.append(_row("big", status="not run (--quick)", **row))
-        return
-    if dev.xp is not np and est["bytes"] > free:
-        rows.append(_row("big", status=f"not run: the estimate {est['bytes'] / 1e9:.1f} GB exceeds the free "
-                                       f"{free / 1e9:.1f} GB", **row))
-        return
-    try:
-        t = time.perf_counter()
-        h = dev.surface(n)
-        dev.sync()
-        row["surface_s"] = time.perf_counter() - t
-        base = dev.pool.total_bytes() if dev.pool is not None else 0
-        r = gfmd.solve(h, sigma0=1e-2, interaction="hard_wall", tol=1e-6, max_iter=600, backend=dev.backend,
-                       host=False)
-        dev.sync()
-        peak = (dev.pool.total_bytes() - base) if dev.pool is not None else math.nan
-        row.update({"status": r.status, "iterations": r.iterations, "solve_s": r.wall_time, "residual": r.residual,
-                    "contact_area": r.contact_area, "pool_peak_GB_excl_heights": peak / 1e9,
-                    "pool_peak_GB_incl_heights": (peak + base) / 1e9, "arrays_measured": (peak + base) / (8 * n * n),
-                    "estimate/measured": est["bytes"] / (peak + base) if peak == peak else math.nan})
-        del r, h
-    except Exception as exc:  # out of memory and the like: reported, not hidden
-        row["status"] = f"failed: {type(exc).__name__}: {str(exc)[:200]}"
-    if dev.pool is not None:
-        dev.pool.free_all_blocks()
-    rows.append(_row("big", **row))
+    for n in (a.n_memcheck, a.n_big):
+        est = solve_memory(n, interaction="hard_wall")
+        _release(dev)
+        free, total = dev.free_bytes()
+        row = {"n": n, "device": dev.name, "estimate_GB": est["bytes"] / 1e9, "estimate_arrays": est["arrays"],
+               "gpu_free_GB": free / 1e9, "gpu_total_GB": total / 1e9}
+        if n == a.n_big and a.quick:
+            rows.append(_row("big", status="not run (--quick)", **row))
+            continue
+        if dev.xp is not np and est["bytes"] > free and not a.force:
+            rows.append(_row("big", status=f"not run: the estimate {est['bytes'] / 1e9:.1f} GB exceeds the free "
+                                           f"{free / 1e9:.1f} GB (--force runs it)", **row))
+            continue
+        try:
+            _hard_wall_memory(dev, n, row, 600)
+        except Exception as exc:  # out of memory and the like: reported, not hidden
+            row["status"] = f"failed: {type(exc).__name__}: {str(exc)[:200]}"
+            _release(dev)
+        rows.append(_row("big", **row))
 
 
 def summary(rows: list) -> str:
@@ -225,7 +260,7 @@ def summary(rows: list) -> str:
                 f"({r['free_s']:.3g} s / {r['periodic_s']:.3g} s; {r['free_evals']} / {r['periodic_evals']} evals; "
                 f"{r['status']})")
         else:
-            case = f"hard wall N={r['n']} on one GPU"
+            case = f"hard wall N={r['n']} memory on one GPU"
             nums = (f"estimate {r['estimate_GB']:.1f} GB ({r['estimate_arrays']:.2f} arrays), free "
                     f"{r['gpu_free_GB']:.1f} GB; {r['status']}")
             if "solve_s" in r:
@@ -244,15 +279,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--backend", choices=["cupy", "numpy"], default="cupy")
     p.add_argument("--quick", action="store_true", help="small sizes, < 1 min on an H200; the big grid estimated only")
     p.add_argument("--parts", nargs="+", choices=list(PARTS), default=list(PARTS))
+    p.add_argument("--no-free-cg", dest="free_cg", action="store_false",
+                   help="free: skip the exponential law's free solve with method cg")
+    p.add_argument("--force", action="store_true", help="big: run even where the estimate exceeds the free memory")
     p.add_argument("--free-memory", type=int, nargs="+", default=None,
                    help="stored L-BFGS pairs of the free smooth minimiser to time (default: 12 4)")
     a = p.parse_args(argv)
     if a.backend == "numpy":  # toy sizes: a check of the script's logic, not a measurement
-        a.n_pairs, a.n_hardwall, a.n_free, a.n_big = [128, 256], 128, 128, 256
+        a.n_pairs, a.n_hardwall, a.n_free, a.n_memcheck, a.n_big = [128, 256], 128, 128, 128, 256
     elif a.quick:
-        a.n_pairs, a.n_hardwall, a.n_free, a.n_big = [1024, 2048], 2048, 2048, 32768
+        a.n_pairs, a.n_hardwall, a.n_free, a.n_memcheck, a.n_big = [1024, 2048], 2048, 2048, 4096, 32768
     else:
-        a.n_pairs, a.n_hardwall, a.n_free, a.n_big = [2048, 4096, 8192], 4096, 4096, 32768
+        a.n_pairs, a.n_hardwall, a.n_free, a.n_memcheck, a.n_big = [2048, 4096, 8192], 4096, 4096, 4096, 32768
     if a.free_memory is None:
         a.free_memory = [12] if a.quick else [12, 4]
     dev = Device(a.backend)
