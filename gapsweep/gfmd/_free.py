@@ -19,8 +19,8 @@ from ``law.curvature``, averaged over the doubled grid) and ``1/c`` for ``delta`
 of :mod:`gapsweep.gfmd._smooth` moving in real space (per iteration one forward transform of the map's pressure
 and one inverse to the map's rows, FreeGrid.pad_fwd/pad_inv). Method "cg" (opt-in): preconditioned nonlinear
 conjugate gradients with the same preconditioner and line search (``_cg``), one direction instead of the L-BFGS
-pairs (less memory traffic per evaluation on the GPU, about 3-5x the evaluations on the CPU test maps). The same
-array code runs on numpy and cupy.
+pairs (less memory traffic per evaluation on the GPU, more evaluations). The same array code runs on numpy and
+cupy.
 
 Convergence on the returned fields: ``residual = rms_map-normalised(f - p 1_map) / P`` (the force imbalance on
 the whole doubled grid, summed and divided by the map's pixel count: outside the map it is the load that would
