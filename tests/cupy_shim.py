@@ -30,7 +30,7 @@ def _params(name: str) -> int:
     return len([p for p in m.group(1).split(",") if p.strip()])
 
 
-class ndarray(np.ndarray):  # noqa: N801 - cupy's name
+class ndarray(np.ndarray):
     def get(self, stream: Any = None, out: Any = None, blocking: bool = True) -> np.ndarray:
         COUNTS["sync"] += 1
         a = np.array(self.view(np.ndarray))
@@ -103,7 +103,7 @@ _ELEMENTWISE = {
 }
 
 
-def ElementwiseKernel(in_params: str, out_params: str, operation: str, name: str) -> Any:  # noqa: N802
+def ElementwiseKernel(in_params: str, out_params: str, operation: str, name: str) -> Any:
     n_in, n_out = len(in_params.split(",")), len(out_params.split(","))
     f = _ELEMENTWISE[name]
 

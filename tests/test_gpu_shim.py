@@ -12,7 +12,6 @@ import pytest
 from gapsweep.core import fft
 from gapsweep.gfmd import _cuda, solve
 from gapsweep.surfaces import self_affine
-
 from tests import cupy_shim
 
 
