@@ -197,7 +197,7 @@ class SlabFFT:
         for ch in self._chunks(self.nr, ny):  # rfft along y of a chunk of rows, its columns into the blocks
             b = xp.fft.rfft(a[ch], axis=1)
             for s, cs in enumerate(self.cols):  # block for rank s: its columns, transposed (nc_s, nr)
-                (own if s == self.rank else blocks[s])[:, ch] = b[:, cs].T
+                _transpose_into(xp, (own if s == self.rank else blocks[s])[:, ch], b[:, cs])
             del b
         del blocks
         recv = xp.empty(self.nc * nx - self._f_recv[self.rank], dtype=xp.complex128)
@@ -232,7 +232,7 @@ class SlabFFT:
             c = xp.fft.ifft(A[ch], axis=1, norm=norm)
             for s, rs in enumerate(self.rows):  # block for rank s: its rows (nc, nr_s)
                 if s == self.rank:
-                    own[:, ch] = c[:, rs].T
+                    _transpose_into(xp, own[:, ch], c[:, rs])
                 else:
                     blocks[s][ch] = c[:, rs]
             del c
@@ -242,7 +242,7 @@ class SlabFFT:
         del send
         for s, blk in enumerate(self._blocks(recv, self._f_send, self._ncs, self.nr)):
             if blk is not None:
-                b[:, self.cols[s]] = blk.T
+                _transpose_into(xp, b[:, self.cols[s]], blk)
         del recv
         out = xp.empty(self.real_shape, dtype=xp.float64) if out is None else _checked(out, self.real_shape, xp)
         for ch in self._chunks(self.nr, self.nyh):  # irfft along y of a chunk of rows
@@ -290,6 +290,46 @@ class SlabFFT:
     def owns_zero(self) -> bool:
         """Whether this rank holds the ``q = 0`` mode (index ``[0, 0]`` of its spectrum)."""
         return self.col.start == 0
+
+
+TILED_TRANSPOSE = True  # cupy: the transposing copies through the tiled kernel below (False: cupy's strided copy)
+_TRANSPOSE_SRC = r"""
+extern "C" __global__ void transpose_z(const double2* __restrict__ src, long long lds, double2* __restrict__ dst,
+                                       long long ldd, int rows, int cols) {
+    // dst[j, i] = src[i, j] for i < rows, j < cols (leading dimensions lds, ldd in elements); a 32 x 32 tile
+    // through shared memory, so that both the reads and the writes are coalesced
+    __shared__ double2 tile[32][33];
+    const int bx = blockIdx.x * 32, by = blockIdx.y * 32, tx = threadIdx.x, ty = threadIdx.y;
+    for (int k = ty; k < 32; k += 8) {
+        const int i = by + k, j = bx + tx;
+        if (i < rows && j < cols) tile[k][tx] = src[(long long)i * lds + j];
+    }
+    __syncthreads();
+    for (int k = ty; k < 32; k += 8) {
+        const int j = bx + k, i = by + tx;
+        if (i < rows && j < cols) dst[(long long)j * ldd + i] = tile[tx][k];
+    }
+}
+"""
+_TRANSPOSE_KERNEL: list[Any] = []
+
+
+def _transpose_into(xp: Any, dst: Any, src: Any) -> None:
+    """``dst[...] = src.T`` for 2-D complex128 views whose rows are contiguous (slices of C-contiguous arrays).
+    On cupy a tiled transpose kernel (a strided elementwise copy reads or writes uncoalesced); on numpy the plain
+    assignment."""
+    rows, cols = src.shape
+    if tuple(dst.shape) != (cols, rows):
+        raise ValueError(f"transpose of {src.shape} into {dst.shape}")
+    if xp is np or not TILED_TRANSPOSE or rows == 0 or cols == 0 or src.dtype != xp.complex128 \
+            or dst.dtype != xp.complex128 or src.strides[1] != 16 or dst.strides[1] != 16:
+        dst[...] = src.T
+        return
+    if not _TRANSPOSE_KERNEL:
+        _TRANSPOSE_KERNEL.append(xp.RawKernel(_TRANSPOSE_SRC, "transpose_z"))
+    grid = ((cols + 31) // 32, (rows + 31) // 32)
+    _TRANSPOSE_KERNEL[0](grid, (32, 8), (src, np.int64(src.strides[0] // 16), dst, np.int64(dst.strides[0] // 16),
+                                          np.int32(rows), np.int32(cols)))
 
 
 def _fft_inplace(xp: Any, x: Any) -> None:
