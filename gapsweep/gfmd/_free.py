@@ -184,9 +184,10 @@ def _cg(st: _FreeState, minv_u: Any, minv_d: float, ratio: float, p_ref: float, 
         rng: float | None, history: list[float]) -> str:
     """Method "cg": preconditioned nonlinear conjugate gradients (Polak-Ribiere+, restarted when a direction is
     not a descent direction or the line search fails) with the L-BFGS method's preconditioner and strong-Wolfe
-    line search (``c2 = 0.1``); the first trial step ``alpha_prev slope_prev / slope`` (Nocedal & Wright,
-    Numerical Optimization, Eq. 3.60). One direction and the previous gradient instead of the L-BFGS pairs:
-    about a fifth of the L-BFGS method's memory traffic per evaluation on the doubled grid, for the GPU."""
+    line search (``c2 = 0.4``: on a 128 x 128 map 2.4 trials per evaluation and 134 evaluations, where 0.1 took 23
+    and 216); the first trial step ``alpha_prev slope_prev / slope`` (Nocedal & Wright, Numerical Optimization,
+    Eq. 3.60). One direction and the previous gradient instead of the L-BFGS pairs: less memory traffic per
+    evaluation on the doubled grid (the GPU's cost), more evaluations."""
     ops = st.ops
     D: Any = None
     zg_old = alpha = slope_old = 0.0
@@ -216,7 +217,7 @@ def _cg(st: _FreeState, minv_u: Any, minv_d: float, ratio: float, p_ref: float, 
         if not slope < 0:
             return "stalled" if math.isfinite(slope) else "non_finite"
         a0 = alpha * slope_old / slope if alpha > 0 else 1.0
-        step = _wolfe(st, D, slope, a0 if math.isfinite(a0) and a0 > 0 else 1.0, c2=0.1)
+        step = _wolfe(st, D, slope, a0 if math.isfinite(a0) and a0 > 0 else 1.0, c2=0.4)
         if step is None:
             if beta == 0.0:
                 return "stalled"
