@@ -143,11 +143,33 @@ def part_hardwall(dev: Device, a, rows: list) -> None:
                          status=r.status))
 
 
+def _free_syncs(dev: Device, h: Any, **kw) -> float:
+    """Host synchronisations per evaluation of the free minimiser's fused passes (``_FreeCupyOps._run``, one each),
+    counted in an untimed solve at tol 1e-3 (NaN on numpy)."""
+    if dev.xp is np:
+        return math.nan
+    from gapsweep.gfmd import _cuda
+
+    cls, orig, calls = _cuda._FreeCupyOps, _cuda._FreeCupyOps._run, [0]
+
+    def run(ops, *args):
+        calls[0] += 1
+        return orig(ops, *args)
+
+    cls._run = run
+    try:
+        r = gfmd.solve(h, backend=dev.backend, host=False, **{**kw, "tol": 1e-3})
+    finally:
+        cls._run = orig
+    return calls[0] / max(r.iterations, 1)
+
+
 def _free_vs_periodic(dev: Device, h: Any, label: str, **kw) -> dict:
     per = dev.solve(h, periodic=True, **kw)
     free = dev.solve(h, periodic=False, repeat=1, **kw)  # one timed solve after the warm-up (the slow side)
     e_p, e_f = max(per.iterations, 1), max(free.iterations, 1)
-    return {"law": label, "periodic_s": per.wall_time, "periodic_evals": per.iterations,
+    syncs = _free_syncs(dev, h, periodic=False, **kw) if label != "hard_wall" else math.nan
+    return {"free_syncs_per_eval": syncs, "law": label, "periodic_s": per.wall_time, "periodic_evals": per.iterations,
             "periodic_method": per.method, "free_s": free.wall_time, "free_evals": free.iterations,
             "free_method": free.method, "ratio_per_solve": free.wall_time / per.wall_time,
             "ratio_per_eval": (free.wall_time / e_f) / (per.wall_time / e_p),
@@ -261,6 +283,8 @@ def summary(rows: list) -> str:
                 f"**{r['ratio_per_solve']:.2f}x per solve**, {r['ratio_per_eval']:.2f}x per eval "
                 f"({r['free_s']:.3g} s / {r['periodic_s']:.3g} s; {r['free_evals']} / {r['periodic_evals']} evals; "
                 f"{r['status']})")
+            if r.get("free_syncs_per_eval", math.nan) == r.get("free_syncs_per_eval"):
+                nums += f"; {r['free_syncs_per_eval']:.1f} host syncs per free evaluation"
         else:
             case = f"hard wall N={r['n']} memory on one GPU"
             nums = (f"estimate {r['estimate_GB']:.1f} GB ({r['estimate_arrays']:.2f} arrays), free "
