@@ -151,8 +151,10 @@ class GFMD(Method):
         return cpu / 20 if t.opt("backend") == "cupy" else cpu  # an H200 solve is ~20x a CPU core
 
     def memory(self, t: Task) -> float:
-        if t.opt("distributed"):  # the whole surface (cached) and its rows per rank; the solver's slabs are sized
-            return 8.0 * t.n * t.n * 4  # with the rank count by gapsweep.sweep.collective.check_memory
+        if t.opt("distributed"):  # each rank's rows (surface and solver) are sized with the rank count by
+            # gapsweep.sweep.collective.check_memory; beyond them, a file map read whole by rank 0 and its spectrum
+            nx, ny = t.opt("surface.shape") or (t.n, t.n)
+            return 8.0 * nx * ny * 4 if t.opt("surface.kind") == "file" else 0.0
         return 8.0 * t.n * t.n * 28  # 4 cached surfaces + solver vectors + complex FFT buffers
 
     def needs_gpu(self, t: Task) -> bool:
