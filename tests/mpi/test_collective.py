@@ -198,10 +198,10 @@ def field_refs(tmp_path_factory):
 
 
 def _by_load(path: Path) -> dict:
-    """The kept fields of a store as read back by the public reader (gapsweep.api.open_fields: xarray), by load."""
-    from gapsweep.sweep import api
+    """The kept fields of a store as read back by the public reader (gapsweep.store.open_fields: xarray), by load."""
+    from gapsweep import store
 
-    return {float(ds.attrs["sigma0"]): ds for ds in api.open_fields(path).values()}
+    return {float(ds.attrs["sigma0"]): ds for ds in store.open_fields(path).values()}
 
 
 def _layout(path: Path) -> dict:
