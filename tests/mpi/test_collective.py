@@ -4,7 +4,11 @@ run in one process without ``distributed`` (the single-process solve), for the e
 method beside it, run on rank 0 alone) and for adhesion along a load path into tension. Tolerances: mean gap
 1e-9 relative, contact area 1e-9, gap statistics and elastic energy 1e-9 relative, histograms 1e-9. The
 exponential law runs the same minimiser split over ranks; adhesion runs the lean L-BFGS (2 pairs) where one
-process keeps 8, so both are solved to tol 1e-11 (the lean path agrees to ~tol, docs/gfmd.md)."""
+process keeps 8, so both are solved to tol 1e-11 (the lean path agrees to ~tol, docs/gfmd.md).
+
+Kept fields (``keep_fields`` with ``distributed = true``) are written by rows with both writers (mpio and rank 0)
+and read back as the single-process store's; the surface is made in place (each rank its rows), checked for
+memory per rank by tests/mpi/slab_worker.py."""
 
 from __future__ import annotations
 
