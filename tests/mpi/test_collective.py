@@ -284,8 +284,9 @@ def test_distributed_job_keeps_fields_by_rows(tmp_path, field_refs, case, ranks,
 def test_surface_and_field_memory_per_rank(tmp_path, field_refs):
     """Per rank (tracemalloc, numpy arrays) under mpiexec -n 2 and 3 at n = 512: the surface made in place holds
     1/P of the whole map (its rows) and peaks below 5/P while it is made (measured 4.5/P and 4.7/P: the spectrum's
-    columns and the transform's buffers, gapsweep.surfaces.synthetic.self_affine_rows), bit for bit self_affine's rows; the rank-0 writer of
-    kept fields holds a few row chunks (64 kB here), never a whole field (2 MB) or a rank's slab."""
+    columns and the transform's buffers, gapsweep.surfaces.synthetic.self_affine_rows), bit for bit self_affine's
+    rows; the rank-0 writer of kept fields holds a few row chunks (64 kB here), never a whole field (2 MB) or a
+    rank's slab."""
     d, _ = field_refs
     job = d / "j512.toml"
     job.write_text((d / "synthetic_dist.toml").read_text().replace("n = 64", "n = 512"))
