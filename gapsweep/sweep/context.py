@@ -137,7 +137,7 @@ class Context:
         key = (*self._key(t, n, sp), "rows", comm.Get_size(), comm.Get_rank(), backend)
         if self._rows is None or self._rows[0] != key:
             self._rows = None
-            h, rms = surface_rows(t, n, sp, comm, backend)
+            h, rms = surface_rows(t, n, sp, comm, backend, map_rms=_rms)
             if hasattr(h, "setflags"):
                 h.setflags(write=False)
             self._rows = (key, h, rms)

@@ -17,7 +17,7 @@ never a buffer larger). Every function here is collective: every rank calls it i
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
@@ -76,11 +76,13 @@ def rows_rms(h: Any, n: int, length: float, comm: Any) -> tuple[float, float]:
     return h_rms, math.sqrt(red.sum(local))
 
 
-def surface_rows(t: Any, n: int, sp: dict[str, Any], comm: Any, backend: str = "numpy"
+def surface_rows(t: Any, n: int, sp: dict[str, Any], comm: Any, backend: str = "numpy", *,
+                 map_rms: Callable[[np.ndarray, dict[str, Any]], tuple[float, float]]
                  ) -> tuple[Any, tuple[float, float]]:
     """This rank's rows of task ``t``'s surface on its ``n``-row grid and the whole surface's ``(h_rms, g_rms)``
     (module docstring). ``backend``: "numpy", or "cupy" for a synthetic surface made on this rank's GPU.
-    A file surface that does not load fails on every rank with rank 0's error."""
+    ``map_rms(heights, sp)``: the rms values of a whole file map (``Context``'s, run by rank 0). A file surface
+    that does not load fails on every rank with rank 0's error."""
     if sp.get("kind") != "file":
         from gapsweep.surfaces.synthetic import self_affine_rows
 
@@ -88,12 +90,11 @@ def surface_rows(t: Any, n: int, sp: dict[str, Any], comm: Any, backend: str = "
         return h, rows_rms(h, n, sp["length"], comm)
     whole, rms, err = None, None, None
     if comm.Get_rank() == 0:
-        from gapsweep.sweep.context import _rms
         from gapsweep.sweep.filesurface import file_surface_heights
 
         try:
             whole = file_surface_heights(sp)
-            rms = _rms(whole, sp)
+            rms = map_rms(whole, sp)
         except Exception as e:  # the same error on every rank below: the task fails together
             err = (type(e), str(e))
     err = comm.bcast(err, root=0)
