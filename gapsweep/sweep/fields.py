@@ -202,15 +202,19 @@ def write_field_rows(directory: str | Path, task_id: str, rows: Mapping[str, np.
     made collectively and each rank writes its rows as a hyperslab (collective I/O, which HDF5 needs for
     compressed datasets). Otherwise (``"rank0"``): rank 0 alone writes; the other ranks send their rows to it in
     chunks of at most ``gapsweep.sweep.slabs.CHUNK_BYTES`` (rank 0 holds one chunk, never a whole field). Either
-    way the file is written under a temporary name and renamed by rank 0 once closed; an error raises
-    :class:`StoreWriteError` (the runner ends the MPI job: the row stays pending, the temporary file is removed by
-    a ``--resume``, :func:`remove_partial`). Returns the file's path on rank 0, else None."""
+    way the file is written under a temporary name and renamed by rank 0 once closed; any error raises
+    :class:`StoreWriteError` (never a failed row: the ranks would part ways; the runner ends the MPI job, the row
+    stays pending, the temporary file is removed by a ``--resume``, :func:`remove_partial`). Returns the file's
+    path on rank 0, else None."""
     try:
         if writer == "mpio":
             return _write_rows_mpio(directory, task_id, rows, shape, comm, length, attrs)
         return _write_rows_rank0(directory, task_id, rows, shape, comm, length, attrs)
-    except OSError as e:
-        raise StoreWriteError(f"kept fields of task {task_id} in {directory}: cannot be written ({e}); the row "
+    except StoreWriteError:
+        raise
+    except Exception as e:  # an OSError, or anything else on some ranks only: the runner ends the MPI job
+        what = str(e) if isinstance(e, OSError) else f"{type(e).__name__}: {e}"
+        raise StoreWriteError(f"kept fields of task {task_id} in {directory}: cannot be written ({what}); the row "
                               "stays pending: free space or fix the folder and run again with --resume") from None
 
 
@@ -332,6 +336,10 @@ def _write_rank0_file(directory: str | Path, task_id: str, names: list[str], rec
         if not hdf5 or f is None:
             raise
         _failed(task_id, d, e)
+    except BaseException:
+        if not told:  # the other ranks wait for the word: they raise too
+            comm.bcast(False, root=0)
+        raise
     finally:
         if tmp.exists():
             tmp.unlink()
