@@ -161,8 +161,9 @@ class GFMD(Method):
         return t.opt("backend") == "cupy"
 
     def gpu_memory(self, t: Task) -> float:
-        """The solver's GPU memory plan (gapsweep.gfmd._cuda.solve_memory; measured to 0.01 % at n >= 4096).
-        A distributed task's GPUs are sized with the rank count (gapsweep.sweep.collective.check_memory)."""
+        """The solver's GPU memory plan (gapsweep.gfmd._cuda.solve_memory: the exponential law's measured to
+        0.01 % at n >= 4096; the hard wall's counted from the code with one array of margin, issue 30). A
+        distributed task's GPUs are sized with the rank count (gapsweep.sweep.collective.check_memory)."""
         if not self.needs_gpu(t) or t.opt("distributed"):
             return 0.0
         from gapsweep.gfmd._cuda import solve_memory
