@@ -369,12 +369,13 @@ def _smooth_initial(initial: Any, grid: SlabGrid) -> Any:
         return None
     if isinstance(initial, GFMDResult):
         return (_initial_field(initial, "displacement", grid), float(initial.mean_gap)), initial
-    ok = isinstance(initial, (tuple, list)) and len(initial) == 2
-    g0 = float(initial[1]) if ok and np.ndim(initial[1]) == 0 else math.nan
-    if not grid.agree(math.isfinite(g0)):
-        raise ValueError("initial must be a result of a distributed solve of the same grid or a pair (this rank's "
-                         "rows of a displacement, mean gap)")
-    return (_initial_field(initial[0], "displacement", grid), g0), None
+    from gapsweep.gfmd._smooth import initial_pair
+
+    u0, g0 = initial_pair(initial)  # a displacement alone: mean gap NaN, the body placed touching (_lean)
+    if not grid.agree(not math.isinf(g0)):
+        raise ValueError("initial must be a result of a distributed solve of the same grid, a pair (this rank's "
+                         "rows of a displacement, mean gap) or this rank's rows of a displacement")
+    return (_initial_field(u0, "displacement", grid), g0), None
 
 
 def _initial_field(initial: Any, name: str, grid: SlabGrid) -> Any:

@@ -166,7 +166,6 @@ gamma0 = 1e-3
 bins = 16
 [methods.gfmd]
 tol = 1e-11
-warm_start = false
 backend = "numpy"
 """
 
