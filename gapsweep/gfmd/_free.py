@@ -37,18 +37,12 @@ from typing import Any
 import numpy as np
 
 from gapsweep.core import deadline
+from gapsweep.core.vec import axpy
 from gapsweep.gfmd._grid import FreeGrid, Grid
 from gapsweep.gfmd._ops import _is_cupy
 from gapsweep.gfmd._result import GFMDResult, host_fields
 from gapsweep.gfmd._smooth import _DETACHED, _wolfe
 from gapsweep.gfmd.interactions.base import SmoothInteraction
-
-try:
-    from scipy.linalg.blas import zaxpy as _zaxpy
-except ImportError:  # pragma: no cover - scipy is a dependency
-    def _zaxpy(x, y, a):
-        y += a * x
-        return y
 
 METHODS = ("lbfgs", "cg")
 # Stored (s, y) pairs of the L-BFGS. On the GPU the two-loop recursion over the doubled grid's spectra is most of
@@ -156,13 +150,8 @@ class _FreeState:
 
 
 def _axpy_into(a: float, x: Any, y: Any) -> None:
-    """``y += a x`` for complex arrays: one BLAS ``zaxpy`` pass on numpy (no temporary), the array expression
-    elsewhere (cupy)."""
-    if isinstance(y, np.ndarray) and y.dtype == np.complex128 and x.dtype == np.complex128 \
-            and y.flags.c_contiguous and x.flags.c_contiguous:
-        _zaxpy(x.ravel(), y.ravel(), a=a)  # ravel of a contiguous array is a view: y is updated in place
-    else:
-        y += a * x
+    """``y += a x`` in place (gapsweep.core.vec.axpy: chunked on numpy, no BLAS threads)."""
+    axpy(a, x, y)
 
 
 def _check(st: _FreeState, ratio: float, p_ref: float, tol: float, max_iter: int, rng: float | None,

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from gapsweep.core.fft import available_backends, get_backend
+from gapsweep.core.vec import rdot
 
 
 def lengths(length: Any) -> tuple[float, float]:
@@ -96,15 +97,16 @@ class Grid:
 
     def dot(self, a: Any, b: Any) -> float:
         """``<A B>`` (grid mean of the product of the two real fields) by Parseval: ``sum w Re(conj(a) b)`` with
-        the half spectrum's weights ``w`` (2, but 1 on the columns ky = 0 and Nyquist). On numpy one BLAS
-        ``zdotc`` over the whole array less the two edge columns, no temporaries (the L-BFGS two-loop recursion
+        the half spectrum's weights ``w`` (2, but 1 on the columns ky = 0 and Nyquist). On numpy one
+        single-threaded pass over the whole array less the two edge columns (gapsweep.core.vec.rdot), no
+        temporaries (the L-BFGS two-loop recursion
         spends most of its time here on large grids)."""
         if getattr(self, "_edge_weights", False) and self.xp is np and a.dtype == np.complex128 \
                 and b.dtype == np.complex128 and a.shape == b.shape == self._w.shape \
                 and a.flags.c_contiguous and b.flags.c_contiguous:
-            s = 2.0 * np.vdot(a, b).real - np.vdot(a[:, 0], b[:, 0]).real
+            s = 2.0 * rdot(a, b) - rdot(a[:, 0], b[:, 0])
             if self.shape[1] % 2 == 0:
-                s -= np.vdot(a[:, -1], b[:, -1]).real
+                s -= rdot(a[:, -1], b[:, -1])
             return float(s)
         return float(self.xp.sum(self._w * (a.real * b.real + a.imag * b.imag)))
 

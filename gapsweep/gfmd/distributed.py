@@ -30,6 +30,7 @@ import numpy as np
 
 from gapsweep.core import checks as chk
 from gapsweep.core.slab import Reducer, SlabFFT, check_comm, slab_rows
+from gapsweep.core.vec import rdot
 from gapsweep.gfmd._grid import Grid
 from gapsweep.gfmd._ops import _is_cupy
 from gapsweep.gfmd._result import FIELDS, GFMDResult, host_fields
@@ -185,7 +186,7 @@ class _SlabOps:
 
     def _moments(self, e, d) -> tuple[float, float]:
         ed = e * d
-        return float(ed.sum()), float(self.xp.vdot(ed.ravel(), d.ravel()))
+        return float(ed.sum()), rdot(ed, d)
 
     def moments(self, e, d) -> tuple[float, float]:
         return tuple(self.red.sum(*self._moments(e, d)))
