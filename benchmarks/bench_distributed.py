@@ -308,6 +308,28 @@ def scaling(out: Path, subs: dict, sizes: list[int], iters: int) -> None:
                 save(out)
 
 
+def hard_wall_big(out: Path, subs: dict, n: int, ranks: int, max_iter: int, tol: float) -> None:
+    """The hard wall (method pcg) at ``n``^2 on ``ranks`` GPUs, surface made in place: time, iterations, status,
+    memory per GPU beside the estimate. One GPU's plan for this grid is printed beside it (does it fit one?)."""
+    est = solve_memory((n, n), ranks, "hard_wall")["bytes_per_rank"]
+
+    def run(sub):
+        if est > 0.97 * free_bytes(sub):
+            return {"skipped": f"estimate {est / 1e9:.1f} GB per GPU > free {free_bytes(sub) / 1e9:.1f} GB"}
+        t0 = time.perf_counter()
+        h = surface(n, sub)
+        sync(sub)
+        t_surf = time.perf_counter() - t0
+        r = gfmd.solve(h, comm=sub, **law_kw("hard_wall", n), tol=tol, max_iter=max_iter, host=False)
+        sync(sub)
+        return {**summary(r), "surface_s": t_surf, "s_per_iteration": r.wall_time / max(r.iterations, 1),
+                "peak_bytes_per_gpu": peak(sub), "device_used_bytes_per_gpu": device_used(sub),
+                "estimate_bytes_per_gpu": est, "tol": tol}
+
+    case(out, "hard wall big", ranks, subs, run, n=n, sigma0=1e-2,
+         single_gpu_estimate_bytes=single_gpu_memory(n, interaction="hard_wall")["bytes"])
+
+
 def challenge(out: Path, subs: dict, n: int, rms_slope: float, exp_iter: int, adh_iter: int, tol: float,
               lambda_s: float, ranks: int, pairs: int, laws: tuple[str, ...], start: str = "coarse",
               levels: int | None = None) -> None:
@@ -376,6 +398,9 @@ def main() -> None:
     ap.add_argument("--only-big", action="store_true", help="only the challenge cases (after the quick checks)")
     ap.add_argument("--big-ranks", type=int, default=4, help="GPUs of the challenge cases (4, or 8 on 8 GPUs)")
     ap.add_argument("--big-laws", nargs="+", default=["exponential", "adhesive"], choices=["exponential", "adhesive"])
+    ap.add_argument("--hardwall-n", type=int, default=0, help="the hard wall at this N (0: not run), e.g. 32768")
+    ap.add_argument("--hardwall-ranks", type=int, default=2, help="GPUs of the --hardwall-n case")
+    ap.add_argument("--hardwall-iter", type=int, default=1000)
     ap.add_argument("--lbfgs-memory", type=int, default=2, help="L-BFGS pairs of the adhesive solves (lean path)")
     args = ap.parse_args()
 
@@ -389,7 +414,7 @@ def main() -> None:
                     "nccl": cupy.cuda.nccl.get_version() if hasattr(cupy.cuda, "nccl") else None,
                     "python": sys.version.split()[0], "numpy": np.__version__})
     subs = {}
-    for p in sorted({1, 2, 4, args.big_ranks}):
+    for p in sorted({1, 2, 4, args.big_ranks, args.hardwall_ranks}):
         if p <= SIZE:
             subs[p] = WORLD.Split(0 if RANK < p else MPI.UNDEFINED, RANK)
     t0 = time.perf_counter()
@@ -399,6 +424,8 @@ def main() -> None:
         if not args.only_big:
             accuracy(args.out, subs, args.accuracy_sizes)
             scaling(args.out, subs, args.sizes, args.scaling_iter)
+        if args.hardwall_n:
+            hard_wall_big(args.out, subs, args.hardwall_n, args.hardwall_ranks, args.hardwall_iter, 1e-6)
         if not args.skip_big:
             challenge(args.out, subs, args.big, args.rms_slope, args.big_iter, args.adhesive_iter, args.big_tol,
                       args.lambda_s, args.big_ranks if args.big_ranks in subs else max(subs), args.lbfgs_memory,

@@ -67,6 +67,22 @@ def test_cpu_memory_per_rank_refused(tmp_path, monkeypatch):
     assert "distributed GFMD:" in text and "per rank for the solve (2 ranks)" in text
 
 
+def test_synthetic_surface_not_counted_whole_per_rank(tmp_path):
+    """A synthetic surface is made in place (each rank its rows, among the solve's arrays): the rank count times
+    the solve's slabs and the interpreters is what a node needs, no whole map per rank (it was 4 maps per rank).
+    At 32768^2 over 4 ranks: 4 x 32.2 GB of slabs fit 160 GB, which 4 whole maps (4 x 34.4 GB more) did not."""
+    from gapsweep.gfmd.distributed import solve_memory
+
+    _, tasks = _tasks(tmp_path, 32768)
+    assert budget.task_memory(tasks[0]) == 0.0
+    slabs = 4 * solve_memory((32768, 32768), 4, "exponential")["bytes_per_rank"]
+    need = slabs + budget.peak_memory(tasks) + 3 * budget.BASE_MEMORY
+    lines = collective.check_memory(tasks, 4, host_total=need + 1e6)
+    assert "per rank for the solve (4 ranks)" in lines[0]
+    with pytest.raises(collective.DoesNotFit, match=r"over 4 ranks, more than this machine's"):
+        collective.check_memory(tasks, 4, host_total=need - 1e6)
+
+
 def test_spec_refusals(tmp_path):
     with pytest.raises(SpecError, match=r"methods\.gfmd\.distributed: expected true or false|distributed"):
         p = tmp_path / "a.toml"
@@ -77,8 +93,8 @@ def test_spec_refusals(tmp_path):
     with pytest.raises(SpecError, match=r"methods\.gfmd\.method"):
         spec.load(p)
     p.write_text(JOB.format(n=64, backend="numpy", ls=0.0625) + 'keep_fields = {fields = ["gap"]}\n')
-    with pytest.raises(SpecError, match=r"methods\.gfmd\.distributed: .*drop keep_fields, or distributed"):
-        spec.load(p)
+    s = spec.load(p)  # kept fields are written by rows (tests/mpi/test_collective.py)
+    assert s.methods["gfmd"]["distributed"] and s.methods["gfmd"]["keep_fields"]
 
 
 def test_timeout_and_batch_refused(tmp_path):

@@ -209,6 +209,24 @@ def test_free_exponential_warm_start_and_bad_method() -> None:
     d = solve(h, sigma0=0.011, gamma0=1e-4, rho=2e-3, length=(1.0, 0.6), tol=1e-9, periodic=False, backend="numpy")
     assert d.converged and d.mean_gap == pytest.approx(c.mean_gap, rel=1e-7)  # scipy transforms = FFTW plans
     with pytest.raises(ValueError, match="with periodic=False"):
-        solve(h, sigma0=0.01, gamma0=1e-4, rho=2e-3, periodic=False, method="cg")
+        solve(h, sigma0=0.01, gamma0=1e-4, rho=2e-3, periodic=False, method="fire")
     with pytest.raises(ValueError, match="initial must be None or a GFMDResult of a free-boundary"):
         solve(h, sigma0=0.01, gamma0=1e-4, rho=2e-3, periodic=False, initial=np.zeros_like(h))
+
+
+@pytest.mark.parametrize(("name", "kw", "sigma0"), [("exponential", dict(gamma0=1e-4, rho=2e-3), 0.01),
+                                                   ("adhesive", dict(work=1e-4, rho=2e-3), 0.01),
+                                                   ("adhesive", dict(work=1e-4, rho=2e-3), -2e-5)])
+def test_free_cg_agrees_with_lbfgs(name, kw, sigma0) -> None:
+    """Method "cg" (nonlinear CG, the GPU's leaner option) ends at the L-BFGS answer of the same free map by the
+    same criterion: converged at tol 1e-9, mean gap within 1e-7 relative, pressures within 1e-6 of their scale."""
+    h = self_affine(128, 0.8, lambda_l=0.5, lambda_s=8 / 128, seed=5)[:80, 10:70]
+    h = h / h.std() * 0.01
+    common = dict(sigma0=sigma0, interaction=name, length=(1.0, 0.75), tol=1e-9, periodic=False, **kw)
+    a = solve(h, method="lbfgs", **common)
+    b = solve(h, method="cg", **common)
+    assert a.converged and b.converged and b.method == "cg" and a.method == "lbfgs"
+    assert b.residual <= 1e-9 and b.load_error <= 1e-9
+    assert b.mean_gap == pytest.approx(a.mean_gap, rel=1e-7)
+    scale = a.diagnostics["pressure_scale"]
+    np.testing.assert_allclose(b.pressure, a.pressure, rtol=0, atol=1e-6 * scale)

@@ -95,7 +95,7 @@ def test_wheel_contents(tmp_path):
     pytest.importorskip("setuptools")
     src = tmp_path / "src"
     shutil.copytree(ROOT, src, symlinks=True, ignore=shutil.ignore_patterns(
-        ".venv", ".git", ".wt", "__pycache__", "*.h5", "build", "*.egg-info", "out", ".pytest_cache"))
+        ".venv*", ".git", ".wt", "__pycache__", "*.h5", "build", "*.egg-info", "out", ".pytest_cache"))
     r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w",
                         str(tmp_path / "dist"), str(src)], capture_output=True, text=True, timeout=500)
     assert r.returncode == 0, r.stderr[-3000:]

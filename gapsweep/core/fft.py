@@ -116,11 +116,25 @@ class _CupyBackend(FFTBackend):
             fwd = get_fft_plan(rin, axes=(0, 1), value_type="R2C")
             inv = get_fft_plan(cin, shape=(n, n), axes=(0, 1), value_type="C2R")
             self._plans = (fwd, inv, cufft.CUFFT_FORWARD, cufft.CUFFT_INVERSE)
-            self._cout = cupy.empty_like(cin)
             self._cin = cin
-            self._rout = rin
+            del rin
         except Exception:  # old cupy or no N-D plan for this shape: the generic path below
             self._plans = None
+        # rfft2's and irfft2's output buffers, made on their first call: convolve needs neither (the hard wall's
+        # memory plan, gfmd._cuda.solve_memory)
+        self._cout_buf = self._rout_buf = None
+
+    @property
+    def _cout(self):
+        if self._cout_buf is None:
+            self._cout_buf = self.xp.empty_like(self._cin)
+        return self._cout_buf
+
+    @property
+    def _rout(self):
+        if self._rout_buf is None:
+            self._rout_buf = self.xp.empty((self.n, self.n), dtype=self.xp.float64)
+        return self._rout_buf
 
     def rfft2(self, a):
         if self._plans is None or a.dtype != self.xp.float64 or a.shape != (self.n, self.n):
@@ -135,6 +149,25 @@ class _CupyBackend(FFTBackend):
         self.xp.copyto(self._cin, a)
         self._plans[1].fft(self._cin, self._rout, self._plans[3])
         return self._rout
+
+    def convolve(self, a, mult, out=None):
+        """As :meth:`FFTBackend.convolve` with one buffer: R2C into the C2R input buffer, the product in place,
+        C2R straight into ``out`` (no temporary spectrum, no output buffer, no copy)."""
+        xp = self.xp
+        if self._plans is None or a.dtype != xp.float64 or a.shape != (self.n, self.n) \
+                or getattr(mult, "shape", None) != self._cin.shape:
+            return super().convolve(a, mult, out)
+        self._plans[0].fft(xp.ascontiguousarray(a), self._cin, self._plans[2])
+        self._cin *= mult
+        if out is None or out.dtype != xp.float64 or out.shape != (self.n, self.n) or not out.flags.c_contiguous:
+            res = xp.empty((self.n, self.n), dtype=xp.float64)
+        else:
+            res = out
+        self._plans[1].fft(self._cin, res, self._plans[3])  # C2R straight into the caller's array
+        if out is not None and res is not out:
+            xp.copyto(out, res)
+            return out
+        return res
 
     def to_host(self, a) -> np.ndarray:
         return self.to_host_many({"a": a})["a"]

@@ -115,7 +115,8 @@ class SlabFFT:
     real field of the coefficients ``A``). ``backend``: "numpy" (CPU, mpi4py Alltoallv) or "cupy" (one GPU per
     rank, NCCL). ``chunk``: the 1-D transforms run over chunks of at most this many elements. Each call is
     collective: every rank must call it in the same order. Memory: the send and receive buffers (each the size of
-    the rank's spectrum) and the result; the input is not modified."""
+    the rank's spectrum less its own block, which goes straight to its place) and the result; the input is not
+    modified. On one rank nothing is exchanged."""
 
     def __init__(self, shape: tuple[int, int], comm: Any, backend: str = "numpy", chunk: int | None = None) -> None:
         self.size, self.rank = check_comm(comm)
@@ -155,13 +156,16 @@ class SlabFFT:
 
     # ------------------------------------------------------------------ the exchange
     def _alltoall(self, send: Any, scounts: list[int], recv: Any, rcounts: list[int]) -> None:
-        """Complex blocks: ``send`` holds the block for rank s at offset sum(scounts[:s]); likewise ``recv``."""
+        """Complex blocks between the ranks, the own block left out of both buffers (the transforms place it
+        directly): ``send`` holds the block for rank s at offset ``sum(scounts[:s])`` over the other ranks;
+        likewise ``recv``."""
+        if self.size == 1:
+            return
         self.exchanges += 1
+        scounts = [0 if s == self.rank else c for s, c in enumerate(scounts)]
+        rcounts = [0 if s == self.rank else c for s, c in enumerate(rcounts)]
         sd = np.concatenate([[0], np.cumsum(scounts)[:-1]]).astype(np.int64)
         rd = np.concatenate([[0], np.cumsum(rcounts)[:-1]]).astype(np.int64)
-        if self.size == 1:
-            self.xp.copyto(recv, send)
-            return
         if self._nccl is None:
             sf, rf = send.view(np.float64), recv.view(np.float64)
             self.comm.Alltoallv([sf, (2 * np.asarray(scounts), 2 * sd)], [rf, (2 * np.asarray(rcounts), 2 * rd)])
@@ -177,67 +181,88 @@ class SlabFFT:
 
     def rfft2(self, a: Any, out: Any = None) -> Any:
         """Unnormalised forward transform of the rank's rows ``a`` (``real_shape``) -> ``spec_shape`` (into
-        ``out``, a C-contiguous complex128 array of that shape, when given: no result array is allocated)."""
+        ``out``, a C-contiguous complex128 array of that shape, when given: no result array is allocated).
+
+        Passes over the spectrum: the ``rfft`` along y, one transposing copy (the rank's own block straight into
+        ``out``, the others into the send buffer), the exchange, one copy of the received blocks into ``out``, and
+        the ``fft`` along x in place."""
         xp = self.xp
         nx, ny = self.shape
         if tuple(a.shape) != self.real_shape:
             raise ValueError(f"rank {self.rank}: expected rows of shape {self.real_shape}, got {tuple(a.shape)}")
-        send = xp.empty(self.nr * self.nyh, dtype=xp.complex128)
-        offs = np.concatenate([[0], np.cumsum(self._f_send)]).astype(np.int64)
-        blocks = [send[offs[s]:offs[s + 1]].reshape(self._ncs[s], self.nr) for s in range(self.size)]
+        out = xp.empty(self.spec_shape, dtype=xp.complex128) if out is None else _checked(out, self.spec_shape, xp)
+        send = xp.empty(self.nr * self.nyh - self._f_send[self.rank], dtype=xp.complex128)
+        blocks = self._blocks(send, self._f_send, self._ncs, self.nr)
+        own = out[:, self.row]
         for ch in self._chunks(self.nr, ny):  # rfft along y of a chunk of rows, its columns into the blocks
             b = xp.fft.rfft(a[ch], axis=1)
             for s, cs in enumerate(self.cols):  # block for rank s: its columns, transposed (nc_s, nr)
-                blocks[s][:, ch] = b[:, cs].T
+                _transpose_into(xp, (own if s == self.rank else blocks[s])[:, ch], b[:, cs])
             del b
         del blocks
-        recv = xp.empty(self.nc * nx, dtype=xp.complex128)
+        recv = xp.empty(self.nc * nx - self._f_recv[self.rank], dtype=xp.complex128)
         self._alltoall(send, self._f_send, recv, self._f_recv)
         del send
-        out = xp.empty(self.spec_shape, dtype=xp.complex128) if out is None else _checked(out, self.spec_shape, xp)
-        off = 0
-        for s, rs in enumerate(self.rows):
-            n = self._f_recv[s]
-            out[:, rs] = recv[off:off + n].reshape(self.nc, self._nrs[s])
-            off += n
+        for s, blk in enumerate(self._blocks(recv, self._f_recv, [self.nc] * self.size, None)):
+            if blk is not None:
+                out[:, self.rows[s]] = blk
         del recv
-        for ch in self._chunks(self.nc, nx):  # fft along x of a chunk of the rank's columns
-            out[ch] = xp.fft.fft(out[ch], axis=1)
+        for ch in self._chunks(self.nc, nx):  # fft along x of a chunk of the rank's columns, in place
+            _fft_inplace(xp, out[ch])
         return out
 
     def irfft2(self, A: Any, norm: str = "forward", out: Any = None) -> Any:
         """Inverse of :meth:`rfft2`: the rank's rows of the real field. ``norm="forward"`` (default): the unscaled
         sum (``irfft2(rfft2(a)) = nx ny a``, gapsweep.core.fft's convention); ``"backward"``: numpy's ``irfft2``
         (scaled by ``1/(nx ny)``, the same operations as ``numpy.fft.irfft2``: ifft along x, then irfft along y).
-        ``out``: a C-contiguous float64 array of ``real_shape`` to write the result into (not ``A``'s memory)."""
+        ``out``: a C-contiguous float64 array of ``real_shape`` to write the result into (not ``A``'s memory).
+        ``A`` is not modified. Passes: the ``ifft`` along x, one copy of its rows into the send blocks (the own
+        block, transposed, straight into the half-spectrum rows), the exchange, one transposing copy of the
+        received blocks, the ``irfft`` along y."""
         xp = self.xp
         nx, ny = self.shape
         if tuple(A.shape) != self.spec_shape:
             raise ValueError(f"rank {self.rank}: expected spectrum columns of shape {self.spec_shape}, "
                              f"got {tuple(A.shape)}")
-        send = xp.empty(self.nc * nx, dtype=xp.complex128)
-        offs = np.concatenate([[0], np.cumsum(self._f_recv)]).astype(np.int64)
-        blocks = [send[offs[s]:offs[s + 1]].reshape(self.nc, self._nrs[s]) for s in range(self.size)]
+        b = xp.empty((self.nr, self.nyh), dtype=xp.complex128)
+        own = b[:, self.col]
+        send = xp.empty(self.nc * nx - self._f_recv[self.rank], dtype=xp.complex128)
+        blocks = self._blocks(send, self._f_recv, [self.nc] * self.size, None)
         for ch in self._chunks(self.nc, nx):  # ifft along x of a chunk of columns, its rows into the blocks
             c = xp.fft.ifft(A[ch], axis=1, norm=norm)
             for s, rs in enumerate(self.rows):  # block for rank s: its rows (nc, nr_s)
-                blocks[s][ch] = c[:, rs]
+                if s == self.rank:
+                    _transpose_into(xp, own[:, ch], c[:, rs])
+                else:
+                    blocks[s][ch] = c[:, rs]
             del c
         del blocks
-        recv = xp.empty(self.nr * self.nyh, dtype=xp.complex128)
+        recv = xp.empty(self.nr * self.nyh - self._f_send[self.rank], dtype=xp.complex128)
         self._alltoall(send, self._f_recv, recv, self._f_send)
         del send
-        b = xp.empty((self.nr, self.nyh), dtype=xp.complex128)
-        off = 0
-        for s, cs in enumerate(self.cols):
-            n = self._f_send[s]
-            b[:, cs] = recv[off:off + n].reshape(self._ncs[s], self.nr).T
-            off += n
+        for s, blk in enumerate(self._blocks(recv, self._f_send, self._ncs, self.nr)):
+            if blk is not None:
+                _transpose_into(xp, b[:, self.cols[s]], blk)
         del recv
         out = xp.empty(self.real_shape, dtype=xp.float64) if out is None else _checked(out, self.real_shape, xp)
         for ch in self._chunks(self.nr, self.nyh):  # irfft along y of a chunk of rows
             out[ch] = xp.fft.irfft(b[ch], n=ny, axis=1, norm=norm)
         return out
+
+    def _blocks(self, buf: Any, counts: list[int], rows: list[int], cols: int | None) -> list[Any]:
+        """Views of the exchange buffer ``buf`` (the own block left out): the block of rank ``s`` has
+        ``counts[s]`` elements, shaped ``(rows[s], cols)`` (``cols=None``: ``counts[s] // rows[s]``); ``None``
+        for the own rank."""
+        views: list[Any] = []
+        off = 0
+        for s in range(self.size):
+            if s == self.rank:
+                views.append(None)
+                continue
+            n = counts[s]
+            views.append(buf[off:off + n].reshape(rows[s], n // rows[s] if cols is None and rows[s] else cols or 0))
+            off += n
+        return views
 
     # ------------------------------------------------------------------ wave vectors
     def wavenumbers(self) -> tuple[Any, Any]:
@@ -265,6 +290,60 @@ class SlabFFT:
     def owns_zero(self) -> bool:
         """Whether this rank holds the ``q = 0`` mode (index ``[0, 0]`` of its spectrum)."""
         return self.col.start == 0
+
+
+TILED_TRANSPOSE = True  # cupy: the transposing copies through the tiled kernel below (False: cupy's strided copy)
+_TRANSPOSE_SRC = r"""
+extern "C" __global__ void transpose_z(const double2* __restrict__ src, long long lds, double2* __restrict__ dst,
+                                       long long ldd, int rows, int cols) {
+    // dst[j, i] = src[i, j] for i < rows, j < cols (leading dimensions lds, ldd in elements); a 32 x 32 tile
+    // through shared memory, so that both the reads and the writes are coalesced
+    __shared__ double2 tile[32][33];
+    const int bx = blockIdx.x * 32, by = blockIdx.y * 32, tx = threadIdx.x, ty = threadIdx.y;
+    for (int k = ty; k < 32; k += 8) {
+        const int i = by + k, j = bx + tx;
+        if (i < rows && j < cols) tile[k][tx] = src[(long long)i * lds + j];
+    }
+    __syncthreads();
+    for (int k = ty; k < 32; k += 8) {
+        const int j = bx + k, i = by + tx;
+        if (i < rows && j < cols) dst[(long long)j * ldd + i] = tile[tx][k];
+    }
+}
+"""
+_TRANSPOSE_KERNEL: list[Any] = []
+
+
+def _transpose_into(xp: Any, dst: Any, src: Any) -> None:
+    """``dst[...] = src.T`` for 2-D complex128 views whose rows are contiguous (slices of C-contiguous arrays).
+    On cupy a tiled transpose kernel (a strided elementwise copy reads or writes uncoalesced); on numpy the plain
+    assignment."""
+    rows, cols = src.shape
+    if tuple(dst.shape) != (cols, rows):
+        raise ValueError(f"transpose of {src.shape} into {dst.shape}")
+    if xp is np or not TILED_TRANSPOSE or rows == 0 or cols == 0 or src.dtype != xp.complex128 \
+            or dst.dtype != xp.complex128 or src.strides[1] != 16 or dst.strides[1] != 16:
+        dst[...] = src.T
+        return
+    if not _TRANSPOSE_KERNEL:
+        _TRANSPOSE_KERNEL.append(xp.RawKernel(_TRANSPOSE_SRC, "transpose_z"))
+    grid = ((cols + 31) // 32, (rows + 31) // 32)
+    _TRANSPOSE_KERNEL[0](grid, (32, 8), (src, np.int64(src.strides[0] // 16), dst, np.int64(dst.strides[0] // 16),
+                                          np.int32(rows), np.int32(cols)))
+
+
+def _fft_inplace(xp: Any, x: Any) -> None:
+    """``x[...] = fft(x)`` along the last axis (unnormalised). On cupy through cupyx's ``overwrite_x``: cuFFT
+    transforms the contiguous chunk in place, no result array and no copy back; on numpy the plain transform and
+    one copy (as before: the CPU path's numbers stay the same)."""
+    if xp is np:
+        x[...] = np.fft.fft(x, axis=-1)
+        return
+    import cupyx.scipy.fft as cfft
+
+    y = cfft.fft(x, axis=-1, overwrite_x=True)
+    if y.data.ptr != x.data.ptr:  # not done in place (a cupy without it): copy back
+        x[...] = y
 
 
 def _checked(out: Any, shape: tuple[int, int], xp: Any) -> Any:

@@ -344,15 +344,18 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
     ops = grid.reduce_ops(make_ops(xp))
     precondition = method != "pk"
     stiff = grid.multiplier((0.5 * e_star) * grid.q)  # M = K^-1 = E* q/2, the Fourier preconditioner
-    if _SPECTRAL and periodic and not _LAG and xp is np:  # the GPU keeps the real-space loop (its fused passes)
+    spectral = _SPECTRAL and periodic and not _LAG and xp is np  # the GPU keeps the real-space loop (fused passes)
+    if not spectral:
+        del kinv_q  # only the spectral loop reads it (half a grid array: gfmd._cuda.solve_memory)
+    if spectral:
         p, u, it, status, fft_pairs = _spectral_loop(grid, ops, h, p, kinv_q, stiff if precondition else None,
                                                      sigma0, tol, g_ref, max_iter, history)
     else:
         p, u, it, status, fft_pairs = _direct_loop(grid, ops, compliance, h, p, stiff if precondition else None,
                                                    sigma0, tol, g_ref, max_iter, history)
     with np.errstate(all="ignore"):
-        # The returned fields and their residual (issue 9: decided on what is returned).
-        u = compliance(p)
+        # The returned fields and their residual (issue 9: decided on what is returned); u rewritten in place
+        u = compliance(p, u)
         fft_pairs += 2
         S = p > 0
         n_s = grid.count(S)
@@ -362,7 +365,10 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
         residual = max(rms, overlap) / g_ref
         complementarity = grid.mean(p * xp.abs(g)) / (sigma0 * g_ref)
         load_error = abs(grid.mean(p) / sigma0 - 1.0)
-        elastic = grid.elastic_energy(grid.fwd(u), e_star) if periodic else grid.elastic_energy_pu(p, u)
+        if periodic and (xp is np or type(grid) is not Grid):
+            elastic = grid.elastic_energy(grid.fwd(u), e_star)
+        else:  # (1/2) <p u> = (1/2) <p K p>: no spectrum (the GPU's memory plan, gfmd._cuda.solve_memory)
+            elastic = 0.5 * grid.mean(p * u)
         gap = xp.where(S, 0.0, g)  # the contact atom exactly at g = 0
     fields_ok = math.isfinite(residual) and grid.all_finite(p) and grid.all_finite(u)
     if not fields_ok:

@@ -33,16 +33,23 @@ _NSLOTS = 20
 _CUFFT_WORK = 1.0
 # Grid-sized arrays of one solve besides cuFFT's work areas and the caller's surface, per (interaction, method),
 # on the GPU: "real" n x n float64, "half" n x (n/2+1) complex128 spectra, "halfreal" n x (n/2+1) float64. The
-# exponential law's are counted from gfmd/_softmax.py::_solve_lean; the L-BFGS and FIRE counts of half spectra and
-# the hard wall's total were read off the pool's high-water mark at n = 4096 and checked at n = 16384 (L-BFGS,
-# hard wall) and 2048 (all): docs/benchmarks_gfmd.md, "GPU at the limit".
+# exponential law's are counted from gfmd/_softmax.py::_solve_lean; the L-BFGS and FIRE counts of half spectra
+# were read off the pool's high-water mark at n = 4096 and checked at n = 16384 and 2048: docs/benchmarks_gfmd.md,
+# "GPU at the limit". The hard wall's (issue 30) are counted from gfmd/_constrained.py (its peak is in the
+# iteration, _direct_loop): the centred heights h; p, t, g, gs, r, z, u; |q|, K^-1 and M = E* q/2 (half a grid
+# each); the cuFFT backend's one C2R input buffer (gapsweep.core.fft._CupyBackend.convolve transforms into it,
+# multiplies in place and writes C2R straight into the caller's array): 10.5, plus 1 of margin for the pool's
+# fragmentation. The result's residual, contact set and elastic energy (<p u>/2) need real fields only, fewer
+# than the iteration frees. tests/test_gfmd_memory.py traces the same code on numpy against this count. The plan
+# before (K^-1 twice, the Parseval weights, rfft2's and irfft2's output buffers, a temporary spectrum per
+# convolution, spectra in the result) measured 18.13 at n = 4096 and 16384.
 _ARRAYS = {
     # W, Wt, e, et, cuFFT's real output; X, G, D, cuFFT's complex input copy and output; k, M, M^-1, cached |q|
     ("exponential", "cg"): {"real": 5, "half": 5, "halfreal": 4},
     ("exponential", "lbfgs"): {"real": 5, "half": 20, "halfreal": 4},  # + G_old, 5 (s, y) pairs, temporaries
     ("exponential", "fire"): {"real": 5, "half": 9, "halfreal": 4},  # + G_old, V, F, F/M, temporaries
-    # heights centred, K^-1, M, p, u, t, g, gs, z, r, convolution temporaries (method "pcg", the GPU default)
-    ("hard_wall", "pcg"): {"real": 18.13},
+    # heights centred, p, u, t, g, gs, z, r; |q|, K^-1, M; the C2R input buffer; 1 of margin (method "pcg")
+    ("hard_wall", "pcg"): {"real": 8, "halfreal": 3, "half": 1, "margin": 1.0},
 }
 _DEFAULT_METHOD = {"exponential": "cg", "hard_wall": "pcg"}
 
@@ -71,6 +78,7 @@ def solve_memory(n: int, *, interaction: str = "exponential", method: str = "aut
     a = _ARRAYS[(interaction, method)]
     parts = {"solver real fields": int(a.get("real", 0) * real), "solver half spectra": a.get("half", 0) * half,
              "stiffness and preconditioner": a.get("halfreal", 0) * half // 2,
+             "margin (memory pool fragmentation)": int(a.get("margin", 0) * real),
              "cuFFT work areas (R2C + C2R plans)": int(2 * _CUFFT_WORK * half),
              "heights": real if heights_on_gpu else 0}
     total = sum(parts.values())
@@ -419,3 +427,142 @@ class _PKCupy:
     def rescale(self, p, u, r, scale: float, tau: float, follow: bool) -> None:
         self.K["pk_rescale"](self._grid(p.size), (256,), (self._c(p), self._c(u), self._c(r), np.float64(scale),
                                                            np.float64(tau), np.int32(bool(follow)), np.uint64(p.size)))
+
+
+class _PadFFT:
+    """cuFFT 2-D plans of the doubled ``2nx x 2ny`` grid of a free map (:class:`gapsweep.gfmd._grid.FreeGrid` on
+    the GPU): the map is copied into the corner of a zero-padded buffer (the padding is written once) and one
+    R2C plan runs over the whole doubled grid; the inverse is one C2R plan whose map block is read out. cupy.fft's
+    axis-by-axis transforms with ``n=`` padding copy, pad and transpose their arrays on every call (about a dozen
+    passes over the doubled grid per pair, issue 30: the free hard wall 6.2x and the exponential law 41x a
+    periodic solve at N = 4096); here a pair is the two plans plus the copies of the map block in and out.
+    Buffers: the padded real input and output and the C2R input (C2R destroys it), 3 doubled grids."""
+
+    def __init__(self, xp: Any, shape: tuple[int, int]) -> None:
+        from cupy.cuda import cufft
+        from cupyx.scipy.fft import get_fft_plan
+
+        nx, ny = (int(v) for v in shape)
+        self.xp, self.nx, self.ny = xp, nx, ny
+        self.scale = 1.0 / (4 * nx * ny)
+        self.rin = xp.zeros((2 * nx, 2 * ny), dtype=xp.float64)  # map block written per call, padding stays 0
+        self.cin = xp.empty((2 * nx, ny + 1), dtype=xp.complex128)
+        self.rout = xp.empty((2 * nx, 2 * ny), dtype=xp.float64)
+        self.fwd_plan = get_fft_plan(self.rin, axes=(0, 1), value_type="R2C")
+        self.inv_plan = get_fft_plan(self.cin, shape=(2 * nx, 2 * ny), axes=(0, 1), value_type="C2R")
+        self.F, self.I = cufft.CUFFT_FORWARD, cufft.CUFFT_INVERSE
+
+    def fwd(self, a: Any, out: Any = None) -> Any:
+        """Unnormalised rfft2 of ``a`` zero-padded to the doubled grid, into ``out`` (or a new array)."""
+        self.rin[: self.nx, : self.ny] = a
+        if out is None:
+            out = self.xp.empty(self.cin.shape, dtype=self.xp.complex128)
+        self.fwd_plan.fft(self.rin, out, self.F)
+        return out
+
+    def inv_sum(self, b: Any, scale: float = 1.0) -> Any:
+        """The map block of ``scale`` times the unnormalised inverse (the plain sum over modes) of the half
+        spectrum ``b`` (not modified): a view of the plan's output buffer, valid until the next call."""
+        if scale == 1.0:
+            self.xp.copyto(self.cin, b)
+        else:
+            self.xp.multiply(b, scale, out=self.cin)
+        self.inv_plan.fft(self.cin, self.rout, self.I)
+        return self.rout[: self.nx, : self.ny]
+
+    def convolve(self, a: Any, m: Any, out: Any = None) -> Any:
+        """The map block of ``irfft2(rfft2(pad(a)) m)`` (``m`` real on the half spectrum, the inverse's
+        normalisation already in it) into ``out`` (or a new array): two plans and three passes."""
+        self.rin[: self.nx, : self.ny] = a
+        self.fwd_plan.fft(self.rin, self.cin, self.F)
+        self.cin *= m
+        self.inv_plan.fft(self.cin, self.rout, self.I)
+        if out is None:
+            return self.xp.ascontiguousarray(self.rout[: self.nx, : self.ny])
+        out[...] = self.rout[: self.nx, : self.ny]
+        return out
+
+
+class _FreeCupyOps:
+    """Passes of the free-boundary L-BFGS (gapsweep/gfmd/_free.py) on the GPU, the interface of ``_free._HostOps``:
+    Parseval dots of the doubled grid's half spectra in one fused pass each (kernels.cu ``gs_dot``, with an
+    optional real diagonal), means of the map's fields in one pass (``gs_sumfinite``, ``gs_moments``), in-place
+    ``y += a x`` and the gradient ``k U - c F`` as single element-wise kernels. The generic expressions these
+    replace (``xp.sum(w * (a.real * b.real + a.imag * b.imag))`` and the like) made four temporaries and five
+    passes per dot over the doubled grid, two dozen times per L-BFGS iteration (issue 30: 41 ms per evaluation at
+    N = 4096 against 1.2 ms periodic)."""
+
+    def __init__(self, xp: Any, half_shape: tuple[int, int], even: bool) -> None:
+        self.xp = xp
+        self.K = _cupy_kernels()
+        rows, nh = (int(v) for v in half_shape)
+        self._nhalf = np.uint64(rows * nh)
+        self._geo = (np.uint32(nh), np.int32(bool(even)))
+        self._sms = xp.cuda.Device().attributes["MultiProcessorCount"]
+        self.part = xp.empty(4 * _CUDA_BLOCKS_PER_SM * self._sms, dtype=xp.float64)
+        self.count = xp.zeros(1, dtype=xp.uint32)
+        self.res = xp.zeros(4, dtype=xp.float64)
+        try:
+            import cupyx
+
+            self._host = cupyx.empty_pinned((4,), dtype=np.float64)
+        except Exception:  # pragma: no cover - old cupy
+            self._host = None
+        self._axpy = xp.ElementwiseKernel("float64 a, complex128 x", "complex128 y", "y = y + a * x",
+                                          "gapsweep_free_axpy")
+        self._grad = xp.ElementwiseKernel("float64 k, complex128 u, float64 c, complex128 f", "complex128 g",
+                                          "g = k * u - c * f", "gapsweep_free_grad")
+        self._trial = xp.ElementwiseKernel("float64 g, float64 a, float64 d", "float64 t", "t = g + a * d",
+                                           "gapsweep_free_trial")
+
+    def _grid(self, size: int) -> tuple[int]:
+        return (int(max(1, min(-(-size // 256), _CUDA_BLOCKS_PER_SM * self._sms))),)
+
+    def _run(self, name: str, size: int, nout: int, *args) -> list[float]:
+        self.K[name](self._grid(size), (256,), (*args, self.part, self.count, self.res))
+        if self._host is None:
+            return self.res.get()[:nout].tolist()
+        rt = self.xp.cuda.runtime
+        stream = self.xp.cuda.get_current_stream()
+        rt.memcpyAsync(self._host.ctypes.data, self.res.data.ptr, 8 * nout, rt.memcpyDeviceToHost, stream.ptr)
+        stream.synchronize()
+        return self._host[:nout].tolist()
+
+    def _c(self, a: Any, dtype: Any) -> Any:
+        return self.xp.ascontiguousarray(a, dtype=dtype)
+
+    def dot(self, a: Any, b: Any) -> float:
+        """``<A B>`` of two half spectra (Parseval weights)."""
+        c = self.xp.complex128
+        return float(self._run("gs_dot", int(self._nhalf), 1, self._c(a, c), self._c(b, c), self.res, np.int32(0),
+                               *self._geo, self._nhalf)[0])
+
+    def kdot(self, a: Any, k: Any, b: Any) -> float:
+        """``<A k B>`` with ``k`` real on the half spectrum."""
+        c = self.xp.complex128
+        return float(self._run("gs_dot", int(self._nhalf), 1, self._c(a, c), self._c(b, c),
+                               self._c(k, self.xp.float64), np.int32(1), *self._geo, self._nhalf)[0])
+
+    def axpy(self, y: Any, a: float, x: Any) -> None:
+        """``y += a x`` in place."""
+        self._axpy(np.float64(a), x, y)
+
+    def grad(self, k: Any, U: Any, c: float, F: Any) -> Any:
+        """``k U - c F`` (a new array)."""
+        return self._grad(k, U, np.float64(c), F)
+
+    def trial(self, g: Any, a: float, d: Any) -> Any:
+        """``g + a d`` (a new array)."""
+        return self._trial(g, np.float64(a), d)
+
+    def mean(self, a: Any) -> float:
+        """Mean of a real field (NaN if any entry is not finite)."""
+        a = self._c(a, self.xp.float64)
+        s, bad = self._run("gs_sumfinite", a.size, 2, a, np.uint64(a.size))
+        return s / a.size if bad == 0 else math.nan
+
+    def mean_product(self, p: Any, d: Any) -> float:
+        """Mean of ``p d`` over a real field."""
+        f = self.xp.float64
+        p, d = self._c(p, f), self._c(d, f)
+        return float(self._run("gs_moments", p.size, 2, p, d, np.uint64(p.size))[0]) / p.size

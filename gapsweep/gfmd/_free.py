@@ -17,7 +17,10 @@ vanishes outside it (the free surface around the map carries no load), and the m
 area is ``sigma0``. Minimised by L-BFGS with the initial inverse Hessian ``1/(k(q) + c N_map/N_pad)`` (``c``
 from ``law.curvature``, averaged over the doubled grid) and ``1/c`` for ``delta``, the strong-Wolfe line search
 of :mod:`gapsweep.gfmd._smooth` moving in real space (per iteration one forward transform of the map's pressure
-and one inverse to the map's rows, FreeGrid.pad_fwd/pad_inv). The same array code runs on numpy and cupy.
+and one inverse to the map's rows, FreeGrid.pad_fwd/pad_inv). Method "cg" (opt-in): preconditioned nonlinear
+conjugate gradients with the same preconditioner and line search (``_cg``), one direction instead of the L-BFGS
+pairs (less memory traffic per evaluation on the GPU, more evaluations). The same array code runs on numpy and
+cupy.
 
 Convergence on the returned fields: ``residual = rms_map-normalised(f - p 1_map) / P`` (the force imbalance on
 the whole doubled grid, summed and divided by the map's pixel count: outside the map it is the load that would
@@ -34,21 +37,58 @@ from typing import Any
 import numpy as np
 
 from gapsweep.core import deadline
+from gapsweep.core.vec import axpy
 from gapsweep.gfmd._grid import FreeGrid, Grid
 from gapsweep.gfmd._ops import _is_cupy
 from gapsweep.gfmd._result import GFMDResult, host_fields
 from gapsweep.gfmd._smooth import _DETACHED, _wolfe
 from gapsweep.gfmd.interactions.base import SmoothInteraction
 
-try:
-    from scipy.linalg.blas import zaxpy as _zaxpy
-except ImportError:  # pragma: no cover - scipy is a dependency
-    def _zaxpy(x, y, a):
-        y += a * x
-        return y
-
-METHODS = ("lbfgs",)
+METHODS = ("lbfgs", "cg")
+# Stored (s, y) pairs of the L-BFGS. On the GPU the two-loop recursion over the doubled grid's spectra is most of
+# an evaluation's memory traffic (about 40 grid arrays of the map's size per pair and iteration; a periodic
+# evaluation moves about 36): benchmarks/bench_gpu_floor.py times other values side by side.
+_CPU_MEMORY = 12
+_GPU_MEMORY = 12
 log = logging.getLogger("gapsweep.gfmd")
+
+
+class _HostOps:
+    """The passes of the free-boundary L-BFGS as numpy array expressions (the CPU; the GPU's fused variant is
+    ``gfmd._cuda._FreeCupyOps`` with the same methods)."""
+
+    def __init__(self, pad: Grid) -> None:
+        self.pad = pad
+
+    def dot(self, a: Any, b: Any) -> float:
+        return self.pad.dot(a, b)
+
+    def kdot(self, a: Any, k: Any, b: Any) -> float:
+        """``<A k B>``, ``k`` real."""
+        return self.pad.dot(a, k * b)
+
+    def axpy(self, y: Any, a: float, x: Any) -> None:
+        _axpy_into(a, x, y)
+
+    def grad(self, k: Any, U: Any, c: float, F: Any) -> Any:
+        return k * U - c * F
+
+    def trial(self, g: Any, a: float, d: Any) -> Any:
+        return g + a * d
+
+    def mean(self, a: Any) -> float:
+        return float(np.mean(a))
+
+    def mean_product(self, p: Any, d: Any) -> float:
+        return float(np.mean(p * d))
+
+
+def _make_ops(pad: Grid) -> Any:
+    if pad.xp is np:
+        return _HostOps(pad)
+    from gapsweep.gfmd._cuda import _FreeCupyOps
+
+    return _FreeCupyOps(pad.xp, (pad.shape[0], pad.shape[1] // 2 + 1), pad.shape[1] % 2 == 0)
 
 
 class _FreeState:
@@ -56,10 +96,11 @@ class _FreeState:
     that :func:`gapsweep.gfmd._smooth._wolfe` uses (``line``, ``phi``, ``e_law``, ``energy``)."""
 
     def __init__(self, free: FreeGrid, pad: Grid, law: SmoothInteraction, h: Any, k: Any, sigma0: float,
-                 U: Any, delta: float) -> None:
+                 U: Any, delta: float, ops: Any = None) -> None:
         self.free, self.pad, self.law, self.h, self.k, self.sigma0 = free, pad, law, h, k, sigma0
         self.ratio = pad.size / free.size  # N_pad / N_map
         self.xp = pad.xp
+        self.ops = ops if ops is not None else _make_ops(pad)
         self.U, self.delta = U, float(delta)
         self.g = self.map_field(U) + self.delta - h
         self.nfev = 0
@@ -67,66 +108,215 @@ class _FreeState:
 
     def map_field(self, A: Any) -> Any:
         """The map block of the real field of the normalised doubled-grid coefficients ``A`` (only the map's
-        rows are transformed back: FreeGrid.pad_inv)."""
-        return self.free.pad_inv(A * float(self.pad.size))
+        rows are transformed back: FreeGrid.pad_inv); on the GPU a view of a transform buffer (use it at once)."""
+        return self.free.pad_sum(A)
 
     def _evaluate(self) -> None:
-        xp = self.xp
+        xp, ops = self.xp, self.ops
         self.p = self.law.pressure(self.g, xp)
-        self.e_law = float(xp.mean(self.law.energy(self.g, xp)))
+        self.e_law = ops.mean(self.law.energy(self.g, xp))
         # FFT of p zero-padded to the doubled grid, normalised (FreeGrid.pad_fwd never forms the padding)
-        self.Gu = self.k * self.U - (self.ratio / self.pad.size) * self.free.pad_fwd(self.p)
-        self.Gd = self.sigma0 - float(self.p.mean())
+        self.Gu = ops.grad(self.k, self.U, self.ratio / self.pad.size, self.free.pad_fwd(self.p))
+        self.Gd = self.sigma0 - ops.mean(self.p)
         self.nfev += 1
 
     def dot(self, a: tuple[Any, float], b: tuple[Any, float]) -> float:
-        return self.pad.dot(a[0], b[0]) + a[1] * b[1]
+        return self.ops.dot(a[0], b[0]) + a[1] * b[1]
 
     def energy(self) -> float:
-        return 0.5 * self.pad.dot(self.U, self.k * self.U) + self.e_law + self.sigma0 * self.delta
+        return 0.5 * self.ops.kdot(self.U, self.k, self.U) + self.e_law + self.sigma0 * self.delta
 
     def line(self, D: tuple[Any, float]) -> tuple[Any, float, float, float]:
         """Real-space direction of the map's gap and the scalars of ``phi(alpha) = F(x + alpha D)``."""
         DU, dd = D
         d = self.map_field(DU) + dd
-        a = self.pad.dot(DU, self.k * self.U)
-        b = self.pad.dot(DU, self.k * DU)
+        a = self.ops.kdot(DU, self.k, self.U)
+        b = self.ops.kdot(DU, self.k, DU)
         return d, a, b, dd
 
     def phi(self, alpha: float, d: Any, a: float, b: float, d0: float, e0: float) -> tuple[float, float]:
         """``(phi(alpha) - phi(0) + e_law(0), phi'(alpha))`` without FFT (``d0``: the step of ``delta``)."""
-        xp = self.xp
-        g = self.g + alpha * d
-        f = alpha * a + 0.5 * alpha * alpha * b + float(xp.mean(self.law.energy(g, xp))) + self.sigma0 * alpha * d0
-        df = a + alpha * b - float(xp.mean(self.law.pressure(g, xp) * d)) + self.sigma0 * d0
+        xp, ops = self.xp, self.ops
+        g = ops.trial(self.g, alpha, d)
+        f = alpha * a + 0.5 * alpha * alpha * b + ops.mean(self.law.energy(g, xp)) + self.sigma0 * alpha * d0
+        df = a + alpha * b - ops.mean_product(self.law.pressure(g, xp), d) + self.sigma0 * d0
         return f, df
 
     def move(self, alpha: float, D: tuple[Any, float], d: Any) -> None:
         self.U = self.U + alpha * D[0]
         self.delta += alpha * D[1]
-        self.g = self.g + alpha * d
+        self.g = self.ops.trial(self.g, alpha, d)
         self._evaluate()
 
 
 def _axpy_into(a: float, x: Any, y: Any) -> None:
-    """``y += a x`` for complex arrays: one BLAS ``zaxpy`` pass on numpy (no temporary), the array expression
-    elsewhere (cupy)."""
-    if isinstance(y, np.ndarray) and y.dtype == np.complex128 and x.dtype == np.complex128 \
-            and y.flags.c_contiguous and x.flags.c_contiguous:
-        _zaxpy(x.ravel(), y.ravel(), a=a)  # ravel of a contiguous array is a view: y is updated in place
-    else:
-        y += a * x
+    """``y += a x`` in place (gapsweep.core.vec.axpy: chunked on numpy, no BLAS threads)."""
+    axpy(a, x, y)
+
+
+def _check(st: _FreeState, ratio: float, p_ref: float, tol: float, max_iter: int, rng: float | None,
+           history: list[float]) -> str | None:
+    """The stopping tests of the minimisers at the current point (None: go on); the residual as in the module
+    docstring, appended to ``history``."""
+    res = max(math.sqrt(max(st.ops.dot(st.Gu, st.Gu), 0.0) / ratio), abs(st.Gd)) / p_ref
+    history.append(res)
+    if not math.isfinite(res):
+        return "non_finite"
+    if res <= tol:
+        return "converged"
+    if st.sigma0 < 0 and rng is not None and float(st.g.min()) > _DETACHED * rng:
+        return "detached"
+    return "max_iter" if st.nfev >= max_iter else None
+
+
+def _cg(st: _FreeState, minv_u: Any, minv_d: float, ratio: float, p_ref: float, tol: float, max_iter: int,
+        rng: float | None, history: list[float]) -> str:
+    """Method "cg": preconditioned nonlinear conjugate gradients (Polak-Ribiere+, restarted when a direction is
+    not a descent direction or the line search fails) with the L-BFGS method's preconditioner and strong-Wolfe
+    line search (``c2 = 0.4``: on a 128 x 128 map 2.4 trials per evaluation and 134 evaluations, where 0.1 took 23
+    and 216); the first trial step ``alpha_prev slope_prev / slope`` (Nocedal & Wright, Numerical Optimization,
+    Eq. 3.60). One direction and the previous gradient instead of the L-BFGS pairs: less memory traffic per
+    evaluation on the doubled grid (the GPU's cost), more evaluations."""
+    ops = st.ops
+    D: Any = None
+    zg_old = alpha = slope_old = 0.0
+    G_old: Any = None
+    while True:
+        deadline.check()  # a task time limit ends the solve between iterations
+        stop = _check(st, ratio, p_ref, tol, max_iter, rng, history)
+        if stop:
+            return stop
+        Zu, zd = minv_u * st.Gu, minv_d * st.Gd
+        zg = ops.dot(Zu, st.Gu) + zd * st.Gd
+        beta = 0.0
+        if D is not None and zg_old > 0:
+            beta = max(0.0, (zg - ops.dot(Zu, G_old[0]) - zd * G_old[1]) / zg_old)
+        if beta > 0:
+            Du = D[0]
+            Du *= beta
+            Du -= Zu
+            D = (Du, beta * D[1] - zd)
+        else:
+            Zu *= -1.0
+            D = (Zu, -zd)
+        slope = ops.dot(st.Gu, D[0]) + st.Gd * D[1]
+        if not slope < 0 and beta > 0:  # not a descent direction: steepest descent
+            D = (-(minv_u * st.Gu), -zd)
+            slope, beta = -zg, 0.0
+        if not slope < 0:
+            return "stalled" if math.isfinite(slope) else "non_finite"
+        a0 = alpha * slope_old / slope if alpha > 0 else 1.0
+        step = _wolfe(st, D, slope, a0 if math.isfinite(a0) and a0 > 0 else 1.0, c2=0.4)
+        if step is None:
+            if beta == 0.0:
+                return "stalled"
+            D, alpha = None, 0.0  # restart along the preconditioned gradient
+            continue
+        alpha, d = step
+        slope_old, zg_old, G_old = slope, zg, (st.Gu, st.Gd)
+        st.move(alpha, D, d)
+
+
+def _lbfgs(st: _FreeState, minv_u: Any, minv_d: float, ratio: float, p_ref: float, tol: float, max_iter: int,
+           rng: float | None, memory: int, history: list[float]) -> str:
+    """Method "lbfgs" (the default): L-BFGS with ``memory`` pairs, the preconditioner ``(minv_u, minv_d)`` as
+    its initial inverse Hessian (module docstring). Returns the status; ``st`` holds the last point."""
+    ops, sigma0 = st.ops, st.sigma0
+    s_hist: list = []
+    y_hist: list = []
+    r_hist: list[float] = []
+    status = "max_iter"
+
+    def precondition(G: tuple[Any, float]) -> tuple[Any, float]:
+        return minv_u * G[0], minv_d * G[1]
+
+    def axpy(a: float, x: tuple[Any, float], y: tuple[Any, float]) -> tuple[Any, float]:
+        """``y + a x``, in place on ``y`` (a direction being built by the two-loop recursion, owned here)."""
+        ops.axpy(y[0], a, x[0])
+        return y[0], y[1] + a * x[1]
+
+    while True:
+        deadline.check()  # a task time limit ends the solve between iterations
+        grad = (st.Gu, st.Gd)
+        # G_u = ratio FFT[f - p 1_map]/N_pad: sqrt(dot/ratio) is the imbalance's rms normalised to the map
+        res = max(math.sqrt(max(ops.dot(st.Gu, st.Gu), 0.0) / ratio), abs(st.Gd)) / p_ref
+        history.append(res)
+        if not math.isfinite(res):
+            status = "non_finite"
+            break
+        if res <= tol:
+            status = "converged"
+            break
+        if sigma0 < 0 and rng is not None and float(st.g.min()) > _DETACHED * rng:
+            status = "detached"
+            break
+        if st.nfev >= max_iter:
+            break
+        q = (st.Gu.copy(), st.Gd)
+        alphas = []
+        for s, y, r in zip(reversed(s_hist), reversed(y_hist), reversed(r_hist)):
+            al = r * st.dot(s, q)
+            alphas.append(al)
+            q = axpy(-al, y, q)
+        q0 = q[0]  # owned (a copy of the gradient): scaled in place
+        q0 *= minv_u
+        q = (q0, minv_d * q[1])
+        if y_hist:
+            y_last = y_hist[-1]  # <y M^-1 y> in one pass (no preconditioned copy)
+            yhy = ops.kdot(y_last[0], minv_u, y_last[0]) + y_last[1] * (minv_d * y_last[1])
+            if yhy > 0:
+                sc = 1.0 / (r_hist[-1] * yhy)
+                q0 *= sc
+                q = (q0, q[1] * sc)
+        for s, y, r, al in zip(s_hist, y_hist, r_hist, reversed(alphas)):
+            q = axpy(al - r * st.dot(y, q), s, q)
+        q0 = q[0]
+        q0 *= -1.0
+        D = (q0, -q[1])
+        slope = st.dot(grad, D)
+        if not slope < 0:
+            s_hist.clear(), y_hist.clear(), r_hist.clear()
+            pg = precondition(grad)
+            D = (-pg[0], -pg[1])
+            slope = st.dot(grad, D)
+            if not slope < 0:
+                status = "stalled" if math.isfinite(slope) else "non_finite"
+                break
+        step = _wolfe(st, D, slope, 1.0)
+        if step is None:
+            if not s_hist:
+                status = "stalled"
+                break
+            s_hist.clear(), y_hist.clear(), r_hist.clear()
+            continue
+        alpha, d = step
+        old = grad
+        st.move(alpha, D, d)
+        s = (alpha * D[0], alpha * D[1])
+        y = (st.Gu - old[0], st.Gd - old[1])
+        sy = st.dot(s, y)
+        if sy > 0:
+            s_hist.append(s)
+            y_hist.append(y)
+            r_hist.append(1.0 / sy)
+            if len(s_hist) > memory:
+                s_hist.pop(0), y_hist.pop(0), r_hist.pop(0)
+    return status
 
 
 def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: float, length: Any, tol: float,
              method: str, backend: str, max_iter: int, initial: Any, threads: int | None, host: Any,
-             t_start: float, periodic: bool = False, memory: int = 12) -> GFMDResult:
+             t_start: float, periodic: bool = False, memory: int | None = None) -> GFMDResult:
     """Smooth ``law`` on the finite map ``heights`` with free boundaries (module docstring; inputs validated by
     ``gfmd.solve``). ``initial``: None (the body flat, touching the highest summit) or a GFMDResult of a free
     solve of the same map (its pressure is turned into the displacement on the doubled grid)."""
     if periodic:
         raise ValueError("gfmd._free solves finite maps only (periodic=False)")
+    method = "lbfgs" if method == "auto" else method
+    if method not in METHODS:
+        raise ValueError(f"method must be one of 'auto', {', '.join(map(repr, METHODS))}, got {method!r}")
     on_gpu = _is_cupy(heights)
+    memory = (_GPU_MEMORY if on_gpu else _CPU_MEMORY) if memory is None else int(memory)
     free = FreeGrid(heights.shape, length, backend, threads, on_gpu)
     nx, ny = free.shape
     pad = Grid((2 * nx, 2 * ny), (2 * free.lx, 2 * free.ly), free.backend, threads, on_gpu)
@@ -164,85 +354,12 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
                          f"{nx} x {ny} map")
     st = _FreeState(free, pad, law, h, k, sigma0, U, delta)
     history: list[float] = []
-    s_hist: list = []
-    y_hist: list = []
-    r_hist: list[float] = []
-    status = "max_iter"
-
-    def precondition(G: tuple[Any, float]) -> tuple[Any, float]:
-        return minv_u * G[0], minv_d * G[1]
-
-    def axpy(a: float, x: tuple[Any, float], y: tuple[Any, float]) -> tuple[Any, float]:
-        """``y + a x``, in place on ``y`` (a direction being built by the two-loop recursion, owned here)."""
-        _axpy_into(a, x[0], y[0])
-        return y[0], y[1] + a * x[1]
 
     with np.errstate(all="ignore"):
-        while True:
-            deadline.check()  # a task time limit ends the solve between iterations
-            grad = (st.Gu, st.Gd)
-            # G_u = ratio FFT[f - p 1_map]/N_pad: sqrt(dot/ratio) is the imbalance's rms normalised to the map
-            res = max(math.sqrt(max(pad.dot(st.Gu, st.Gu), 0.0) / ratio), abs(st.Gd)) / p_ref
-            history.append(res)
-            if not math.isfinite(res):
-                status = "non_finite"
-                break
-            if res <= tol:
-                status = "converged"
-                break
-            if sigma0 < 0 and rng is not None and float(st.g.min()) > _DETACHED * rng:
-                status = "detached"
-                break
-            if st.nfev >= max_iter:
-                break
-            q = (st.Gu.copy(), st.Gd)
-            alphas = []
-            for s, y, r in zip(reversed(s_hist), reversed(y_hist), reversed(r_hist)):
-                al = r * st.dot(s, q)
-                alphas.append(al)
-                q = axpy(-al, y, q)
-            q0 = q[0]  # owned (a copy of the gradient): scaled in place
-            q0 *= minv_u
-            q = (q0, minv_d * q[1])
-            if y_hist:
-                yhy = st.dot(y_hist[-1], precondition(y_hist[-1]))
-                if yhy > 0:
-                    sc = 1.0 / (r_hist[-1] * yhy)
-                    q0 *= sc
-                    q = (q0, q[1] * sc)
-            for s, y, r, al in zip(s_hist, y_hist, r_hist, reversed(alphas)):
-                q = axpy(al - r * st.dot(y, q), s, q)
-            q0 = q[0]
-            q0 *= -1.0
-            D = (q0, -q[1])
-            slope = st.dot(grad, D)
-            if not slope < 0:
-                s_hist.clear(), y_hist.clear(), r_hist.clear()
-                pg = precondition(grad)
-                D = (-pg[0], -pg[1])
-                slope = st.dot(grad, D)
-                if not slope < 0:
-                    status = "stalled" if math.isfinite(slope) else "non_finite"
-                    break
-            step = _wolfe(st, D, slope, 1.0)
-            if step is None:
-                if not s_hist:
-                    status = "stalled"
-                    break
-                s_hist.clear(), y_hist.clear(), r_hist.clear()
-                continue
-            alpha, d = step
-            old = grad
-            st.move(alpha, D, d)
-            s = (alpha * D[0], alpha * D[1])
-            y = (st.Gu - old[0], st.Gd - old[1])
-            sy = st.dot(s, y)
-            if sy > 0:
-                s_hist.append(s)
-                y_hist.append(y)
-                r_hist.append(1.0 / sy)
-                if len(s_hist) > memory:
-                    s_hist.pop(0), y_hist.pop(0), r_hist.pop(0)
+        if method == "cg":
+            status = _cg(st, minv_u, minv_d, ratio, p_ref, tol, max_iter, rng, history)
+        else:
+            status = _lbfgs(st, minv_u, minv_d, ratio, p_ref, tol, max_iter, rng, memory, history)
 
         # Returned fields from the state; their residual decides (issue 9).
         u_pad = pad.inv(st.U)
@@ -272,7 +389,7 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
     pad.synchronize()
     return GFMDResult(
         mean_gap=g0, gap=gap, pressure=p, displacement=u, iterations=st.nfev, converged=converged,
-        residual=residual, load_error=load_error, wall_time=time.perf_counter() - t_start, method="lbfgs",
+        residual=residual, load_error=load_error, wall_time=time.perf_counter() - t_start, method=method,
         backend=pad.backend, status=status, sigma0=sigma0, rho=getattr(law, "rho", math.nan),
         gamma0=getattr(law, "gamma0", math.nan), e_star=e_star, length=length, tol=tol, history=history,
         interaction=law.name, params=law.params(), contact_area=area, elastic_energy=elastic,

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from gapsweep.core.fft import available_backends, get_backend
+from gapsweep.core.vec import rdot
 
 
 def lengths(length: Any) -> tuple[float, float]:
@@ -50,13 +51,20 @@ class Grid:
         kx = xp.fft.fftfreq(nx, d=1.0 / nx) * (2 * math.pi / self.lx)
         ky = xp.fft.rfftfreq(ny, d=1.0 / ny) * (2 * math.pi / self.ly)
         self.q = xp.sqrt(kx[:, None] ** 2 + ky[None, :] ** 2)
-        nyh = ny // 2 + 1
-        w = xp.full((nx, nyh), 2.0)
+        self._edge_weights = True  # w is 2 but for the columns ky = 0 and Nyquist (Grid.dot's BLAS path relies on it)
+
+    def __getattr__(self, name: str) -> Any:
+        # ``_w``, the Parseval weights of the half spectrum, made on first use (a hard-wall solve on the GPU
+        # needs them only for its result: half a grid array less at its peak, gfmd._cuda.solve_memory)
+        if name != "_w" or "shape" not in self.__dict__:
+            raise AttributeError(name)
+        nx, ny = self.shape
+        w = self.xp.full((nx, ny // 2 + 1), 2.0)
         w[:, 0] = 1.0
         if ny % 2 == 0:
             w[:, -1] = 1.0
-        self._w = w  # Parseval weights of the half spectrum
-        self._edge_weights = True  # w is 2 but for the columns ky = 0 and Nyquist (Grid.dot's BLAS path relies on it)
+        self._w = w
+        return w
 
     def asarray(self, a: Any) -> Any:
         return self.xp.asarray(a, dtype=self.xp.float64)
@@ -89,15 +97,16 @@ class Grid:
 
     def dot(self, a: Any, b: Any) -> float:
         """``<A B>`` (grid mean of the product of the two real fields) by Parseval: ``sum w Re(conj(a) b)`` with
-        the half spectrum's weights ``w`` (2, but 1 on the columns ky = 0 and Nyquist). On numpy one BLAS
-        ``zdotc`` over the whole array less the two edge columns, no temporaries (the L-BFGS two-loop recursion
+        the half spectrum's weights ``w`` (2, but 1 on the columns ky = 0 and Nyquist). On numpy one
+        single-threaded pass over the whole array less the two edge columns (gapsweep.core.vec.rdot), no
+        temporaries (the L-BFGS two-loop recursion
         spends most of its time here on large grids)."""
         if getattr(self, "_edge_weights", False) and self.xp is np and a.dtype == np.complex128 \
                 and b.dtype == np.complex128 and a.shape == b.shape == self._w.shape \
                 and a.flags.c_contiguous and b.flags.c_contiguous:
-            s = 2.0 * np.vdot(a, b).real - np.vdot(a[:, 0], b[:, 0]).real
+            s = 2.0 * rdot(a, b) - rdot(a[:, 0], b[:, 0])
             if self.shape[1] % 2 == 0:
-                s -= np.vdot(a[:, -1], b[:, -1]).real
+                s -= rdot(a[:, -1], b[:, -1])
             return float(s)
         return float(self.xp.sum(self._w * (a.real * b.real + a.imag * b.imag)))
 
@@ -220,6 +229,17 @@ class FreeGrid(Grid):
         else:  # cupy.fft (cuFFT): the same calls without scipy's keywords
             self._f, self._kw, self._ow = self.xp.fft, {}, {}
         self._green: dict[float, Any] = {}
+        self._pad: Any = None  # the GPU's 2-D plans of the doubled grid (gfmd._cuda._PadFFT), made on first use
+
+    def _padfft(self) -> Any:
+        """cuFFT plans of the doubled grid (GPU only; None on the CPU)."""
+        if self.xp is np:
+            return None
+        if self._pad is None:
+            from gapsweep.gfmd._cuda import _PadFFT
+
+            self._pad = _PadFFT(self.xp, self.shape)
+        return self._pad
 
     def green(self, e_star: float) -> Any:
         """Spectrum of ``G`` on the doubled grid (distances wrapped to ``[-n, n]`` pixels), shape
@@ -249,6 +269,8 @@ class FreeGrid(Grid):
         nx, ny = self.shape
         if self._plans is not None:  # FFTW plans (pyFFTW backend); returns a plan buffer
             return self._plans.fwd(a)
+        if self.xp is not np:  # cuFFT: one 2-D plan over the padded buffer (gfmd._cuda._PadFFT)
+            return self._padfft().fwd(a)
         b = self._f.rfft(a, n=2 * ny, axis=1, **self._kw)  # rows of the map, zero padded to 2 ny
         return self._f.fft(b, n=2 * nx, axis=0, **self._ow, **self._kw)  # rows nx .. 2nx - 1 are zero
 
@@ -259,13 +281,32 @@ class FreeGrid(Grid):
         nx, ny = self.shape
         if self._plans is not None:
             return self._plans.inv(b)
+        if self.xp is not np:
+            pad = self._padfft()
+            return self.xp.ascontiguousarray(pad.inv_sum(b, pad.scale))
         c = self._f.ifft(b, axis=0, **self._ow, **self._kw)[:nx]
         return self._f.irfft(c, n=2 * ny, axis=1, **self._kw)[:, :ny]
+
+    def pad_sum(self, b: Any) -> Any:
+        """The map block of the unnormalised inverse (the plain sum over modes) of the doubled grid's half
+        spectrum ``b``: ``pad_inv(b * 4 nx ny)``. On the GPU a view of a plan buffer, valid until the next
+        transform (use it at once), and ``b`` is kept; on the CPU a new array, and ``b`` may be overwritten."""
+        if self.xp is not np:
+            return self._padfft().inv_sum(b)
+        return self.pad_inv(b * float(4 * self.shape[0] * self.shape[1]))
 
     def compliance(self, e_star: float) -> Any:
         """``K(p, out=None)``: the map's displacement (length) under the pressure ``p`` on the map (docstring of
         :class:`FreeGrid`): :meth:`pad_fwd`, times the Green's function's spectrum, :meth:`pad_inv`."""
         m = self.green(e_star)
+        pad = self._padfft()
+        if pad is not None:  # GPU: the two plans, the product in the C2R input, the normalisation in m
+            m_inv = m * pad.scale
+
+            def apply_gpu(a: Any, out: Any = None) -> Any:
+                return pad.convolve(a, m_inv, out)
+
+            return apply_gpu
 
         def apply(a: Any, out: Any = None) -> Any:
             b = self.pad_fwd(a)

@@ -35,7 +35,7 @@ import numpy as np
 from gapsweep.core import deadline
 from gapsweep.gfmd._coarse import Start
 from gapsweep.gfmd._result import GFMDResult
-from gapsweep.gfmd._smooth import _STEP_TOL, _Solver, _stop, _wolfe
+from gapsweep.gfmd._smooth import _STEP_TOL, _Solver, _stop, _wolfe, touching_gap
 
 log = logging.getLogger("gapsweep.gfmd")
 CHUNK = {"numpy": 1 << 22, "cupy": 1 << 25}  # elements per chunk of an elementwise pass (32 / 256 MiB of float64)
@@ -303,9 +303,11 @@ def minimise(h: Any, law: Any, *, sigma0: float, e_star: float, length: Any, tol
         del Z
     else:
         (u0, g0), source = initial
-        Z0 = grid.slab.rfft2(u0 - grid.mean(u0))
+        uc = u0 - grid.mean(u0)
+        Z0 = grid.slab.rfft2(uc)
         Z0 *= 1.0 / grid.size
-        grid.set_mode0(Z0, float(g0))
+        grid.set_mode0(Z0, float(g0) if math.isfinite(g0) else touching_gap(grid, h, uc))
+        del uc
         st, status = sv.at(sigma0, Z0, tol)
         s_init = float(getattr(source, "sigma0", math.nan))
         if (status in ("detached", "stalled") and source is not None and getattr(source, "converged", False)

@@ -7,6 +7,8 @@ from typing import Any
 
 import numpy as np
 
+from gapsweep.core.vec import rdot
+
 
 # ------------------------------------------------------------------------------------------------ kernels
 class _Ops:
@@ -22,10 +24,9 @@ class _Ops:
     def dot(self, a, b) -> float:
         """``<A B>`` for half spectra: columns other than ky = 0 (and ky = n/2 for even n) stand for
         themselves and their conjugates, hence weight 2."""
-        xp = self.xp
-        s = 2.0 * xp.vdot(a.ravel(), b.ravel()).real - xp.vdot(a[:, 0], b[:, 0]).real
+        s = 2.0 * rdot(a, b) - rdot(a[:, 0], b[:, 0])
         if self.even:
-            s = s - xp.vdot(a[:, -1], b[:, -1]).real
+            s = s - rdot(a[:, -1], b[:, -1])
         return float(s)
 
     def trial(self, w, d, c: float, out) -> float:
@@ -47,7 +48,7 @@ class _Ops:
     def moments(self, e, d) -> tuple[float, float]:
         """``(sum e d, sum e d^2)``."""
         ed = e * d
-        return float(ed.sum()), float(self.xp.vdot(ed.ravel(), d.ravel()))
+        return float(ed.sum()), rdot(ed, d)
 
     def grad(self, X, E, c: float, k, G) -> None:
         """``G = k X - c E`` with ``G(q=0) = 0``."""

@@ -325,6 +325,24 @@ class _Solver:
         return st, status
 
 
+def initial_pair(initial: Any) -> tuple[Any, float]:
+    """``(displacement, mean gap)`` of a smooth law's ``initial``: a GFMDResult, such a pair, or a displacement
+    field alone (what a pressure chain of the exponential law keeps, docs/gfmd.md "Warm starts"), whose mean gap
+    is then NaN: :func:`touching_gap` places the body."""
+    if isinstance(initial, GFMDResult):
+        return initial.displacement, float(initial.mean_gap)
+    if isinstance(initial, (tuple, list)) and len(initial) == 2 and np.ndim(initial[1]) == 0:
+        return initial[0], float(initial[1])
+    return initial, math.nan
+
+
+def touching_gap(grid: Any, h: Any, uc: Any) -> float:
+    """The mean gap ``g0`` at which the body with the zero-mean displacement ``uc`` touches the surface ``h``
+    (zero mean) at one point: ``g = g0 + uc - h >= 0`` with equality at the highest point of ``h - uc`` (the
+    start without ``initial`` is the case ``uc = 0``). Length units of ``h``."""
+    return float(grid.amax(h - uc))
+
+
 def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: float, length: Any, tol: float,
              method: str, backend: str, max_iter: int, initial: Any, threads: int | None, host: Any,
              t_start: float, memory: int = 8, grid: Grid | None = None) -> GFMDResult:
@@ -354,17 +372,15 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
         else:
             st, status = sv.at(sigma0, Z, tol)
     else:
-        if isinstance(initial, GFMDResult):
-            u0, g0 = initial.displacement, initial.mean_gap
-        else:
-            u0, g0 = initial
+        u0, g0 = initial_pair(initial)
         u0 = xp.asarray(u0, dtype=xp.float64)
         shape_ok = tuple(u0.shape) == tuple(grid.real_shape)
-        if not grid.agree(shape_ok and bool(xp.all(xp.isfinite(u0))) and math.isfinite(g0)):
-            raise ValueError(f"initial must be a GFMDResult or (displacement of shape {grid.real_shape}, "
-                             "mean gap)")
-        Z0 = grid.fwd(u0 - grid.mean(u0))
-        grid.set_mode0(Z0, float(g0))
+        if not grid.agree(shape_ok and bool(xp.all(xp.isfinite(u0))) and not math.isinf(g0)):
+            raise ValueError(f"initial must be a GFMDResult, (displacement of shape {grid.real_shape}, mean gap) "
+                             "or a finite displacement field of that shape")
+        uc = u0 - grid.mean(u0)
+        Z0 = grid.fwd(uc)
+        grid.set_mode0(Z0, float(g0) if math.isfinite(g0) else touching_gap(grid, h, uc))
         st, status = sv.at(sigma0, Z0, tol)
         s_init = float(getattr(initial, "sigma0", math.nan))
         if (status in ("detached", "stalled") and isinstance(initial, GFMDResult) and initial.converged

@@ -30,6 +30,7 @@ import numpy as np
 
 from gapsweep.core import checks as chk
 from gapsweep.core.slab import Reducer, SlabFFT, check_comm, slab_rows
+from gapsweep.core.vec import rdot
 from gapsweep.gfmd._coarse import Start
 from gapsweep.gfmd._grid import Grid
 from gapsweep.gfmd._ops import _is_cupy
@@ -186,7 +187,7 @@ class _SlabOps:
 
     def _moments(self, e, d) -> tuple[float, float]:
         ed = e * d
-        return float(ed.sum()), float(self.xp.vdot(ed.ravel(), d.ravel()))
+        return float(ed.sum()), rdot(ed, d)
 
     def moments(self, e, d) -> tuple[float, float]:
         return tuple(self.red.sum(*self._moments(e, d)))
@@ -373,12 +374,13 @@ def _smooth_initial(initial: Any, grid: SlabGrid) -> Any:
         return initial
     if isinstance(initial, GFMDResult):
         return (_initial_field(initial, "displacement", grid), float(initial.mean_gap)), initial
-    ok = isinstance(initial, (tuple, list)) and len(initial) == 2
-    g0 = float(initial[1]) if ok and np.ndim(initial[1]) == 0 else math.nan
-    if not grid.agree(math.isfinite(g0)):
-        raise ValueError("initial must be a result of a distributed solve of the same grid or a pair (this rank's "
-                         "rows of a displacement, mean gap)")
-    return (_initial_field(initial[0], "displacement", grid), g0), None
+    from gapsweep.gfmd._smooth import initial_pair
+
+    u0, g0 = initial_pair(initial)  # a displacement alone: mean gap NaN, the body placed touching (_lean)
+    if not grid.agree(not math.isinf(g0)):
+        raise ValueError("initial must be a result of a distributed solve of the same grid, a pair (this rank's "
+                         "rows of a displacement, mean gap) or this rank's rows of a displacement")
+    return (_initial_field(u0, "displacement", grid), g0), None
 
 
 def _initial_field(initial: Any, name: str, grid: SlabGrid) -> Any:

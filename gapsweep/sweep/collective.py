@@ -4,8 +4,10 @@ docs/jobs.md, docs/gfmd.md "One solve over several processes").
 Every rank goes through the job's units in the same order; a distributed task is solved by all ranks together
 (``gapsweep.gfmd.solve(h_rows, comm=comm)``: each rank holds its rows of the surface and of the fields), the
 row's scalars (global: mean gap, contact area, energies, the gap's statistics and histograms, reduced over the
-ranks) are the same on every rank and rank 0 writes them into the store, as for any row. Tasks of other methods
-in the same job run on rank 0 alone. This replaces the coordinator/worker farm for such a job (the farm hands
+ranks) are the same on every rank and rank 0 writes them into the store, as for any row. The surface is made in
+place (each rank its rows, gapsweep.sweep.slabs) and kept fields are written by rows, every rank its own
+(``gapsweep.sweep.fields.write_field_rows``: collectively under ``mpio``, else through rank 0). Tasks of other
+methods in the same job run on rank 0 alone. This replaces the coordinator/worker farm for such a job (the farm hands
 whole tasks to single ranks); it is chosen by :func:`is_collective`. The task itself is solved by the GFMD
 plug-in (``gapsweep.sweep.methods.gfmd.run_slab``, when the runner gives the context a communicator).
 
@@ -52,8 +54,8 @@ def check_memory(tasks: list[Task], ranks: int, on_gpu_total: float | None = Non
     """Plan lines for the distributed tasks over ``ranks`` ranks; raises :class:`DoesNotFit` when the largest
     does not fit: on GPUs (``backend = "cupy"``, one GPU per rank) the solve's slabs
     (``gfmd.distributed.solve_memory``) and a CUDA context against one GPU's memory; on the CPU the slabs of all
-    ranks (one node) and each rank's copy of the surface against the host's memory. ``on_gpu_total`` /
-    ``host_total``: the memory to check against (default: this machine's, 0 or None: not checked)."""
+    ranks (one node; the surface's rows among them: it is made in place) against the host's memory.
+    ``on_gpu_total`` / ``host_total``: the memory to check against (default: this machine's, 0 or None: not checked)."""
     from gapsweep.gfmd.distributed import solve_memory
 
     dist = [t for t in tasks if t.opt("distributed")]
@@ -76,10 +78,12 @@ def check_memory(tasks: list[Task], ranks: int, on_gpu_total: float | None = Non
     if host_need:
         lines.append(f"  distributed GFMD: ~{budget.human(host_need)} per rank for the solve ({ranks} ranks)")
         ram = budget.memory_total() if host_total is None else host_total
-        whole = ranks * (host_need + budget.peak_memory(dist))
+        # each rank's rows of the surface are among the solve's arrays (made in place, gapsweep.sweep.slabs);
+        # beyond them every rank's interpreter, and rank 0 a file map it reads whole (the plug-in's memory)
+        whole = ranks * host_need + budget.peak_memory(dist) + (ranks - 1) * budget.BASE_MEMORY
         if ram and whole > ram:
             raise DoesNotFit(f"a distributed GFMD task needs ~{budget.human(host_need)} per rank for the solve, "
-                           f"~{budget.human(whole)} over {ranks} ranks with their surfaces, more than this "
+                           f"~{budget.human(whole)} over {ranks} ranks, more than this "
                            f"machine's {budget.human(ram)}: use more nodes or smaller grids (n)")
     return lines
 

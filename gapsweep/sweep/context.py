@@ -33,6 +33,8 @@ class Context:
         self._rms: dict[tuple, tuple[float, float]] = {}  # (h_rms, g_rms) of the cached surfaces
         self._spectra: dict[tuple, Any] = {}  # discrete spectra of the cached surfaces (theory, M4)
         self._on_gpu: dict[tuple, Any] = {}  # GPU copies of the cached surfaces (GFMD with backend = "cupy")
+        self._rows: tuple[tuple, Any, tuple[float, float]] | None = None  # (key, rows, rms): one distributed surface
+        self.writer = "serial"  # how kept fields are written under MPI: mpio | rank0 (set by the runner)
         self._max = max_surfaces
         self.warmed: set[tuple] = set()  # kinds of task whose method was warmed up (runner.warm_up)
         self._pool: Any = None  # host threads making surfaces ahead (prefetch), on GPU workers
@@ -122,6 +124,30 @@ class Context:
             cached = (dev, cupy.asarray(h))
             self._on_gpu[key] = cached
         return cached[1]
+
+    def surface_rows(self, t: Task, n: int, comm: Any) -> Any:
+        """This rank's rows (``gapsweep.core.slab.slab_rows``) of :meth:`surface` for a task solved over every
+        rank of ``comm`` (gapsweep.sweep.slabs: a synthetic surface made in place, no rank holding the whole map;
+        on this rank's GPU for ``backend = "cupy"``). Collective. One such surface is cached (a pressure chain
+        makes it once); making another drops it first, so a rank never holds two."""
+        from gapsweep.sweep.slabs import surface_rows
+
+        sp = t.surface_params()
+        backend = "cupy" if t.opt("backend") == "cupy" else "numpy"
+        key = (*self._key(t, n, sp), "rows", comm.Get_size(), comm.Get_rank(), backend)
+        if self._rows is None or self._rows[0] != key:
+            self._rows = None
+            h, rms = surface_rows(t, n, sp, comm, backend, map_rms=_rms)
+            if hasattr(h, "setflags"):
+                h.setflags(write=False)
+            self._rows = (key, h, rms)
+        return self._rows[1]
+
+    def surface_rows_rms(self, t: Task, n: int, comm: Any) -> tuple[float, float]:
+        """``(h_rms, g_rms)`` of the whole surface of :meth:`surface_rows` (reduced over the ranks; a file map's
+        from rank 0, which reads it). Collective when the rows are not cached yet."""
+        self.surface_rows(t, n, comm)
+        return self._rows[2]
 
     @staticmethod
     def _key(t: Task, n: int, sp: dict[str, Any]) -> tuple:

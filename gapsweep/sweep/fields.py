@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +18,7 @@ import numpy as np
 from gapsweep.sweep.schema import FIELD_NAMES, StoreWriteError
 
 __all__ = ["FIELD_META", "FIELD_NAMES", "field_selected", "fields_dir", "remove_fields", "remove_partial",
-           "write_fields"]
+           "write_field_rows", "write_fields"]
 
 _LEN = {"units": "1", "reference_unit": "L"}  # lengths in units of the spec's L
 # field -> (long_name, unit attributes)
@@ -120,6 +120,36 @@ def _pressure_units(attrs: Mapping[str, Any]) -> dict[str, str]:
     return {"units": str(u)} if u else {"units": "1", "reference_unit": "E*"}
 
 
+def _create(f: Any, task_id: str, shape: tuple[int, int], names: list[str], *, length: Any,
+            attrs: Mapping[str, Any]) -> dict[str, Any]:
+    """The file's structure (written identically by every rank under ``mpio``): the cell-centre axes as dimension
+    scales, one float64 ``(x, y)`` dataset per field (chunked, gzip-compressed, not yet written) and the
+    attributes. Returns the field datasets by name."""
+    nx, ny = shape
+    lx, ly = (length, length) if np.isscalar(length) else length
+    axes = {"x": (np.arange(nx) + 0.5) * (lx / nx), "y": (np.arange(ny) + 0.5) * (ly / ny)}
+    chunk = (min(nx, 256), min(ny, 256))
+    for name, x in axes.items():
+        ds = f.create_dataset(name, data=x)
+        ds.make_scale(name)
+        ds.attrs.update({"long_name": f"{name} position of the cell centre", **_length_units(attrs)})
+    out = {}
+    for name in names:
+        long_name, units = FIELD_META[name]
+        units = _length_units(attrs) if units is _LEN else _pressure_units(attrs)
+        ds = f.create_dataset(name, shape=(nx, ny), dtype=np.float64, chunks=chunk, compression="gzip",
+                              compression_opts=4, shuffle=True)
+        ds.dims[0].attach_scale(f["x"])
+        ds.dims[1].attach_scale(f["y"])
+        ds.attrs.update({"long_name": long_name, **units})
+        out[name] = ds
+    f.attrs.update({"Conventions": "CF-1.10", "title": f"gapsweep kept fields of task {task_id}",
+                    "task_id": task_id})
+    for k, v in attrs.items():
+        f.attrs[k] = v if isinstance(v, (int, float, str, np.integer, np.floating)) else json.dumps(v)
+    return out
+
+
 def _write_fields(directory: str | Path, task_id: str, arrays: Mapping[str, np.ndarray], *, length: float,
                   attrs: Mapping[str, Any]) -> Path:
     import h5py
@@ -128,42 +158,188 @@ def _write_fields(directory: str | Path, task_id: str, arrays: Mapping[str, np.n
     d.mkdir(parents=True, exist_ok=True)
     final = d / f"{task_id}.nc"
     tmp = d / f".{task_id}.{os.getpid()}.tmp"
-    nx, ny = next(iter(arrays.values())).shape
-    lx, ly = (length, length) if np.isscalar(length) else length
-    axes = {"x": (np.arange(nx) + 0.5) * (lx / nx), "y": (np.arange(ny) + 0.5) * (ly / ny)}
-    chunk = (min(nx, 256), min(ny, 256))
+    shape = next(iter(arrays.values())).shape
     f: Any = None
     hdf5 = True  # an error before the file is closed comes from HDF5
     try:
         f = h5py.File(tmp, "w", track_order=True)  # closed below, not by a with-block: see the except
-        for name, x in axes.items():
-            ds = f.create_dataset(name, data=x)
-            ds.make_scale(name)
-            ds.attrs.update({"long_name": f"{name} position of the cell centre", **_length_units(attrs)})
+        out = _create(f, task_id, shape, list(arrays), length=length, attrs=attrs)
         for name, a in arrays.items():
-            long_name, units = FIELD_META[name]
-            units = _length_units(attrs) if units is _LEN else _pressure_units(attrs)
-            ds = f.create_dataset(name, data=np.asarray(a, dtype=np.float64), chunks=chunk, compression="gzip",
-                                  compression_opts=4, shuffle=True)
-            ds.dims[0].attach_scale(f["x"])
-            ds.dims[1].attach_scale(f["y"])
-            ds.attrs.update({"long_name": long_name, **units})
-        f.attrs.update({"Conventions": "CF-1.10", "title": f"gapsweep kept fields of task {task_id}",
-                        "task_id": task_id})
-        for k, v in attrs.items():
-            f.attrs[k] = v if isinstance(v, (int, float, str, np.integer, np.floating)) else json.dumps(v)
+            out[name][...] = np.asarray(a, dtype=np.float64)
         f.close()
         hdf5 = False
         os.replace(tmp, final)
     except (OSError, RuntimeError) as e:
         if not hdf5:
             raise
-        # HDF5 crashes when a file whose write failed is closed or released (issue 31: a run keeping fields
-        # segfaulted on a full disk): the file is kept open to the end of the process, which leaves by os._exit
-        from gapsweep.sweep.writefail import write_failed
+        _failed(task_id, d, e)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return final
 
-        raise write_failed(f"kept fields of task {task_id} in {d}: cannot be written ({e}); the row stays "
-                           "pending: free space or fix the folder and run again with --resume") from None
+
+def _failed(task_id: str, d: Path, e: BaseException) -> None:
+    """Raise the error of a failed HDF5 write of a fields file (inside its ``except``). HDF5 crashes when a file
+    whose write failed is closed or released (issue 31: a run keeping fields segfaulted on a full disk): the file
+    is kept open to the end of the process, which leaves by os._exit."""
+    from gapsweep.sweep.writefail import write_failed
+
+    raise write_failed(f"kept fields of task {task_id} in {d}: cannot be written ({e}); the row stays "
+                       "pending: free space or fix the folder and run again with --resume") from None
+
+
+# ---------------------------------------------------------------------------------------------- by rows
+def write_field_rows(directory: str | Path, task_id: str, rows: Mapping[str, np.ndarray], *,
+                     shape: tuple[int, int], comm: Any, writer: str, length: Any,
+                     attrs: Mapping[str, Any]) -> Path | None:
+    """:func:`write_fields` of fields split in row slabs over the ranks of ``comm`` (a GFMD solve over every
+    rank, gapsweep.sweep.collective): ``rows`` holds this rank's rows (``gapsweep.core.slab.slab_rows`` of the
+    global ``shape``) of each field, the same names on every rank. The file is the one a single process writes
+    of the whole fields (same datasets, chunks, compression, attributes; the same values bit for bit). Collective.
+
+    ``writer = "mpio"`` (h5py with MPI): every rank opens the temporary file (``driver="mpio"``), the structure is
+    made collectively and each rank writes its rows as a hyperslab (collective I/O, which HDF5 needs for
+    compressed datasets). Otherwise (``"rank0"``): rank 0 alone writes; the other ranks send their rows to it in
+    chunks of at most ``gapsweep.sweep.slabs.CHUNK_BYTES`` (rank 0 holds one chunk, never a whole field). Either
+    way the file is written under a temporary name and renamed by rank 0 once closed; any error raises
+    :class:`StoreWriteError` (never a failed row: the ranks would part ways; the runner ends the MPI job, the row
+    stays pending, the temporary file is removed by a ``--resume``, :func:`remove_partial`). Returns the file's
+    path on rank 0, else None."""
+    try:
+        if writer == "mpio":
+            return _write_rows_mpio(directory, task_id, rows, shape, comm, length, attrs)
+        return _write_rows_rank0(directory, task_id, rows, shape, comm, length, attrs)
+    except StoreWriteError:
+        raise
+    except Exception as e:  # an OSError, or anything else on some ranks only: the runner ends the MPI job
+        what = str(e) if isinstance(e, OSError) else f"{type(e).__name__}: {e}"
+        raise StoreWriteError(f"kept fields of task {task_id} in {directory}: cannot be written ({what}); the row "
+                              "stays pending: free space or fix the folder and run again with --resume") from None
+
+
+def _my_rows(shape: tuple[int, int], comm: Any) -> slice:
+    from gapsweep.core.slab import slab_rows
+
+    return slab_rows(int(shape[0]), comm)
+
+
+def _write_rows_mpio(directory: str | Path, task_id: str, rows: Mapping[str, np.ndarray], shape: tuple[int, int],
+                     comm: Any, length: Any, attrs: Mapping[str, Any]) -> Path | None:
+    import h5py
+
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    final = d / f"{task_id}.nc"
+    tmp = d / f".{task_id}.{comm.bcast(os.getpid(), root=0)}.tmp"  # one name: rank 0's process id
+    mine = _my_rows(shape, comm)
+    # An MPI-IO write that fails (full disk, file-size limit) is reported by the MPI library but not returned by
+    # HDF5's collective calls, which then wait forever: rank 0 first reserves the file's largest size (the raw
+    # fields, compression can only shrink them but by its few bytes per chunk), and every rank raises its error.
+    need = int(1.02 * 8 * shape[0] * shape[1] * len(rows)) + 8 * (shape[0] + shape[1]) + (64 << 10)
+    err = _reserve(d, tmp, need) if comm.Get_rank() == 0 else None
+    err = comm.bcast(err, root=0)
+    if err is not None:
+        raise OSError(err)
+    f: Any = None
+    try:
+        f = h5py.File(tmp, "w", driver="mpio", comm=comm, track_order=True)
+        out = _create(f, task_id, tuple(shape), list(rows), length=length, attrs=attrs)
+        for name, a in rows.items():
+            with out[name].collective:
+                out[name][mine.start:mine.stop] = np.asarray(a, dtype=np.float64)
+        f.close()
+    except (OSError, RuntimeError) as e:  # another rank may wait in a collective call: the runner aborts
+        _failed(task_id, d, e)
+    if comm.Get_rank() != 0:
+        comm.bcast(None, root=0)
+        return None
+    err = None
+    try:
+        os.replace(tmp, final)
+    except OSError as e:
+        err = str(e)
+    if comm.bcast(err, root=0) is not None:
+        raise OSError(err)
+    return final
+
+
+def _reserve(d: Path, tmp: Path, nbytes: int) -> str | None:
+    """Whether ``nbytes`` can be written to ``tmp`` (``os.posix_fallocate``: blocks reserved, not written, where
+    the file system allows; removed again): None, or the error's text (no space, a file-size limit)."""
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        try:
+            os.posix_fallocate(fd, 0, nbytes)
+        finally:
+            os.close(fd)
+            tmp.unlink(missing_ok=True)
+    except OSError as e:
+        return f"{e.strerror or e} (~{nbytes / 1e6:.1f} MB needed in {d})"
+    return None
+
+
+def _write_rows_rank0(directory: str | Path, task_id: str, rows: Mapping[str, np.ndarray], shape: tuple[int, int],
+                      comm: Any, length: Any, attrs: Mapping[str, Any]) -> Path | None:
+    from gapsweep.sweep.slabs import TAG_ROWS, row_chunks
+
+    size, rank = comm.Get_size(), comm.Get_rank()
+    if rank != 0:
+        if not comm.bcast(None, root=0):  # rank 0 could not create the file: it raises, the runner aborts
+            raise StoreWriteError(f"kept fields of task {task_id}: rank 0 could not create the file")
+        mine = _my_rows(shape, comm)
+        for name in rows:
+            a = np.ascontiguousarray(rows[name], dtype=np.float64)
+            for c in row_chunks(mine, int(shape[1])):
+                comm.Send(a[c.start - mine.start:c.stop - mine.start], dest=0, tag=TAG_ROWS)
+        return None
+    from gapsweep.core.slab import block
+
+    def receive(name: str) -> Iterator[tuple[slice, np.ndarray]]:
+        yield _my_rows(shape, comm), np.asarray(rows[name], dtype=np.float64)
+        for r in range(1, size):
+            for c in row_chunks(block(int(shape[0]), size, r), int(shape[1])):
+                buf = np.empty((c.stop - c.start, int(shape[1])), dtype=np.float64)
+                comm.Recv(buf, source=r, tag=TAG_ROWS)
+                yield c, buf
+
+    return _write_rank0_file(directory, task_id, list(rows), receive, tuple(shape), comm, length, attrs)
+
+
+def _write_rank0_file(directory: str | Path, task_id: str, names: list[str], receive: Any,
+                      shape: tuple[int, int], comm: Any, length: Any, attrs: Mapping[str, Any]) -> Path:
+    """Rank 0's part of :func:`_write_rows_rank0`: create the file (telling the other ranks whether it could), then
+    write each field's row blocks as ``receive(name)`` yields them, close and rename."""
+    import h5py
+
+    d = Path(directory)
+    final = d / f"{task_id}.nc"
+    tmp = d / f".{task_id}.{os.getpid()}.tmp"
+    f: Any = None
+    hdf5 = True
+    told = False
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+        f = h5py.File(tmp, "w", track_order=True)
+        out = _create(f, task_id, shape, names, length=length, attrs=attrs)
+        comm.bcast(True, root=0)
+        told = True
+        for name in names:
+            for c, block_rows in receive(name):
+                out[name][c.start:c.stop] = block_rows
+        f.close()
+        hdf5 = False
+        os.replace(tmp, final)
+    except (OSError, RuntimeError) as e:
+        if not told:
+            comm.bcast(False, root=0)
+        if not hdf5 or f is None:
+            raise
+        _failed(task_id, d, e)
+    except BaseException:
+        if not told:  # the other ranks wait for the word: they raise too
+            comm.bcast(False, root=0)
+        raise
     finally:
         if tmp.exists():
             tmp.unlink()

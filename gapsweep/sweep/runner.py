@@ -757,6 +757,7 @@ class _Run:
         if self.gpu is not None:
             self.ctx.ahead(self.lookahead)  # host threads for the surfaces of the units held ahead
         self.ctx.fields_dir = _fields_dir(self.path)  # kept GFMD fields, if the spec asks (gapsweep.dataset)
+        self.ctx.writer = self.wmode  # how a distributed task's kept fields are written (gapsweep.sweep.fields)
         self.todo = set(self.todo_list)
         self.work = [k for k, u in enumerate(self.units) if any(i in self.todo for i in u.tasks)]
         if self.wmode == "mpio" or rank == 0:

@@ -218,3 +218,39 @@ def test_partial_field_files_removed_on_resume(tmp_path):
         f.write_text("x")
     assert remove_partial(d) == 1
     assert not partial.exists() and all(f.exists() for f in kept)
+
+
+@needs_mpi
+@pytest.mark.parametrize("writer", WRITERS)
+def test_distributed_kept_fields_fill_the_disk(tmpfs, tmp_path, writer):
+    """A job whose GFMD tasks span both ranks (``distributed = true``) keeps fields written by rows (mpio, or rank 0
+    receiving row chunks) on a disk that fills: no crash, the error names the full disk, every row done or
+    pending, no half-written field file under its final name; once space is freed a resume finishes with one
+    complete field file per GFMD task (read back by store.open_fields) and no temporary file left."""
+    job = tmp_path / "dist_fields.toml"
+    job.write_text(FIELDS_JOB.read_text().replace('backend = "numpy"\n', 'backend = "numpy"\ndistributed = true\n'))
+    d = tmpfs(300)
+    path = d / "f.h5"
+    p = subprocess.run(mpi_cmd(2, "run", job, "--store", path, "--writer", writer, "--progress", "none"),
+                       env=env(), capture_output=True, text=True, timeout=300)
+    out = p.stdout + p.stderr
+    assert p.returncode != 0 and "Segmentation fault" not in out and "signal 11" not in out, out
+    assert "No space left" in out, out
+    _lease_gone_or_ended(path)
+    assert_only_done_pending(path)
+    seen = done_rows(path)
+    fdir = d / "f.h5.fields"
+    for f in fdir.glob("*.nc"):  # what is there under its final name is complete
+        assert set(store.open_fields(path, [f.stem])[f.stem].data_vars) == {"gap", "pressure", "displacement",
+                                                                            "height"}
+    _remount(d, 8192)
+    p = subprocess.run(mpi_cmd(2, "run", job, "--store", path, "--writer", writer, "--progress", "none",
+                               "--resume"), env=env(), capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert_done_kept(seen, path)
+    df = store.read(path)
+    assert set(df.status) == {"done"}
+    ids = set(df.task_id[df.method == "gfmd"])
+    assert {f.stem for f in fdir.glob("*.nc")} == ids and len(ids) == 6
+    assert not list(fdir.glob(".*"))
+    assert all(ds.gap.shape == (64, 64) for ds in store.open_fields(path).values())

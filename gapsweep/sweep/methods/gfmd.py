@@ -151,16 +151,19 @@ class GFMD(Method):
         return cpu / 20 if t.opt("backend") == "cupy" else cpu  # an H200 solve is ~20x a CPU core
 
     def memory(self, t: Task) -> float:
-        if t.opt("distributed"):  # the whole surface (cached) and its rows per rank; the solver's slabs are sized
-            return 8.0 * t.n * t.n * 4  # with the rank count by gapsweep.sweep.collective.check_memory
+        if t.opt("distributed"):  # each rank's rows (surface and solver) are sized with the rank count by
+            # gapsweep.sweep.collective.check_memory; beyond them, a file map read whole by rank 0 and its spectrum
+            nx, ny = t.opt("surface.shape") or (t.n, t.n)
+            return 8.0 * nx * ny * 4 if t.opt("surface.kind") == "file" else 0.0
         return 8.0 * t.n * t.n * 28  # 4 cached surfaces + solver vectors + complex FFT buffers
 
     def needs_gpu(self, t: Task) -> bool:
         return t.opt("backend") == "cupy"
 
     def gpu_memory(self, t: Task) -> float:
-        """The solver's GPU memory plan (gapsweep.gfmd._cuda.solve_memory; measured to 0.01 % at n >= 4096).
-        A distributed task's GPUs are sized with the rank count (gapsweep.sweep.collective.check_memory)."""
+        """The solver's GPU memory plan (gapsweep.gfmd._cuda.solve_memory: the exponential law's measured to
+        0.01 % at n >= 4096; the hard wall's counted from the code with one array of margin, issue 30). A
+        distributed task's GPUs are sized with the rank count (gapsweep.sweep.collective.check_memory)."""
         if not self.needs_gpu(t) or t.opt("distributed"):
             return 0.0
         from gapsweep.gfmd._cuda import solve_memory
@@ -196,17 +199,22 @@ class GFMD(Method):
                    backend=t.opt("backend"), max_iter=200, host=False, **boundaries(t))
 
 
-def _keep_fields(t: Task, ctx: Context, res: Any, h: np.ndarray, gap: np.ndarray, length: float) -> None:
-    """Write the fields this task keeps (``[methods.gfmd] keep_fields``) beside the store (gapsweep.sweep.fields)."""
+def _keep_fields(t: Task, ctx: Context, res: Any, h: Any, gap: Any, comm: Any = None) -> None:
+    """Write the fields this task keeps (``[methods.gfmd] keep_fields``) beside the store (gapsweep.sweep.fields):
+    the whole fields of one process, or (``comm``: a solve over every rank) this rank's rows of them, each rank
+    writing its rows into the same file (``fields.write_field_rows``, by ``ctx.writer``). Collective with
+    ``comm``. ``h``, ``gap``: the heights and the gap (or their rows), numpy or cupy."""
     want = fields.field_selected(json.loads(t.opt("keep_fields")), hurst=t.hurst, rho=t.rho, sigma0=t.sigma0,
                                   seed=t.seed, n=t.n)
     if not want:
         return
     g0 = float(res.mean_gap)
-    arrays = {"gap": gap, "height": np.asarray(h, dtype=float)}
+    gap = np.asarray(host(gap), dtype=float)
+    arrays = {"gap": gap, "height": np.asarray(host(h), dtype=float)}
     arrays["displacement"] = gap - g0 + arrays["height"]  # g = g0 + u - h (docs/model.md M3)
-    arrays["pressure"] = np.asarray(getattr(res, "pressure", None) if getattr(res, "pressure", None) is not None
-                                    else t.opt("gamma0") / t.rho * np.exp(-gap / t.rho), dtype=float)
+    p = getattr(res, "pressure", None)
+    arrays["pressure"] = np.asarray(host(p) if p is not None else t.opt("gamma0") / t.rho * np.exp(-gap / t.rho),
+                                    dtype=float)
     attrs = {"method": t.method, "hurst": t.hurst, "rho": t.rho, "sigma0": t.sigma0, "seed": t.seed, "n": t.n,
              "e_star": t.opt("e_star"), "mean_gap": g0, "residual": float(res.residual), "interaction": t.law}
     if t.opt("gamma0") is not None:
@@ -216,7 +224,13 @@ def _keep_fields(t: Task, ctx: Context, res: Any, h: np.ndarray, gap: np.ndarray
         attrs["length_unit"] = unit
     if t.opt("pressure_unit"):
         attrs["pressure_unit"] = t.opt("pressure_unit")
-    fields.write_fields(ctx.fields_dir, t.task_id, {k: arrays[k] for k in want}, length=length, attrs=attrs)
+    keep = {k: arrays[k] for k in want}
+    length = t.surface_params()["length"]
+    if comm is None:
+        fields.write_fields(ctx.fields_dir, t.task_id, keep, length=length, attrs=attrs)
+    else:
+        fields.write_field_rows(ctx.fields_dir, t.task_id, keep, shape=res.shape, comm=comm, writer=ctx.writer,
+                                length=length, attrs=attrs)
 
 
 def gfmd_host_fields(t: Task, ctx: Context) -> bool | tuple[str, ...]:
@@ -231,9 +245,6 @@ def gfmd_host_fields(t: Task, ctx: Context) -> bool | tuple[str, ...]:
 
 def _check_distributed(key: str, o: dict[str, Any], env: Env) -> None:
     """``distributed = true``: refuse what a solve split over ranks cannot do (docs/jobs.md)."""
-    if "keep_fields" in o:
-        raise SpecError(f"{key}.distributed: a distributed solve keeps its fields in slabs over the ranks, which "
-                        "the store's field files do not take: drop keep_fields, or distributed")
     if o["backend"] not in ("auto", "numpy", "cupy"):
         raise SpecError(f"{key}.backend: a distributed solve runs on 'numpy' (CPU ranks) or 'cupy' (one GPU per "
                         f"rank), or 'auto'; got {o['backend']!r}")
@@ -279,8 +290,14 @@ def law_params(t: Task) -> dict[str, Any]:
 
 
 class LocalStats:
-    """The gap's statistics and histograms of a row from the whole field on this process (numpy or cupy);
-    gapsweep.sweep.collective has those of a field split over ranks."""
+    """The surface's rms values, the gap's statistics and histograms of a row, and the kept fields, from the whole
+    fields on this process (numpy or cupy); :class:`_SlabStats` has those of fields split in rows over ranks."""
+
+    def rms(self, t: Task, ctx: Context) -> tuple[float, float]:
+        return ctx.surface_rms(t, t.n)
+
+    def keep(self, t: Task, ctx: Context, res: Any, gap: Any) -> None:
+        _keep_fields(t, ctx, res, ctx.surface(t, t.n), gap)
 
     def gap(self, gap: Any, xp: Any) -> dict[str, float]:
         return {"gap_std": float(xp.std(gap)), "gap_min": float(xp.min(gap)), "gap_max": float(xp.max(gap))}
@@ -307,10 +324,9 @@ def gfmd_row(t: Task, ctx: Context, res: Any, prev: Any = None, stats: Any = Non
         import cupy as xp
     else:
         gap = np.asarray(gap, dtype=float)
-    h_rms, g_rms = ctx.surface_rms(t, t.n)
+    h_rms, g_rms = stats.rms(t, ctx)
     if t.opt("keep_fields") and getattr(ctx, "fields_dir", None) is not None:
-        sp = t.surface_params()
-        _keep_fields(t, ctx, res, ctx.surface(t, t.n), np.asarray(host(gap), dtype=float), sp["length"])
+        stats.keep(t, ctx, res, gap)
     v = {"mean_gap": float(res.mean_gap), "h_rms": h_rms, "g_rms": g_rms,
          "residual": float(res.residual), "load_error": float(getattr(res, "load_error", math.nan)),
          "iterations": int(res.iterations), **stats.gap(gap, xp),
@@ -399,13 +415,21 @@ def _pressure_hist(t: Task, p: Any, xp: Any) -> tuple[tuple[np.ndarray, np.ndarr
 
 # ---------------------------------------------------------------------------------------------- distributed
 class _SlabStats:
-    """The row's gap statistics and histograms of fields split in rows over the ranks (the same numbers as
-    ``gfmd.LocalStats`` of the whole field, up to summation order): reductions over ``comm``."""
+    """The row's surface rms values, gap statistics and histograms of fields split in rows over the ranks (the
+    same numbers as :class:`LocalStats` of the whole field, up to summation order: reductions over ``comm``), and
+    the kept fields written by rows (every rank its own). Collective."""
 
     def __init__(self, comm: Any) -> None:
         from gapsweep.core.slab import Reducer
 
+        self.comm = comm
         self.red = Reducer(comm)
+
+    def rms(self, t: Task, ctx: Context) -> tuple[float, float]:
+        return ctx.surface_rows_rms(t, t.n, self.comm)
+
+    def keep(self, t: Task, ctx: Context, res: Any, gap: Any) -> None:
+        _keep_fields(t, ctx, res, ctx.surface_rows(t, t.n, self.comm), gap, comm=self.comm)
 
     def gap(self, gap: Any, xp: Any) -> dict[str, float]:
         n = self.red.sum(float(gap.size))
@@ -475,9 +499,10 @@ def _amax(a: Any) -> float:
 
 
 def run_slab(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
-    """One GFMD task solved by every rank of ``ctx.comm`` together (module docstring): each rank takes its rows
-    of the task's surface (made whole on every rank, as ``Context.surface`` does) and the row comes from the
-    global scalars and histograms (:class:`_SlabStats`). The same on every rank; collective."""
+    """One GFMD task solved by every rank of ``ctx.comm`` together (module docstring): each rank holds only its
+    rows of the task's surface (``Context.surface_rows``: a synthetic surface made in place, gapsweep.sweep.slabs)
+    and the row comes from the global scalars and histograms (:class:`_SlabStats`); kept fields are written by
+    rows. The same on every rank; collective."""
     from gapsweep import gfmd
 
     if t.opt("surface.periodic") is False:
@@ -486,12 +511,7 @@ def run_slab(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
     comm = ctx.comm
     sp = t.surface_params()
     use_gpu(t, ctx)
-    rows = gfmd.slab_rows(t.n, comm)
-    h = np.ascontiguousarray(ctx.surface(t, t.n)[rows])
-    if t.opt("backend") == "cupy":
-        import cupy
-
-        h = cupy.asarray(h)
+    h = ctx.surface_rows(t, t.n, comm)
     backend = t.opt("backend") if t.opt("backend") in ("numpy", "cupy") else "auto"
     res = gfmd.solve(h, comm=comm, sigma0=t.sigma0, **law_params(t), e_star=t.opt("e_star"),
                      length=sp["length"], tol=t.opt("tol"), method=t.opt("method"), backend=backend,

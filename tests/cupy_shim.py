@@ -1,0 +1,190 @@
+"""A numpy stand-in for the few cupy calls of the GPU branches that tests/test_gpu_shim.py drives on the CPU: the
+free-boundary minimiser (gfmd._free with gfmd._cuda._FreeCupyOps and _PadFFT) and the hard wall's cuFFT backend
+(gapsweep.core.fft._CupyBackend.convolve). Not a GPU emulator: arrays are numpy arrays of a subclass whose module
+reads "cupy" (so ``gfmd._ops._is_cupy`` takes them for cupy's); the CUDA kernels that code launches are replaced by
+numpy versions of their documented results, and each launch is checked against the parameter list of the kernel
+in gapsweep/gfmd/kernels.cu (a wrong argument count would be a launch failure on the GPU). Kernel launches and
+host synchronisations are counted (``COUNTS``)."""
+
+from __future__ import annotations
+
+import collections
+import re
+import sys
+import types
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import gapsweep.gfmd
+
+COUNTS: collections.Counter = collections.Counter()
+_SRC = Path(gapsweep.gfmd.__file__).with_name("kernels.cu").read_text(encoding="utf-8")
+
+
+def _params(name: str) -> int:
+    """Number of parameters of kernel ``name`` in kernels.cu."""
+    m = re.search(r"\b" + name + r"\s*\(([^)]*)\)", _SRC, re.S)
+    assert m, name
+    return len([p for p in m.group(1).split(",") if p.strip()])
+
+
+class ndarray(np.ndarray):
+    def get(self, stream: Any = None, out: Any = None, blocking: bool = True) -> np.ndarray:
+        COUNTS["sync"] += 1
+        a = np.array(self.view(np.ndarray))
+        if out is not None:
+            out[...] = a
+            return out
+        return a
+
+
+ndarray.__module__ = "cupy"
+
+
+def _wrap(r: Any) -> Any:
+    if isinstance(r, np.ndarray) and not isinstance(r, ndarray):
+        return r.view(ndarray)
+    if isinstance(r, tuple):
+        return tuple(_wrap(x) for x in r)
+    return r
+
+
+def _fn(f: Any) -> Any:
+    def g(*a: Any, **k: Any) -> Any:
+        return _wrap(f(*a, **k))
+    return g
+
+
+def _kernel(name: str) -> Any:
+    """numpy version of kernels.cu's ``name`` (only those the shimmed code paths launch)."""
+    nparam = _params(name)
+
+    def launch(grid: tuple, block: tuple, args: tuple) -> None:
+        assert len(args) == nparam, (name, len(args), nparam)
+        assert grid[0] >= 1 and block == (256,)
+        COUNTS[name] += 1
+        out = args[-1]
+        if name == "gs_dot":
+            a, b, diag, flags, nh, even = args[:6]
+            nh = int(nh)
+            j = np.arange(a.size) % nh
+            w = np.where((j == 0) | (bool(even) & (j == nh - 1)), 1.0, 2.0)
+            if int(flags) & 1:
+                w = w * diag.ravel()
+            av, bv = a.ravel(), b.ravel()
+            out[0] = np.sum(w * (av.real * bv.real + av.imag * bv.imag))
+        elif name == "gs_sumfinite":
+            a = args[0].ravel()
+            ok = np.isfinite(a)
+            out[0], out[1] = np.sum(a[ok]), np.count_nonzero(~ok)
+        elif name == "gs_moments":
+            e, d = args[0].ravel(), args[1].ravel()
+            out[0], out[1] = np.sum(e * d), np.sum(e * d * d)
+        else:
+            raise AssertionError(f"kernel {name} not emulated")
+    return launch
+
+
+class RawModule:
+    def __init__(self, code: str, options: tuple = ()) -> None:
+        assert code == _SRC
+
+    def get_function(self, name: str) -> Any:
+        fn = _kernel(name) if name in ("gs_dot", "gs_sumfinite", "gs_moments") else (lambda *a: None)
+        return fn
+
+
+_ELEMENTWISE = {
+    "gapsweep_free_axpy": (lambda a, x, y: np.add(y, a * x, out=y)),
+    "gapsweep_free_grad": (lambda k, u, c, f: k * u - c * f),
+    "gapsweep_free_trial": (lambda g, a, d: g + a * d),
+}
+
+
+def ElementwiseKernel(in_params: str, out_params: str, operation: str, name: str) -> Any:
+    n_in, n_out = len(in_params.split(",")), len(out_params.split(","))
+    f = _ELEMENTWISE[name]
+
+    def call(*args: Any) -> Any:
+        assert len(args) in (n_in, n_in + n_out), (name, len(args))
+        COUNTS[name] += 1
+        return _wrap(f(*args))
+    return call
+
+
+class _Plan:
+    def __init__(self, value_type: str, shape: tuple) -> None:
+        self.value_type, self.shape = value_type, shape
+
+    def fft(self, a: Any, out: Any, direction: int) -> None:
+        COUNTS["cufft_" + self.value_type] += 1
+        if self.value_type == "R2C":
+            assert direction == -1 and a.shape == self.shape and a.flags.c_contiguous and out.flags.c_contiguous
+            out[...] = np.fft.rfft2(a)
+        else:
+            assert direction == 1 and out.shape == self.shape and a.flags.c_contiguous and out.flags.c_contiguous
+            out[...] = np.fft.irfft2(a, s=self.shape) * float(np.prod(self.shape))  # unnormalised, as cuFFT
+
+
+def get_fft_plan(a: Any, shape: tuple | None = None, axes: tuple = (), value_type: str = "C2C") -> _Plan:
+    return _Plan(value_type, tuple(shape) if shape is not None else tuple(a.shape))
+
+
+class _Stream:
+    ptr = 0
+
+    def synchronize(self) -> None:
+        COUNTS["stream_sync"] += 1
+
+
+class _Pool:
+    def total_bytes(self) -> int:
+        return 0
+
+    def free_all_blocks(self) -> None:
+        pass
+
+
+def modules() -> dict[str, types.ModuleType]:
+    """``{name: module}`` to put into sys.modules: cupy, cupy.cuda, cupy.cuda.cufft, cupyx, cupyx.scipy(.fft)."""
+    cp = types.ModuleType("cupy")
+    for k, v in vars(np).items():
+        if k.startswith("_") or isinstance(v, types.ModuleType):
+            continue
+        setattr(cp, k, _fn(v) if callable(v) and not isinstance(v, type) else v)
+    cp.ndarray = ndarray
+    cp.RawModule = RawModule
+    cp.ElementwiseKernel = ElementwiseKernel
+    cp.get_default_memory_pool = _Pool
+    fft = types.ModuleType("cupy.fft")
+    for k in ("rfft2", "irfft2", "rfft", "irfft", "fft", "ifft", "fftfreq", "rfftfreq", "fft2", "ifft2"):
+        setattr(fft, k, _fn(getattr(np.fft, k)))
+    fft.config = types.SimpleNamespace(get_plan_cache=lambda: types.SimpleNamespace(clear=lambda: None))
+    cp.fft = fft
+    cuda = types.ModuleType("cupy.cuda")
+    cufft = types.ModuleType("cupy.cuda.cufft")
+    cufft.CUFFT_FORWARD, cufft.CUFFT_INVERSE = -1, 1
+    cuda.cufft = cufft
+    cuda.Device = lambda *a: types.SimpleNamespace(attributes={"MultiProcessorCount": 4}, id=0)
+    cuda.runtime = types.SimpleNamespace(getDeviceCount=lambda: 1, memGetInfo=lambda: (1 << 34, 1 << 35))
+    cuda.get_current_stream = _Stream
+    cp.cuda = cuda
+    cupyx = types.ModuleType("cupyx")  # no empty_pinned: the code falls back to ndarray.get
+    scipy = types.ModuleType("cupyx.scipy")
+    sfft = types.ModuleType("cupyx.scipy.fft")
+    sfft.get_fft_plan = get_fft_plan
+    scipy.fft = sfft
+    cupyx.scipy = scipy
+    return {"cupy": cp, "cupy.fft": fft, "cupy.cuda": cuda, "cupy.cuda.cufft": cufft, "cupyx": cupyx,
+            "cupyx.scipy": scipy, "cupyx.scipy.fft": sfft}
+
+
+def install(monkeypatch: Any) -> types.ModuleType:
+    """Put the shim into sys.modules for one test (monkeypatch undoes it) and return the cupy stand-in."""
+    mods = modules()
+    for k, v in mods.items():
+        monkeypatch.setitem(sys.modules, k, v)
+    COUNTS.clear()
+    return mods["cupy"]

@@ -1,0 +1,86 @@
+"""The GPU branches of free boundaries (gfmd._free with gfmd._cuda._FreeCupyOps and _PadFFT) and of the hard wall's
+cuFFT backend (gapsweep.core.fft._CupyBackend.convolve) run on the CPU through tests/cupy_shim.py (numpy stand-ins
+for cupy, cuFFT's plans and the CUDA kernels, each launch checked against kernels.cu's parameter list): the same
+answers as the numpy path, to the solver tolerance. No GPU needed; on a GPU machine tests/gpu/ checks the real
+thing."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gapsweep.core import fft
+from gapsweep.gfmd import _cuda, solve
+from gapsweep.surfaces import self_affine
+from tests import cupy_shim
+
+
+@pytest.fixture
+def cp(monkeypatch):
+    monkeypatch.setattr(fft, "_PLANS", {})  # the shim's backends never reach other tests
+    monkeypatch.setattr(_cuda, "_CUPY_KERNELS", None)
+    monkeypatch.setenv("GAPSWEEP_GENERIC_KERNELS", "1")  # the hard wall's passes as array expressions
+    return cupy_shim.install(monkeypatch)
+
+
+def _map(shape: tuple[int, int]) -> np.ndarray:
+    h = self_affine(128, 0.8, lambda_l=0.5, lambda_s=8 / 128, seed=5)[: shape[0], : shape[1]]
+    return h / h.std() * 0.01
+
+
+@pytest.mark.parametrize(("law", "kw", "method", "shape"),
+                         [("exponential", dict(gamma0=1e-4, rho=2e-3), "lbfgs", (64, 64)),
+                          ("exponential", dict(gamma0=1e-4, rho=2e-3), "cg", (64, 48)),
+                          ("adhesive", dict(work=1e-4, rho=2e-3), "lbfgs", (64, 48))])
+def test_free_smooth_gpu_branch_matches_numpy(cp, law, kw, method, shape) -> None:
+    """Square and rectangular maps: converged, mean gap to 1e-9 relative, pressures to 1e-7 of their scale, the
+    fused kernels and the 2-D plans actually used (counted)."""
+    h = _map(shape)
+    common = dict(sigma0=0.01, interaction=law, length=(1.0, shape[1] / shape[0]), tol=1e-9, periodic=False,
+                  method=method, **kw)
+    ref = solve(h, backend="numpy", **common)
+    r = solve(cp.asarray(h), host=False, **common)
+    assert type(r.pressure).__module__ == "cupy" and r.converged and ref.converged
+    assert r.mean_gap == pytest.approx(ref.mean_gap, rel=1e-9)
+    scale = ref.diagnostics["pressure_scale"]
+    np.testing.assert_allclose(np.asarray(r.pressure), ref.pressure, rtol=0, atol=1e-7 * scale)
+    n = cupy_shim.COUNTS
+    assert n["gs_dot"] > r.iterations and n["gs_sumfinite"] >= 2 * r.iterations and n["gs_moments"] >= r.iterations
+    assert n["cufft_R2C"] >= r.iterations and n["cufft_C2R"] >= r.iterations  # the padded 2-D plans
+    assert n["gapsweep_free_grad"] == r.iterations + 1 or n["gapsweep_free_grad"] == r.iterations
+
+
+@pytest.mark.parametrize(("periodic", "shape"), [(False, (64, 64)), (False, (64, 48)), (True, (64, 64))])
+def test_hard_wall_gpu_branch_matches_numpy(cp, periodic, shape) -> None:
+    """Free (2-D plans over the padded buffer) and periodic (the backend's one-buffer convolution) hard wall:
+    same contact set and mean gap to 1e-9 as the numpy solve; elastic energy (<p u>/2 here) to 1e-8."""
+    h = _map(shape)
+    common = dict(sigma0=0.01, interaction="hard_wall", method="pcg", tol=1e-10, periodic=periodic,
+                  length=(1.0, shape[1] / shape[0]))
+    ref = solve(h, backend="numpy", **common)
+    r = solve(cp.asarray(h), host=False, **common)
+    assert r.converged and ref.converged and r.backend == "cupy"
+    assert r.mean_gap == pytest.approx(ref.mean_gap, rel=1e-9)
+    np.testing.assert_array_equal(np.asarray(r.pressure) > 0, ref.pressure > 0)
+    assert r.elastic_energy == pytest.approx(ref.elastic_energy, rel=1e-8)
+    assert cupy_shim.COUNTS["cufft_C2R"] >= r.iterations
+
+
+def test_padded_transforms_gpu_branch(cp) -> None:
+    """FreeGrid's GPU transforms (one 2-D plan each way over the padded buffer) against the CPU's axis-by-axis
+    ones: pad_fwd, pad_inv, pad_sum and the compliance to 1e-12 relative, rectangular map."""
+    from gapsweep.gfmd._grid import FreeGrid
+
+    rng = np.random.default_rng(3)
+    p = rng.standard_normal((12, 10))
+    cpu = FreeGrid(p.shape, (1.0, 0.8), "numpy", 1, False)
+    gpu = FreeGrid(p.shape, (1.0, 0.8), "auto", 1, True)
+    assert gpu.xp is cp and gpu._padfft() is not None and cpu._padfft() is None
+    b_cpu, b_gpu = cpu.pad_fwd(p), gpu.pad_fwd(cp.asarray(p))
+    assert b_gpu.shape == b_cpu.shape == (24, 11)
+    np.testing.assert_allclose(np.asarray(b_gpu), b_cpu, rtol=0, atol=1e-12 * np.abs(b_cpu).max())
+    np.testing.assert_allclose(np.asarray(gpu.pad_inv(b_gpu)), p, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(gpu.pad_sum(b_gpu)), p * (4 * 12 * 10), rtol=0, atol=1e-9)
+    u_cpu = cpu.compliance(1.0)(p)
+    u_gpu = gpu.compliance(1.0)(cp.asarray(p))
+    np.testing.assert_allclose(np.asarray(u_gpu), u_cpu, rtol=0, atol=1e-12 * np.abs(u_cpu).max())
