@@ -17,7 +17,8 @@ split over the ranks):
                 and the exponential law's (coarse-started) answer as the start of adhesion;
   exp-2048-s2   held out: exponential, N = 2048, seed 2, sigma0 = 0.5 MPa;
   adh-512-s2    held out: adhesion, N = 512, seed 2, sigma0 = 0.5 MPa;
-  exp-4096      exponential, N = 4096, seed 1, coarse only (the flat start, not run: ~300 evaluations of 4096^2 by the 83 / 156 of 1024 / 2048).
+  exp-4096      exponential, N = 4096, seed 1, coarse only (the flat start, not run: ~300 evaluations of
+                4096^2 by the 83 / 156 of 1024 / 2048).
 The coarse-to-fine settings (automatic levels down to 64 pixels a side, coarse tolerance 10 tol) were chosen on
 seed 1 at N = 512 .. 2048; the held-out cases check them without change. Recorded per solve: status,
 evaluations of the requested grid, the coarse levels' cost in evaluations of the requested grid
