@@ -332,8 +332,10 @@ def hard_wall_big(out: Path, subs: dict, n: int, ranks: int, max_iter: int, tol:
 
 def challenge(out: Path, subs: dict, n: int, rms_slope: float, exp_iter: int, adh_iter: int, tol: float,
               lambda_s: float, ranks: int, pairs: int, laws: tuple[str, ...], start: str = "coarse",
-              levels: int | None = None) -> None:
-    c = dict(CHALLENGE, lambda_s=lambda_s)
+              levels: int | None = None, length: float | None = None) -> None:
+    # --length: a box of the challenge's pixel size at a smaller N (e.g. 50 um at 32768^2 on 2 GPUs: the same
+    # dx = 1.526 nm, spectrum and constants on a quarter of the challenge's area)
+    c = dict(CHALLENGE, lambda_s=lambda_s, length=CHALLENGE["length"] if length is None else length)
 
     def run(sub, n, law, max_iter):
         fresh()
@@ -398,6 +400,8 @@ def main() -> None:
     ap.add_argument("--only-big", action="store_true", help="only the challenge cases (after the quick checks)")
     ap.add_argument("--big-ranks", type=int, default=4, help="GPUs of the challenge cases (4, or 8 on 8 GPUs)")
     ap.add_argument("--big-laws", nargs="+", default=["exponential", "adhesive"], choices=["exponential", "adhesive"])
+    ap.add_argument("--length", type=float, default=None,
+                    help="box side (um) of the challenge cases (default the challenge's 100 um)")
     ap.add_argument("--hardwall-n", type=int, default=0, help="the hard wall at this N (0: not run), e.g. 32768")
     ap.add_argument("--hardwall-ranks", type=int, default=2, help="GPUs of the --hardwall-n case")
     ap.add_argument("--hardwall-iter", type=int, default=1000)
@@ -429,7 +433,7 @@ def main() -> None:
         if not args.skip_big:
             challenge(args.out, subs, args.big, args.rms_slope, args.big_iter, args.adhesive_iter, args.big_tol,
                       args.lambda_s, args.big_ranks if args.big_ranks in subs else max(subs), args.lbfgs_memory,
-                      tuple(args.big_laws), args.start, args.levels)
+                      tuple(args.big_laws), args.start, args.levels, args.length)
     RESULTS["total_wall_s"] = time.perf_counter() - t0
     save(args.out)
     log(f"done in {RESULTS['total_wall_s']:.1f} s -> {args.out}")
