@@ -91,3 +91,39 @@ def test_bad_options_fail_early():
         gfmd.solve(h, start="coarse", periodic=False, **kw)
     r = gfmd.solve(h, start="coarse", levels=0, **kw)  # no coarse level: the plain solve
     assert r.converged and r.diagnostics["levels"] == []
+
+
+def test_automatic_levels_keep_the_pixel_within_16_ranges():
+    """At the contact-mechanics challenge's rho/dx = 1.36 the coarsest automatic level is 2^4 = 16 pixels coarser
+    (pixel 11.8 rho); the 65536^2 grid would otherwise go down to 64^2 (pixel 750 rho), where the adhesive start
+    broke (benchmarks/results/distributed/h200x2_challenge_32768_before.json). No range: only the size rule."""
+    dx = 1.526e-3
+    f = _coarse.max_coarsening(2.071e-3, dx)
+    assert 16 <= f < 32
+    assert _coarse.check_levels(None, (65536, 65536), 4, f) == 4
+    assert _coarse.check_levels(None, (65536, 65536), 4) == 10
+    assert _coarse.check_levels(None, (1024, 1024), 1, _coarse.max_coarsening(None, dx)) == 4
+    assert _coarse.check_levels(None, (256, 256), 1, _coarse.max_coarsening(1e-3, 4e-3)) == 2  # 2^l <= 16 / 4
+
+
+class _Level:
+    """A stand-in for a coarse level's result: a status and residual, fields of the level's shape."""
+
+    def __init__(self, shape, status, residual):
+        self.status, self.residual, self.iterations, self.wall_time = status, residual, 10, 0.0
+        self.mean_gap, self.contact_area = 0.1, 0.2
+        self.gap = np.full(shape, 0.1)
+        self.displacement = np.zeros(shape)
+
+
+@pytest.mark.parametrize(("status", "residual", "used"), [("converged", 1e-5, True), ("max_iter", 5e-3, True),
+                                                          ("max_iter", 0.3, False), ("stalled", 1e60, False),
+                                                          ("non_finite", float("nan"), False)])
+def test_a_level_far_from_balance_starts_nothing(status, residual, used):
+    """A coarse level neither converged nor within 1e-2 residual is dropped: with one level, the requested grid
+    then starts flat (None) instead of from a broken state."""
+    h = _surface()
+    f = SlabFFT(h.shape, SELF)
+    Z, records = _coarse.chain(h, f, 1, lambda hl, init: _Level(hl.shape, status, residual), smooth=True)
+    assert records[0]["used"] is used
+    assert (Z is not None) is used

@@ -68,22 +68,39 @@ class SelfComm:
         return -1
 
 
-def auto_levels(shape: tuple[int, int], ranks: int, min_side: int = MIN_SIDE) -> int:
+def auto_levels(shape: tuple[int, int], ranks: int, min_side: int = MIN_SIDE, max_factor: float = math.inf) -> int:
     """Most levels ``l`` with both sides divisible by ``2^l``, the coarse grid at least ``min_side`` per side and
-    at least ``2 ranks`` rows and half-spectrum columns (every rank holds some)."""
+    at least ``2 ranks`` rows and half-spectrum columns (every rank holds some), and ``2^l <= max_factor`` (the
+    coarsest pixel at most that many requested pixels: :func:`max_coarsening`)."""
     nx, ny = shape
     lv = 0
     while True:
         f = 2 ** (lv + 1)
-        if nx % f or ny % f or min(nx // f, ny // f) < max(min_side, 2 * ranks):
+        if nx % f or ny % f or min(nx // f, ny // f) < max(min_side, 2 * ranks) or f > max_factor:
             return lv
         lv += 1
 
 
-def check_levels(levels: Any, shape: tuple[int, int], ranks: int) -> int:
-    """Checked number of coarse levels (None: :func:`auto_levels`)."""
+MAX_PIXEL_OVER_RANGE = 16.0  # the coarsest level's pixel at most this many interaction ranges (automatic levels)
+LEVEL_RESIDUAL = 1e-2  # a coarse level's answer starts the next only when converged or within this residual
+
+
+def max_coarsening(range_: float | None, pixel: float) -> float:
+    """Largest coarsening factor ``2^l`` whose pixel ``2^l dx`` stays within :data:`MAX_PIXEL_OVER_RANGE`
+    interaction ranges (``range_``, length units of ``dx``; None: no limit). Why: a level whose pixel is hundreds
+    of ranges wide solves another problem (each pixel's law far stiffer than its neighbours' coupling); measured
+    at the challenge's constants on 32768^2 (rho/dx = 1.36): levels down to 64^2 (pixel 377 rho) left the
+    adhesive start at a residual of 1.8e60, while levels to a pixel of 12 rho (1024^2 proxy) cut the fine
+    evaluations 6x (docs/gfmd.md, "Coarse-to-fine start")."""
+    if range_ is None or not range_ > 0 or not pixel > 0:
+        return math.inf
+    return MAX_PIXEL_OVER_RANGE * range_ / pixel
+
+
+def check_levels(levels: Any, shape: tuple[int, int], ranks: int, max_factor: float = math.inf) -> int:
+    """Checked number of coarse levels (None: :func:`auto_levels` within ``max_factor``)."""
     if levels is None:
-        return auto_levels(shape, ranks)
+        return auto_levels(shape, ranks, max_factor=max_factor)
     if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 0:
         raise ValueError(f"levels must be None or an integer >= 0, got {levels!r}")
     most = auto_levels(shape, ranks, min_side=2)
@@ -150,8 +167,8 @@ def chain(h: Any, f_fine: SlabFFT, levels: int, solve_level: Any, smooth: bool) 
     """Solve the coarse levels ``levels .. 1`` in turn (``solve_level(h_l, initial)`` returns the level's
     result, ``initial`` None or a :class:`Start`) and return the requested grid's start spectrum (this rank's
     columns, normalised coefficients; the displacement's, or with ``smooth`` the body surface's ``z = g + h``)
-    and one record per level. A level whose answer is not finite is dropped (the next starts from the level
-    before it, or flat if there is none)."""
+    and one record per level. A level whose answer is neither converged nor within :data:`LEVEL_RESIDUAL` is
+    dropped (the next starts from the level before it, or flat if there is none; its record says ``used``)."""
     nx, ny = f_fine.shape
     xp = f_fine.xp
     Z, f_prev, records = None, None, []
@@ -168,7 +185,9 @@ def chain(h: Any, f_fine: SlabFFT, levels: int, solve_level: Any, smooth: bool) 
         records.append(rec)
         log.info("coarse level %d x %d: %s after %d evaluations, residual %.3g, mean gap %.6g", nx >> lv, ny >> lv,
                  r.status, r.iterations, r.residual, r.mean_gap)
-        ok = math.isfinite(r.residual) and math.isfinite(r.mean_gap) and r.status != "non_finite"
+        ok = math.isfinite(r.mean_gap) and (r.status == "converged" or (
+            r.status != "non_finite" and math.isfinite(r.residual) and r.residual <= LEVEL_RESIDUAL))
+        rec["used"] = bool(ok)  # a level far from balance would start the next one worse than flat
         if ok:
             z = r.gap + hl if smooth else r.displacement
             Z = f.rfft2(xp.ascontiguousarray(z))

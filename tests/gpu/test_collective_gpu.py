@@ -49,6 +49,8 @@ keep_fields = {fields = ["gap", "pressure", "displacement", "height"]}
 def test_distributed_gpu_job_keeps_fields(tmp_path):
     cupy = cupy_or_skip()
     pytest.importorskip("mpi4py")
+    pytest.importorskip("xarray", reason="reading kept fields needs the xarray extra")
+    pytest.importorskip("h5netcdf", reason="reading kept fields needs the xarray extra (h5netcdf)")
     if cupy.cuda.runtime.getDeviceCount() < 2:
         pytest.skip("needs 2 GPUs")
     from gapsweep import runner, store
