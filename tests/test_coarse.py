@@ -93,19 +93,6 @@ def test_bad_options_fail_early():
     assert r.converged and r.diagnostics["levels"] == []
 
 
-def test_automatic_levels_keep_the_pixel_within_16_ranges():
-    """At the contact-mechanics challenge's rho/dx = 1.36 the coarsest automatic level is 2^4 = 16 pixels coarser
-    (pixel 11.8 rho); the 65536^2 grid would otherwise go down to 64^2 (pixel 750 rho), where the adhesive start
-    broke (benchmarks/results/distributed/h200x2_challenge_32768_before.json). No range: only the size rule."""
-    dx = 1.526e-3
-    f = _coarse.max_coarsening(2.071e-3, dx)
-    assert 16 <= f < 32
-    assert _coarse.check_levels(None, (65536, 65536), 4, f) == 4
-    assert _coarse.check_levels(None, (65536, 65536), 4) == 10
-    assert _coarse.check_levels(None, (1024, 1024), 1, _coarse.max_coarsening(None, dx)) == 4
-    assert _coarse.check_levels(None, (256, 256), 1, _coarse.max_coarsening(1e-3, 4e-3)) == 2  # 2^l <= 16 / 4
-
-
 class _Level:
     """A stand-in for a coarse level's result: a status and residual, fields of the level's shape."""
 
@@ -121,7 +108,9 @@ class _Level:
                                                           ("non_finite", float("nan"), False)])
 def test_a_level_far_from_balance_starts_nothing(status, residual, used):
     """A coarse level neither converged nor within 1e-2 residual is dropped: with one level, the requested grid
-    then starts flat (None) instead of from a broken state."""
+    then starts flat (None) instead of from a broken state (at the challenge's constants on 32768^2 the adhesive
+    64^2 level stopped at residual 0.32 and its state made every finer level overflow:
+    benchmarks/results/distributed/h200x2_challenge_32768_before.json)."""
     h = _surface()
     f = SlabFFT(h.shape, SELF)
     Z, records = _coarse.chain(h, f, 1, lambda hl, init: _Level(hl.shape, status, residual), smooth=True)

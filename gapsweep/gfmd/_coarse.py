@@ -68,39 +68,25 @@ class SelfComm:
         return -1
 
 
-def auto_levels(shape: tuple[int, int], ranks: int, min_side: int = MIN_SIDE, max_factor: float = math.inf) -> int:
+def auto_levels(shape: tuple[int, int], ranks: int, min_side: int = MIN_SIDE) -> int:
     """Most levels ``l`` with both sides divisible by ``2^l``, the coarse grid at least ``min_side`` per side and
-    at least ``2 ranks`` rows and half-spectrum columns (every rank holds some), and ``2^l <= max_factor`` (the
-    coarsest pixel at most that many requested pixels: :func:`max_coarsening`)."""
+    at least ``2 ranks`` rows and half-spectrum columns (every rank holds some)."""
     nx, ny = shape
     lv = 0
     while True:
         f = 2 ** (lv + 1)
-        if nx % f or ny % f or min(nx // f, ny // f) < max(min_side, 2 * ranks) or f > max_factor:
+        if nx % f or ny % f or min(nx // f, ny // f) < max(min_side, 2 * ranks):
             return lv
         lv += 1
 
 
-MAX_PIXEL_OVER_RANGE = 16.0  # the coarsest level's pixel at most this many interaction ranges (automatic levels)
 LEVEL_RESIDUAL = 1e-2  # a coarse level's answer starts the next only when converged or within this residual
 
 
-def max_coarsening(range_: float | None, pixel: float) -> float:
-    """Largest coarsening factor ``2^l`` whose pixel ``2^l dx`` stays within :data:`MAX_PIXEL_OVER_RANGE`
-    interaction ranges (``range_``, length units of ``dx``; None: no limit). Why: a level whose pixel is hundreds
-    of ranges wide solves another problem (each pixel's law far stiffer than its neighbours' coupling); measured
-    at the challenge's constants on 32768^2 (rho/dx = 1.36): levels down to 64^2 (pixel 377 rho) left the
-    adhesive start at a residual of 1.8e60, while levels to a pixel of 12 rho (1024^2 proxy) cut the fine
-    evaluations 6x (docs/gfmd.md, "Coarse-to-fine start")."""
-    if range_ is None or not range_ > 0 or not pixel > 0:
-        return math.inf
-    return MAX_PIXEL_OVER_RANGE * range_ / pixel
-
-
-def check_levels(levels: Any, shape: tuple[int, int], ranks: int, max_factor: float = math.inf) -> int:
-    """Checked number of coarse levels (None: :func:`auto_levels` within ``max_factor``)."""
+def check_levels(levels: Any, shape: tuple[int, int], ranks: int) -> int:
+    """Checked number of coarse levels (None: :func:`auto_levels`)."""
     if levels is None:
-        return auto_levels(shape, ranks, max_factor=max_factor)
+        return auto_levels(shape, ranks)
     if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 0:
         raise ValueError(f"levels must be None or an integer >= 0, got {levels!r}")
     most = auto_levels(shape, ranks, min_side=2)
@@ -187,7 +173,11 @@ def chain(h: Any, f_fine: SlabFFT, levels: int, solve_level: Any, smooth: bool) 
                  r.status, r.iterations, r.residual, r.mean_gap)
         ok = math.isfinite(r.mean_gap) and (r.status == "converged" or (
             r.status != "non_finite" and math.isfinite(r.residual) and r.residual <= LEVEL_RESIDUAL))
-        rec["used"] = bool(ok)  # a level far from balance would start the next one worse than flat
+        # a level far from balance would start the next one worse than flat: measured at the challenge's
+        # constants on 32768^2 (2 H200), the adhesive 64^2 level stopped at residual 0.32 and its state made
+        # every finer level overflow (residual 1.8e60; benchmarks/results/distributed/
+        # h200x2_challenge_32768_before.json)
+        rec["used"] = bool(ok)
         if ok:
             z = r.gap + hl if smooth else r.displacement
             Z = f.rfft2(xp.ascontiguousarray(z))

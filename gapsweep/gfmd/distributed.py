@@ -560,8 +560,7 @@ def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interact
         raise ValueError("heights contain NaN or inf")
     coarse = None
     if start == "coarse":
-        coarse = _check_coarse(law, control, sigma0, initial, levels, coarse_tol, tol, shape, red.size,
-                               max(lx / shape[0], ly / shape[1]))
+        coarse = _check_coarse(law, control, sigma0, initial, levels, coarse_tol, tol, shape, red.size)
         kw = dict(comm=comm, sigma0=sigma0, interaction=law, e_star=e_star, length=length, method=method,
                   backend=backend, max_iter=max_iter, host=False, memory=memory, tol=coarse[1])
         initial, records = _run_coarse(h, grid, coarse[0], control != "softmax", kw)
@@ -610,9 +609,8 @@ def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interact
 
 
 def _check_coarse(law: Interaction, control: str, sigma0: float, initial: Any, levels: Any, coarse_tol: Any,
-                  tol: float, shape: tuple[int, int], ranks: int, pixel: float) -> tuple[int, float]:
-    """Checked ``(levels, coarse tolerance)`` of ``start="coarse"``; automatic levels keep the coarsest pixel
-    within ``_coarse.MAX_PIXEL_OVER_RANGE`` interaction ranges (``pixel``: the requested grid's, box units)."""
+                  tol: float, shape: tuple[int, int], ranks: int) -> tuple[int, float]:
+    """Checked ``(levels, coarse tolerance)`` of ``start="coarse"``."""
     from gapsweep.gfmd import _coarse
 
     if control == "multiplier":
@@ -623,7 +621,7 @@ def _check_coarse(law: Interaction, control: str, sigma0: float, initial: Any, l
                          "start='flat', which follows the load from zero)")
     if initial is not None:
         raise ValueError("start='coarse' makes its own initial state: leave initial=None")
-    lv = _coarse.check_levels(levels, shape, ranks, _coarse.max_coarsening(law.range(), pixel))
+    lv = _coarse.check_levels(levels, shape, ranks)
     ctol = 10.0 * tol if coarse_tol is None else chk.positive(coarse_tol, "coarse_tol")
     return lv, ctol
 
