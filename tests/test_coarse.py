@@ -103,13 +103,13 @@ class _Level:
         self.displacement = np.zeros(shape)
 
 
-@pytest.mark.parametrize(("status", "residual", "used"), [("converged", 1e-5, True), ("max_iter", 5e-3, True),
-                                                          ("max_iter", 0.3, False), ("stalled", 1e60, False),
+@pytest.mark.parametrize(("status", "residual", "used"), [("converged", 1e-5, True), ("max_iter", 0.46, True),
+                                                          ("max_iter", 4.0, False), ("stalled", 7e45, False),
                                                           ("non_finite", float("nan"), False)])
 def test_a_level_far_from_balance_starts_nothing(status, residual, used):
-    """A coarse level neither converged nor within 1e-2 residual is dropped: with one level, the requested grid
-    then starts flat (None) instead of from a broken state (at the challenge's constants on 32768^2 the adhesive
-    64^2 level stopped at residual 0.32 and its state made every finer level overflow:
+    """A coarse level neither converged nor within residual 1 (the pressure scale) is dropped: with one level, the
+    requested grid then starts flat (None) instead of from a broken state; an unconverged level within it is kept
+    (at the challenge's constants on 32768^2 the exponential 64^2 level at 0.46 started a chain that converged:
     benchmarks/results/distributed/h200x2_challenge_32768_before.json)."""
     h = _surface()
     f = SlabFFT(h.shape, SELF)

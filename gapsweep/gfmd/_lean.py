@@ -290,7 +290,10 @@ def minimise(h: Any, law: Any, *, sigma0: float, e_star: float, length: Any, tol
     xp = grid.xp
     sv = LeanSolver(grid, law, h, e_star, max_iter, memory, chunk)
     if isinstance(initial, Start):  # coarse-to-fine start (gfmd._coarse): the body surface's spectrum, taken over
-        st, status = sv.at(sigma0, initial.take(), tol, own=True)
+        Z = initial.take()
+        lift_out_of_surface(grid, Z, h, SINK_RANGES * (law.range() or 0.0))
+        st, status = sv.at(sigma0, Z, tol, own=True)
+        del Z
     elif initial is None:
         Z = grid.spectrum_zeros()
         grid.set_mode0(Z, grid.amax(h))  # touching the highest summit, the body flat
@@ -319,6 +322,27 @@ def minimise(h: Any, law: Any, *, sigma0: float, e_star: float, length: Any, tol
         del Z0
     assert st is not None and xp is grid.xp
     return _lean_result(sv, st, status, sigma0, e_star, length, tol, t_start)
+
+
+SINK_RANGES = 4.0  # a coarse-to-fine start may overlap the surface by this many interaction ranges, no more
+
+
+def lift_out_of_surface(grid: Any, Z: Any, h: Any, allowed: float = 0.0) -> float:
+    """Raise the body ``z`` (spectrum ``Z``, normalised coefficients, changed in place) by
+    ``max(0, -min(z - h) - allowed)`` so that the start's gap is nowhere below ``-allowed`` (the solver starts
+    with :data:`SINK_RANGES` ranges of overlap at most: a small overlap is information the law handles, a deep one
+    overflows it); returns the lift (length units). Why: a state prolonged from a
+    coarser grid meets the finer surface's new summits; where it sinks into them by many ranges the adhesive law's
+    repulsion overflows (measured at the challenge's constants on 32768^2: 64^2 -> 128^2 sank ~100 rho, residual
+    7e45 after one evaluation, benchmarks/results/distributed/h200x2_challenge_32768_before.json). One inverse
+    transform and one real array of scratch."""
+    g = grid.slab.irfft2(Z)
+    g -= h
+    lift = max(0.0, -grid.amin(g) - allowed)
+    del g
+    if lift > 0:
+        grid.set_mode0(Z, grid.mode0(Z) + lift)
+    return lift
 
 
 def _lean_result(sv: LeanSolver, st: Any, status: str, sigma0: float, e_star: float, length: Any, tol: float,
