@@ -32,8 +32,9 @@ import numpy as np
 
 from gapsweep.core.extras import require
 from gapsweep.sweep import methods as registry
+from gapsweep.sweep import writefail
 from gapsweep.sweep.fields import FIELD_META, FIELD_NAMES, field_selected, fields_dir, write_fields  # noqa: F401 - names of 0.1
-from gapsweep.sweep.schema import FLOAT_RESULTS, STATUS
+from gapsweep.sweep.schema import FLOAT_RESULTS, STATUS, StoreWriteError
 
 __all__ = [
     "FIELD_NAMES",
@@ -262,6 +263,12 @@ def export_netcdf(path: str | Path, out: str | Path, *, overwrite: bool = False,
     require("h5netcdf", "the netCDF4 export")
     outp.parent.mkdir(parents=True, exist_ok=True)
     tmp = outp.with_name(f".{outp.name}.tmp")
+    # room first (the data, 1.5x for HDF5's and netCDF's own structures, + 1 MiB): a write that fails inside
+    # h5netcdf crashed HDF5 2.0 (gapsweep.sweep.writefail.reserve)
+    err = writefail.reserve(tmp, int(1.5 * ds.nbytes) + (1 << 20))
+    if err is not None:
+        raise StoreWriteError(f"export --out {outp}: cannot be written ({err}); nothing was written, the store "
+                              "is untouched")
     try:
         _write_nc(ds, tmp, outp)
         os.replace(tmp, outp)

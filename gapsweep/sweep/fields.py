@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from gapsweep.sweep import writefail
 from gapsweep.sweep.schema import FIELD_NAMES, StoreWriteError
 
 __all__ = ["FIELD_META", "FIELD_NAMES", "field_selected", "fields_dir", "remove_fields", "remove_partial",
@@ -237,7 +238,7 @@ def _write_rows_mpio(directory: str | Path, task_id: str, rows: Mapping[str, np.
     # HDF5's collective calls, which then wait forever: rank 0 first reserves the file's largest size (the raw
     # fields, compression can only shrink them but by its few bytes per chunk), and every rank raises its error.
     need = int(1.02 * 8 * shape[0] * shape[1] * len(rows)) + 8 * (shape[0] + shape[1]) + (64 << 10)
-    err = _reserve(d, tmp, need) if comm.Get_rank() == 0 else None
+    err = writefail.reserve(tmp, need) if comm.Get_rank() == 0 else None
     err = comm.bcast(err, root=0)
     if err is not None:
         raise OSError(err)
@@ -262,21 +263,6 @@ def _write_rows_mpio(directory: str | Path, task_id: str, rows: Mapping[str, np.
     if comm.bcast(err, root=0) is not None:
         raise OSError(err)
     return final
-
-
-def _reserve(d: Path, tmp: Path, nbytes: int) -> str | None:
-    """Whether ``nbytes`` can be written to ``tmp`` (``os.posix_fallocate``: blocks reserved, not written, where
-    the file system allows; removed again): None, or the error's text (no space, a file-size limit)."""
-    try:
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-        try:
-            os.posix_fallocate(fd, 0, nbytes)
-        finally:
-            os.close(fd)
-            tmp.unlink(missing_ok=True)
-    except OSError as e:
-        return f"{e.strerror or e} (~{nbytes / 1e6:.1f} MB needed in {d})"
-    return None
 
 
 def _write_rows_rank0(directory: str | Path, task_id: str, rows: Mapping[str, np.ndarray], shape: tuple[int, int],
