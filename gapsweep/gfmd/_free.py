@@ -39,7 +39,7 @@ import numpy as np
 from gapsweep.core import deadline
 from gapsweep.core.vec import axpy
 from gapsweep.gfmd._grid import FreeGrid, Grid
-from gapsweep.gfmd._ops import _is_cupy
+from gapsweep.gfmd._ops import _is_cupy, remember_pair
 from gapsweep.gfmd._result import GFMDResult, host_fields
 from gapsweep.gfmd._smooth import _DETACHED, _wolfe
 from gapsweep.gfmd.interactions.base import SmoothInteraction
@@ -294,13 +294,7 @@ def _lbfgs(st: _FreeState, minv_u: Any, minv_d: float, ratio: float, p_ref: floa
         st.move(alpha, D, d)
         s = (alpha * D[0], alpha * D[1])
         y = (st.Gu - old[0], st.Gd - old[1])
-        sy = st.dot(s, y)
-        if sy > 0:
-            s_hist.append(s)
-            y_hist.append(y)
-            r_hist.append(1.0 / sy)
-            if len(s_hist) > memory:
-                s_hist.pop(0), y_hist.pop(0), r_hist.pop(0)
+        remember_pair(s_hist, y_hist, r_hist, s, y, st.dot(s, y), memory)
     return status
 
 

@@ -10,6 +10,18 @@ import numpy as np
 from gapsweep.core.vec import rdot
 
 
+def remember_pair(s_hist: list, y_hist: list, r_hist: list, s: Any, y: Any, sy: float, memory: int) -> None:
+    """The L-BFGS memory (Nocedal & Wright, Alg. 7.4; docs/gfmd.md "Methods"): keep the step ``s`` and gradient
+    change ``y`` with ``1/(s.y)`` when the curvature ``s.y > 0`` (else the pair would spoil the inverse-Hessian
+    estimate), at most ``memory`` pairs, the oldest dropped."""
+    if sy > 0:
+        s_hist.append(s)
+        y_hist.append(y)
+        r_hist.append(1.0 / sy)
+        if len(s_hist) > memory:
+            for lst in (s_hist, y_hist, r_hist):
+                lst.pop(0)
+
 # ------------------------------------------------------------------------------------------------ kernels
 class _Ops:
     """Reductions and fused updates, written once for any array namespace ``xp`` (numpy or cupy).

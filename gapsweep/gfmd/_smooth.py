@@ -27,7 +27,7 @@ import numpy as np
 
 from gapsweep.core import deadline
 from gapsweep.gfmd._grid import Grid
-from gapsweep.gfmd._ops import _is_cupy
+from gapsweep.gfmd._ops import _is_cupy, remember_pair
 from gapsweep.gfmd._result import GFMDResult, host_fields
 from gapsweep.gfmd.interactions.base import SmoothInteraction
 
@@ -212,13 +212,7 @@ def _lbfgs(st: _State, minv: Any, p_ref: float, tol: float, max_iter: int, memor
             st.move(alpha, D, d)
             s = alpha * D
             y = st.G - G_old
-            sy = grid.dot(s, y)
-            if sy > 0:
-                s_hist.append(s)
-                y_hist.append(y)
-                r_hist.append(1.0 / sy)
-                if len(s_hist) > memory:
-                    s_hist.pop(0), y_hist.pop(0), r_hist.pop(0)
+            remember_pair(s_hist, y_hist, r_hist, s, y, grid.dot(s, y), memory)
 
 
 class _Solver:

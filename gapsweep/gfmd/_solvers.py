@@ -12,7 +12,7 @@ import numpy as np
 
 from gapsweep.core import deadline
 from gapsweep.core.fft import FFTBackend
-from gapsweep.gfmd._ops import _Ops
+from gapsweep.gfmd._ops import _Ops, remember_pair
 
 
 @functools.lru_cache(maxsize=8)
@@ -302,14 +302,7 @@ def _run_lbfgs(pb: _Problem, tol: float, max_iter: int, history: list[float], me
         pb.accept(alpha, D, m, S)
         s = alpha * D
         y = pb.G - pb.G_old
-        sy = ops.dot(s, y)
-        if sy > 0:
-            s_hist.append(s)
-            y_hist.append(y)
-            r_hist.append(1.0 / sy)
-            if len(s_hist) > memory:
-                for lst in (s_hist, y_hist, r_hist):
-                    lst.pop(0)
+        remember_pair(s_hist, y_hist, r_hist, s, y, ops.dot(s, y), memory)
     return status
 
 
