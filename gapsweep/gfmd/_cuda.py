@@ -101,6 +101,22 @@ def _cupy_kernels() -> Any:
     return _CUPY_KERNELS
 
 
+def _reduction_buffers(ops: Any, xp: Any) -> None:
+    """The buffers of the fused reduction kernels on ``ops``: ``_sms`` (the GPU's multiprocessor count), ``part``
+    (per-block partial sums, 4 per block), ``count`` (the blocks done: the last one sums the parts), ``res`` (up
+    to 4 results) and ``_host`` (pinned host memory they come back to in one copy; None on a cupy without it)."""
+    ops._sms = xp.cuda.Device().attributes["MultiProcessorCount"]
+    ops.part = xp.empty(4 * _CUDA_BLOCKS_PER_SM * ops._sms, dtype=xp.float64)
+    ops.count = xp.zeros(1, dtype=xp.uint32)
+    ops.res = xp.zeros(4, dtype=xp.float64)
+    try:
+        import cupyx
+
+        ops._host = cupyx.empty_pinned((4,), dtype=np.float64)
+    except Exception:  # pragma: no cover - old cupy
+        ops._host = None
+
+
 class _DeviceMax:
     """``max(w + c d)`` of a pending trial point (:meth:`_CupyOps.trial`): known once :meth:`_CupyOps.expstats`
     ran the point's single fused pass; ``float()`` before that costs a separate max pass."""
@@ -368,17 +384,8 @@ class _PKCupy:
     def __init__(self, xp: Any) -> None:
         self.xp = xp
         self.K = _cupy_kernels()
-        self._sms = xp.cuda.Device().attributes["MultiProcessorCount"]
         self._n = None
-        self.part = xp.empty(4 * _CUDA_BLOCKS_PER_SM * self._sms, dtype=xp.float64)
-        self.count = xp.zeros(1, dtype=xp.uint32)
-        self.res = xp.zeros(4, dtype=xp.float64)
-        try:
-            import cupyx
-
-            self._host = cupyx.empty_pinned((4,), dtype=np.float64)
-        except Exception:  # pragma: no cover - old cupy
-            self._host = None
+        _reduction_buffers(self, xp)
 
     def _grid(self, size: int) -> tuple[int]:
         return (int(max(1, min(-(-size // 256), _CUDA_BLOCKS_PER_SM * self._sms))),)
@@ -498,16 +505,7 @@ class _FreeCupyOps:
         rows, nh = (int(v) for v in half_shape)
         self._nhalf = np.uint64(rows * nh)
         self._geo = (np.uint32(nh), np.int32(bool(even)))
-        self._sms = xp.cuda.Device().attributes["MultiProcessorCount"]
-        self.part = xp.empty(4 * _CUDA_BLOCKS_PER_SM * self._sms, dtype=xp.float64)
-        self.count = xp.zeros(1, dtype=xp.uint32)
-        self.res = xp.zeros(4, dtype=xp.float64)
-        try:
-            import cupyx
-
-            self._host = cupyx.empty_pinned((4,), dtype=np.float64)
-        except Exception:  # pragma: no cover - old cupy
-            self._host = None
+        _reduction_buffers(self, xp)
         self._axpy = xp.ElementwiseKernel("float64 a, complex128 x", "complex128 y", "y = y + a * x",
                                           "gapsweep_free_axpy")
         self._grad = xp.ElementwiseKernel("float64 k, complex128 u, float64 c, complex128 f", "complex128 g",
