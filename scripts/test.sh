@@ -9,7 +9,7 @@ export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_
 ruff check .
 python scripts/check_docs.py                      # docs that cannot drift (also tests/test_docs.py)
 if python -c "import sphinx" 2>/dev/null; then     # the API reference from the docstrings (~25 s)
-  bash scripts/build_api_docs.sh build/api        # prints "[api-docs] FAILED: ..." and stops the run on error
+  PYTHON=python bash scripts/build_api_docs.sh build/api  # the venv's python (PYTHON may name the base one); prints "[api-docs] FAILED: ..." and stops the run on error
 else
   echo "[api-docs] skipped: sphinx is not installed (it comes with the dev extra)"
 fi
