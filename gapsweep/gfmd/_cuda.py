@@ -117,6 +117,18 @@ def _reduction_buffers(ops: Any, xp: Any) -> None:
         ops._host = None
 
 
+def _fetch(ops: Any, nout: int) -> list[float]:
+    """The first ``nout`` results of the last fused reduction (``ops.res``) on the host: one asynchronous copy into
+    the pinned buffer and one synchronisation (a plain ``get`` without pinned memory)."""
+    if ops._host is None:
+        return ops.res.get()[:nout].tolist()
+    rt = ops.xp.cuda.runtime
+    stream = ops.xp.cuda.get_current_stream()
+    rt.memcpyAsync(ops._host.ctypes.data, ops.res.data.ptr, 8 * nout, rt.memcpyDeviceToHost, stream.ptr)
+    stream.synchronize()
+    return ops._host[:nout].tolist()
+
+
 class _DeviceMax:
     """``max(w + c d)`` of a pending trial point (:meth:`_CupyOps.trial`): known once :meth:`_CupyOps.expstats`
     ran the point's single fused pass; ``float()`` before that costs a separate max pass."""
@@ -187,13 +199,7 @@ class _CupyOps(_Ops):
         else:
             args = (*args, self._nr, self.part, self.count, self.res)
         self.K[name](self.grid[name], (256,), args)
-        if self._host is None:
-            return self.res.get()[:nout].tolist()
-        rt = self.xp.cuda.runtime
-        stream = self.xp.cuda.get_current_stream()
-        rt.memcpyAsync(self._host.ctypes.data, self.res.data.ptr, 8 * nout, rt.memcpyDeviceToHost, stream.ptr)
-        stream.synchronize()
-        return self._host[:nout].tolist()
+        return _fetch(self, nout)
 
     # -- set-up and result passes of one solve (gfmd/_softmax.py, GPU branch): one pass each, no temporaries
     def sum_finite(self, a) -> tuple[float, int]:
@@ -393,13 +399,7 @@ class _PKCupy:
     def _run(self, name: str, nout: int, a, *args) -> list[float]:
         size = a.size
         self.K[name](self._grid(size), (256,), (*args, np.uint64(size), self.part, self.count, self.res))
-        if self._host is None:
-            return self.res.get()[:nout].tolist()
-        rt = self.xp.cuda.runtime
-        stream = self.xp.cuda.get_current_stream()
-        rt.memcpyAsync(self._host.ctypes.data, self.res.data.ptr, 8 * nout, rt.memcpyDeviceToHost, stream.ptr)
-        stream.synchronize()
-        return self._host[:nout].tolist()
+        return _fetch(self, nout)
 
     @staticmethod
     def _c(a):
@@ -518,13 +518,7 @@ class _FreeCupyOps:
 
     def _run(self, name: str, size: int, nout: int, *args) -> list[float]:
         self.K[name](self._grid(size), (256,), (*args, self.part, self.count, self.res))
-        if self._host is None:
-            return self.res.get()[:nout].tolist()
-        rt = self.xp.cuda.runtime
-        stream = self.xp.cuda.get_current_stream()
-        rt.memcpyAsync(self._host.ctypes.data, self.res.data.ptr, 8 * nout, rt.memcpyDeviceToHost, stream.ptr)
-        stream.synchronize()
-        return self._host[:nout].tolist()
+        return _fetch(self, nout)
 
     def _c(self, a: Any, dtype: Any) -> Any:
         return self.xp.ascontiguousarray(a, dtype=dtype)
