@@ -4,7 +4,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
-. .venv/bin/activate
+. "${GAPSWEEP_VENV:-.venv}/bin/activate"   # the venv setup.sh made (CI: one per Python)
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1
 ruff check .
 python scripts/check_docs.py                      # docs that cannot drift (also tests/test_docs.py)
