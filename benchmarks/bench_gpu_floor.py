@@ -180,14 +180,14 @@ def _free_vs_periodic(dev: Device, h: Any, label: str, **kw) -> dict:
 def part_free(dev: Device, a, rows: list) -> None:
     n = a.n_free
     h = dev.surface(n)
-    saved = _free._GPU_MEMORY, _free._CPU_MEMORY
+    saved = _free._MEMORY
     try:
         for m in a.free_memory:  # stored L-BFGS pairs of the free smooth minimiser on the device
-            _free._GPU_MEMORY = _free._CPU_MEMORY = m
+            _free._MEMORY = m
             rows.append(_row("free", n=n, lbfgs_pairs=m, **_free_vs_periodic(
                 dev, h, "exponential", sigma0=1e-2, gamma0=GAMMA0, rho=RHO, tol=1e-6, max_iter=2000)))
     finally:
-        _free._GPU_MEMORY, _free._CPU_MEMORY = saved
+        _free._MEMORY = saved
     if a.free_cg:  # the free map's nonlinear CG (method "cg"): one direction instead of the L-BFGS pairs
         per = dev.solve(h, periodic=True, sigma0=1e-2, gamma0=GAMMA0, rho=RHO, tol=1e-6, max_iter=5000)
         free = dev.solve(h, periodic=False, method="cg", sigma0=1e-2, gamma0=GAMMA0, rho=RHO, tol=1e-6,

@@ -45,11 +45,10 @@ from gapsweep.gfmd._smooth import _DETACHED, _wolfe
 from gapsweep.gfmd.interactions.base import SmoothInteraction
 
 METHODS = ("lbfgs", "cg")
-# Stored (s, y) pairs of the L-BFGS. On the GPU the two-loop recursion over the doubled grid's spectra is most of
-# an evaluation's memory traffic (about 40 grid arrays of the map's size per pair and iteration; a periodic
-# evaluation moves about 36): benchmarks/bench_gpu_floor.py times other values side by side.
-_CPU_MEMORY = 12
-_GPU_MEMORY = 12
+# Stored (s, y) pairs of the L-BFGS, on the CPU and the GPU. On the GPU the two-loop recursion over the doubled
+# grid's spectra is most of an evaluation's memory traffic (about 40 grid arrays of the map's size per pair and
+# iteration; a periodic evaluation moves about 36): benchmarks/bench_gpu_floor.py times other values side by side.
+_MEMORY = 12
 log = logging.getLogger("gapsweep.gfmd")
 
 
@@ -68,7 +67,7 @@ class _HostOps:
         return self.pad.dot(a, k * b)
 
     def axpy(self, y: Any, a: float, x: Any) -> None:
-        _axpy_into(a, x, y)
+        axpy(a, x, y)  # chunked, no BLAS threads (gapsweep.core.vec)
 
     def grad(self, k: Any, U: Any, c: float, F: Any) -> Any:
         return k * U - c * F
@@ -149,15 +148,11 @@ class _FreeState:
         self._evaluate()
 
 
-def _axpy_into(a: float, x: Any, y: Any) -> None:
-    """``y += a x`` in place (gapsweep.core.vec.axpy: chunked on numpy, no BLAS threads)."""
-    axpy(a, x, y)
-
-
 def _check(st: _FreeState, ratio: float, p_ref: float, tol: float, max_iter: int, rng: float | None,
            history: list[float]) -> str | None:
     """The stopping tests of the minimisers at the current point (None: go on); the residual as in the module
     docstring, appended to ``history``."""
+    # G_u = ratio FFT[f - p 1_map]/N_pad: sqrt(dot/ratio) is the imbalance's rms normalised to the map
     res = max(math.sqrt(max(st.ops.dot(st.Gu, st.Gu), 0.0) / ratio), abs(st.Gd)) / p_ref
     history.append(res)
     if not math.isfinite(res):
@@ -221,7 +216,7 @@ def _lbfgs(st: _FreeState, minv_u: Any, minv_d: float, ratio: float, p_ref: floa
            rng: float | None, memory: int, history: list[float]) -> str:
     """Method "lbfgs" (the default): L-BFGS with ``memory`` pairs, the preconditioner ``(minv_u, minv_d)`` as
     its initial inverse Hessian (module docstring). Returns the status; ``st`` holds the last point."""
-    ops, sigma0 = st.ops, st.sigma0
+    ops = st.ops
     s_hist: list = []
     y_hist: list = []
     r_hist: list[float] = []
@@ -230,7 +225,7 @@ def _lbfgs(st: _FreeState, minv_u: Any, minv_d: float, ratio: float, p_ref: floa
     def precondition(G: tuple[Any, float]) -> tuple[Any, float]:
         return minv_u * G[0], minv_d * G[1]
 
-    def axpy(a: float, x: tuple[Any, float], y: tuple[Any, float]) -> tuple[Any, float]:
+    def axpy_pair(a: float, x: tuple[Any, float], y: tuple[Any, float]) -> tuple[Any, float]:
         """``y + a x``, in place on ``y`` (a direction being built by the two-loop recursion, owned here)."""
         ops.axpy(y[0], a, x[0])
         return y[0], y[1] + a * x[1]
@@ -238,26 +233,16 @@ def _lbfgs(st: _FreeState, minv_u: Any, minv_d: float, ratio: float, p_ref: floa
     while True:
         deadline.check()  # a task time limit ends the solve between iterations
         grad = (st.Gu, st.Gd)
-        # G_u = ratio FFT[f - p 1_map]/N_pad: sqrt(dot/ratio) is the imbalance's rms normalised to the map
-        res = max(math.sqrt(max(ops.dot(st.Gu, st.Gu), 0.0) / ratio), abs(st.Gd)) / p_ref
-        history.append(res)
-        if not math.isfinite(res):
-            status = "non_finite"
-            break
-        if res <= tol:
-            status = "converged"
-            break
-        if sigma0 < 0 and rng is not None and float(st.g.min()) > _DETACHED * rng:
-            status = "detached"
-            break
-        if st.nfev >= max_iter:
+        stop = _check(st, ratio, p_ref, tol, max_iter, rng, history)
+        if stop:
+            status = stop
             break
         q = (st.Gu.copy(), st.Gd)
         alphas = []
         for s, y, r in zip(reversed(s_hist), reversed(y_hist), reversed(r_hist)):
             al = r * st.dot(s, q)
             alphas.append(al)
-            q = axpy(-al, y, q)
+            q = axpy_pair(-al, y, q)
         q0 = q[0]  # owned (a copy of the gradient): scaled in place
         q0 *= minv_u
         q = (q0, minv_d * q[1])
@@ -269,7 +254,7 @@ def _lbfgs(st: _FreeState, minv_u: Any, minv_d: float, ratio: float, p_ref: floa
                 q0 *= sc
                 q = (q0, q[1] * sc)
         for s, y, r, al in zip(s_hist, y_hist, r_hist, reversed(alphas)):
-            q = axpy(al - r * st.dot(y, q), s, q)
+            q = axpy_pair(al - r * st.dot(y, q), s, q)
         q0 = q[0]
         q0 *= -1.0
         D = (q0, -q[1])
@@ -310,7 +295,7 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
     if method not in METHODS:
         raise ValueError(f"method must be one of 'auto', {', '.join(map(repr, METHODS))}, got {method!r}")
     on_gpu = _is_cupy(heights)
-    memory = (_GPU_MEMORY if on_gpu else _CPU_MEMORY) if memory is None else int(memory)
+    memory = _MEMORY if memory is None else int(memory)
     free = FreeGrid(heights.shape, length, backend, threads, on_gpu)
     nx, ny = free.shape
     pad = Grid((2 * nx, 2 * ny), (2 * free.lx, 2 * free.ly), free.backend, threads, on_gpu)
