@@ -35,6 +35,7 @@ from gapsweep.core.slab import SlabFFT
 log = logging.getLogger("gapsweep.gfmd")
 CHUNK = 1 << 24  # coefficients per host buffer of the layout exchange (256 MiB)
 MIN_SIDE = 64  # the coarsest level keeps at least this many pixels per side (automatic levels)
+LEVEL_RESIDUAL = 1.0  # a coarse level's answer starts the next only when converged or within this residual
 
 
 class Start:
@@ -78,9 +79,6 @@ def auto_levels(shape: tuple[int, int], ranks: int, min_side: int = MIN_SIDE) ->
         if nx % f or ny % f or min(nx // f, ny // f) < max(min_side, 2 * ranks):
             return lv
         lv += 1
-
-
-LEVEL_RESIDUAL = 1.0  # a coarse level's answer starts the next only when converged or within this residual
 
 
 def check_levels(levels: Any, shape: tuple[int, int], ranks: int) -> int:

@@ -8,6 +8,7 @@ backends of :mod:`gapsweep.fft` (pyFFTW, cuFFT); rectangular ones the namespace'
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
@@ -53,17 +54,15 @@ class Grid:
         self.q = xp.sqrt(kx[:, None] ** 2 + ky[None, :] ** 2)
         self._edge_weights = True  # w is 2 but for the columns ky = 0 and Nyquist (Grid.dot's BLAS path relies on it)
 
-    def __getattr__(self, name: str) -> Any:
-        # ``_w``, the Parseval weights of the half spectrum, made on first use (a hard-wall solve on the GPU
-        # needs them only for its result: half a grid array less at its peak, gfmd._cuda.solve_memory)
-        if name != "_w" or "shape" not in self.__dict__:
-            raise AttributeError(name)
+    @functools.cached_property
+    def _w(self) -> Any:
+        """The Parseval weights of the half spectrum, made on first use (a hard-wall solve on the GPU needs them
+        only for its result: half a grid array less at its peak, gfmd._cuda.solve_memory)."""
         nx, ny = self.shape
         w = self.xp.full((nx, ny // 2 + 1), 2.0)
         w[:, 0] = 1.0
         if ny % 2 == 0:
             w[:, -1] = 1.0
-        self._w = w
         return w
 
     def asarray(self, a: Any) -> Any:

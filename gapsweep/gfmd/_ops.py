@@ -22,6 +22,7 @@ def remember_pair(s_hist: list, y_hist: list, r_hist: list, s: Any, y: Any, sy: 
             for lst in (s_hist, y_hist, r_hist):
                 lst.pop(0)
 
+
 # ------------------------------------------------------------------------------------------------ kernels
 class _Ops:
     """Reductions and fused updates, written once for any array namespace ``xp`` (numpy or cupy).

@@ -558,13 +558,12 @@ def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interact
     h = grid.asarray(h_local)
     if not grid.all_finite(h):
         raise ValueError("heights contain NaN or inf")
-    coarse = None
+    coarse = None  # the coarse levels' records (start="coarse")
     if start == "coarse":
-        coarse = _check_coarse(law, control, sigma0, initial, levels, coarse_tol, tol, shape, red.size)
+        n_levels, coarse_tol = _check_coarse(law, control, sigma0, initial, levels, coarse_tol, tol, shape, red.size)
         kw = dict(comm=comm, sigma0=sigma0, interaction=law, e_star=e_star, length=length, method=method,
-                  backend=backend, max_iter=max_iter, host=False, memory=memory, tol=coarse[1])
-        initial, records = _run_coarse(h, grid, coarse[0], control != "softmax", kw)
-        coarse = records
+                  backend=backend, max_iter=max_iter, host=False, memory=memory, tol=coarse_tol)
+        initial, coarse = _run_coarse(h, grid, n_levels, control != "softmax", kw)
     rng = law.range()
     if rng is not None and rng < min(lx / shape[0], ly / shape[1]) and law.name == "exponential" and red.rank == 0:
         from gapsweep.gfmd._common import UnderResolvedWarning

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from gapsweep.core.slab import block, slab_rows
 from gapsweep.sweep import writefail
 from gapsweep.sweep.schema import FIELD_NAMES, StoreWriteError
 
@@ -219,12 +220,6 @@ def write_field_rows(directory: str | Path, task_id: str, rows: Mapping[str, np.
                               "stays pending: free space or fix the folder and run again with --resume") from None
 
 
-def _my_rows(shape: tuple[int, int], comm: Any) -> slice:
-    from gapsweep.core.slab import slab_rows
-
-    return slab_rows(int(shape[0]), comm)
-
-
 def _write_rows_mpio(directory: str | Path, task_id: str, rows: Mapping[str, np.ndarray], shape: tuple[int, int],
                      comm: Any, length: Any, attrs: Mapping[str, Any]) -> Path | None:
     import h5py
@@ -233,7 +228,7 @@ def _write_rows_mpio(directory: str | Path, task_id: str, rows: Mapping[str, np.
     d.mkdir(parents=True, exist_ok=True)
     final = d / f"{task_id}.nc"
     tmp = d / f".{task_id}.{comm.bcast(os.getpid(), root=0)}.tmp"  # one name: rank 0's process id
-    mine = _my_rows(shape, comm)
+    mine = slab_rows(int(shape[0]), comm)
     # An MPI-IO write that fails (full disk, file-size limit) is reported by the MPI library but not returned by
     # HDF5's collective calls, which then wait forever: rank 0 first reserves the file's largest size (the raw
     # fields, compression can only shrink them but by its few bytes per chunk), and every rank raises its error.
@@ -273,16 +268,15 @@ def _write_rows_rank0(directory: str | Path, task_id: str, rows: Mapping[str, np
     if rank != 0:
         if not comm.bcast(None, root=0):  # rank 0 could not create the file: it raises, the runner aborts
             raise StoreWriteError(f"kept fields of task {task_id}: rank 0 could not create the file")
-        mine = _my_rows(shape, comm)
+        mine = slab_rows(int(shape[0]), comm)
         for name in rows:
             a = np.ascontiguousarray(rows[name], dtype=np.float64)
             for c in row_chunks(mine, int(shape[1])):
                 comm.Send(a[c.start - mine.start:c.stop - mine.start], dest=0, tag=TAG_ROWS)
         return None
-    from gapsweep.core.slab import block
 
     def receive(name: str) -> Iterator[tuple[slice, np.ndarray]]:
-        yield _my_rows(shape, comm), np.asarray(rows[name], dtype=np.float64)
+        yield slab_rows(int(shape[0]), comm), np.asarray(rows[name], dtype=np.float64)
         for r in range(1, size):
             for c in row_chunks(block(int(shape[0]), size, r), int(shape[1])):
                 buf = np.empty((c.stop - c.start, int(shape[1])), dtype=np.float64)
