@@ -54,18 +54,22 @@ def surface(n: int, seed: int = 1, gpu: bool = True):
     return cupy.asarray(self_affine(n, 0.3, **kw)), "host"
 
 
-def bare_pair(n: int, repeat: int = 20) -> float:
-    """Median seconds of irfft2 + rfft2 (gapsweep.fft's cuFFT plans) with a synchronisation."""
-    import cupy
-
+def bare_pair(n: int, repeat: int = 20, backend: str = "cupy") -> float:
+    """Median seconds of irfft2 + rfft2 (gapsweep.core.fft's plans of ``backend``: cuFFT for "cupy") with a
+    synchronisation; also bench_gpu_floor.py's reference pair."""
     from gapsweep.core.fft import get_backend
 
-    fb = get_backend("cupy", n)
-    h = cupy.random.default_rng(0).standard_normal((n, n))
-    X = cupy.array(fb.rfft2(h))
+    fb = get_backend(backend, n)
+    if backend == "cupy":
+        import cupy as xp
+    else:
+        xp = np
+    h = xp.asarray(np.random.default_rng(0).standard_normal((n, n)))
+    X = xp.array(fb.rfft2(h))
     ts = []
     for i in range(repeat + 3):
-        cupy.cuda.get_current_stream().synchronize()
+        if xp is not np:
+            xp.cuda.get_current_stream().synchronize()
         t = time.perf_counter()
         fb.irfft2(X)
         fb.rfft2(h)

@@ -33,7 +33,6 @@ import json
 import math
 import os
 import platform
-import statistics
 import sys
 import time
 import warnings
@@ -43,9 +42,11 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench_gfmd_limit (the reference pair)
+
+import bench_gfmd_limit
 
 from gapsweep import gfmd
-from gapsweep.core.fft import get_backend
 from gapsweep.gfmd import _free
 from gapsweep.surfaces import self_affine
 
@@ -86,21 +87,9 @@ class Device:
         return self.xp.cuda.runtime.memGetInfo()
 
     def pair(self, n: int, repeat: int = 20) -> float:
-        """Median seconds of one irfft2 + rfft2 of gapsweep.core.fft's plans, synchronised (as
-        bench_gfmd_limit.bare_pair)."""
-        fb = get_backend(self.backend, n)
-        h = self.xp.asarray(np.random.default_rng(0).standard_normal((n, n)))
-        X = self.xp.array(fb.rfft2(h))
-        ts = []
-        for i in range(repeat + 3):
-            self.sync()
-            t = time.perf_counter()
-            fb.irfft2(X)
-            fb.rfft2(h)
-            fb.synchronize()
-            if i >= 3:
-                ts.append(time.perf_counter() - t)
-        return statistics.median(ts)
+        """Median seconds of one irfft2 + rfft2 of gapsweep.core.fft's plans, synchronised
+        (bench_gfmd_limit.bare_pair)."""
+        return bench_gfmd_limit.bare_pair(n, repeat, self.backend)
 
     def solve(self, h: Any, repeat: int = 2, **kw) -> Any:
         """Best of ``repeat`` solves after one warm-up at tol 1e-2 (plans, kernels), fields left on the device."""
