@@ -918,7 +918,7 @@ def main(store_paths: Sequence[str | Path] | str | Path, out_dir: str | Path, *,
     try:
         build(df, hists, tmp, prov, phists=load_pressure(paths))
         files = sorted(str(q.relative_to(tmp)) for q in tmp.rglob("*") if q.is_file())
-        (tmp / MANIFEST).write_text(json.dumps({"files": files, "written": pd.Timestamp.utcnow().isoformat()},
+        (tmp / MANIFEST).write_text(json.dumps({"files": files, "written": pd.Timestamp.now("UTC").isoformat()},
                                                indent=1))
         if out.exists():
             os.replace(out, old)  # checked above: only the previous report's files

@@ -167,6 +167,19 @@ class Hold:
                 raise AssertionError(f"hold point {self.k} not reached within {timeout} s")
             time.sleep(0.01)
 
+    def signalled(self, proc: subprocess.Popen, timeout: float = 300) -> int:
+        """With ``env(FAULTS_HOLD_SIGNALS="n")``: wait until the held process has recorded its first signal
+        (it then stays at the hold point until its n-th); returns that signal's number."""
+        t0 = time.monotonic()
+        while not (marks := list(self.folder.glob("signalled-*"))) or not marks[0].read_text():
+            if proc.poll() is not None:
+                raise AssertionError(f"the run ended (exit {proc.returncode}) before recording its signal: "
+                                     f"{proc.stderr.read() if proc.stderr else ''}")
+            if time.monotonic() - t0 > timeout:
+                raise AssertionError(f"no signal recorded within {timeout} s")
+            time.sleep(0.01)
+        return int(marks[0].read_text())
+
     def release(self) -> None:
         (self.folder / "release").touch()
 

@@ -25,6 +25,7 @@ import time
 
 _SPEC = os.environ.get("FAULTS_HOLD", "")
 _FOLDER, _, _POINT = _SPEC.rpartition(":")
+_SIGNALS = int(os.environ.get("FAULTS_HOLD_SIGNALS", "0") or 0)
 
 
 def _hold(stop: str | None = None) -> None:
@@ -36,6 +37,15 @@ def _hold(stop: str | None = None) -> None:
     release = os.path.join(_FOLDER, "release")
     while not (os.path.exists(release) or (stop and os.path.exists(stop)) or limits._received is not None):
         time.sleep(0.005)  # polls a condition: how long it takes never decides an outcome
+    if _SIGNALS > 1 and limits._received is not None:
+        # FAULTS_HOLD_SIGNALS=n: say which signal was taken first (signalled-<pid>), then stay until n signals
+        # have arrived, so the test's next signal certainly comes after the first was recorded and meets the
+        # run before its clean-up (two signals sent back to back to a process with several threads can be
+        # taken in either order by the kernel: no test may rely on that order)
+        with open(os.path.join(_FOLDER, f"signalled-{os.getpid()}"), "w") as f:
+            f.write(str(int(limits._received)))
+        while not (os.path.exists(release) or limits.signal_count() >= _SIGNALS):
+            time.sleep(0.005)
 
 
 def _patch_store(mod) -> None:
