@@ -446,7 +446,7 @@ def _demo(args: argparse.Namespace) -> int:
     print(f"\nstore: {res['store']}   (gapsweep status {res['store']}; gapsweep.store.read('{res['store']}'))")
     for f in res["figures"]:
         print(f"figure: {f}")
-    return 0
+    return _run_code(res["summary"])  # rows failed or pending: not 0, as for `gapsweep run`
 
 
 if __name__ == "__main__":

@@ -73,7 +73,9 @@ def fig2_theory(out_dir: str | Path = "out") -> str:
 
 def run(job: str | Path, out_dir: str | Path = "out") -> dict[str, Any]:
     """Run the demo job into ``out_dir/demo.h5`` (finishing what is missing; a store of an older demo spec is
-    replaced) and draw its figures. Returns ``{"store", "status", "table", "figures"}`` (text for the CLI)."""
+    replaced) and draw its figures. Returns ``{"store", "status", "table", "figures", "summary"}`` (text for
+    the CLI; ``summary`` is the run's, from which the CLI takes its exit code as for ``gapsweep run``: a demo that
+    leaves rows failed or pending does not exit 0)."""
     from gapsweep.sweep import api as store
     from gapsweep.sweep import runner
 
@@ -81,7 +83,7 @@ def run(job: str | Path, out_dir: str | Path = "out") -> dict[str, Any]:
     out.mkdir(parents=True, exist_ok=True)
     path = out / "demo.h5"
     try:
-        runner.run(job, path, resume=True)
+        summary = runner.run(job, path, resume=True)
     except runner.RunError:  # a demo store of an older demo spec: start again
         # ... but only a demo store: another job's store (or a damaged file) there is never replaced (issue 19)
         try:
@@ -93,7 +95,7 @@ def run(job: str | Path, out_dir: str | Path = "out") -> dict[str, Any]:
             raise runner.RunError(f"demo --out {out}: {path} is a store of job {other!r}, not the demo's; "
                                   "choose another --out") from None
         log.info("%s holds another job spec: replacing it", path)
-        runner.run(job, path, overwrite=True)
+        summary = runner.run(job, path, overwrite=True)
     df = store.read(path)
     done = df[df.status == "done"]
     table = ""
@@ -102,7 +104,7 @@ def run(job: str | Path, out_dir: str | Path = "out") -> dict[str, Any]:
                .groupby(["method", "hurst", "rho", "sigma0"]).g.mean().unstack("method"))
         table = tab.to_string(float_format=lambda x: f"{x:.4f}")
     return {"store": path, "status": store.status(path), "table": table,
-            "figures": draw(df, store.read_histograms(path), out)}
+            "figures": draw(df, store.read_histograms(path), out), "summary": summary}
 
 
 def draw(df: Any, hists: dict, out_dir: str | Path) -> list[Path]:

@@ -460,3 +460,18 @@ def test_demo_never_replaces_another_jobs_store(tmp_path, refs):
     p = gs("demo", "--out", tmp_path, timeout=120)
     one_line_error(p, "demo --out", "test-theory", "not the demo's")
     assert (tmp_path / "demo.h5").read_bytes() == refs["theory"].read_bytes()
+
+
+def test_demo_with_failed_rows_does_not_exit_0(tmp_path):
+    """``gapsweep demo`` whose run leaves rows failed exits 5, as ``gapsweep run`` does (it printed its table and
+    figures and exited 0 before); the store keeps the failed rows, and a second demo (nothing left to run: a
+    failure of a task's own parameters is not retried) still exits 5."""
+    p = gs("demo", "--job", HIST_JOB, "--out", tmp_path, timeout=120, GAPSWEEP_TEST_FAIL="0.01")
+    assert p.returncode == 5, p.stderr
+    assert "6 row(s) not done (6 failed" in p.stderr
+    df = store.read(tmp_path / "demo.h5")
+    assert (df.status == "failed").sum() == 6 and set(df.sigma0[df.status == "failed"]) == {0.01}
+    assert (tmp_path / "fig2_demo.png").is_file()
+    p = gs("demo", "--job", HIST_JOB, "--out", tmp_path, timeout=120)
+    assert p.returncode == 5 and "6 row(s) not done (6 failed" in p.stderr, p.stderr
+    assert (store.read(tmp_path / "demo.h5").status == "failed").sum() == 6
