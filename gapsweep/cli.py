@@ -150,7 +150,7 @@ SUBMIT_OPTIONS = ("--shards", "--mpi", "--account", "--partition", "--mem", "--t
 
 def _submit_parser(sub: Any) -> None:
     s = sub.add_parser("submit", help="submit a job to Slurm: an array of shards and a merge job, or one MPI job")
-    s.add_argument("job", help="job spec (TOML)")
+    s.add_argument("job", help="job spec (TOML) or a shipped job's name (gapsweep jobs)")
     s.add_argument("out", help="output folder: the final store is OUT/<job file name>.h5")
     g = s.add_mutually_exclusive_group(required=True)
     g.add_argument("--shards", type=int, metavar="N", help="N shard jobs (job arrays) and a merge job")
@@ -275,10 +275,10 @@ def _jobs(args: argparse.Namespace) -> int:
 
 
 def _dispatch(args: argparse.Namespace) -> int:
-    if args.command in ("plan", "run"):
+    if args.command in ("plan", "run", "submit"):  # a job argument may be a shipped job's name (gapsweep jobs)
         from gapsweep import jobs
 
-        args.job = jobs.resolve(args.job) if args.command == "plan" else [jobs.resolve(j) for j in args.job]
+        args.job = [jobs.resolve(j) for j in args.job] if args.command == "run" else jobs.resolve(args.job)
     if args.command == "jobs":
         return _jobs(args)
     if args.command == "plan":

@@ -55,10 +55,10 @@ def fake(tmp_path):
     return d
 
 
-def _submit(fake: Path, tmp_path: Path, *args: str, **env: str) -> subprocess.CompletedProcess:
+def _submit(fake: Path, tmp_path: Path, *args: str, job: str | Path = JOB, **env: str) -> subprocess.CompletedProcess:
     e = {k: v for k, v in os.environ.items() if not k.startswith(("GAPSWEEP_", "SLURM_", "SBATCH"))}
     e.update(PYTHONPATH=str(ROOT), SB_DIR=str(fake), PATH=f"{fake}:{os.environ['PATH']}", **env)
-    return subprocess.run([sys.executable, "-m", "gapsweep", "submit", str(JOB), str(tmp_path / "out"), *args],
+    return subprocess.run([sys.executable, "-m", "gapsweep", "submit", str(job), str(tmp_path / "out"), *args],
                           env=e, capture_output=True, text=True, timeout=120, cwd=tmp_path)
 
 
@@ -100,6 +100,20 @@ def test_dry_run_prints_commands_and_scripts_submits_nothing(tmp_path, fake):
     assert "--account=phys1" in out and "--dependency=afterany:ARRAY_ID:ARRAY_ID" in out
     assert "# ---- array_job.sbatch ----" in out and "# ---- merge_job.sbatch ----" in out
     assert "#SBATCH --signal=B:USR1@300" in out
+
+
+def test_submit_takes_a_shipped_job_name(tmp_path, fake):
+    """``gapsweep submit fig2_quick OUT`` (a name of ``gapsweep jobs``, as ``run`` and ``plan`` take): the scripts
+    run the shipped spec's file, the final store is OUT/fig2_quick.h5; an unknown name is a bad argument (exit 2)
+    naming the shipped jobs, nothing submitted."""
+    from gapsweep import jobs
+
+    p = _submit(fake, tmp_path, "--shards", "2", "--dry-run", job="fig2_quick")
+    assert p.returncode == 0, p.stderr
+    assert str(jobs.path("fig2_quick").absolute()) in p.stdout and "fig2_quick.h5" in p.stdout
+    p = _submit(fake, tmp_path, "--shards", "2", job="no_such_job")
+    assert p.returncode == 2 and "no such file, nor a shipped job name" in p.stderr and "fig2_quick" in p.stderr
+    assert not (fake / "count").exists() and not (tmp_path / "out").exists()
 
 
 def test_second_submission_refused_unless_force(tmp_path, fake):

@@ -301,9 +301,12 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
 
 
 def _order_free(spec: specmod.JobSpec) -> str:
-    """The spec's canonical JSON with the values of every axis list sorted (grid axes and method overrides):
-    equal for two specs that differ only in the order of axis values (docs/jobs.md: the order does not enter)."""
+    """The spec's canonical JSON with the values of every axis list sorted (grid axes and method overrides) and
+    without its description: equal for two specs that differ only in the order of axis values (docs/jobs.md: the
+    order does not enter) or in their free-text ``job.description``, which enters no task (a corrected
+    description must not strand a half-finished store)."""
     d = json.loads(spec.canonical())
+    d.pop("description", None)
 
     def norm(x: Any) -> Any:
         if isinstance(x, dict):

@@ -216,7 +216,7 @@ def loads(text: str, base: str | Path | None = None) -> JobSpec:
     job = rd.table("job", raw["job"])
     rd.known("job", job, ("name", "description"))
     if "name" not in job:
-        raise SpecError("job.name: missing; a short name for the job (letters, digits, - and _)")
+        raise SpecError("job.name: missing; a short name for the job (letters, digits, '-', '_', '.')")
     name = rd.string("job.name", job["name"])
     if not name or not all(c.isalnum() or c in "-_." for c in name):
         raise SpecError(f"job.name: allowed characters are letters, digits, '-', '_', '.', got {name!r}")

@@ -127,6 +127,16 @@ def test_reordered_axis_values_resume(tmp_path, refs):
     p = gs("run", job, "--store", path, "--mpi", "off", "--progress", "none", "--resume")
     assert p.returncode == 0, p.stderr
     assert store.diff(path, refs["hist"]) == []
+    # the job's description corrected too (free text, no task changes): the store still resumes
+    path2 = tmp_path / "s2.h5"
+    p = gs("run", HIST_JOB, "--store", path2, "--mpi", "off", "--progress", "none", GAPSWEEP_TEST_WRITE_ERROR="8")
+    assert p.returncode == 1
+    job.write_text(text.replace('description = "tests/faults: rows with histograms"',
+                                'description = "tests/faults: rows with histograms (corrected)"'))
+    assert job.read_text() != text
+    p = gs("run", job, "--store", path2, "--mpi", "off", "--progress", "none", "--resume")
+    assert p.returncode == 0, p.stderr
+    assert store.diff(path2, refs["hist"]) == []
     # another job (a value changed, not reordered) is still refused
     job.write_text(text.replace("hurst = [0.8, 0.3]", "hurst = [0.8, 0.4]"))
     p = gs("run", job, "--store", path, "--mpi", "off", "--progress", "none", "--resume")
