@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 from pathlib import Path
@@ -90,12 +91,33 @@ def probe_growth(path: str | Path, nbytes: int = PROBE_BYTES, size: int | None =
     p = Path(path)
     if size is None:
         size = p.stat().st_size if p.exists() else 0
-    probe = p.with_name(f".{p.name}.probe-{os.getpid()}")
-    fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    fd = _scratch(p)
     try:
         os.write(fd, b"\0" * nbytes)
         os.pwrite(fd, b"\0", size + nbytes)
         os.fsync(fd)
     finally:
         os.close(fd)
-        probe.unlink(missing_ok=True)
+
+
+# errors of open(O_TMPFILE) that mean "this filesystem or kernel has no unnamed files" (NFS, Lustre, old kernels)
+_NO_TMPFILE = (errno.EOPNOTSUPP, errno.EISDIR, errno.EINVAL)
+
+
+def _scratch(p: Path) -> int:
+    """A file descriptor for writing a scratch file in ``p``'s folder (same filesystem, same quota) that no
+    crash leaves behind: unnamed (``O_TMPFILE``) where the filesystem has it, else created as
+    ``.<name>.probe-<pid>`` and unlinked before anything is written (its blocks stay allocated while the
+    descriptor is open). A process SIGKILLed mid-probe -- Open MPI kills the ranks 1 s after forwarding a
+    signal, while they write their run record -- used to leave a 1 MB file beside the store."""
+    flag = getattr(os, "O_TMPFILE", 0)
+    if flag:
+        try:
+            return os.open(p.parent, flag | os.O_WRONLY, 0o600)
+        except OSError as e:
+            if e.errno not in _NO_TMPFILE:
+                raise
+    probe = p.with_name(f".{p.name}.probe-{os.getpid()}")
+    fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    probe.unlink(missing_ok=True)
+    return fd
