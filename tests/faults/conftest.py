@@ -158,27 +158,24 @@ class Hold:
     def wait(self, proc: subprocess.Popen, timeout: float = 300) -> None:
         """Until a process of the run holds at its point; fails if the run ended first (or never got there:
         ``timeout`` only bounds a broken run, it decides nothing in a working one)."""
-        t0 = time.monotonic()
-        while not list(self.folder.glob("reached-*")):
-            if proc.poll() is not None:
-                raise AssertionError(f"the run ended (exit {proc.returncode}) before its hold point {self.k}: "
-                                     f"{proc.stderr.read() if proc.stderr else ''}")
-            if time.monotonic() - t0 > timeout:
-                raise AssertionError(f"hold point {self.k} not reached within {timeout} s")
-            time.sleep(0.01)
+        self._await(proc, "reached-*", f"its hold point {self.k}", timeout, filled=False)
 
     def signalled(self, proc: subprocess.Popen, timeout: float = 300) -> int:
         """With ``env(FAULTS_HOLD_SIGNALS="n")``: wait until the held process has recorded its first signal
         (it then stays at the hold point until its n-th); returns that signal's number."""
+        return int(self._await(proc, "signalled-*", "recording its signal", timeout, filled=True).read_text())
+
+    def _await(self, proc: subprocess.Popen, pattern: str, what: str, timeout: float, filled: bool) -> Path:
+        """The first file matching ``pattern`` in the folder once there (``filled``: once it has content)."""
         t0 = time.monotonic()
-        while not (marks := list(self.folder.glob("signalled-*"))) or not marks[0].read_text():
+        while not (marks := [m for m in self.folder.glob(pattern) if not filled or m.read_text()]):
             if proc.poll() is not None:
-                raise AssertionError(f"the run ended (exit {proc.returncode}) before recording its signal: "
+                raise AssertionError(f"the run ended (exit {proc.returncode}) before {what}: "
                                      f"{proc.stderr.read() if proc.stderr else ''}")
             if time.monotonic() - t0 > timeout:
-                raise AssertionError(f"no signal recorded within {timeout} s")
+                raise AssertionError(f"{what}: not reached within {timeout} s")
             time.sleep(0.01)
-        return int(marks[0].read_text())
+        return marks[0]
 
     def release(self) -> None:
         (self.folder / "release").touch()
