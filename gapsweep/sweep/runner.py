@@ -300,7 +300,7 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
     return "resume", todo, len(failed)
 
 
-def _order_free(spec: specmod.JobSpec) -> str:
+def _task_key(spec: specmod.JobSpec) -> str:
     """The spec's canonical JSON with the values of every axis list sorted (grid axes and method overrides) and
     without its description: equal for two specs that differ only in the order of axis values (docs/jobs.md: the
     order does not enter) or in their free-text ``job.description``, which enters no task (a corrected
@@ -320,9 +320,10 @@ def _order_free(spec: specmod.JobSpec) -> str:
 
 def _stored_order(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: str,
                   overwrite: bool) -> list[int] | None:
-    """Issue 31: a store written from the same spec with the values of an axis in another order (its hash
-    differs, its tasks are the same) is resumed in its own row order: the permutation (store row -> index into
-    ``tasks``), or None where there is nothing to reorder."""
+    """Issue 31: a store written from the same spec with the values of an axis in another order, or another
+    ``job.description`` (its hash differs, its tasks are the same: :func:`_task_key`), is resumed in its own row
+    order: the permutation (store row -> index into ``tasks``), or None where the spec is the store's or
+    another job's."""
     if overwrite or not path.is_file():
         return None
     try:
@@ -336,15 +337,15 @@ def _stored_order(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_te
     if sha in (spec.sha256, spec.text_sha256) or shard != shard_text or not isinstance(text, str):
         return None
     try:
-        if _order_free(specmod.loads(text, base=spec.base_dir or None)) != _order_free(spec):
+        if _task_key(specmod.loads(text, base=spec.base_dir or None)) != _task_key(spec):
             return None
     except (specmod.SpecError, ValueError, AttributeError):
         return None
     index = {t.task_id: i for i, t in enumerate(tasks)}
     if sorted(ids) != sorted(index):
         return None
-    log.info("store %s: the job spec lists axis values in another order than the store's; resumed in the "
-             "store's row order", path)
+    log.info("store %s: the job spec differs from the store's only in the order of axis values or in its "
+             "description; resumed in the store's row order", path)
     return [index[x] for x in ids]
 
 
