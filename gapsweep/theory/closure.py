@@ -283,11 +283,12 @@ def multiscale_gap_samples(
         if not lambda_s < lambda_l:
             raise ValueError(f"lambda_s must be < lambda_l, got lambda_s={lambda_s!r}, lambda_l={lambda_l!r}")
         h = improved._lowpass(h, int(math.floor(length / lambda_s + 1e-9)))
+    shells = improved._Shells(h, length)  # one spectrum for the hybrid's ladder and the sampling below
     hyb = improved.hybrid(s, h, zeta_c="auto", rho=rho, gamma0=gamma0, lambda_l=lambda_l, length=length,
-                          e_star=e_star, tol=tol, rtol=rtol, max_cost_fraction=max_cost_fraction, finest=finest)
+                          e_star=e_star, tol=tol, rtol=rtol, max_cost_fraction=max_cost_fraction, finest=finest,
+                          _shells=shells)
     if hyb.status not in ("converged", "rtol_not_met"):
         raise RuntimeError(f"multiscale gap distribution: the coarse GFMD solve failed (status {hyb.status!r})")
-    shells = improved._Shells(h, length)
     base = math.log(rho * e_star / 2.0) - math.log(gamma0 / rho)
     rng = np.random.default_rng(seed)
 

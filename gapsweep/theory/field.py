@@ -31,7 +31,7 @@ from numpy.typing import ArrayLike
 from scipy.special import logsumexp
 
 from gapsweep.core import checks as chk
-from gapsweep.theory import spectrum
+from gapsweep.theory import domain, spectrum
 
 __all__ = [
     "diffusion",
@@ -231,6 +231,7 @@ def mean_gap(
             raise ValueError("zeta is not supported with heights= (the spectrum of the map is summed in full)")
         hs = _heights(heights, length)
         sp = spectrum.radial(hs, length) if form == "continuum" else spectrum.from_heights(hs, length)
+        _check_domain(sigma0, rho=rho, h_rms=sp.h_rms, g_rms=sp.g_rms, e_star=e_star)
         return mean_gap_spectrum(sigma0, sp, rho=rho, gamma0=gamma0, e_star=e_star)
     form = "paper" if form is None else form
     for name, val in (("hurst", hurst), ("h_rms", h_rms), ("lambda_s", lambda_s)):
@@ -253,7 +254,35 @@ def mean_gap(
         prefactor /= -math.expm1(-2.0 * hurst * math.log(zeta_s))
     integral = _integral_from_log_eta(_log_eta(s, rho, lambda_l, e_star), z, hurst)
     flat = rho * (math.log(gamma0) - math.log(rho) - np.log(s))
+    if zeta is None and h_rms > 0.0:
+        g_rms = spectrum.self_affine(hurst, lambda_l=lambda_l, lambda_s=lambda_s, rms_height=h_rms).g_rms
+        _check_domain(s, rho=rho, h_rms=h_rms, g_rms=g_rms, e_star=e_star)
     return _out(flat + (prefactor / rho) * integral)
+
+
+#: the field theory's validated domain (docs/theory.md, "Validity", held-out sets against GFMD): within 5 %
+#: wherever ``rho/h_rms >= 0.5``, or ``rho/h_rms >= 0.12`` at ``sigma0/(E* g_rms) >= 0.1``; elsewhere up to
+#: +209 % off (issue 39: H = 0.9, ``rho/h_rms = 0.05``)
+DOMAIN_RHO_OVER_H_RMS = 0.5
+DOMAIN_HIGH_PRESSURE = (0.12, 0.1)  # (rho/h_rms, sigma0/(E* g_rms)) both at least
+
+
+def _check_domain(sigma0: ArrayLike, *, rho: float, h_rms: float, g_rms: float, e_star: float) -> None:
+    """Warn once (:class:`gapsweep.theory.domain.PredictorDomainWarning`) if any ``sigma0`` lies outside the
+    field theory's validated domain (the constants above)."""
+    if not h_rms > 0.0 or not g_rms > 0.0:
+        return
+    rr = rho / h_rms
+    if rr >= DOMAIN_RHO_OVER_H_RMS:
+        return
+    p = np.asarray(sigma0, float).ravel() / (e_star * g_rms)
+    rr_hi, p_hi = DOMAIN_HIGH_PRESSURE
+    outside = np.ones(p.shape, bool) if rr < rr_hi else p < p_hi
+    if outside.any():
+        domain.warn_outside("field theory (mean gap)",
+                            f"rho/h_rms = {rr:.3g} < {DOMAIN_RHO_OVER_H_RMS} at {int(outside.sum())} of {p.size} "
+                            f"pressures (validated there only for rho/h_rms >= {rr_hi} and "
+                            f"sigma0/(E* g_rms) >= {p_hi}; docs/theory.md, 'Validity')", stacklevel=4)
 
 
 # --------------------------------------------------------------------------------------------------------------

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import math
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,11 +25,16 @@ from numpy.typing import ArrayLike
 from scipy.special import logsumexp
 
 from gapsweep.core import checks as chk
+from gapsweep.theory import domain
 
 __all__ = ["HybridResult", "gap_fluctuations", "hybrid", "lme_linear", "lme_second_order", "shift_error",
            "unresolved_shift"]
 
 log = logging.getLogger("gapsweep.theory.improved")
+
+#: the smallest ``rho/h_rms`` of the hybrid's validated domain (docs/theory.md, "Validity": the held-out sets
+#: reach 0.05; below it the hybrid warns with :class:`gapsweep.theory.domain.PredictorDomainWarning`)
+DOMAIN_RHO_OVER_H_RMS = 0.05
 
 
 def _q_grid(n: int, length: float) -> np.ndarray:
@@ -136,19 +142,33 @@ def _shift_of_pressure(p: np.ndarray, q: np.ndarray, pw: np.ndarray, rho: float,
 
 
 class _Shells:
-    """Every shell ``|k|^2 = const`` of one surface, computed once per call (one FFT and one sort of the grid)."""
+    """Every shell ``|k|^2 = const`` of one surface, computed once per call: one real FFT of the grid (half the
+    work of a complex one: ``h`` is real, so ``h~(-k) = conj(h~(k))`` and the columns ``0 < k_x < n/2`` stand for
+    two modes each) and one bincount. ``k_max``: the largest ``|k|`` with a non-negligible Fourier coefficient
+    (relative power above 1e-24), from the same spectrum."""
 
     def __init__(self, h: np.ndarray, length: float) -> None:
         n = h.shape[0]
-        self.ht = np.fft.fft2(h - h.mean()) / h.size
-        k = np.fft.fftfreq(n, d=1.0 / n).astype(np.int64)
-        k2 = (k[:, None] ** 2 + k[None, :] ** 2).ravel()
+        self.n = n
+        self.h0 = h - h.mean()
+        self.ht = np.fft.rfft2(self.h0) / h.size  # (n, n//2 + 1): k_y in FFT order, k_x = 0 .. n//2
+        ky = np.fft.fftfreq(n, d=1.0 / n).astype(np.int64)
+        kx = np.arange(self.ht.shape[1], dtype=np.int64)
+        k2 = (ky[:, None] ** 2 + kx[None, :] ** 2).ravel()
+        # each stored column k_x stands for the modes +k_x and -k_x, except k_x = 0 and (n even) k_x = n/2
+        mult = np.full(kx.size, 2.0)
+        mult[0] = 1.0
+        if n % 2 == 0:
+            mult[-1] = 1.0
+        power = (np.abs(self.ht) ** 2 * mult[None, :]).ravel()
         # shells by integer |k|^2: a bincount (O(n^2)), not a sort
         cnt = np.bincount(k2)
         uk2 = np.flatnonzero(cnt)
         self.k2 = uk2
-        self.pw = np.bincount(k2, weights=(np.abs(self.ht) ** 2).ravel())[uk2]
+        self.pw = np.bincount(k2, weights=power)[uk2]
         self.q = (2.0 * math.pi / length) * np.sqrt(uk2.astype(float))
+        live = power > 1e-24 * max(float(power.max()), 1e-300)
+        self.k_max = float(np.sqrt(k2[live].max())) if live.any() else 0.0
 
     def fine(self, k_c: float) -> tuple[np.ndarray, np.ndarray]:
         """``(|q|, summed |h~|^2)`` of the shells ``|k| > k_c``."""
@@ -157,11 +177,18 @@ class _Shells:
 
     def coarse(self, k_c: int, n_c: int) -> np.ndarray:
         """The modes ``|k| <= k_c`` on an ``n_c x n_c`` grid (``n_c`` up to the input grid; as coarse_surface)."""
-        n = self.ht.shape[0]
-        kc_ = np.fft.fftfreq(n_c, d=1.0 / n_c).astype(int)
-        out = self.ht[np.ix_(kc_ % n, kc_ % n)].copy()
-        out[np.hypot(kc_[:, None], kc_[None, :]) > k_c] = 0.0
-        return np.fft.ifft2(out).real * (n_c * n_c)
+        n = self.n
+        if n_c == n and k_c * k_c >= int(self.k2[-1]):
+            return self.h0.copy()  # the input grid itself with nothing removed
+        if n_c != n and not 2 * k_c < n_c:
+            raise ValueError(f"a coarser grid needs 2 k_c < n_c, got k_c={k_c}, n_c={n_c}")
+        ky = np.fft.fftfreq(n_c, d=1.0 / n_c).astype(int)
+        kx = np.arange(n_c // 2 + 1)
+        out = self.ht[np.ix_(ky % n, kx)].copy()
+        # the mask depends on |k| alone, so it keeps the half spectrum conjugate-symmetric: on a coarser grid every
+        # kept mode lies below its Nyquist (2 k_c < n_c), on the input grid the stored half is the whole spectrum
+        out[np.hypot(ky[:, None], kx[None, :]) > k_c] = 0.0
+        return np.fft.irfft2(out, s=(n_c, n_c)) * (n_c * n_c)
 
 
 def _grouped(q: np.ndarray, pw: np.ndarray, dlnq: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
@@ -299,6 +326,7 @@ def hybrid(
     finest: bool = False,
     shift_fraction: float = 0.25,
     floor: float = 2e-3,
+    _shells: _Shells | None = None,
 ) -> HybridResult:
     """Multiscale hybrid mean gap [length]: GFMD on the modes ``|q| <= zeta_c q_l``, field theory for the rest.
 
@@ -356,14 +384,26 @@ def hybrid(
     shift_fraction = chk.nonnegative(shift_fraction, "shift_fraction")
     floor = chk.nonnegative(floor, "floor")
     kw = dict(rho=rho, e_star=e_star, length=length, tol=tol)
+    if rho < length / n:
+        # the input grid itself does not resolve rho (M7): the answer the hybrid approximates is under-resolved
+        # too. Said once here; the coarse grids below are under-resolved by design and stay silent.
+        warnings.warn(f"hybrid: rho = {rho:.3g} is below the input grid's pixel {length / n:.3g} (docs/model.md M7)",
+                      gfmd.UnderResolvedWarning, stacklevel=2)
+    if rho < DOMAIN_RHO_OVER_H_RMS * float(np.std(h)):
+        domain.warn_outside("hybrid", f"rho/h_rms = {rho / float(np.std(h)):.3g} is below "
+                            f"{DOMAIN_RHO_OVER_H_RMS} (docs/theory.md, 'Validity')")
 
-    shells = _Shells(h, length)  # one FFT and one sort for every grid of the ladder
+    # one FFT and one bincount for every grid of the ladder (the multiscale distribution passes its own)
+    shells = _Shells(h, length) if _shells is None else _shells
 
     def level(k_c: int, n_c: int, start) -> tuple[float, object, float, float]:
         hc = shells.coarse(k_c, n_c)  # on the input grid too the modes beyond k_c are removed (no double count)
         q, pw = shells.fine(k_c)
         delta = float(_shift_of_pressure(np.array([s]), q, pw, rho, e_star)[0]) if q.size else 0.0
-        res = gfmd.solve(hc, sigma0=s, gamma0=gamma0 * math.exp(delta / rho), initial=start, **kw)
+        with warnings.catch_warnings():
+            # rho < dx_c on the coarse grids is the method (the finer shells carry the rest): not the user's problem
+            warnings.simplefilter("ignore", gfmd.UnderResolvedWarning)
+            res = gfmd.solve(hc, sigma0=s, gamma0=gamma0 * math.exp(delta / rho), initial=start, **kw)
         err = _shift_error(res.pressure, s, q, pw, rho, e_star) if delta > 0 else 0.0
         log.debug("hybrid k_c=%d n_c=%d delta=%g est=%g status=%s it=%d", k_c, hc.shape[0], delta, err, res.status,
                   res.iterations)
@@ -376,7 +416,7 @@ def hybrid(
             raise ValueError("local=True needs a numeric zeta_c (zeta_c='auto' brackets the local shift instead)")
         return _auto(level, h, initial=initial, length=length, lambda_l=lambda_l, rtol=rtol,
                      max_cost_fraction=max_cost_fraction, finest=finest,
-                     weights=(safety, shift_fraction, floor))
+                     weights=(safety, shift_fraction, floor), k_max=shells.k_max)
 
     zeta_c = chk.positive(zeta_c, "zeta_c")
     k_c = int(math.floor(zeta_c * length / lambda_l + 1e-9))
@@ -396,7 +436,9 @@ def hybrid(
             grid = np.linspace(lp.min(), lp.max() + 1e-12, 64)
             d = np.interp(lp, grid, _shift_of_pressure(np.exp(grid), q, pw, rho, e_star))
             he = hc + d
-            res = gfmd.solve(he - he.mean(), sigma0=s, gamma0=gamma0, initial=res, **kw)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", gfmd.UnderResolvedWarning)  # as in level(): by design
+                res = gfmd.solve(he - he.mean(), sigma0=s, gamma0=gamma0, initial=res, **kw)
             cost += res.iterations * n_c * n_c
             g0 = float(res.mean_gap) + float(d.mean())
             log.debug("hybrid local step: g0=%g <Delta>=%g status=%s", g0, d.mean(), res.status)
@@ -406,13 +448,12 @@ def hybrid(
 
 
 def _auto(level, h: np.ndarray, *, initial, length: float, lambda_l: float, rtol: float, max_cost_fraction: float,
-          finest: bool, weights: tuple[float, float, float]) -> HybridResult:
+          finest: bool, weights: tuple[float, float, float], k_max: float) -> HybridResult:
     """The ``zeta_c="auto"`` ladder of :func:`hybrid` (its docstring); ``level(k_c, n_c, start)`` solves one grid,
     ``weights = (safety, shift_fraction, floor)`` of the error estimate."""
     safety, shift_fraction, floor = weights
     n = h.shape[0]
     h_rms = float(np.sqrt(np.mean((h - h.mean()) ** 2)))
-    k_max = _max_mode(h)
     n_cap = max(32, n * math.sqrt(max_cost_fraction / 1.6))
     # first grid: the smallest that resolves zeta_c >= 4 (coarser ones carry too few modes to mean anything)
     n_c = 16
@@ -454,9 +495,4 @@ def _auto(level, h: np.ndarray, *, initial, length: float, lambda_l: float, rtol
 
 def _max_mode(h: np.ndarray) -> float:
     """Largest ``|k|`` with a non-negligible Fourier coefficient (relative power above 1e-24)."""
-    n = h.shape[0]
-    k = np.fft.fftfreq(n, d=1.0 / n)
-    pw = np.abs(np.fft.fft2(h - h.mean())) ** 2
-    kk = np.hypot(k[:, None], k[None, :])
-    live = pw > 1e-24 * max(float(pw.max()), 1e-300)
-    return float(kk[live].max()) if live.any() else 0.0
+    return _Shells(np.asarray(h, float), 1.0).k_max
