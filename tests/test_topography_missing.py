@@ -8,6 +8,7 @@ scipy.io.savemat, which its MatReader reads as one channel per 2-D array."""
 
 from __future__ import annotations
 
+import copy
 import itertools
 import json
 from pathlib import Path
@@ -196,6 +197,37 @@ def test_multi_channel_file(st, tmp_path) -> None:
         load(tmp_path / "one.npy", length=1.0, channel=0)
 
 
+def test_repeated_channel_names_need_an_index(st, tmp_path, monkeypatch) -> None:
+    """Instrument files repeat channel names (a Bruker .di holds 'Height' twice: trace and retrace): a name that
+    is not unique is refused, naming the indices; the index reads the channel asked for. The reader stands in
+    for such a file (SurfaceTopography writes none): two channels of a MATLAB file renamed alike."""
+    scipy_io = pytest.importorskip("scipy.io")
+    rng = np.random.default_rng(2)
+    a, b = rng.standard_normal((8, 6)), rng.standard_normal((8, 6))
+    scipy_io.savemat(tmp_path / "two.mat", {"h1": a, "h2": b})
+    real = st.open_topography
+
+    class Renamed:  # the real reader, its channels listed under one name
+        def __init__(self, reader):
+            self._reader = reader
+            self.channels = [copy.copy(c) for c in reader.channels]
+            for c in self.channels:
+                c._name = "Height"
+
+        def topography(self, **kw):
+            return self._reader.topography(**kw)
+
+    def renamed(path, *args, **kwargs):
+        return Renamed(real(path, *args, **kwargs))
+
+    monkeypatch.setattr(st, "open_topography", renamed)
+    assert [c.name for c in st.open_topography(str(tmp_path / "two.mat")).channels] == ["Height", "Height"]
+    with pytest.raises(ValueError, match=r"several channels are named 'Height' \(indices 0, 1\); choose one by "
+                                         r"its index"):
+        load(tmp_path / "two.mat", length=1.0, channel="Height")
+    np.testing.assert_array_equal(load(tmp_path / "two.mat", length=1.0, channel=1, detrend="none").heights, b)
+
+
 # ------------------------------------------------------------------------------------------------ sweep
 
 
@@ -261,3 +293,15 @@ def test_sweep_keys_refuse_crop_fill_and_plan(st, tmp_path) -> None:
     assert list(df.status) == ["done"]
     solved = topography.load(tmp_path / "m.nc", missing="fill_harmonic")
     assert rec["h_rms"] == pytest.approx(float(np.std(solved.heights)), rel=1e-12)
+
+
+def test_filling_most_of_a_map_warns(tmp_path, caplog) -> None:
+    """A map mostly undefined (an instrument file had 89 %) may be filled on request, but not silently."""
+    h = np.random.default_rng(5).standard_normal((20, 16))
+    h[:, 6:] = np.nan  # 62.5 % missing
+    np.save(tmp_path / "strip.npy", h)
+    with caplog.at_level("WARNING", logger="gapsweep.topography"):
+        t = load(tmp_path / "strip.npy", length=1.0, missing="fill_harmonic")
+    assert t.missing_fraction == pytest.approx(0.625)
+    assert any("62.5 % of the map) filled (harmonic): most of what is solved is interpolation" in r.getMessage()
+               for r in caplog.records if r.levelname == "WARNING")

@@ -260,6 +260,10 @@ def _read_surfacetopography(path: Path, channel: int | str | None
     elif isinstance(channel, str):
         if channel not in names:
             raise ValueError(f"{path}: has no channel {channel!r} (channel); its channels are {listing}")
+        if names.count(channel) > 1:  # instruments repeat names (e.g. trace and retrace "Height")
+            same = ", ".join(str(i) for i, n in enumerate(names) if n == channel)
+            raise ValueError(f"{path}: several channels are named {channel!r} (indices {same}); choose one by its "
+                             f"index with channel=; its channels are {listing}")
         index = names.index(channel)
     else:
         if isinstance(channel, bool) or not 0 <= int(channel) < len(channels):
@@ -514,7 +518,10 @@ def load(path: str | Path, *, length: Any = None, pixel_size: Any = None, unit: 
     elif n_missing:
         method = missing.split("_", 1)[1]
         h = fill_missing(np.where(undefined, 0.0, h), undefined, method)
-        log.info("%s: %d missing pixels (%.3g %%) filled (%s)", p, n_missing, 100 * n_missing / h.size, method)
+        frac = n_missing / h.size
+        (log.warning if frac > 0.25 else log.info)(
+            "%s: %d missing pixels (%.3g %% of the map) filled (%s)%s", p, n_missing, 100 * frac, method,
+            ": most of what is solved is interpolation, not measurement" if frac > 0.5 else "")
     if unit is None and file_unit is not None:
         unit = file_unit
     unit, height_unit, to_unit = _canonical(unit), _canonical(height_unit), _canonical(to_unit)
