@@ -155,3 +155,10 @@ def test_stored_h_rms_is_that_of_the_heights_solved(tmp_path):
         assert row.g_rms_spectrum == pytest.approx(ms.g_rms, rel=1e-12)
     rec = json.loads(store.read_attrs(path)["surface_map"])
     assert rec["h_rms"] == pytest.approx(h_solved, rel=1e-12) and rec["g_rms"] == pytest.approx(g_solved, rel=1e-12)
+    # the report finds the map again by its rms height (the new h_rms), and draws it
+    from gapsweep.analysis import contact, report
+
+    df, _, prov = report.load([path])
+    info = contact.job_infos(df, prov)["crop"]
+    assert not any("not the one the job ran" in n for n in info.get("notes", [])), info.get("notes")
+    assert info.get("heights") is not None and np.array_equal(info["heights"], solved.heights)

@@ -217,11 +217,16 @@ def _load_map(surf: Mapping[str, Any], prov: Mapping[str, Any], rows: pd.DataFra
         except Exception as e:  # the report says why instead of failing
             why = str(e).replace(str(base.resolve()), "<spec dir>").replace(str(base), "<spec dir>")
             return None, f"the height map `{path}` (relative to the job spec) does not load ({why})"
-        # the store's h_rms is the map's own (map_spectrum, right for its boundaries): the same map gives it again
+        # the same map gives the store's h_rms again: from format 5 on the rms of the heights solved (np.std),
+        # before it the map's spectral value (map_spectrum, right for its boundaries; now h_rms_spectrum)
         from gapsweep.theory.spectrum import map_spectrum
 
         topo.periodic = bool(table.get("periodic", topo.periodic))
-        h_rms, mine = _first(rows, "h_rms"), map_spectrum(topo.heights, topo.length, periodic=topo.periodic).h_rms
+        h_rms = _first(rows, "h_rms")
+        if np.isfinite(_first(rows, "h_rms_spectrum")):
+            mine = float(np.std(topo.heights))
+        else:
+            mine = map_spectrum(topo.heights, topo.length, periodic=topo.periodic).h_rms
         if np.isfinite(h_rms) and not math.isclose(mine, h_rms, rel_tol=1e-6):
             return None, (f"the height map found at `{path}` (relative to the job spec) is not the one the job ran "
                           f"(rms height {mine:.6g}, the store's {h_rms:.6g})")
