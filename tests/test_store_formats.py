@@ -163,3 +163,22 @@ def test_unknown_layout_is_one_line(tmp_path):
         f.attrs["format_version"] = 7
     with pytest.raises(store.StoreError, match=r"format_version 7 with a /results table of format 3d"):
         store.read(p)
+
+
+def test_resumed_old_layout_keeps_its_h_rms_meaning():
+    """Format 5 changed what a file map's h_rms and g_rms are (the heights solved; the spectrum's moved to
+    h_rms_spectrum, g_rms_spectrum). A row written into an older layout (a resumed store) keeps that layout's
+    meaning, the spectrum's, so one column holds one quantity within a store; a synthetic surface's row (no
+    spectral columns) is written as it is."""
+    from gapsweep.sweep.schema import TaskResult
+
+    res = TaskResult("done", "", {"mean_gap": 0.5, "h_rms": 1.0, "g_rms": 3.0, "h_rms_spectrum": 2.0,
+                                  "g_rms_spectrum": 4.0})
+    new = store.result_row(res, schema.RESULT_DTYPE)[0]
+    assert (new["h_rms"], new["g_rms"], new["h_rms_spectrum"], new["g_rms_spectrum"]) == (1.0, 3.0, 2.0, 4.0)
+    for layout in schema.LAYOUTS[:-1]:
+        old = store.result_row(res, layout.results)[0]
+        assert (old["h_rms"], old["g_rms"], old["mean_gap"]) == (2.0, 4.0, 0.5), layout.name
+    synthetic = TaskResult("done", "", {"h_rms": 1.0, "g_rms": 3.0, "h_rms_spectrum": float("nan"),
+                                        "g_rms_spectrum": float("nan")})
+    assert store.result_row(synthetic, schema.LAYOUTS[-2].results)[0]["h_rms"] == 1.0
