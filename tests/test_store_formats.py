@@ -182,3 +182,36 @@ def test_resumed_old_layout_keeps_its_h_rms_meaning():
     synthetic = TaskResult("done", "", {"h_rms": 1.0, "g_rms": 3.0, "h_rms_spectrum": float("nan"),
                                         "g_rms_spectrum": float("nan")})
     assert store.result_row(synthetic, schema.LAYOUTS[-2].results)[0]["h_rms"] == 1.0
+
+
+def test_old_file_map_store_reads_and_merges_into_format5_meaning(tmp_path):
+    """format4_filemap.h5 was written by bb77f13 (layout 4) from filemap.toml: a mean-detrended non-periodic crop,
+    GFMD and Persson rows whose h_rms, g_rms are the map's spectral moments. It still reads as written; merged
+    into a format-5 store, those values move to h_rms_spectrum, g_rms_spectrum, and h_rms, g_rms become those
+    of the heights solved (computed from the map), as a format-5 run writes them."""
+    from gapsweep.surfaces import topography
+    from gapsweep.sweep.context import _rms_and_spectrum
+
+    p = tmp_path / "old.h5"
+    shutil.copy(DATA / "format4_filemap.h5", p)
+    for name in ("filemap.toml", "filemap_crop.npy"):
+        shutil.copy(DATA / name, tmp_path / name)
+    with h5py.File(p, "r+") as f:  # the map next to the copy (the fixture names the folder it was written in)
+        f.attrs["spec_dir"] = str(tmp_path)
+        store.seal_attrs(f)
+    assert store.read_attrs(p)["git_commit"].startswith("bb77f13")
+    old = store.read(p).sort_values("task_id")
+    assert set(old.status) == {"done"} and len(old) == 4
+    topo = topography.load(tmp_path / "filemap_crop.npy", unit="um", pixel_size=0.5, detrend="mean",
+                           periodic=False)
+    h, g, hs, gs = _rms_and_spectrum(topo.heights, {"kind": "file", "length": list(topo.length),
+                                                    "periodic": False})
+    assert np.allclose(old.h_rms, hs, rtol=1e-12) and np.allclose(old.g_rms, gs, rtol=1e-12)  # the old meaning
+    assert abs(h / hs - 1) > 0.1  # and it differs from the new one
+    out = tmp_path / "merged.h5"
+    assert store.merge([p], out)["done"] == 4
+    new = store.read(out).sort_values("task_id")
+    assert np.allclose(new.h_rms, h, rtol=1e-12) and np.allclose(new.g_rms, g, rtol=1e-12)
+    assert np.allclose(new.h_rms_spectrum, old.h_rms, rtol=0) and np.allclose(new.g_rms_spectrum, old.g_rms, rtol=0)
+    assert np.array_equal(new.mean_gap.to_numpy(), old.mean_gap.to_numpy())
+    assert np.isclose(float(np.std(topo.heights)), h, rtol=1e-12)
