@@ -11,6 +11,7 @@ from __future__ import annotations
 import copy
 import itertools
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -305,3 +306,35 @@ def test_filling_most_of_a_map_warns(tmp_path, caplog) -> None:
     assert t.missing_fraction == pytest.approx(0.625)
     assert any("62.5 % of the map) filled (harmonic): most of what is solved is interpolation" in r.getMessage()
                for r in caplog.records if r.levelname == "WARNING")
+
+
+def test_a_job_loads_its_map_once_per_file_state(tmp_path) -> None:
+    """Validation, the store's record, the plan and the tasks read one map: a filling is computed once per file
+    state and options (a second call gives equal heights in a fresh array), again after the file changed."""
+    from gapsweep.sweep import filesurface
+
+    h = np.random.default_rng(6).standard_normal((12, 10))
+    h[3:6, 2:5] = np.nan
+    np.save(tmp_path / "m.npy", h)
+    surf = {"kind": "file", "path": "m.npy", "file_length": 1.0, "missing": "fill_harmonic", "detrend": "none"}
+    calls = []
+    real = topography.load
+
+    def counted(*a, **k):
+        calls.append(1)
+        return real(*a, **k)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(topography, "load", counted)
+        a = filesurface.load_file_surface(surf, tmp_path / "m.npy")
+        b = filesurface.load_file_surface(surf, tmp_path / "m.npy")
+        assert len(calls) == 1 and a.heights is not b.heights and np.array_equal(a.heights, b.heights)
+        b.heights[0, 0] = 99.0  # a caller's change does not reach the kept map
+        assert filesurface.load_file_surface(surf, tmp_path / "m.npy").heights[0, 0] == a.heights[0, 0]
+        filesurface.load_file_surface({**surf, "missing": "fill_nearest"}, tmp_path / "m.npy")
+        assert len(calls) == 2
+        h[0, 0] = 5.0
+        np.save(tmp_path / "m.npy", h)
+        os.utime(tmp_path / "m.npy", ns=(1, 10**18))
+        c = filesurface.load_file_surface(surf, tmp_path / "m.npy")
+        assert len(calls) == 3 and c.heights[0, 0] == 5.0

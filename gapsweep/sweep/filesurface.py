@@ -8,7 +8,9 @@ keys and keeps the path of each validated map for the tasks of this process.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
+import json
 import math
 from pathlib import Path
 from typing import Any
@@ -202,4 +204,17 @@ def load_file_surface(surface: dict[str, Any], full: str | Path):
     if "length" not in kw and "pixel_size" not in kw and surface.get("format") != "surfacetopography" \
             and Path(full).suffix.lower() in (".npy", ".npz", *topography._TEXT):
         raise SpecError("surface.length: missing; give length or pixel_size (the file does not state its size)")
-    return topography.load(full, detrend=surface.get("detrend", "mean"), **kw)
+    # One load per file state and options in this process: validation, the store's record, the plan and every
+    # task of a rank read the same map, and a harmonic filling of a large map takes seconds (a sparse solve).
+    st = Path(full).stat()
+    key = (str(Path(full).resolve()), st.st_mtime_ns, st.st_size, surface.get("detrend", "mean"),
+           json.dumps(kw, sort_keys=True, default=str))
+    topo = _LOADED.get(key)
+    if topo is None:
+        topo = topography.load(full, detrend=surface.get("detrend", "mean"), **kw)
+        _LOADED.clear()  # one map kept: a job has one surface
+        _LOADED[key] = topo
+    return dataclasses.replace(topo, heights=topo.heights.copy())
+
+
+_LOADED: dict[tuple, Any] = {}  # the last map loaded (load_file_surface)
