@@ -338,3 +338,26 @@ def test_a_job_loads_its_map_once_per_file_state(tmp_path) -> None:
         os.utime(tmp_path / "m.npy", ns=(1, 10**18))
         c = filesurface.load_file_surface(surf, tmp_path / "m.npy")
         assert len(calls) == 3 and c.heights[0, 0] == 5.0
+
+
+def test_crop_of_a_periodic_file_is_decided_by_its_edges_and_tiny_crops_refused(st, tmp_path) -> None:
+    """A file flagged periodic with a hole: its crop is no period of anything, so the file's flag no longer
+    applies and the edges decide (a crop of a slope with a bump is not periodic); a mask leaving no 2 x 2 valid block
+    is refused with the report. Rectangular, odd grid."""
+    x, y = np.meshgrid(np.linspace(0, 1, 33), np.linspace(0, 1, 21), indexing="ij")
+    h = 0.5 * x + np.exp(-((x - 0.3) ** 2 + (y - 0.6) ** 2) / 0.05)
+    m = np.zeros(h.shape, bool)
+    m[20:, :] = True
+    st.Topography(np.ma.masked_array(h, m), physical_sizes=(3.3, 2.1), unit="nm", periodic=True).to_netcdf(
+        str(tmp_path / "p.nc"))
+    full = load(tmp_path / "p.nc", missing="fill_nearest")
+    assert full.periodic and full.periodic_from == "the file's flag"
+    t = load(tmp_path / "p.nc", missing="crop")
+    assert t.crop == (0, 20, 0, 21) and t.length == pytest.approx((2.0, 2.1)) and t.unit == "nm"
+    assert not t.periodic and t.periodic_from.startswith("from the map's edges")
+    checker = np.zeros((6, 7))
+    checker[::2, ::2] = np.nan
+    checker[1::2, 1::2] = np.nan
+    np.save(tmp_path / "c.npy", checker)
+    with pytest.raises(ValueError, match=r"(?s)largest valid rectangle is \d x \d pixels: too small.*missing"):
+        load(tmp_path / "c.npy", length=1.0, missing="crop")
