@@ -124,7 +124,8 @@ def test_gap_distribution_figure_labels_and_rigid_reference():
     g0r = rho * (math.log(1e-3) - math.log(rho) - math.log(1e-4)) + 2e-3 ** 2 / (2 * rho)
     x, y = dashed[0].get_data()
     assert x[np.argmax(y)] == pytest.approx(g0r / 2e-3, abs=0.05)
-    assert any(f"eta = rho q_l E*/(2 sigma0) < {figures.RIGID_ETA:g}" in t.get_text() for t in fig.texts)
+    rule = f"drawn only where eta = rho q_l E*/(2 sigma0) >= {figures.RIGID_ETA:g}"
+    assert any(rule in t.get_text() for t in fig.texts)
     assert any("rigid limit" in t for t in legend)
     import matplotlib.pyplot as plt
 

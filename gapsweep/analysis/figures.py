@@ -370,12 +370,12 @@ def fig_gap_distribution(hagg: Mapping[tuple, HistogramStats], *, hurst: float, 
         if drew_rigid:
             ax.plot([], [], color="0.4", ls="--", lw=0.9, label=f"rigid limit (only where $\\eta \\geq$ {RIGID_ETA:g})")
         ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False, fontsize=8)
-        rigid_note = (f"rigid-limit reference left out where eta = rho q_l E*/(2 sigma0) < {RIGID_ETA:g} (it does "
-                      "not apply there)") if skipped_rigid else ""
-        foot = " | ".join(x for x in (note or _hist_footer(sel), rigid_note,
-                                      "QUICK JOB: smoke test, not for conclusions" if quick else "") if x)
-        fig.text(0.5, 0.005, foot, ha="center", va="bottom", fontsize=7.5, color="0.3")
-        fig.tight_layout(rect=(0, 0.05, 1, 1))
+        rigid_note = (f"rigid-limit reference drawn only where eta = rho q_l E*/(2 sigma0) >= {RIGID_ETA:g} (it "
+                      "does not apply at higher pressures)") if skipped_rigid else ""
+        lines = [x for x in (" | ".join(x for x in (note or _hist_footer(sel), "QUICK JOB: smoke test, not for "
+                                                    "conclusions" if quick else "") if x), rigid_note) if x]
+        fig.text(0.5, 0.005, "\n".join(lines), ha="center", va="bottom", fontsize=7.5, color="0.3")
+        fig.tight_layout(rect=(0, 0.05 * max(1, len(lines)), 1, 1))
     return fig
 
 
