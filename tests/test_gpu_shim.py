@@ -84,3 +84,67 @@ def test_padded_transforms_gpu_branch(cp) -> None:
     u_cpu = cpu.compliance(1.0)(p)
     u_gpu = gpu.compliance(1.0)(cp.asarray(p))
     np.testing.assert_allclose(np.asarray(u_gpu), u_cpu, rtol=0, atol=1e-12 * np.abs(u_cpu).max())
+
+
+class _Devices:
+    """``cupy.cuda.Device`` with a current device that ``with Device(i):`` switches (issue 36): the shim's plain
+    stand-in always reads device 0."""
+
+    current = 0
+
+    def __init__(self, index: int | None = None) -> None:
+        self.id = _Devices.current if index is None else int(index)
+        self.attributes = {"MultiProcessorCount": 4}
+        self._prev: list[int] = []
+
+    def __enter__(self) -> _Devices:
+        self._prev.append(_Devices.current)
+        _Devices.current = self.id
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        _Devices.current = self._prev.pop()
+
+
+def test_plan_caches_keyed_by_device(cp, monkeypatch) -> None:
+    """Every cache of cuFFT plans and loaded kernels holds one entry per device (issue 36: a second GPU in the
+    same process reused device 0's plans and failed with CUFFT_EXEC_FAILED): two devices get two backends (two
+    plan pairs) and two kernel tables; asking again on a device returns its own; a solve on device 1 after one
+    on device 0 runs on plans made on device 1 and gives the same answer."""
+    monkeypatch.setattr(cp.cuda, "Device", _Devices)
+    monkeypatch.setattr(_Devices, "current", 0)
+    made: list[int] = []
+    real = cupy_shim.get_fft_plan
+
+    def plan(*a, **k):
+        made.append(_Devices.current)
+        return real(*a, **k)
+
+    import sys
+
+    monkeypatch.setattr(sys.modules["cupyx.scipy.fft"], "get_fft_plan", plan)
+    with cp.cuda.Device(0):
+        b0 = fft.get_backend("cupy", 16)
+        k0 = _cuda._cupy_kernels()
+    with cp.cuda.Device(1):
+        b1 = fft.get_backend("cupy", 16)
+        k1 = _cuda._cupy_kernels()
+    assert b0 is not b1 and b0._plans[0] is not b1._plans[0]
+    assert k0 is not k1 and k0.keys() == k1.keys()
+    assert made == [0, 0, 1, 1]  # R2C and C2R made on each device
+    with cp.cuda.Device(0):
+        assert fft.get_backend("cupy", 16) is b0 and _cuda._cupy_kernels() is k0
+    with cp.cuda.Device(1):
+        assert fft.get_backend("cupy", 16) is b1 and _cuda._cupy_kernels() is k1
+    # a whole periodic hard-wall solve on each device: its backend comes from that device's entry
+    h = _map((32, 32))
+    kw = dict(sigma0=0.01, interaction="hard_wall", method="pcg", tol=1e-10, length=1.0)
+    results = []
+    for dev in (0, 1):
+        with cp.cuda.Device(dev):
+            made.clear()
+            results.append(solve(cp.asarray(h), host=False, **kw))
+            assert set(made) <= {dev}
+            assert ("cupy", 32, 0, "", dev) in fft._PLANS
+    assert results[0].converged and results[1].converged
+    assert results[1].mean_gap == results[0].mean_gap

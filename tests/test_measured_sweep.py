@@ -55,12 +55,12 @@ def test_persson_uses_the_maps_own_slope_not_the_edge_jump(measured):
     th = df[df.method == "theory"]
     # the parent surface's rms slope is 0.1 (the map is a crop of it, tilted): within 3 %, where the plain FFT of
     # the detrended map counts the edge jump (about 0.125)
-    assert th.g_rms.iloc[0] == pytest.approx(0.1, rel=0.03)
+    assert th.g_rms_spectrum.iloc[0] == pytest.approx(0.1, rel=0.03)
     from gapsweep.theory import persson
     from gapsweep.theory.spectrum import map_spectrum
 
     h = _map().heights
-    assert map_spectrum(h, (96.0, 64.0), periodic=True).g_rms > 1.15 * th.g_rms.iloc[0]  # what a plain FFT says
+    assert map_spectrum(h, (96.0, 64.0), periodic=True).g_rms > 1.15 * th.g_rms_spectrum.iloc[0]  # a plain FFT
 
     for s0, area in zip(th.sigma0, th.contact_area):
         ref = persson.contact_area(s0, heights=h, length=(96.0, 64.0), e_star=1000.0, periodic=False)
@@ -117,3 +117,48 @@ def test_kept_fields_of_a_rectangular_map_carry_its_axes_and_units(tmp_path):
     assert f.gap.attrs["units"] == "um" and f.pressure.attrs["units"] == "MPa"
     assert f.attrs["interaction"] == "hard_wall"
     assert math.isclose(float(f.pressure.mean()), 5.0, rel_tol=1e-6)
+
+
+def test_stored_h_rms_is_that_of_the_heights_solved(tmp_path):
+    """issue 36 item 2: a map's ``h_rms`` and ``g_rms`` columns are those of the heights GFMD solves (after
+    detrending), not the spectrum's moments, which have their own columns ``h_rms_spectrum`` and
+    ``g_rms_spectrum`` (theory.spectrum.map_spectrum, what Persson's theory uses). A crop of a surface with
+    roughness up to its whole box, mean-detrended, not periodic: there the two h_rms differ by ~1.8x."""
+    import numpy as np
+
+    from gapsweep.surface import self_affine
+    from gapsweep.theory.spectrum import map_spectrum
+
+    h = self_affine(256, 0.8, lambda_l=1.0, lambda_s=4 / 256, seed=2)[:64, :48] * 100.0  # um
+    np.save(tmp_path / "crop.npy", h)
+    job = tmp_path / "crop.toml"
+    job.write_text('[job]\nname = "crop"\n[grid]\nsigma0 = [2.0]\n[surface]\nkind = "file"\npath = "crop.npy"\n'
+                   'unit = "um"\npixel_size = 0.390625\ndetrend = "mean"\nperiodic = false\n[interaction]\n'
+                   'kind = "hard_wall"\n[material]\ne_star = 1000.0\npressure_unit = "MPa"\n[methods.gfmd]\n'
+                   'tol = 1e-8\nbackend = "numpy"\n[methods.theory]\nforms = ["persson"]\n')
+    path = tmp_path / "crop.h5"
+    runner.run(job, path, progress="none", mpi="off")
+    df = store.read(path)
+    assert set(df.status) == {"done"}
+    solved = topography.load(tmp_path / "crop.npy", unit="um", pixel_size=0.390625, detrend="mean",
+                             periodic=False)
+    ms = map_spectrum(solved.heights, solved.length, periodic=False)
+    h_solved = float(np.std(solved.heights))
+    dx, dy = solved.pixel_size
+    g_solved = math.sqrt(np.mean((np.diff(solved.heights, axis=0) / dx) ** 2)
+                         + np.mean((np.diff(solved.heights, axis=1) / dy) ** 2))
+    assert h_solved > 1.3 * ms.h_rms  # the case the item is about: the two differ
+    for _, row in df.iterrows():  # the GFMD row and the Persson row alike
+        assert row.h_rms == pytest.approx(h_solved, rel=1e-12)
+        assert row.g_rms == pytest.approx(g_solved, rel=1e-12)
+        assert row.h_rms_spectrum == pytest.approx(ms.h_rms, rel=1e-12)
+        assert row.g_rms_spectrum == pytest.approx(ms.g_rms, rel=1e-12)
+    rec = json.loads(store.read_attrs(path)["surface_map"])
+    assert rec["h_rms"] == pytest.approx(h_solved, rel=1e-12) and rec["g_rms"] == pytest.approx(g_solved, rel=1e-12)
+    # the report finds the map again by its rms height (the new h_rms), and draws it
+    from gapsweep.analysis import contact, report
+
+    df, _, prov = report.load([path])
+    info = contact.job_infos(df, prov)["crop"]
+    assert not any("not the one the job ran" in n for n in info.get("notes", [])), info.get("notes")
+    assert info.get("heights") is not None and np.array_equal(info["heights"], solved.heights)

@@ -24,11 +24,12 @@ JOB = DATA / "fixture.toml"
 # fixture file -> its layout (gapsweep.sweep.schema.LAYOUTS) and the commit that wrote it
 FIXTURES = {"format1": ("1", "a678e7c"), "format2": ("2", "449a5c7"), "format3a": ("3a", "ca6983b"),
             "format3b": ("3b", "de98333"), "format3c": ("3c", "6bc25eb"), "format3d": ("3d", "a6b475f"),
-            "format4": ("4", "576c959")}
+            "format4": ("4", "576c959"), "format5": ("5", "51b80a2")}
 # The fingerprints of the layouts (schema.Layout.digest: columns, types, offsets, checksum kinds, version). A
 # layout once written never changes: never edit a line here; a new layout is a new line with a new version.
 FROZEN = {"1": "e37c64403432c69f", "2": "0b19de7ef5d24b33", "3a": "4a4f2341e18342ea", "3b": "bb06a6b192d3bf2c",
-          "3c": "d45f8072119c04f1", "3d": "b073084f8d5885f9", "4": "264b0f229dcda8c1"}
+          "3c": "d45f8072119c04f1", "3d": "b073084f8d5885f9", "4": "264b0f229dcda8c1",
+          "5": "562ec4ae80298eff"}
 
 
 def _copy(name: str, tmp_path: Path) -> Path:
@@ -100,9 +101,9 @@ def test_fixture_reads_and_verifies(name, tmp_path):
     assert rep.layout.name == layout and rep.damaged == [] and rep.rerun == []
     assert np.allclose(_values(p), _reference(), rtol=1e-12, atol=0)
     text = store.status(p)
-    assert ("no attribute checksums" in text) == (layout != "4")
+    assert ("no attribute checksums" in text) == (layout not in ("4", "5"))
     assert ("no row checksums" in text) == (rep.layout.row_checksums != "column")
-    assert f"format {layout}" in text or layout == "4"
+    assert f"format {layout}" in text or layout in ("4", "5")
     assert len(store.read_histograms(p)) == 2  # the Fokker-Planck rows
 
 
@@ -144,7 +145,7 @@ def test_fixtures_merge(tmp_path):
         assert np.allclose(_values(one), _reference(), rtol=1e-12, atol=0)
 
 
-@pytest.mark.parametrize("name", ["format1", "format3b", "format3d", "format4"])
+@pytest.mark.parametrize("name", ["format1", "format3b", "format3d", "format4", "format5"])
 def test_fixture_exports(name, tmp_path):
     pytest.importorskip("xarray")
     pytest.importorskip("netCDF4")
@@ -162,3 +163,55 @@ def test_unknown_layout_is_one_line(tmp_path):
         f.attrs["format_version"] = 7
     with pytest.raises(store.StoreError, match=r"format_version 7 with a /results table of format 3d"):
         store.read(p)
+
+
+def test_resumed_old_layout_keeps_its_h_rms_meaning():
+    """Format 5 changed what a file map's h_rms and g_rms are (the heights solved; the spectrum's moved to
+    h_rms_spectrum, g_rms_spectrum). A row written into an older layout (a resumed store) keeps that layout's
+    meaning, the spectrum's, so one column holds one quantity within a store; a synthetic surface's row (no
+    spectral columns) is written as it is."""
+    from gapsweep.sweep.schema import TaskResult
+
+    res = TaskResult("done", "", {"mean_gap": 0.5, "h_rms": 1.0, "g_rms": 3.0, "h_rms_spectrum": 2.0,
+                                  "g_rms_spectrum": 4.0})
+    new = store.result_row(res, schema.RESULT_DTYPE)[0]
+    assert (new["h_rms"], new["g_rms"], new["h_rms_spectrum"], new["g_rms_spectrum"]) == (1.0, 3.0, 2.0, 4.0)
+    for layout in schema.LAYOUTS[:-1]:
+        old = store.result_row(res, layout.results)[0]
+        assert (old["h_rms"], old["g_rms"], old["mean_gap"]) == (2.0, 4.0, 0.5), layout.name
+    synthetic = TaskResult("done", "", {"h_rms": 1.0, "g_rms": 3.0, "h_rms_spectrum": float("nan"),
+                                        "g_rms_spectrum": float("nan")})
+    assert store.result_row(synthetic, schema.LAYOUTS[-2].results)[0]["h_rms"] == 1.0
+
+
+def test_old_file_map_store_reads_and_merges_into_format5_meaning(tmp_path):
+    """format4_filemap.h5 was written by bb77f13 (layout 4) from filemap.toml: a mean-detrended non-periodic crop,
+    GFMD and Persson rows whose h_rms, g_rms are the map's spectral moments. It still reads as written; merged
+    into a format-5 store, those values move to h_rms_spectrum, g_rms_spectrum, and h_rms, g_rms become those
+    of the heights solved (computed from the map), as a format-5 run writes them."""
+    from gapsweep.surfaces import topography
+    from gapsweep.sweep.context import _rms_and_spectrum
+
+    p = tmp_path / "old.h5"
+    shutil.copy(DATA / "format4_filemap.h5", p)
+    for name in ("filemap.toml", "filemap_crop.npy"):
+        shutil.copy(DATA / name, tmp_path / name)
+    with h5py.File(p, "r+") as f:  # the map next to the copy (the fixture names the folder it was written in)
+        f.attrs["spec_dir"] = str(tmp_path)
+        store.seal_attrs(f)
+    assert store.read_attrs(p)["git_commit"].startswith("bb77f13")
+    old = store.read(p).sort_values("task_id")
+    assert set(old.status) == {"done"} and len(old) == 4
+    topo = topography.load(tmp_path / "filemap_crop.npy", unit="um", pixel_size=0.5, detrend="mean",
+                           periodic=False)
+    h, g, hs, gs = _rms_and_spectrum(topo.heights, {"kind": "file", "length": list(topo.length),
+                                                    "periodic": False})
+    assert np.allclose(old.h_rms, hs, rtol=1e-12) and np.allclose(old.g_rms, gs, rtol=1e-12)  # the old meaning
+    assert abs(h / hs - 1) > 0.1  # and it differs from the new one
+    out = tmp_path / "merged.h5"
+    assert store.merge([p], out)["done"] == 4
+    new = store.read(out).sort_values("task_id")
+    assert np.allclose(new.h_rms, h, rtol=1e-12) and np.allclose(new.g_rms, g, rtol=1e-12)
+    assert np.allclose(new.h_rms_spectrum, old.h_rms, rtol=0) and np.allclose(new.g_rms_spectrum, old.g_rms, rtol=0)
+    assert np.array_equal(new.mean_gap.to_numpy(), old.mean_gap.to_numpy())
+    assert np.isclose(float(np.std(topo.heights)), h, rtol=1e-12)

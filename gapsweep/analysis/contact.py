@@ -217,11 +217,16 @@ def _load_map(surf: Mapping[str, Any], prov: Mapping[str, Any], rows: pd.DataFra
         except Exception as e:  # the report says why instead of failing
             why = str(e).replace(str(base.resolve()), "<spec dir>").replace(str(base), "<spec dir>")
             return None, f"the height map `{path}` (relative to the job spec) does not load ({why})"
-        # the store's h_rms is the map's own (map_spectrum, right for its boundaries): the same map gives it again
+        # the same map gives the store's h_rms again: from format 5 on the rms of the heights solved (np.std),
+        # before it the map's spectral value (map_spectrum, right for its boundaries; now h_rms_spectrum)
         from gapsweep.theory.spectrum import map_spectrum
 
         topo.periodic = bool(table.get("periodic", topo.periodic))
-        h_rms, mine = _first(rows, "h_rms"), map_spectrum(topo.heights, topo.length, periodic=topo.periodic).h_rms
+        h_rms = _first(rows, "h_rms")
+        if np.isfinite(_first(rows, "h_rms_spectrum")):
+            mine = float(np.std(topo.heights))
+        else:
+            mine = map_spectrum(topo.heights, topo.length, periodic=topo.periodic).h_rms
         if np.isfinite(h_rms) and not math.isclose(mine, h_rms, rel_tol=1e-6):
             return None, (f"the height map found at `{path}` (relative to the job spec) is not the one the job ran "
                           f"(rms height {mine:.6g}, the store's {h_rms:.6g})")
@@ -285,8 +290,56 @@ def _xscale(ax: Any, s: np.ndarray) -> None:
         ax.set_xscale("log")
 
 
+def _tidy_log_ticks(fig: Any) -> None:
+    """Tick labels of every log axis that cannot overprint (issue 36: matplotlib labels the minor ticks of an
+    axis spanning less than a decade, and "3x10^-2" ran into "4x10^-2" on the narrow panels): minor ticks stay,
+    unlabelled; the labelled ticks are the decades, else 1-2-5, 1-2-3-5 or 1..9 times the decades (the first
+    that puts at least two inside the axis), thinned to at most 3 labels across (x) and 6 up (y); labels are
+    plain numbers from 1e-3 to 1e4 (short), powers of ten beyond."""
+    from matplotlib import ticker
+
+    for ax in fig.axes:
+        for axis, scale, most in ((ax.xaxis, ax.get_xscale(), 3), (ax.yaxis, ax.get_yscale(), 6)):
+            if scale != "log":
+                continue
+            lo, hi = sorted(axis.get_view_interval())
+            if not (lo > 0 and np.isfinite(hi) and hi > lo):
+                continue
+            decades = 10.0 ** np.arange(math.floor(math.log10(lo)) - 1, math.ceil(math.log10(hi)) + 1)
+            ticks = np.array([])
+            for subs in ((1.0,), (1.0, 2.0, 5.0), (1.0, 2.0, 3.0, 5.0), tuple(range(1, 10))):
+                c = np.unique(np.round(np.outer(decades, subs).ravel(), 12))
+                ticks = c[(c >= lo * (1 - 1e-9)) & (c <= hi * (1 + 1e-9))]
+                if len(ticks) >= 2:
+                    break
+            if len(ticks) < 2:  # a range narrower than 1..9 x 10^k resolves: plain linear ticks
+                ticks = np.asarray([t for t in ticker.MaxNLocator(3).tick_values(lo, hi) if lo <= t <= hi and t > 0])
+            step = 1
+            while len(ticks[::step]) > most:
+                step += 1
+            axis.set_major_locator(ticker.FixedLocator(ticks[::step]))
+            axis.set_major_formatter(ticker.FuncFormatter(_log_label))
+            axis.set_minor_locator(ticker.LogLocator(base=10.0, subs=np.arange(2, 10) * 1.0, numticks=100))
+            axis.set_minor_formatter(ticker.NullFormatter())
+
+
+def _log_label(v: float, _pos: Any = None) -> str:
+    """A log-axis tick label: a plain number from 1e-3 to 1e4 ("0.02", "500"), else "10^k" or "m x 10^k"."""
+    if not (v > 0 and np.isfinite(v)):
+        return ""
+    if 1e-3 <= v < 1e4:
+        return f"{v:.3g}"
+    k = math.floor(math.log10(v) + 1e-9)
+    m = v / 10.0 ** k
+    if abs(m - 1) < 1e-6:
+        return f"$10^{{{k}}}$"
+    return f"${m:.2g}\\times10^{{{k}}}$"
+
+
 def _finish(fig: Any, note: str | None) -> None:
-    """Footer line; the legends are inside the axes (placed by each figure)."""
+    """Footer line; the legends are inside the axes (placed by each figure); log-axis ticks that do not
+    overprint (:func:`_tidy_log_ticks`)."""
+    _tidy_log_ticks(fig)
     fh = fig.get_figheight()
     if note:
         fig.text(0.5, 0.01, note, ha="center", va="bottom", fontsize=7.5, color="0.3")

@@ -284,14 +284,32 @@ def _dense_hurst_line(th: pd.DataFrame, rho: float) -> tuple[np.ndarray, np.ndar
     return hs, np.asarray(ys)
 
 
+#: the rigid low-pressure reference of the gap distribution is drawn where eta = rho q_l E*/(2 sigma0) is at least
+#: this (docs/model.md M4 limits: each mode's displacement is below 1/(1 + eta) of its height, here < 10 %)
+RIGID_ETA = 10.0
+
+
+def rigid_eta(rho: float, sigma0: float, lambda_l: float, e_star: float = 1.0) -> float:
+    """The stiffness ratio ``eta = rho q_l E*/(2 sigma0)`` with ``q_l = 2 pi/lambda_l`` (docs/model.md M4); NaN
+    when a parameter is missing."""
+    try:
+        v = rho * (2 * math.pi / float(lambda_l)) * float(e_star) / (2 * float(sigma0))
+    except (TypeError, ValueError, ZeroDivisionError):
+        return math.nan
+    return v if math.isfinite(v) else math.nan
+
+
 def fig_gap_distribution(hagg: Mapping[tuple, HistogramStats], *, hurst: float, rho: float, max_curves: int = 5,
                          title: str | None = None, note: str | None = None, quick: bool = False) -> Figure:
     """Figure 6 (M6): ``h_rms P(g)`` vs ``g/h_rms`` for each pressure (one colour each, at most ``max_curves``
     evenly picked): GFMD (open circles with the per-bin standard error), the Fokker-Planck density at the
     calibrated ``C2`` (solid; key method "fp_calibrated", from :func:`analysis.compare.calibrate_c2`), the SDE and
-    Fokker-Planck runs of the store at their job's ``C2`` (dotted / dash-dot: the default, uncalibrated ``C2``)
+    Fokker-Planck runs of the store at their own ``C2`` (dotted / dash-dot: uncalibrated, the value in the legend)
     and the rigid low-pressure reference (dashed) ``N(g0_rigid, h_rms^2)``,
-    ``g0_rigid = rho ln(gamma0/(rho sigma0)) + h_rms^2/(2 rho)`` (M5).
+    ``g0_rigid = rho ln(gamma0/(rho sigma0)) + h_rms^2/(2 rho)`` (M5), drawn only where it applies: the rigid
+    limit needs ``eta = rho q_l E*/(2 sigma0) >= RIGID_ETA`` (M4: every mode's elastic displacement is below
+    ``1/(1 + eta)`` of its height); at higher pressures the body follows the roughness and the curve would
+    mislead. Labels name methods and parameters, never the store's job names.
 
     ``hagg``: :func:`analysis.aggregate.aggregate_histograms`, optionally merged with the calibrated models.
     """
@@ -314,9 +332,10 @@ def fig_gap_distribution(hagg: Mapping[tuple, HistogramStats], *, hurst: float, 
         if len(sigmas) > max_curves:
             sigmas = [sigmas[i] for i in np.unique(np.linspace(0, len(sigmas) - 1, max_curves).round().astype(int))]
         colors = matplotlib.colormaps["viridis"](np.linspace(0.0, 0.85, len(sigmas)))
-        styles = {"fp_calibrated": ("-", "FP, calibrated C2"), "sde": (":", "SDE, job C2"),
-                  "fokker_planck": ("-.", "FP, job C2")}
-        seen: set[str] = set()
+        styles = {"fp_calibrated": ("-", "Fokker-Planck, fitted $C_2$"), "sde": (":", "SDE, $C_2$ = {c2}"),
+                  "fokker_planck": ("-.", "Fokker-Planck, $C_2$ = {c2}")}
+        seen: set[tuple[str, str]] = set()
+        drew_rigid = skipped_rigid = False
         for s, col in zip(sigmas, colors):
             ref = gf.get(s, (0, None))[1]
             hs = [v.get("h_rms", np.nan) for k, v in sel.items() if k[3] == s]
@@ -329,26 +348,34 @@ def fig_gap_distribution(hagg: Mapping[tuple, HistogramStats], *, hurst: float, 
                             mfc="none", mec=col, ecolor=col, ls="none", ms=3.5, capsize=1.5, elinewidth=0.7,
                             label=f"GFMD, $\\sigma_0/E^*$ = {s:.3g}")
                 gamma0 = ref.get("gamma0", np.nan)
-                if np.isfinite(gamma0):
+                eta = rigid_eta(rho, s, ref.get("lambda_l", np.nan), ref.get("e_star", 1.0))
+                if np.isfinite(gamma0) and not eta >= RIGID_ETA:
+                    skipped_rigid = True
+                elif np.isfinite(gamma0):
+                    drew_rigid = True
                     g0r = rho * (math.log(gamma0) - math.log(rho) - math.log(s)) + h**2 / (2 * rho)
                     gg = np.linspace(ref["edges"][0], ref["edges"][-1], 300)
                     ax.plot(gg / h, np.exp(-0.5 * ((gg - g0r) / h) ** 2) / math.sqrt(2 * math.pi), color=col, ls="--",
                             lw=0.9)
-            for (m, _hh, _rr, ss, _n, _c2, *_), v in sorted(sel.items(), key=lambda kv: (kv[0][0], kv[0][5])):
+            for (m, _hh, _rr, ss, _n, c2, *_), v in sorted(sel.items(), key=lambda kv: (kv[0][0], kv[0][5])):
                 if m not in styles or ss != s:
                     continue
                 ls, name = styles[m]
-                lbl = None if m in seen else name
-                seen.add(m)
+                name = name.format(c2=f"{c2:.3g}" if c2 is not None and np.isfinite(c2) else "default")
+                lbl = None if (m, name) in seen else name
+                seen.add((m, name))
                 e = v["edges"]
                 ax.plot(np.repeat(e, 2)[1:-1] / h, np.repeat(v["density"], 2) * h, color=col, ls=ls, lw=1.0,
                         label=lbl)
-        ax.plot([], [], color="0.4", ls="--", lw=0.9, label="low-pressure (rigid) reference")
+        if drew_rigid:
+            ax.plot([], [], color="0.4", ls="--", lw=0.9, label=f"rigid limit (only where $\\eta \\geq$ {RIGID_ETA:g})")
         ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), frameon=False, fontsize=8)
-        foot = " | ".join(x for x in (note or _hist_footer(sel), "QUICK JOB: smoke test, not for conclusions"
-                                      if quick else "") if x)
-        fig.text(0.5, 0.005, foot, ha="center", va="bottom", fontsize=7.5, color="0.3")
-        fig.tight_layout(rect=(0, 0.05, 1, 1))
+        rigid_note = (f"rigid-limit reference drawn only where eta = rho q_l E*/(2 sigma0) >= {RIGID_ETA:g} (it "
+                      "does not apply at higher pressures)") if skipped_rigid else ""
+        lines = [x for x in (" | ".join(x for x in (note or _hist_footer(sel), "QUICK JOB: smoke test, not for "
+                                                    "conclusions" if quick else "") if x), rigid_note) if x]
+        fig.text(0.5, 0.005, "\n".join(lines), ha="center", va="bottom", fontsize=7.5, color="0.3")
+        fig.tight_layout(rect=(0, 0.05 * max(1, len(lines)), 1, 1))
     return fig
 
 

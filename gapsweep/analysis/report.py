@@ -15,7 +15,8 @@ use.
 Verdict rules (stated in the report too): the theory "agrees" with GFMD on a curve when every point that is not
 ill-conditioned (``|g0| >= 0.25 h_rms``, see :mod:`gapsweep.analysis.compare`) has ``|rel_err| <= 5 %``; a trend is
 read from Spearman's rank correlation; the SDE "matches" GFMD when ``L1 <= 0.1`` (at most 5 % of the probability
-mass misplaced). A claim whose points are not in the stores gets "not enough data".
+mass misplaced). A claim whose points are not in the stores gets "not enough data"; a gap-distribution claim that
+rests on a C2 calibrated at the edge of its bounds gets "inconclusive", with the reason.
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ log = logging.getLogger("gapsweep.analysis.report")
 AGREE = 0.05
 MATCH_L1 = 0.10
 NOT_ENOUGH = "not enough data"
+INCONCLUSIVE = "inconclusive"  # the data exist but cannot decide: e.g. a fitted parameter at its bound
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -167,9 +169,12 @@ def _curve_max(v: pd.DataFrame, hurst: float, rho: float) -> tuple[float, float,
     return float(abs(g.loc[i, "rel_err"])), float(g.loc[i, "sigma0_reduced"]), len(g)
 
 
-def verdicts(cmp: pd.DataFrame, dist: pd.DataFrame) -> list[dict[str, str]]:
+def verdicts(cmp: pd.DataFrame, dist: pd.DataFrame, calib: pd.DataFrame | None = None) -> list[dict[str, str]]:
     """One entry per claim at the end of docs/model.md M6: ``{"claim", "verdict", "evidence"}``, computed from the
-    theory-vs-GFMD table (paper form) and the histogram distances (rules in the module docstring)."""
+    theory-vs-GFMD table (paper form) and the histogram distances (rules in the module docstring). ``calib``: the
+    C2 calibration table (:func:`analysis.compare.calibrate_c2`); a gap-distribution verdict that rests on a C2
+    fitted at the edge of its bounds (status "at_bound": the fit found no optimum inside them, so the model's
+    distance reflects the bound, not the model) is "inconclusive" and says why."""
     v = _valid(cmp)
     out: list[dict[str, str]] = []
 
@@ -270,8 +275,8 @@ def verdicts(cmp: pd.DataFrame, dist: pd.DataFrame) -> list[dict[str, str]]:
     d = d[_near(d["hurst"], 0.3) & _near(d["rho"], 2e-3)] if len(d) else d
     after = d[d["method"] == "fp_calibrated"] if len(d) else d
     before = d[d["method"] == "sde"] if len(d) else d
-    use, tag = (after, "calibrated C2 (Fokker-Planck at the fitted C2)") if len(after) else (before, "SDE at the "
-                                                                                          "job's C2 (no calibration)")
+    use, tag = (after, "calibrated C2 (Fokker-Planck at the fitted C2)") if len(after) else (
+        before, "SDE at the C2 it was run with (no calibration)")
     if not len(after) and len(use) and use["c2"].nunique() > 1:
         best = use.groupby("c2")["l1"].mean().idxmin()  # several job C2 values: the best stored one
         use, tag = use[use["c2"] == best], f"SDE at the best stored C2 = {best:g} (no calibration)"
@@ -282,9 +287,24 @@ def verdicts(cmp: pd.DataFrame, dist: pd.DataFrame) -> list[dict[str, str]]:
         out.append({"claim": claim7, "verdict": NOT_ENOUGH, "evidence": "no SDE/FP and GFMD histograms at H=0.3, "
                     "rho/L=2e-3"})
         return out
+    bound = _at_bound(use, calib) if len(after) else []
+
+    def inconclusive(claim: str, rows: pd.DataFrame) -> bool:
+        hit = [b for b in bound if any(_near(rows["sigma0"], b[0]))]
+        if not hit:
+            return False
+        out.append({"claim": claim, "verdict": INCONCLUSIVE,
+                    "evidence": f"{tag}: the fitted C2 is at the edge of its bounds at {len(hit)} of {len(rows)} "
+                                "pressure(s) (" + "; ".join(f"sigma0/E* = {s0:.3g}: {msg}" for s0, msg in hit[:4])
+                                + "): the fit found no optimum inside the bounds, so the calibrated distribution "
+                                "shows the bound, not the model; widen c2_bounds or use another metric"})
+        return True
+
     low = use[_near(use["sigma0"], 1e-4, 0.02)]  # sigma0/E*; E* = 1 in the paper's set
     if low.empty:
         out.append({"claim": claim6, "verdict": NOT_ENOUGH, "evidence": f"{tag}: no point at sigma0/E* = 1e-4"})
+    elif inconclusive(claim6, low.iloc[:1]):
+        pass
     else:
         r = low.iloc[0]
         ok = r["l1"] <= MATCH_L1
@@ -295,6 +315,8 @@ def verdicts(cmp: pd.DataFrame, dist: pd.DataFrame) -> list[dict[str, str]]:
                                 f"W1/h_rms = {r['w1_over_hrms']:.3f} (match: L1 <= {MATCH_L1:g}){extra}"})
     if len(use) < 3:
         out.append({"claim": claim7, "verdict": NOT_ENOUGH, "evidence": f"{tag}: {len(use)} pressures (need >= 3)"})
+    elif inconclusive(claim7, use):
+        pass
     else:
         rs = _spearman(use["sigma0"], use["l1"])
         top = use.iloc[-1]
@@ -305,6 +327,23 @@ def verdicts(cmp: pd.DataFrame, dist: pd.DataFrame) -> list[dict[str, str]]:
                                 f"{top['l1']:.3f}; at the highest sigma0/E* = {top['sigma0']:.3g} the L1 below the "
                                 f"GFMD mean gap is {top['l1_below']:.3f} vs {top['l1_above']:.3f} above"})
     return out
+
+
+def _at_bound(use: pd.DataFrame, calib: pd.DataFrame | None) -> list[tuple[float, str]]:
+    """``(sigma0, message)`` of the calibrations behind the rows ``use`` (same H, rho, sigma0 and job) whose C2
+    ended at the edge of its bounds."""
+    if calib is None or not len(calib) or "status" not in calib or not len(use):
+        return []
+    hits = []
+    bad = calib[calib["status"].astype(str) == "at_bound"]
+    for _, r in use.iterrows():
+        m = bad[_near(bad["hurst"], float(r["hurst"])) & _near(bad["rho"], float(r["rho"]))
+                & _near(bad["sigma0"], float(r["sigma0"]))]
+        if "job" in m and "job" in r and len(m):
+            m = m[m["job"].astype(str) == str(r["job"])] if (m["job"].astype(str) == str(r["job"])).any() else m
+        if len(m):
+            hits.append((float(r["sigma0"]), str(m["message"].iloc[0]) or f"C2 = {float(m['c2'].iloc[0]):.4g}"))
+    return hits
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -667,7 +706,7 @@ def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
         example = " (for example zeta_s = 16 instead of 100)" if quick & set(df["job"].astype(str)) else ""
         md += [f"> **Warning: quick job(s) {', '.join(sorted(quick))}.** Smoke tests on reduced grids{example}: their "
                "numbers check that the pipeline runs and are not for conclusions.", ""]
-    ver = _paper_verdicts(cmp, dist, matches) if matches else []
+    ver = _paper_verdicts(cmp, dist, matches, calib) if matches else []
     if field_theory:  # a contact-only report says nothing about the seed paper
         md += _verdict_section(ver, matches)
     md += ["## Tasks", "", "Rows per method and status. Failed, not converged, pending and invalid rows are counted "
@@ -719,7 +758,8 @@ def _field_theory_sections(cmp: pd.DataFrame, summary: pd.DataFrame, dist: pd.Da
             forms.agg(points="count", mean_abs=lambda x: x.abs().mean(), max_abs=lambda x: x.abs().max())
             .reset_index())]
     md += ["## Gap distributions against GFMD", "",
-           "Before calibration: the store's SDE / Fokker-Planck runs at their job's C2. After: the Fokker-Planck "
+           "Before calibration: the store's SDE / Fokker-Planck runs at the C2 they were run with. After: the "
+           "Fokker-Planck "
            "density at the C2 fitted to each merged GFMD histogram by gapsweep.calibrate (Wasserstein-1; method "
            "`fp_calibrated`). L1 in 0..2, KS in 0..1, W1 over h_rms; l1_below: g below the GFMD mean gap.", "",
            _md_table(dist), "", "Calibration:", "", _md_table(calib)]
@@ -824,12 +864,12 @@ def _contact_section(points: pd.DataFrame, persson: pd.DataFrame, summ: pd.DataF
     return md
 
 
-def _paper_verdicts(cmp: pd.DataFrame, dist: pd.DataFrame, matches: Mapping[str, Mapping[str, Any]]
-                    ) -> list[dict[str, str]]:
+def _paper_verdicts(cmp: pd.DataFrame, dist: pd.DataFrame, matches: Mapping[str, Mapping[str, Any]],
+                    calib: pd.DataFrame | None = None) -> list[dict[str, str]]:
     """:func:`verdicts`, kept only for claims whose parameter set is in the stores; a claim resting on a quick
     job says so in its verdict."""
     out = []
-    for v, needs in zip(verdicts(cmp, dist), CLAIM_NEEDS):
+    for v, needs in zip(verdicts(cmp, dist, calib), CLAIM_NEEDS):
         have = [matches[n] for n in needs if n in matches]
         if not have:
             v = {**v, "verdict": "not evaluated", "evidence": "the stores do not hold this claim's parameter set "
@@ -852,7 +892,8 @@ def _verdict_section(ver: Sequence[Mapping[str, str]], matches: Mapping[str, Map
             f"These verdicts concern the paper's parameter sets found in the stores: {sets}. Rules: the theory "
             f"(paper's form) agrees with GFMD on a curve when every point with |g0| >= {compare.ILL_CONDITIONED:g} "
             f"h_rms has |rel err| <= {AGREE * 100:g} %; trends from Spearman's rank correlation; the SDE matches GFMD "
-            f"when L1 <= {MATCH_L1:g}. A set from a quick job (reduced zeta_s or smoke-test grid) cannot confirm or "
+            f"when L1 <= {MATCH_L1:g}; a distribution claim resting on a C2 fitted at the edge of its bounds is "
+            "inconclusive. A set from a quick job (reduced zeta_s or smoke-test grid) cannot confirm or "
             "refute a claim.", "", _md_table(pd.DataFrame(ver), ["claim", "verdict", "evidence"])]
 
 

@@ -290,8 +290,16 @@ def available_backends() -> list[str]:
     return names
 
 
+def _current_device() -> int:
+    """The id of cupy's current CUDA device (the key of every per-device cache)."""
+    import cupy
+
+    return int(cupy.cuda.Device().id)
+
+
 def get_backend(name: str, n: int, *, threads: int | None = None, effort: str | None = None) -> FFTBackend:
-    """Return the (cached) backend ``name`` in {"numpy", "pyfftw", "cupy"} for an ``n x n`` grid.
+    """Return the (cached) backend ``name`` in {"numpy", "pyfftw", "cupy"} for an ``n x n`` grid; a cupy backend
+    is cached per CUDA device (the current one), since its cuFFT plans and buffers live on one device.
 
     ``threads``: FFTW threads (default ``$GAPSWEEP_FFT_THREADS`` or 1). ``effort``: FFTW planner flag
     (default ``$GAPSWEEP_FFTW_EFFORT`` or ``FFTW_MEASURE``).
@@ -304,7 +312,10 @@ def get_backend(name: str, n: int, *, threads: int | None = None, effort: str | 
     effort = effort or os.environ.get("GAPSWEEP_FFTW_EFFORT", "FFTW_MEASURE")
     if effort not in ("FFTW_ESTIMATE", "FFTW_MEASURE", "FFTW_PATIENT", "FFTW_EXHAUSTIVE"):
         raise ValueError(f"effort must be an FFTW planner flag such as 'FFTW_MEASURE', got {effort!r}")
-    key = (name, n, threads if name == "pyfftw" else 0, effort if name == "pyfftw" else "")
+    # cuFFT plans and their buffers belong to the device current when they were made: a plan of device 0 run on
+    # device 1 fails with CUFFT_EXEC_FAILED (issue 36), so a cupy backend is cached per device.
+    device = _current_device() if name == "cupy" else -1
+    key = (name, n, threads if name == "pyfftw" else 0, effort if name == "pyfftw" else "", device)
     with _LOCK:
         backend = _PLANS.get(key)
         if backend is None:

@@ -18,7 +18,7 @@ from gapsweep.gfmd._ops import _Ops
 _CUDA_SRC = Path(__file__).with_name("kernels.cu").read_text(encoding="utf-8")
 _CUDA_BLOCKS_PER_SM = 8
 _HALF_KERNELS = ("gs_dot", "gs_grad", "gs_cgdir", "gs_linresp", "gs_resid")
-_CUPY_KERNELS: Any = None
+_CUPY_KERNELS: Any = None  # device id -> {kernel name: function}: a module is loaded per device (issue 36)
 # A guessed exponent shift is used when the new max lies within this distance of it (e <= e^50: no overflow).
 _SHIFT_SLACK = 50.0
 # Result slots of the chained CG (offsets into _CupyOps.slots): gradient pass, direction pass, moments, first trial.
@@ -86,19 +86,24 @@ def solve_memory(n: int, *, interaction: str = "exponential", method: str = "aut
 
 
 def _cupy_kernels() -> Any:
-    """The compiled module of :data:`_CUDA_SRC` (NVRTC, on first use; cupy caches it on disk)."""
+    """The functions of the compiled module of :data:`_CUDA_SRC` on the current device (NVRTC, on first use; cupy
+    caches it on disk). A function belongs to the module loaded on one device: launched from another it fails,
+    so they are kept per device."""
     global _CUPY_KERNELS
-    if _CUPY_KERNELS is None:
-        import cupy
+    import cupy
 
+    if _CUPY_KERNELS is None:
+        _CUPY_KERNELS = {}
+    dev = int(cupy.cuda.Device().id)
+    if dev not in _CUPY_KERNELS:
         mod = cupy.RawModule(code=_CUDA_SRC, options=("--std=c++14",))
         names = ("gs_max", "gs_point", "gs_moments", "gs_dot", "gs_grad", "gs_cgdir",
                  "gs_sumfinite", "gs_field", "gs_final", "gs_linresp", "gs_resid",  # set-up and result passes
                  "gs_trial0",  # chained CG
                  "pk_contact_sum", "pk_gap", "pk_zstats", "pk_direction", "pk_rstats", "pk_update", "pk_rescale",
                  "bt_point", "bt_moments", "bt_cgdots", "bt_cgupdate", "bt_accept")  # bt_*: gfmd/batched.py
-        _CUPY_KERNELS = {name: mod.get_function(name) for name in names}
-    return _CUPY_KERNELS
+        _CUPY_KERNELS[dev] = {name: mod.get_function(name) for name in names}
+    return _CUPY_KERNELS[dev]
 
 
 def _reduction_buffers(ops: Any, xp: Any) -> None:

@@ -16,9 +16,19 @@ in :data:`UNITS`, metres). The box is ``length = (Lx, Ly)`` or ``pixel_size * (n
 (subtract the mean: only ``h - <h>`` matters for contact at fixed load), "plane" (least-squares plane
 ``a + b x + c y``; for measured maps with a tilt) or "none".
 
-Refused with one line naming the problem: empty files, maps of one row or column (a profile), maps with NaN
-or inf heights (missing data: no filling is done, because every filling invents roughness that the contact then
-feels; crop the map to its valid part or fill it with your instrument's software first).
+Refused with one line naming the problem: empty files, maps of one row or column (a profile).
+
+Missing data (pixels the instrument did not measure: SurfaceTopography's masked pixels, NaN or inf) are refused
+by default (``missing="refuse"``) with their count, fraction, bounding box, the rows and columns they fill and a
+small character map of where they are (:func:`missing_report`), because every filling invents roughness that
+the contact then feels. On request: ``missing="crop"`` keeps the largest rectangle of valid pixels
+(:func:`largest_valid_rectangle`, exact); ``missing="fill_harmonic"`` fills them with the harmonic (Laplace)
+interpolant of the valid pixels around them (the smoothest filling: no new roughness, minimal gradient energy,
+:func:`fill_missing`); ``missing="fill_nearest"`` with the height of the nearest valid pixel. The result
+records what was done (``Topography.missing_pixels``, ``.missing``, ``.crop``).
+
+Channels: a file with several data channels (SurfaceTopography formats) needs ``channel=`` (its index or name;
+the error lists them); a file of one channel takes it.
 
 Periodicity: ``Topography.periodic`` is the file's own flag, else the caller's ``periodic=``, else decided from
 the map's edges after detrending (``theory.spectrum.edge_ratio <= 3``: a measured map is almost never
@@ -37,7 +47,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["UNITS", "Topography", "detrend", "load"]
+__all__ = ["MISSING", "UNITS", "Topography", "detrend", "fill_missing", "largest_valid_rectangle", "load",
+           "missing_report"]
 
 #: unit name -> metres
 UNITS: dict[str, float] = {"m": 1.0, "mm": 1e-3, "um": 1e-6, "nm": 1e-9, "A": 1e-10, "pm": 1e-12}
@@ -45,6 +56,7 @@ _ALIASES = {"\u00b5m": "um", "\u03bcm": "um", "\u00c5": "A", "\u212b": "A"}  # m
 _TEXT = (".txt", ".dat", ".asc", ".csv", ".xyz_grid")
 DETRENDS = ("none", "mean", "plane")
 FORMATS = ("npy", "npz", "text", "xyz", "surfacetopography")
+MISSING = ("refuse", "crop", "fill_harmonic", "fill_nearest")  # what load does with undefined pixels
 log = logging.getLogger("gapsweep.topography")
 
 
@@ -59,6 +71,37 @@ class Topography:
     unit: str | None = None
     periodic: bool = True
     source: str = ""
+    #: undefined pixels of the file's map (masked, NaN or inf) and what was done with them (one of
+    #: :data:`MISSING`; "refuse" when there were none), the file's grid shape, the kept block of a crop
+    #: ``(x0, x1, y0, y1)`` (half-open indices into the file's grid) and the channel read
+    missing_pixels: int = 0
+    missing: str = "refuse"
+    file_shape: tuple[int, int] | None = None
+    crop: tuple[int, int, int, int] | None = None
+    channel: str | None = None
+    #: how ``periodic`` was decided: "asked" (the caller's flag), "file" (the file's flag) or "edges (...)"
+    periodic_from: str = ""
+
+    @property
+    def missing_fraction(self) -> float:
+        """Undefined pixels over all pixels of the file's map."""
+        shape = self.file_shape or self.shape
+        return self.missing_pixels / float(shape[0] * shape[1])
+
+    def rms_height(self) -> float:
+        """rms of the heights as they are (after detrending and filling): ``sqrt(<(h - <h>)^2>)``, length unit."""
+        return float(np.std(self.heights))
+
+    def rms_slope(self) -> float:
+        """rms slope of the map from finite differences, ``sqrt(<(dh/dx)^2> + <(dh/dy)^2>)`` (dimensionless):
+        across the wrap-around edges for a periodic map, not across them for a free one."""
+        h = self.heights
+        dx, dy = self.pixel_size
+        if self.periodic:
+            gx, gy = (np.roll(h, -1, 0) - h) / dx, (np.roll(h, -1, 1) - h) / dy
+        else:
+            gx, gy = np.diff(h, axis=0) / dx, np.diff(h, axis=1) / dy
+        return float(np.sqrt(np.mean(gx ** 2) + np.mean(gy ** 2)))
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -196,18 +239,181 @@ def _read_numpy(path: Path, fmt: str, key: str | None) -> np.ndarray:
         raise ValueError(f"{path}: not a readable .{fmt} file ({e})") from None
 
 
-def _read_surfacetopography(path: Path) -> tuple[np.ndarray, tuple[float, float] | None, str | None, bool]:
+def _read_surfacetopography(path: Path, channel: int | str | None
+                            ) -> tuple[np.ndarray, tuple[float, float] | None, str | None, bool, str | None]:
+    """Heights (a masked array where the file marks undefined pixels), physical size, unit, periodic flag and
+    channel name of one channel of a file SurfaceTopography reads."""
     try:
-        from SurfaceTopography import read_topography
+        from SurfaceTopography import open_topography
     except ImportError as exc:
         raise ImportError(f"reading {path.suffix or path.name!r} files needs SurfaceTopography: "
                           "pip install 'gapsweep[topography]'") from exc
-    topo = read_topography(str(path))
+    reader = open_topography(str(path))
+    channels = list(reader.channels)
+    names = [str(c.name) for c in channels]
+    listing = ", ".join(f"{i}: {n!r}" for i, n in enumerate(names))
+    if channel is None:
+        if len(channels) > 1:
+            raise ValueError(f"{path}: holds {len(channels)} channels ({listing}); choose one with channel= "
+                             "(its index or name)")
+        index = 0
+    elif isinstance(channel, str):
+        if channel not in names:
+            raise ValueError(f"{path}: has no channel {channel!r} (channel); its channels are {listing}")
+        if names.count(channel) > 1:  # instruments repeat names (e.g. trace and retrace "Height")
+            same = ", ".join(str(i) for i, n in enumerate(names) if n == channel)
+            raise ValueError(f"{path}: several channels are named {channel!r} (indices {same}); choose one by its "
+                             f"index with channel=; its channels are {listing}")
+        index = names.index(channel)
+    else:
+        if isinstance(channel, bool) or not 0 <= int(channel) < len(channels):
+            raise ValueError(f"{path}: channel must be an index 0..{len(channels) - 1} or a name; its channels are "
+                             f"{listing}; got {channel!r}")
+        index = int(channel)
+    info = channels[index]
+    if getattr(info, "dim", 2) != 2:
+        raise ValueError(f"{path}: channel {names[index]!r}: a 2-D height map is needed, it holds a "
+                         f"{info.dim}-D topography")
+    kw: dict[str, Any] = {"channel_index": index}
+    if getattr(info, "physical_sizes", None) is None:
+        kw["physical_sizes"] = (1.0, 1.0)  # a placeholder the reader demands: the caller's length= decides
+    with warnings.catch_warnings():  # scipy's netCDF reader warns that it cannot unmap while arrays are alive
+        warnings.filterwarnings("ignore", "Cannot close a netcdf_file", RuntimeWarning)
+        topo = reader.topography(**kw)
+        h = topo.heights()
+        h = np.ma.masked_array(np.array(h.data, dtype=np.float64), np.ma.getmaskarray(h).copy()) \
+            if np.ma.isMaskedArray(h) else np.array(h, dtype=np.float64)
+        if hasattr(reader, "close"):
+            reader.close()
     if topo.dim != 2:
         raise ValueError(f"{path}: a 2-D height map is needed, the file holds a {topo.dim}-D topography")
-    sizes = getattr(topo, "physical_sizes", None)
-    return (np.asarray(topo.heights(), dtype=np.float64), tuple(sizes) if sizes is not None else None,
-            getattr(topo, "unit", None), bool(getattr(topo, "is_periodic", False)))
+    sizes = getattr(info, "physical_sizes", None)
+    return (h, tuple(float(x) for x in sizes) if sizes is not None else None, getattr(topo, "unit", None),
+            bool(getattr(topo, "is_periodic", False)), names[index])
+
+
+def largest_valid_rectangle(valid: Any) -> tuple[int, int, int, int]:
+    """The largest axis-aligned block of True pixels of a 2-D boolean array, as half-open index ranges
+    ``(x0, x1, y0, y1)`` (``valid[x0:x1, y0:y1]`` all True; the first of equal areas in row-major order of its
+    bottom-right corner). Exact: the maximal rectangle under each row's histogram of consecutive True pixels,
+    with a stack (O(nx ny)). ``(0, 0, 0, 0)`` when no pixel is valid."""
+    v = np.asarray(valid, dtype=bool)
+    if v.ndim != 2:
+        raise ValueError(f"valid must be a 2-D array, got shape {v.shape}")
+    nx, ny = v.shape
+    heights = np.zeros(ny + 1, dtype=np.int64)  # a sentinel 0 at the end flushes the stack
+    best = (0, 0, 0, 0, 0)  # area, x0, x1, y0, y1
+    for i in range(nx):
+        heights[:ny] = np.where(v[i], heights[:ny] + 1, 0)
+        stack: list[int] = []
+        for j in range(ny + 1):
+            while stack and heights[stack[-1]] >= heights[j]:
+                hgt = int(heights[stack.pop()])
+                left = stack[-1] + 1 if stack else 0
+                area = hgt * (j - left)
+                if area > best[0]:
+                    best = (area, i + 1 - hgt, i + 1, left, j)
+            stack.append(j)
+    return best[1], best[2], best[3], best[4]
+
+
+def fill_missing(heights: Any, missing: Any, method: str = "harmonic") -> np.ndarray:
+    """``heights`` with its ``missing`` pixels (boolean mask) filled; the valid pixels are kept bit for bit.
+
+    "harmonic": the discrete Laplace equation ``sum_j (h_i - h_j) = 0`` over the 4 neighbours ``j`` inside the
+    map of every missing pixel ``i`` (neighbours outside the map are left out: zero normal derivative at the
+    map's border), the valid pixels fixed (Dirichlet data); the solution is the harmonic
+    interpolant, the filling of least gradient energy ``sum (grad h)^2`` (no roughness of its own; docs/gfmd.md
+    "Surfaces from data"). Solved exactly (sparse LU). "nearest": the height of the nearest valid pixel
+    (Euclidean distance in pixels)."""
+    h = np.array(heights, dtype=np.float64)
+    m = np.asarray(missing, dtype=bool)
+    if m.shape != h.shape:
+        raise ValueError(f"missing mask of shape {m.shape} for heights of shape {h.shape}")
+    if not m.any():
+        return h
+    if m.all():
+        raise ValueError("every pixel is missing: nothing to fill from")
+    if method == "nearest":
+        from scipy import ndimage
+
+        idx = ndimage.distance_transform_edt(m, return_distances=False, return_indices=True)
+        return h[tuple(idx)]
+    if method != "harmonic":
+        raise ValueError(f"method must be 'harmonic' or 'nearest', got {method!r}")
+    from scipy import sparse
+    from scipy.sparse.linalg import spsolve
+
+    nx, ny = h.shape
+    number = -np.ones(h.shape, dtype=np.int64)
+    number[m] = np.arange(int(m.sum()))
+    xi, yi = np.nonzero(m)
+    rows, cols, vals = [], [], []
+    diag = np.zeros(xi.size)
+    rhs = np.zeros(xi.size)
+    k = number[xi, yi]
+    for ox, oy in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        x2, y2 = xi + ox, yi + oy
+        inside = (x2 >= 0) & (x2 < nx) & (y2 >= 0) & (y2 < ny)
+        diag[inside] += 1.0
+        kk, xx, yy = k[inside], x2[inside], y2[inside]
+        nb = number[xx, yy]
+        unknown = nb >= 0
+        rows.append(kk[unknown])
+        cols.append(nb[unknown])
+        vals.append(-np.ones(int(unknown.sum())))
+        np.add.at(rhs, kk[~unknown], h[xx[~unknown], yy[~unknown]])
+    a = sparse.csr_matrix((np.concatenate([diag, *vals]),
+                           (np.concatenate([k, *rows]), np.concatenate([k, *cols]))), shape=(xi.size, xi.size))
+    # every connected region of missing pixels touches a valid one (the grid is connected): a is positive definite
+    h[xi, yi] = spsolve(a.tocsc(), rhs)
+    return h
+
+
+def missing_report(missing: Any, width: int = 48, height: int = 16) -> str:
+    """A few lines saying where the ``missing`` pixels (boolean mask, axis 0 = x) of a map are: count and
+    fraction, bounding box, rows and columns wholly missing, the largest valid rectangle, and a character map
+    of at most ``height`` x ``width`` cells ('#' all missing, '+' partly, '.' none), x down and y across."""
+    m = np.asarray(missing, dtype=bool)
+    nx, ny = m.shape
+    count = int(m.sum())
+    xs, ys = np.nonzero(m)
+    lines = [f"{count} of {m.size} pixels ({100 * count / m.size:.3g} %) are missing (undefined: masked, NaN or inf)"]
+    if count:
+        lines.append(f"  bounding box of the missing pixels: x {xs.min()}..{xs.max()}, y {ys.min()}..{ys.max()} "
+                     f"(indices of the {nx} x {ny} grid, axis 0 = x)")
+        full_x, full_y = np.flatnonzero(m.all(axis=1)), np.flatnonzero(m.all(axis=0))
+        lines.append(f"  rows (x) wholly missing: {_ranges(full_x)}; columns (y) wholly missing: {_ranges(full_y)}; "
+                     f"rows with a missing pixel: {int(np.count_nonzero(m.any(axis=1)))} of {nx}")
+        x0, x1, y0, y1 = largest_valid_rectangle(~m)
+        lines.append(f"  largest valid rectangle: x {x0}..{x1 - 1}, y {y0}..{y1 - 1} ({x1 - x0} x {y1 - y0}, "
+                     f"{100 * (x1 - x0) * (y1 - y0) / m.size:.3g} % of the map)" if x1 > x0 else
+                     "  no valid rectangle")
+        bx, by = -(-nx // min(nx, height)), -(-ny // min(ny, width))  # pixels per cell (ceil)
+        lines.append(f"  where (x down, y across; one character = {bx} x {by} pixels; '#' all missing, '+' some, "
+                     "'.' none):")
+        for i in range(0, nx, bx):
+            cells = []
+            for j in range(0, ny, by):
+                blk = m[i:i + bx, j:j + by]
+                cells.append("#" if blk.all() else "+" if blk.any() else ".")
+            lines.append("    " + "".join(cells))
+    return "\n".join(lines)
+
+
+def _ranges(idx: np.ndarray) -> str:
+    """``[0, 1, 2, 7]`` -> "4 (0..2, 7)"; "none" when empty."""
+    if idx.size == 0:
+        return "none"
+    parts, start, prev = [], int(idx[0]), int(idx[0])
+    for v in idx[1:]:
+        if int(v) != prev + 1:
+            parts.append(f"{start}..{prev}" if prev > start else f"{start}")
+            start = int(v)
+        prev = int(v)
+    parts.append(f"{start}..{prev}" if prev > start else f"{start}")
+    shown = ", ".join(parts[:6]) + (", ..." if len(parts) > 6 else "")
+    return f"{idx.size} ({shown})"
 
 
 EDGE_RATIO_LIMIT = 3.0  # edge_ratio above this: not one period of a periodic surface
@@ -233,7 +439,7 @@ def edge_ratio(heights: Any) -> float:
 def load(path: str | Path, *, length: Any = None, pixel_size: Any = None, unit: str | None = None,
          height_unit: str | None = None, to_unit: str | None = None, detrend: str = "mean",
          periodic: bool | None = None, format: str | None = None, key: str | None = None,
-         delimiter: str | None = None) -> Topography:
+         delimiter: str | None = None, missing: str = "refuse", channel: int | str | None = None) -> Topography:
     """Read a height map (module docstring for formats, units, detrending) into a :class:`Topography`.
 
     ``length`` (Lx, Ly) or ``pixel_size`` (dx, dy), one of them unless the file states the size
@@ -241,19 +447,28 @@ def load(path: str | Path, *, length: Any = None, pixel_size: Any = None, unit: 
     unless ``height_unit`` is given, its height unit; ``to_unit``: the unit of the result (default ``unit``).
     ``periodic``: the caller's flag, else the file's own, else decided from the map's edges (module docstring).
     ``format``: one of :data:`FORMATS` (default from the suffix; text files of three columns are x,y,z points
-    unless ``format="text"``). Raises ValueError naming the problem for a missing file, an empty file, a map
-    that is not 2-D (at least 2 x 2), NaN or inf heights, scattered x,y,z points, or inconsistent sizes."""
+    unless ``format="text"``). ``missing``: what to do with undefined pixels (masked, NaN or inf), one of
+    :data:`MISSING` (module docstring). ``channel``: the channel of a multi-channel file (index or name).
+    Raises ValueError naming the problem for a missing file, an empty file, a map that is not 2-D (at least
+    2 x 2), undefined pixels under ``missing="refuse"`` (with :func:`missing_report`), scattered x,y,z points,
+    or inconsistent sizes."""
     p = Path(path)
     if not p.is_file():
         raise FileNotFoundError(f"no such height map: {p}")
     if format is not None and format not in FORMATS:
         raise ValueError(f"format must be one of {', '.join(map(repr, FORMATS))}; got {format!r}")
+    if missing not in MISSING:
+        raise ValueError(f"missing must be one of {', '.join(map(repr, MISSING))}; got {missing!r}")
     fmt = format or ("npy" if p.suffix.lower() == ".npy" else "npz" if p.suffix.lower() == ".npz"
                      else "xyz" if p.suffix.lower() == ".xyz" else "text" if p.suffix.lower() in _TEXT
                      else "surfacetopography")
     file_size = file_unit = None
     file_periodic = None
     file_pixel = None
+    channel_name = None
+    if channel is not None and fmt != "surfacetopography":
+        raise ValueError(f"{p}: channel= applies to files SurfaceTopography reads (format 'surfacetopography')"
+                         + ("; choose an .npz member with key=" if fmt == "npz" else ""))
     if fmt in ("npy", "npz"):
         h = _read_numpy(p, fmt, key)
     elif fmt in ("text", "xyz"):
@@ -268,8 +483,9 @@ def load(path: str | Path, *, length: Any = None, pixel_size: Any = None, unit: 
             h, file_pixel = _grid_from_points(h, p)
             log.info("%s: x,y,z points on a regular %d x %d grid, pixel %g x %g", p, *h.shape, *file_pixel)
     else:  # surfacetopography (the format was validated above)
-        h, file_size, file_unit, file_periodic = _read_surfacetopography(p)
-    h = np.asarray(h)
+        h, file_size, file_unit, file_periodic, channel_name = _read_surfacetopography(p, channel)
+    mask = np.ma.getmaskarray(h) if np.ma.isMaskedArray(h) else None
+    h = np.asarray(h.data if np.ma.isMaskedArray(h) else h)
     if h.size == 0:
         raise ValueError(f"{p}: the file holds no heights (empty)")
     if h.ndim != 2 or min(h.shape) < 2:
@@ -278,12 +494,34 @@ def load(path: str | Path, *, length: Any = None, pixel_size: Any = None, unit: 
     if not np.issubdtype(h.dtype, np.number) or np.iscomplexobj(h):
         raise ValueError(f"{p}: heights must be real numbers, got dtype {h.dtype}")
     h = h.astype(np.float64)
-    finite = np.isfinite(h)
-    if not np.any(finite):
-        raise ValueError(f"{p}: all {h.size} heights are NaN or inf: no data")
-    if not np.all(finite):
-        raise ValueError(f"{p}: {int(np.sum(~finite))} of {h.size} heights are NaN or inf (missing data): "
-                         "crop the map to its valid part or fill it first (gapsweep does not invent heights)")
+    undefined = ~np.isfinite(h)
+    if mask is not None:
+        undefined |= mask
+    n_missing = int(undefined.sum())
+    file_shape = (int(h.shape[0]), int(h.shape[1]))
+    crop = None
+    if n_missing == h.size:
+        raise ValueError(f"{p}: all {h.size} heights are undefined (masked, NaN or inf): no data")
+    if n_missing and missing == "refuse":
+        raise ValueError(f"{p}: {missing_report(undefined)}\n  gapsweep does not invent heights: crop the map "
+                         "to its largest valid rectangle (missing='crop') or fill it (missing='fill_harmonic': "
+                         "the harmonic interpolant, or 'fill_nearest'), or fix it in your instrument's software")
+    if n_missing and missing == "crop":
+        x0, x1, y0, y1 = largest_valid_rectangle(~undefined)
+        if x1 - x0 < 2 or y1 - y0 < 2:
+            raise ValueError(f"{p}: the largest valid rectangle is {x1 - x0} x {y1 - y0} pixels: too small to crop "
+                             f"to (at least 2 x 2)\n{missing_report(undefined)}")
+        crop = (x0, x1, y0, y1)
+        h = h[x0:x1, y0:y1].copy()
+        log.info("%s: %d missing pixels: cropped to x %d..%d, y %d..%d (%d x %d)", p, n_missing, x0, x1 - 1, y0,
+                 y1 - 1, x1 - x0, y1 - y0)
+    elif n_missing:
+        method = missing.split("_", 1)[1]
+        h = fill_missing(np.where(undefined, 0.0, h), undefined, method)
+        frac = n_missing / h.size
+        (log.warning if frac > 0.25 else log.info)(
+            "%s: %d missing pixels (%.3g %% of the map) filled (%s)%s", p, n_missing, 100 * frac, method,
+            ": most of what is solved is interpolation, not measurement" if frac > 0.5 else "")
     if unit is None and file_unit is not None:
         unit = file_unit
     unit, height_unit, to_unit = _canonical(unit), _canonical(height_unit), _canonical(to_unit)
@@ -292,17 +530,20 @@ def load(path: str | Path, *, length: Any = None, pixel_size: Any = None, unit: 
     if file_pixel is not None and (length is not None or pixel_size is not None):
         raise ValueError(f"{p}: an x,y,z file states its own pixel size {file_pixel}: leave length= and "
                          "pixel_size= out")
+    # the box of the file's grid (length= and a file's size describe the whole map, before any crop)
     if file_pixel is not None:
-        box = (file_pixel[0] * h.shape[0], file_pixel[1] * h.shape[1])
+        box = (file_pixel[0] * file_shape[0], file_pixel[1] * file_shape[1])
     elif length is not None:
         box = _pair(length, "length")
     elif pixel_size is not None:
         d = _pair(pixel_size, "pixel_size")
-        box = (d[0] * h.shape[0], d[1] * h.shape[1])
+        box = (d[0] * file_shape[0], d[1] * file_shape[1])
     elif file_size is not None:
         box = _pair(file_size, "the file's physical size")
     else:
         raise ValueError(f"{p}: the file does not state its size: give length= or pixel_size=")
+    if crop is not None:
+        box = (box[0] * h.shape[0] / file_shape[0], box[1] * h.shape[1] / file_shape[1])
     lateral = _unit(unit, "unit")
     vertical = _unit(height_unit if height_unit is not None else unit, "height_unit")
     target = _unit(to_unit if to_unit is not None else unit, "to_unit")
@@ -316,13 +557,15 @@ def load(path: str | Path, *, length: Any = None, pixel_size: Any = None, unit: 
     box = (box[0] * lateral / target, box[1] * lateral / target)
     h = globals()["detrend"](h, detrend, box)
     if periodic is not None:
-        is_periodic = bool(periodic)
-    elif file_periodic is not None:
-        is_periodic = bool(file_periodic)
+        is_periodic, decided = bool(periodic), "asked"
+    elif file_periodic is not None and crop is None:  # a crop of a periodic map is no period: the edges say
+        is_periodic, decided = bool(file_periodic), "the file's flag"
     else:  # neither the file nor the caller says: the edges do (after detrending, so a tilt alone is not a jump)
-
         ratio = edge_ratio(h)
         is_periodic = ratio <= EDGE_RATIO_LIMIT
+        decided = f"from the map's edges: edge ratio {ratio:.3g}, periodic up to {EDGE_RATIO_LIMIT:g}"
         log.info("%s: periodic=%s from the edges (edge ratio %.3g, limit %g)", p, is_periodic, ratio,
                  EDGE_RATIO_LIMIT)
-    return Topography(h, box, to_unit if to_unit is not None else unit, is_periodic, str(p))
+    done = missing if n_missing else "refuse"
+    return Topography(h, box, to_unit if to_unit is not None else unit, is_periodic, str(p), n_missing, done,
+                      file_shape, crop, channel_name, decided)

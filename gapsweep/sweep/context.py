@@ -58,6 +58,7 @@ class Context:
             while len(self._surfaces) > self._max:
                 old = self._surfaces.popitem(last=False)[0]
                 self._rms.pop(old, None)
+                self._rms.pop((*old, "spectrum"), None)
                 self._spectra.pop(old, None)
                 self._on_gpu.pop(old, None)
         else:
@@ -90,13 +91,22 @@ class Context:
 
     def surface_rms(self, t: Task, n: int) -> tuple[float, float]:
         """``(h_rms, g_rms)`` of :meth:`surface` (M2), computed once per cached surface (``g_rms`` costs an FFT).
-        A measured map's come from its spectrum taken right for its boundaries (``theory.spectrum.map_spectrum``:
-        a non-periodic map's edge jump is no roughness)."""
+        A measured map's are those of the heights solved (:func:`_rms`); its spectral moments are
+        :meth:`surface_spectrum_rms`."""
         sp = t.surface_params()
         h = self.surface(t, n)
         key = self._key(t, n, sp)
         if key not in self._rms:
             self._rms[key] = _rms(h, sp)
+        return self._rms[key]
+
+    def surface_spectrum_rms(self, t: Task, n: int) -> tuple[float, float]:
+        """:func:`spectrum_rms` of :meth:`surface`, computed once per cached surface."""
+        sp = t.surface_params()
+        h = self.surface(t, n)
+        key = (*self._key(t, n, sp), "spectrum")
+        if key not in self._rms:
+            self._rms[key] = spectrum_rms(h, sp)
         return self._rms[key]
 
     def spectrum(self, t: Task, n: int) -> Any:
@@ -137,7 +147,7 @@ class Context:
         key = (*self._key(t, n, sp), "rows", comm.Get_size(), comm.Get_rank(), backend)
         if self._rows is None or self._rows[0] != key:
             self._rows = None
-            h, rms = surface_rows(t, n, sp, comm, backend, map_rms=_rms)
+            h, rms = surface_rows(t, n, sp, comm, backend, map_rms=_rms_and_spectrum)
             if hasattr(h, "setflags"):
                 h.setflags(write=False)
             self._rows = (key, h, rms)
@@ -147,7 +157,14 @@ class Context:
         """``(h_rms, g_rms)`` of the whole surface of :meth:`surface_rows` (reduced over the ranks; a file map's
         from rank 0, which reads it). Collective when the rows are not cached yet."""
         self.surface_rows(t, n, comm)
-        return self._rows[2]
+        return tuple(self._rows[2][:2])
+
+    def surface_rows_spectrum_rms(self, t: Task, n: int, comm: Any) -> tuple[float, float]:
+        """:func:`spectrum_rms` of the whole file map of :meth:`surface_rows` (rank 0's, sent to every rank); (NaN,
+        NaN) for a synthetic surface. Collective when the rows are not cached yet."""
+        self.surface_rows(t, n, comm)
+        rms = self._rows[2]
+        return (float(rms[2]), float(rms[3])) if len(rms) == 4 else (math.nan, math.nan)
 
     @staticmethod
     def _key(t: Task, n: int, sp: dict[str, Any]) -> tuple:
@@ -170,15 +187,37 @@ def _make_surface(t: Task, n: int, sp: dict[str, Any]) -> np.ndarray:
 
 
 def _rms(h: np.ndarray, sp: dict[str, Any]) -> tuple[float, float]:
-    """``(h_rms, g_rms)`` of heights ``h`` (see Context.surface_rms)."""
+    """``(h_rms, g_rms)`` of heights ``h`` (see Context.surface_rms). A file map's are those of the heights as
+    solved (issue 36: the spectrum's moments differ, 1.5-3x on instrument maps, and are not what a user
+    normalises by): ``h_rms = sqrt(<(h - <h>)^2>)`` and the finite-difference rms slope with the map's boundaries
+    (``Topography.rms_slope``); the spectral moments are :func:`spectrum_rms`."""
     if sp.get("kind") == "file":
-        from gapsweep.theory.spectrum import map_spectrum
+        from gapsweep.surfaces.topography import Topography
 
-        ms = map_spectrum(h, sp["length"], periodic=sp.get("periodic", True))
-        return ms.h_rms, ms.g_rms
+        length = sp["length"] if isinstance(sp["length"], (list, tuple)) else (sp["length"], sp["length"])
+        topo = Topography(np.asarray(h, dtype=float), (float(length[0]), float(length[1])),
+                          periodic=bool(sp.get("periodic", True)))
+        return topo.rms_height(), topo.rms_slope()
     from gapsweep.surfaces import synthetic as surface
 
     return surface.rms_height(h), surface.rms_slope(h, sp["length"])
+
+
+def spectrum_rms(h: np.ndarray, sp: dict[str, Any]) -> tuple[float, float]:
+    """A file map's spectral moments ``(h_rms_spectrum, g_rms_spectrum)``: those of its spectrum taken right for
+    its boundaries (``theory.spectrum.map_spectrum``, which Persson's theory of the map uses); (NaN, NaN) for a
+    synthetic surface (its ``h_rms``, ``g_rms`` are already the spectrum's)."""
+    if sp.get("kind") != "file":
+        return math.nan, math.nan
+    from gapsweep.theory.spectrum import map_spectrum
+
+    ms = map_spectrum(h, sp["length"], periodic=sp.get("periodic", True))
+    return float(ms.h_rms), float(ms.g_rms)
+
+
+def _rms_and_spectrum(h: np.ndarray, sp: dict[str, Any]) -> tuple[float, float, float, float]:
+    """``(h_rms, g_rms, h_rms_spectrum, g_rms_spectrum)`` of a whole file map (:func:`_rms`, :func:`spectrum_rms`)."""
+    return (*_rms(h, sp), *spectrum_rms(h, sp))
 
 
 def _surface_and_rms(t: Task, n: int, sp: dict[str, Any]) -> tuple[np.ndarray, tuple[float, float]]:

@@ -8,7 +8,9 @@ keys and keeps the path of each validated map for the tasks of this process.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
+import json
 import math
 from pathlib import Path
 from typing import Any
@@ -19,11 +21,12 @@ from gapsweep.surfaces import topography
 from gapsweep.sweep import readers as rd
 from gapsweep.sweep.schema import SpecError
 
-__all__ = ["FILE_KEYS", "file_surface", "file_surface_heights", "length_unit", "load_file_surface"]
+__all__ = ["FILE_KEYS", "describe", "file_surface", "file_surface_heights", "length_unit", "load_file_surface",
+           "map_record", "surface_map_attr"]
 
 
 FILE_KEYS = ("kind", "path", "format", "key", "delimiter", "unit", "height_unit", "to_unit", "length",
-              "pixel_size", "detrend", "periodic")
+              "pixel_size", "detrend", "periodic", "missing", "channel")
 
 
 # Bounds of a map's box or pixel size in its unit (issue 31: pixel_size = 1e-308 with detrend = "plane" gave a
@@ -67,6 +70,20 @@ def file_surface(s: dict, base: str | Path | None) -> tuple[dict[str, Any], int]
         if k in s:
             out[f"file_{k}"] = _pair_or_num(f"surface.{k}", s[k])
     out["detrend"] = rd.string("surface.detrend", s.get("detrend", "mean"), topography.DETRENDS)
+    # undefined pixels (docs/jobs.md "Height maps from files"): the default "refuse" is left out of the table, so
+    # the task ids of jobs written before the key existed stay the same
+    missing = rd.string("surface.missing", s.get("missing", "refuse"), topography.MISSING)
+    if missing != "refuse":
+        out["missing"] = missing
+    if "channel" in s:
+        c = s["channel"]
+        if isinstance(c, str):
+            out["channel"] = rd.string("surface.channel", c)
+        elif isinstance(c, int) and not isinstance(c, bool):
+            out["channel"] = rd.integer("surface.channel", c, ge=0)
+        else:
+            raise SpecError(f"surface.channel: expected a channel index (an integer >= 0) or a channel name "
+                            f"(a string), got {c!r} ({type(c).__name__})")
     asked = rd.boolean("surface.periodic", s["periodic"]) if "periodic" in s else None
     try:
         topo = load_file_surface(out, full)
@@ -92,12 +109,70 @@ def file_surface(s: dict, base: str | Path | None) -> tuple[dict[str, Any], int]
     # file's own flag, else what the map's edges say (gapsweep.surfaces.topography).
     out["periodic"] = bool(topo.periodic) if asked is None else asked
     _FILES[digest] = str(full.resolve())
+    _ASKED[digest] = asked is not None
     return out, nx
+
+
+def map_record(surface: dict[str, Any], topo: Any) -> dict[str, Any]:
+    """What a validated file surface is, as the sweep solves it: the file's and the solved grid, box, unit,
+    channel, the undefined pixels and what was done with them (``missing``: "refuse" when there were none,
+    "crop" with the kept block ``crop``, or a filling), rms height and rms slope of the heights solved, and the
+    periodic decision. Written into the store (attribute ``surface_map``, docs/store.md) and printed by
+    ``gapsweep plan``."""
+    return {"path": surface["path"], "sha256": surface["sha256"], "channel": topo.channel,
+            "file_shape": list(topo.file_shape or topo.shape), "shape": list(topo.shape),
+            "length": [float(topo.length[0]), float(topo.length[1])], "unit": topo.unit,
+            "missing_pixels": int(topo.missing_pixels), "missing_fraction": float(topo.missing_fraction),
+            "missing": topo.missing, "crop": list(topo.crop) if topo.crop is not None else None,
+            "h_rms": topo.rms_height(), "g_rms": _slope(surface, topo), "periodic": bool(surface["periodic"]),
+            "periodic_from": "the job's surface.periodic" if _ASKED.get(surface["sha256"]) else topo.periodic_from}
+
+
+def _slope(surface: dict[str, Any], topo: Any) -> float:
+    """rms slope of the map with the boundaries it is solved with (the spec's periodic flag)."""
+    from dataclasses import replace
+
+    return replace(topo, periodic=bool(surface["periodic"])).rms_slope()
+
+
+def surface_map_attr(surface: dict[str, Any]) -> str:
+    """The store attribute ``surface_map``: :func:`map_record` as JSON ("" when the map was not validated in this
+    process)."""
+    import json
+
+    path = _FILES.get(surface["sha256"])
+    if path is None:
+        return ""
+    return json.dumps(map_record(surface, load_file_surface(surface, path)), sort_keys=True)
+
+
+def describe(surface: dict[str, Any]) -> list[str]:
+    """``gapsweep plan``'s lines on a validated file surface (:func:`map_record`)."""
+    path = _FILES.get(surface["sha256"])
+    if path is None:
+        return []
+    r = map_record(surface, load_file_surface(surface, path))
+    unit = r["unit"] or "model units"
+    lines = [f"  height map {r['path']!r}" + (f" (channel {r['channel']!r})" if r["channel"] else "")
+             + f": {r['shape'][0]} x {r['shape'][1]} pixels, box {r['length'][0]:.6g} x {r['length'][1]:.6g} "
+             f"{unit}; rms height {r['h_rms']:.4g} {unit if r['unit'] else ''}".rstrip()
+             + f", rms slope {r['g_rms']:.4g} (of the heights solved)"]
+    what = {"refuse": "none", "crop": "cropped to the largest valid rectangle", "fill_harmonic":
+            "filled (harmonic interpolation)", "fill_nearest": "filled (nearest valid pixel)"}[r["missing"]]
+    miss = f"{r['missing_pixels']} missing pixels ({100 * r['missing_fraction']:.3g} %)"
+    if r["crop"]:
+        x0, x1, y0, y1 = r["crop"]
+        what += f" x {x0}..{x1 - 1}, y {y0}..{y1 - 1} of the file's {r['file_shape'][0]} x {r['file_shape'][1]}"
+    lines.append(f"    {miss}: {what}; boundaries "
+                 + ("periodic" if r["periodic"] else "free (not periodic)")
+                 + (f" ({r['periodic_from']})" if r["periodic_from"] else ""))
+    return lines
 
 
 # SHA-256 of a validated file surface -> its absolute path, filled when a spec is loaded in this process (every
 # rank loads the spec itself), so that tasks find the map by content without the path entering their ids.
 _FILES: dict[str, str] = {}
+_ASKED: dict[str, bool] = {}  # SHA-256 -> whether the job set surface.periodic (plan says how it was decided)
 
 
 def file_surface_heights(surface: dict[str, Any]):
@@ -121,12 +196,25 @@ def length_unit(surface: dict[str, Any]) -> str | None:
 
 def load_file_surface(surface: dict[str, Any], full: str | Path):
     """The :class:`gapsweep.topography.Topography` of a validated file-surface table (``full``: its path)."""
-    kw: dict[str, Any] = {k: surface[k] for k in ("format", "key", "delimiter", "unit", "height_unit", "to_unit")
-                          if k in surface}
+    kw: dict[str, Any] = {k: surface[k] for k in ("format", "key", "delimiter", "unit", "height_unit", "to_unit",
+                                                  "missing", "channel") if k in surface}
     for k in ("length", "pixel_size"):
         if f"file_{k}" in surface:
             kw[k] = surface[f"file_{k}"]
     if "length" not in kw and "pixel_size" not in kw and surface.get("format") != "surfacetopography" \
             and Path(full).suffix.lower() in (".npy", ".npz", *topography._TEXT):
         raise SpecError("surface.length: missing; give length or pixel_size (the file does not state its size)")
-    return topography.load(full, detrend=surface.get("detrend", "mean"), **kw)
+    # One load per file state and options in this process: validation, the store's record, the plan and every
+    # task of a rank read the same map, and a harmonic filling of a large map takes seconds (a sparse solve).
+    st = Path(full).stat()
+    key = (str(Path(full).resolve()), st.st_mtime_ns, st.st_size, surface.get("detrend", "mean"),
+           json.dumps(kw, sort_keys=True, default=str))
+    topo = _LOADED.get(key)
+    if topo is None:
+        topo = topography.load(full, detrend=surface.get("detrend", "mean"), **kw)
+        _LOADED.clear()  # one map kept: a job has one surface
+        _LOADED[key] = topo
+    return dataclasses.replace(topo, heights=topo.heights.copy())
+
+
+_LOADED: dict[tuple, Any] = {}  # the last map loaded (load_file_surface)

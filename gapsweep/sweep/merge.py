@@ -140,6 +140,7 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
     pedges = np.full((len(tasks), bins + 1), np.nan)
     pdens = np.full((len(tasks), bins), np.nan)
     source = [""] * len(tasks)
+    map_rms: dict[str, tuple[float, ...]] = {}  # a file map's rms values, computed once (_map_rms_to_format5)
     conflicts: list[str] = []
     damaged = 0
     for s in shards:
@@ -150,7 +151,10 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
             if f["histograms/density"].shape[1] != bins:
                 raise StoreError(f"merge: {s} has {f['histograms/density'].shape[1]} histogram bins, the job {bins}")
             ids = [x.decode("utf-8", "replace") for x in f["tasks"].fields("task_id")[...]]
+            old_rms = "h_rms_spectrum" not in f["results"].dtype.names
             r = upgrade_results(f["results"][...])  # a format-1 shard: by column name
+            if old_rms and js.surface.get("kind") == "file":
+                r = _map_rms_to_format5(r, js.surface, map_rms)
             e, d = f["histograms/edges"][...], f["histograms/density"][...]
             if PRESSURE_HIST[0] in f:
                 pe, pd_ = f[PRESSURE_HIST[0]][...], f[PRESSURE_HIST[1]][...]
@@ -214,3 +218,20 @@ def _guard(outp: Path, shards: Sequence[str | Path], overwrite: bool, own: Any) 
         outputs.guard_output(outp, shards, "merge --out", overwrite=overwrite, own=own)
     except FileExistsError as e:
         raise StoreError(str(e)) from None
+
+
+def _map_rms_to_format5(r: np.ndarray, surface: dict[str, Any], cache: dict[str, tuple[float, ...]]) -> np.ndarray:
+    """Rows of a file-map shard of a layout before 5 in format 5's meaning: the values its ``h_rms``, ``g_rms``
+    held (the map's spectral moments) move to ``h_rms_spectrum``, ``g_rms_spectrum``, and ``h_rms``, ``g_rms``
+    become those of the heights solved, computed from the map the spec names (docs/store.md "Formats")."""
+    from gapsweep.sweep.context import _rms_and_spectrum
+    from gapsweep.sweep.filesurface import file_surface_heights
+
+    if "v" not in cache:
+        cache["v"] = _rms_and_spectrum(file_surface_heights(surface), surface)
+    h, g = cache["v"][:2]
+    has = np.isfinite(r["h_rms"])
+    for k, new in (("h_rms", h), ("g_rms", g)):
+        r[f"{k}_spectrum"][has] = r[k][has]
+        r[k][has] = new
+    return r

@@ -94,6 +94,13 @@ def store_attrs(spec: Any, *, shard: str = "", extra: dict[str, Any] | None = No
         a["units"] = json.dumps(units, sort_keys=True)
     if getattr(spec, "surface", {}).get("kind") == "file" and getattr(spec, "base_dir", ""):
         a["spec_dir"] = spec.base_dir  # where the height map's path is relative to (merge re-reads the spec)
+    if getattr(spec, "surface", {}).get("kind") == "file":
+        # the map as solved: undefined pixels and what was done with them, crop, channel, rms (docs/store.md)
+        from gapsweep.sweep.filesurface import surface_map_attr
+
+        rec = surface_map_attr(spec.surface)
+        if rec:
+            a["surface_map"] = rec
     a.update(extra or {})
     return a
 

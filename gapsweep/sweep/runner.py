@@ -155,6 +155,10 @@ def plan(job: str | Path | specmod.JobSpec, shard: tuple[int, int] | None = None
     tasks, units = _select(spec, shard)
     lines = [f"job {spec.name!r}: {len(tasks)} tasks in {len(units)} units"
              + (f" (shard {shard[0]}/{shard[1]})" if shard else "")]
+    if spec.surface.get("kind") == "file":  # the map as solved: shape, box, unit, rms, missing data, boundaries
+        from gapsweep.sweep.filesurface import describe
+
+        lines.extend(describe(spec.surface))
     by: dict[str, list[float]] = {}
     for u in units:
         for i in u.tasks:

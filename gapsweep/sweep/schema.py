@@ -136,6 +136,9 @@ FLOAT_RESULTS = (
     # format 3: a predictor's own estimate of its error in mean_gap (same unit; NaN: no estimate); adhesion at
     # tensile loads: the most tensile load at which the solve stayed attached (the pull-off bracket)
     "error_estimate", "last_attached_load",
+    # format 5 (issue 36): a measured map's spectral moments (theory.spectrum.map_spectrum), apart from h_rms and
+    # g_rms, which are those of the heights solved
+    "h_rms_spectrum", "g_rms_spectrum",
 )
 INT_RESULTS = ("iterations", "count", "rank", "flags")
 # Bits of the ``flags`` column (GFMD rows; 0 = none, -1 = not a GFMD row): a jump along the load path (adhesion)
@@ -247,10 +250,11 @@ def make_task(method: str, hurst: float, rho: float, sigma0: float, seed: int, n
 # the store's layout (docs/store.md)
 
 FORMAT = "gapsweep-store"
-# One format version per layout (the table LAYOUTS below, docs/store.md "Formats"): 4: format 3's last table
+# One format version per layout (the table LAYOUTS below, docs/store.md "Formats"): 5: + h_rms_spectrum and
+# g_rms_spectrum (issue 36); 4: format 3's last table
 # with the attribute checksums (INTEGRITY); 3: per-row checksums (four layouts, written before the rule);
 # 2: the issue-12 columns and pressure histograms; 1: the first format
-FORMAT_VERSION = 4
+FORMAT_VERSION = 5
 MESSAGE_LEN = 240
 
 TASK_DTYPE = np.dtype([
@@ -268,6 +272,7 @@ RESULT_DTYPE = np.dtype(
 # column: a layout once written never changes (tests/test_store_formats.py holds their digests).
 NEW_IN_V2 = ("contact_area", "elastic_energy", "contact_atom", "pressure_atom", "mean_gap_persson", "flags")
 NEW_IN_V3 = ("error_estimate", "last_attached_load", "checksum")
+NEW_IN_V5 = ("h_rms_spectrum", "g_rms_spectrum")
 
 
 def _results_dtype(floats: Sequence[str], ints: Sequence[str], checksum: bool) -> np.dtype:
@@ -318,7 +323,8 @@ LAYOUTS = (
     Layout("3b", 3, RESULT_DTYPE_V3B, "dataset", False, "de98333"),
     Layout("3c", 3, RESULT_DTYPE_V3C, "column", False, "9093b41 .. 6bc25eb"),
     Layout("3d", 3, RESULT_DTYPE_V3D, "column", False, "be10c32 .. a6b475f"),
-    Layout("4", 4, RESULT_DTYPE, "column", True, "this version"),
+    Layout("4", 4, RESULT_DTYPE_V3D, "column", True, "576c959 .. bb77f13"),
+    Layout("5", 5, RESULT_DTYPE, "column", True, "this version"),
 )
 CURRENT_LAYOUT = LAYOUTS[-1]
 RESULT_DTYPES = tuple(dict.fromkeys(x.results for x in LAYOUTS))

@@ -166,7 +166,15 @@ def result_row(res: TaskResult, dtype: np.dtype = RESULT_DTYPE) -> np.ndarray:
     row = empty_results(1, dtype)
     row["status"] = STATUS[res.status]
     row["message"] = res.message.encode("utf-8", "replace")[:MESSAGE_LEN]
-    for k, v in res.values.items():
+    values = dict(res.values)
+    if "h_rms_spectrum" not in dtype.names:
+        # a store of a layout before 5 (resumed): its h_rms, g_rms of a file map are the spectrum's, so its new rows
+        # keep that meaning (one column, one quantity within a store; docs/store.md "Formats")
+        for k in ("h_rms", "g_rms"):
+            spec = values.get(f"{k}_spectrum")
+            if spec is not None and math.isfinite(float(spec)):
+                values[k] = spec
+    for k, v in values.items():
         if k not in dtype.names:
             continue
         if k in FLOAT_RESULTS:

@@ -145,6 +145,30 @@ def test_cupy_gfmd_matches_numpy(sigma0: float) -> None:
         assert err <= 1e-12, f"{name}: {err:.3g}"
 
 
+@pytest.mark.parametrize(("interaction", "periodic"), [("exponential", True), ("hard_wall", True),
+                                                     ("hard_wall", False)])
+def test_gfmd_on_two_devices_one_process(interaction: str, periodic: bool) -> None:
+    """issue 36: a solve on device 1 after one on device 0 in the same process (plan caches keyed by device;
+    before, cuFFT plans of device 0 ran on device 1: CUFFT_EXEC_FAILED). Both equal the numpy solve to 1e-10.
+    Skips with fewer than two GPUs."""
+    cupy = _cupy()
+    if cupy.cuda.runtime.getDeviceCount() < 2:
+        pytest.skip("needs two CUDA devices")
+    from gapsweep.gfmd import solve
+
+    h = _surface(64, 7)
+    kw = dict(sigma0=1e-2, interaction=interaction, tol=1e-11, periodic=periodic)
+    if interaction == "exponential":
+        kw.update(gamma0=1e-3, rho=0.01)
+    ref = solve(h, backend="numpy", **kw)
+    for dev in (0, 1, 0):
+        with cupy.cuda.Device(dev):
+            r = solve(cupy.asarray(h), **kw)
+            cupy.cuda.Device().synchronize()
+        assert r.converged and r.backend == "cupy", (dev, r.status)
+        assert abs(r.mean_gap - ref.mean_gap) <= 1e-10 * abs(ref.mean_gap), dev
+
+
 def test_cupy_gfmd_host_fields() -> None:
     """``host`` names the fields copied to the host; the others stay on the GPU, with the same values."""
     cupy = _cupy()

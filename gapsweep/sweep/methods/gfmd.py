@@ -68,12 +68,14 @@ class GFMD(Method):
     keys = ("n", "tol", "max_iter", "method", "backend", "warm_start", "order", "keep_fields", "distributed")
     columns = ("mean_gap", "h_rms", "g_rms", "residual", "load_error", "iterations", "gap_std", "gap_min",
                "gap_max", "contact_area", "elastic_energy", "contact_atom", "pressure_atom", "flags", "count",
-               "last_attached_load")
+               "last_attached_load", "h_rms_spectrum", "g_rms_spectrum")
     histogram = True
     variables = {  # noqa: RUF012 - read-only table
         "mean_gap": ("gfmd_mean_gap", "mean gap g0 by GFMD", LENGTH),
         "h_rms": ("gfmd_h_rms", "rms height of the simulated surface", LENGTH),
         "g_rms": ("gfmd_g_rms", "rms gradient of the simulated surface", {"units": "1"}),
+        "h_rms_spectrum": ("gfmd_h_rms_spectrum", "rms height of a measured map's spectrum", LENGTH),
+        "g_rms_spectrum": ("gfmd_g_rms_spectrum", "rms gradient of a measured map's spectrum", {"units": "1"}),
         "residual": ("gfmd_residual", "GFMD residual rms(p_el - (p - <p>))/sigma0", {"units": "1"}),
         "load_error": ("gfmd_load_error", "GFMD load error |<p> - sigma0|/sigma0", {"units": "1"}),
         "iterations": ("gfmd_iterations", "GFMD iterations (force evaluations)", {"units": "1"}),
@@ -296,6 +298,9 @@ class LocalStats:
     def rms(self, t: Task, ctx: Context) -> tuple[float, float]:
         return ctx.surface_rms(t, t.n)
 
+    def spectrum_rms(self, t: Task, ctx: Context) -> tuple[float, float]:
+        return ctx.surface_spectrum_rms(t, t.n)
+
     def keep(self, t: Task, ctx: Context, res: Any, gap: Any) -> None:
         _keep_fields(t, ctx, res, ctx.surface(t, t.n), gap)
 
@@ -325,10 +330,12 @@ def gfmd_row(t: Task, ctx: Context, res: Any, prev: Any = None, stats: Any = Non
     else:
         gap = np.asarray(gap, dtype=float)
     h_rms, g_rms = stats.rms(t, ctx)
+    h_spec, g_spec = stats.spectrum_rms(t, ctx)
     if t.opt("keep_fields") and getattr(ctx, "fields_dir", None) is not None:
         stats.keep(t, ctx, res, gap)
-    v = {"mean_gap": float(res.mean_gap), "h_rms": h_rms, "g_rms": g_rms,
-         "residual": float(res.residual), "load_error": float(getattr(res, "load_error", math.nan)),
+    v = {"mean_gap": float(res.mean_gap), "h_rms": h_rms, "g_rms": g_rms, "h_rms_spectrum": h_spec,
+         "g_rms_spectrum": g_spec, "residual": float(res.residual),
+         "load_error": float(getattr(res, "load_error", math.nan)),
          "iterations": int(res.iterations), **stats.gap(gap, xp),
          "contact_area": float(getattr(res, "contact_area", math.nan)),
          "elastic_energy": float(getattr(res, "elastic_energy", math.nan)), "flags": 0,
@@ -427,6 +434,9 @@ class _SlabStats:
 
     def rms(self, t: Task, ctx: Context) -> tuple[float, float]:
         return ctx.surface_rows_rms(t, t.n, self.comm)
+
+    def spectrum_rms(self, t: Task, ctx: Context) -> tuple[float, float]:
+        return ctx.surface_rows_spectrum_rms(t, t.n, self.comm)
 
     def keep(self, t: Task, ctx: Context, res: Any, gap: Any) -> None:
         _keep_fields(t, ctx, res, ctx.surface_rows(t, t.n, self.comm), gap, comm=self.comm)

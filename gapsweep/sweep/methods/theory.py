@@ -33,7 +33,7 @@ class Theory(Method):
     order = 0
     keys = ("forms", "n", "h_rms", "persson_variant", "persson_gamma")
     columns = ("mean_gap", "mean_gap_paper", "mean_gap_continuum", "mean_gap_discrete", "mean_gap_persson",
-               "contact_area", "h_rms", "g_rms")
+               "contact_area", "h_rms", "g_rms", "h_rms_spectrum", "g_rms_spectrum")
     variables = {  # noqa: RUF012 - read-only table
         "mean_gap_persson": ("persson_mean_gap", "mean interfacial separation, Persson's theory (hard wall)", LENGTH),
         "contact_area": ("persson_contact_area", "real contact area fraction, Persson's theory (hard wall)",
@@ -43,6 +43,10 @@ class Theory(Method):
         "mean_gap_discrete": ("theory_discrete", "mean gap g0, field theory, sum over the modes of the surface",
                               LENGTH),
         "h_rms": ("theory_h_rms", "rms height used by the field theory", LENGTH),
+        "h_rms_spectrum": ("theory_h_rms_spectrum", "rms height of a measured map's spectrum (Persson's input)",
+                           LENGTH),
+        "g_rms_spectrum": ("theory_g_rms_spectrum", "rms gradient of a measured map's spectrum (Persson's input)",
+                           {"units": "1"}),
     }
     # results that never depend on the seed (M4): no seed dimension in the dataset view
     seed_free = ("mean_gap_paper", "mean_gap_continuum", "mean_gap_persson", "contact_area")
@@ -123,8 +127,10 @@ def _run_persson(t: Task, ctx: Context) -> dict[str, float]:
     if sp.get("kind") == "file":  # the map's own spectrum, taken right for its boundaries (map_spectrum)
         kw["heights"] = ctx.surface(t, 0)
         kw["periodic"] = sp.get("periodic", True)
-        h_rms, g_rms = ctx.surface_rms(t, 0)
+        h_rms, g_rms = ctx.surface_rms(t, 0)  # of the heights solved (what a user normalises by)
+        h_spec, g_spec = ctx.surface_spectrum_rms(t, 0)  # the spectrum's, which the theory uses
     else:
+        h_spec = g_spec = math.nan
         kw.update(hurst=t.hurst, lambda_l=sp["lambda_l"], lambda_s=sp["lambda_s"])
         for k in ("rms_slope", "rms_height", "c0"):
             if k in sp:
@@ -137,7 +143,8 @@ def _run_persson(t: Task, ctx: Context) -> dict[str, float]:
                                                  rms_slope=sp["rms_slope"])
     area = float(persson.contact_area(t.sigma0, variant=t.opt("persson_variant"), **kw))
     sep = float(persson.mean_separation(t.sigma0, gamma=t.opt("persson_gamma"), **kw))
-    return {"h_rms": h_rms, "g_rms": g_rms, "mean_gap_persson": sep, "contact_area": area}
+    return {"h_rms": h_rms, "g_rms": g_rms, "h_rms_spectrum": h_spec, "g_rms_spectrum": g_spec,
+            "mean_gap_persson": sep, "contact_area": area}
 
 
 def _run_field(t: Task, ctx: Context) -> tuple[TaskResult, Any]:

@@ -8,7 +8,7 @@ root=$(pwd)
 job=$root/tests/data/stores/fixture.toml
 pairs=("$@")
 [ ${#pairs[@]} -gt 0 ] || pairs=(format1=a678e7c format2=449a5c7 format3a=ca6983b format3b=de98333 format3c=6bc25eb
-                                 format3d=a6b475f format4=HEAD)
+                                 format3d=a6b475f format4=576c959 format5=HEAD)
 for p in "${pairs[@]}"; do
   name=${p%%=*} commit=${p#*=}
   wt=$(mktemp -d /tmp/gapsweep-fixture-XXXX)
