@@ -55,7 +55,7 @@ def heldout_cases() -> list[tuple[str, np.ndarray, tuple[float, float], dict]]:
     sq = self_affine(256, 0.3, lambda_l=0.25, lambda_s=4 / 256, seed=9, rms_slope=1.0)
     big = self_affine(512, 0.5, lambda_l=0.5, lambda_s=8 / 512, seed=21, rms_slope=1.0)
     sq2 = self_affine(192, 0.7, lambda_l=0.5, lambda_s=6 / 192, seed=33, rms_slope=0.5)
-    ex_exp = dict(sigma0=5.0, e_star=1000.0, gamma0=50.0, rho=0.5, tol=1e-8)
+    ex_exp = dict(sigma0=20.0, e_star=1000.0, gamma0=50.0, rho=0.5, tol=1e-8)
     exp = dict(gamma0=1e-4, rho=4e-3, tol=1e-8)
     hw = dict(interaction="hard_wall", tol=1e-8)
     return [
@@ -95,9 +95,12 @@ def main() -> None:
                 cpu[per] = min(cpu[per], time.process_time() - c)
         a, b = res[True], res[False]
         assert a.converged and b.converged, (a.status, b.status)
-        row = dict(case=name, periodic_s=best[True], free_s=best[False], ratio=best[False] / best[True],
+        row = dict(case=name, law=kw.get("interaction", "exponential"),
+                   grid="square" if h.shape[0] == h.shape[1] and length[0] == length[1] else "rectangular",
+                   periodic_s=best[True], free_s=best[False], ratio=best[False] / best[True],
                    iterations_periodic=a.iterations, iterations_free=b.iterations,
-                   mean_gap_ratio=b.mean_gap / a.mean_gap, area_ratio=b.contact_area / a.contact_area,
+                   mean_gap_ratio=b.mean_gap / a.mean_gap,
+                   area_ratio=b.contact_area / a.contact_area if a.contact_area else float("nan"),
                    periodic_cpu_s=cpu[True], free_cpu_s=cpu[False], cpu_ratio=cpu[False] / cpu[True])
         rows.append(row)
         print(f"{name:32s} {best[True]:10.3f} {best[False]:9.3f} {row['ratio']:6.2f} "

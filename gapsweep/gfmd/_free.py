@@ -118,6 +118,7 @@ class _FreeState:
 
     def _evaluate(self) -> None:
         xp, ops = self.xp, self.ops
+        self._energy: float | None = None
         self.p = self.law.pressure(self.g, xp)
         self.e_law = ops.mean(self.law.energy(self.g, xp))
         # FFT of p zero-padded to the doubled grid, normalised (FreeGrid.pad_fwd never forms the padding)
@@ -134,7 +135,10 @@ class _FreeState:
         return self.ops.dot(a[0], b[0]) + a[1] * b[1]
 
     def energy(self) -> float:
-        return 0.5 * self.ops.kdot(self.U, self.k, self.U) + self.e_law + self.sigma0 * self.delta
+        # once per point: the stall test and the line search's slack both ask for it (one grid pass each)
+        if self._energy is None:
+            self._energy = 0.5 * self.ops.kdot(self.U, self.k, self.U) + self.e_law + self.sigma0 * self.delta
+        return self._energy
 
     def line(self, D: tuple[Any, float]) -> tuple[Any, float, float, float]:
         """Real-space direction of the map's gap and the scalars of ``phi(alpha) = F(x + alpha D)``."""
