@@ -148,3 +148,26 @@ order = "decreasing"
                                                                                                             "last"))}
     assert xs["detached (beyond pull-off)"] == pytest.approx(loads[2])
     assert xs["last attached load (pull-off bracket)"] == pytest.approx(det["last_attached_load"])
+
+
+def test_free_tensile_answers_are_unit_invariant() -> None:
+    """Lengths x 1e-6 and pressures x 1e9 (um and GPa-like scales) or x 1e3 / 1e-3: the same dimensionless mean
+    gaps, statuses and pull-off bracket as in model units."""
+    h, (lx, ly) = _map(12)
+    ref = None
+    for lf, pf in ((1.0, 1.0), (1e-6, 1e9), (1e3, 1e-3)):
+        kw = dict(interaction="adhesive", work=WORK * lf * pf, rho=RHO * lf, periodic=False, length=(lx * lf, ly * lf),
+                  tol=1e-8, e_star=pf)
+        out = []
+        for s in (-0.1, -0.35, -1.2):
+            r = solve(h * lf, sigma0=s * P_STAR * pf, **kw)
+            la = r.diagnostics["last_attached_load"] / (P_STAR * pf)
+            out.append((r.status, r.mean_gap / lf if r.converged else math.nan, la))
+        if ref is None:
+            ref = out
+            assert [o[0] for o in out] == ["converged", "converged", "detached"]
+            continue
+        for a, b in zip(out, ref):
+            assert a[0] == b[0]
+            assert a[1] == pytest.approx(b[1], rel=1e-7, nan_ok=True)
+            assert a[2] == pytest.approx(b[2], rel=1e-6)
