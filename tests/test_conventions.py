@@ -74,6 +74,8 @@ def test_tiny_loads_converge_on_rectangular_and_odd_grids(shape: tuple[int, int]
             f = 0.5 * q * np.fft.fft2(r.displacement) - np.fft.fft2(r.pressure)
             f[0, 0] = 0
             assert np.sqrt(np.sum(np.abs(f) ** 2)) / (nx * ny) <= 1e-7 * max(s0, r.diagnostics["pressure_scale"])
+            free = solve(h, sigma0=s0, length=length, tol=1e-8, periodic=False, **law)  # free boundaries too
+            assert free.status == "converged" and free.residual <= 1e-8, (s0, law, free.status, free.residual)
 
 
 @pytest.mark.parametrize(("law", "shape", "periodic"), [
