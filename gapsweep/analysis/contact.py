@@ -81,6 +81,9 @@ def tables(df: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
                         "g_rms", "e_star"):
                 rec[col], rec[f"{col}_sem"] = _mean(done, col)
             rec["sigma0_reduced"] = s0 / (rec["e_star"] * rec["g_rms"]) if rec["g_rms"] else math.nan
+            # adhesion at a tensile load: the most tensile load the continuation from zero load stayed attached
+            # at, over every row (a detached row has it too: the pull-off bracket), mean over seeds
+            rec["last_attached_load"] = _mean(p, "last_attached_load")[0]
             rows.append(rec)
             t = th[np.isclose(th["sigma0"].to_numpy(float), s0, rtol=1e-9, atol=0.0)]
             if len(t) and len(done):
@@ -366,6 +369,11 @@ def fig_contact(points: pd.DataFrame, persson: pd.DataFrame, *, job: str, note: 
     with matplotlib.rc_context(figures.STYLE):
         p = points[points["job"] == job]
         p = p[p["n"] == p["n"].max()].sort_values("sigma0")
+        # detached loads (adhesion beyond pull-off: no equilibrium in contact, so no point to draw) are marked
+        # by a vertical line, and the pull-off bracket by the last attached load (docs/analysis.md "Contact")
+        detached = p[((p["flags"].to_numpy(int) & 2) > 0) & (p["count"] == 0)]
+        attached = pd.to_numeric(detached.get("last_attached_load", pd.Series(dtype=float)), errors="coerce")
+        attached = attached[np.isfinite(attached.to_numpy(float))]
         p = p[p["count"] > 0]
         info = _info(info, job, p)
         lab = Labels(info["units"], file_surface=bool(info.get("file")))
@@ -385,7 +393,13 @@ def fig_contact(points: pd.DataFrame, persson: pd.DataFrame, *, job: str, note: 
                         label="jump along the load path")
             if tcol and len(th):
                 ax.plot(th["sigma0"].to_numpy(float) / ps, th[tcol].to_numpy(float), **PERSSON)
-            _xscale(ax, x)
+            for i, s_det in enumerate(detached["sigma0"].to_numpy(float)):
+                ax.axvline(s_det / ps, color="tab:red", ls=":", lw=1.2,
+                           label="detached (beyond pull-off)" if i == 0 else None)
+            if len(attached):
+                ax.axvline(float(attached.min()) / ps, color="tab:green", ls="--", lw=1.0,
+                           label="last attached load (pull-off bracket)")
+            _xscale(ax, np.concatenate([x, detached["sigma0"].to_numpy(float) / ps]))
             if len(y) and np.all(y[np.isfinite(y)] > 0) and col != "mean_gap":
                 ax.set_yscale("log")
             ax.set_xlabel(lab.pressure(r"\sigma_0", "pressure"))

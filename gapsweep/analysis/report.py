@@ -844,11 +844,14 @@ def _contact_section(points: pd.DataFrame, persson: pd.DataFrame, summ: pd.DataF
           "GFMD per pressure (mean over the done rows of each pressure; `count` rows, `not_done` others): contact "
           "area (fraction of the nominal area, by the law's criterion, docs/gfmd.md), elastic energy per area, mean "
           "gap, the hard wall's contact atom at g = 0 (apart from the gap histogram) and the free-surface atom at "
-          "p = 0. `flags`: 1 a jump along the load path, 2 detached beyond pull-off (adhesion; docs/store.md). "
-          "Full table: `contact.csv`.", ""]
-    md.append(_md_table(points, ["job", "interaction", "rho", "n", "sigma0", "count", "not_done", "flags",
-                                 "contact_area", "elastic_energy", "mean_gap", "contact_atom", "pressure_atom"],
-                        60))
+          "p = 0. `flags`: 1 a jump along the load path, 2 detached beyond pull-off (adhesion; docs/store.md); "
+          "`last_attached_load`: adhesion at a tensile load, the most tensile load at which the continuation from "
+          "zero load stayed attached (on a detached row: the pull-off bracket). Full table: `contact.csv`.", ""]
+    cols = ["job", "interaction", "rho", "n", "sigma0", "count", "not_done", "flags", "contact_area",
+            "elastic_energy", "mean_gap", "contact_atom", "pressure_atom"]
+    if "last_attached_load" in points and np.isfinite(points["last_attached_load"].to_numpy(float)).any():
+        cols.append("last_attached_load")
+    md.append(_md_table(points, cols, 60))
     if len(persson):
         md += ["### GFMD and Persson's theory side by side", "",
                "Persson's theory (gapsweep.theory.persson, docs/theory.md) with the surface's own spectrum: contact "

@@ -19,6 +19,22 @@ class UnderResolvedWarning(UserWarning):
     """The interaction range ``rho`` is shorter than the grid spacing (M7)."""
 
 
+def under_resolved(law: Any, shape: tuple[int, ...], length: Any) -> str | None:
+    """The text of the :class:`UnderResolvedWarning` for ``law`` on a grid of ``shape`` over the box ``length``
+    (a number or ``(Lx, Ly)``), or None when the law's range resolves the grid (docs/model.md M7): every law with
+    a range (``law.range()``; exponential and adhesive), every grid shape and boundary. The spacing is the larger
+    of ``Lx/nx`` and ``Ly/ny`` (the coarser axis decides)."""
+    rng = law.range()
+    if rng is None:
+        return None
+    lx, ly = (length, length) if np.ndim(length) == 0 else (length[0], length[1])
+    dx = max(float(lx) / shape[0], float(ly) / shape[1])
+    if rng >= dx:
+        return None
+    return (f"rho/dx = {rng / dx:.3g} < 1 (rho={rng:g}, dx={dx:g}): the interaction range is under-resolved; "
+            "the solver still converges but the mean gap carries a discretisation error (refine n)")
+
+
 # ------------------------------------------------------------------------------------------------ helpers
 def _make_ops(xp: Any, n: int) -> _Ops:
     """Kernels for the namespace: numba on the CPU when installed, fused cupy kernels on the GPU (unless

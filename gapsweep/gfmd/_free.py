@@ -22,6 +22,12 @@ conjugate gradients with the same preconditioner and line search (``_cg``), one 
 pairs (less memory traffic per evaluation on the GPU, more evaluations). The same array code runs on numpy and
 cupy.
 
+Tensile loads (adhesion): :class:`_FreeSolver` is the periodic minimiser's ``_smooth._Solver`` on the pair
+``(u~, delta)``: without ``initial`` a tensile load is reached from the zero-load equilibrium by its quasi-static
+continuation (secant predictor, branch test, pull-off bracket ``diagnostics["last_attached_load"]``), and a warm
+start that detaches or stalls is followed down from ``initial.sigma0`` (docs/gfmd.md "Tensile loads"). L-BFGS
+runs ``_smooth``'s stall test.
+
 Convergence on the returned fields: ``residual = rms_map-normalised(f - p 1_map) / P`` (the force imbalance on
 the whole doubled grid, summed and divided by the map's pixel count: outside the map it is the load that would
 have to act on the free surface), ``load_error = |<p>_map - sigma0| / P``, ``P = law.pressure_scale(sigma0)``;
@@ -41,7 +47,7 @@ from gapsweep.core.vec import axpy
 from gapsweep.gfmd._grid import FreeGrid, Grid
 from gapsweep.gfmd._ops import _is_cupy, remember_pair
 from gapsweep.gfmd._result import GFMDResult, host_fields
-from gapsweep.gfmd._smooth import _DETACHED, _wolfe
+from gapsweep.gfmd._smooth import _DETACHED, _STEP_TOL, _Solver, _stalled, _wolfe
 from gapsweep.gfmd.interactions.base import SmoothInteraction
 
 METHODS = ("lbfgs", "cg")
@@ -112,6 +118,7 @@ class _FreeState:
 
     def _evaluate(self) -> None:
         xp, ops = self.xp, self.ops
+        self._energy: float | None = None
         self.p = self.law.pressure(self.g, xp)
         self.e_law = ops.mean(self.law.energy(self.g, xp))
         # FFT of p zero-padded to the doubled grid, normalised (FreeGrid.pad_fwd never forms the padding)
@@ -119,11 +126,19 @@ class _FreeState:
         self.Gd = self.sigma0 - ops.mean(self.p)
         self.nfev += 1
 
+    @property
+    def Z(self) -> tuple[Any, float]:  # the periodic state's name for its unknowns (_Solver.follow)
+        """The unknowns ``(u~, delta)`` (not copied: the minimisers replace ``U``, never write into it)."""
+        return self.U, self.delta
+
     def dot(self, a: tuple[Any, float], b: tuple[Any, float]) -> float:
         return self.ops.dot(a[0], b[0]) + a[1] * b[1]
 
     def energy(self) -> float:
-        return 0.5 * self.ops.kdot(self.U, self.k, self.U) + self.e_law + self.sigma0 * self.delta
+        # once per point: the stall test and the line search's slack both ask for it (one grid pass each)
+        if self._energy is None:
+            self._energy = 0.5 * self.ops.kdot(self.U, self.k, self.U) + self.e_law + self.sigma0 * self.delta
+        return self._energy
 
     def line(self, D: tuple[Any, float]) -> tuple[Any, float, float, float]:
         """Real-space direction of the map's gap and the scalars of ``phi(alpha) = F(x + alpha D)``."""
@@ -149,9 +164,10 @@ class _FreeState:
 
 
 def _check(st: _FreeState, ratio: float, p_ref: float, tol: float, max_iter: int, rng: float | None,
-           history: list[float]) -> str | None:
+           history: list[float], best: list | None) -> str | None:
     """The stopping tests of the minimisers at the current point (None: go on); the residual as in the module
-    docstring, appended to ``history``."""
+    docstring, appended to ``history``; the periodic minimiser's stall test (``_smooth._stalled``: no progress in
+    residual or energy for 30 evaluations), ``best`` its record (None: no stall test, method "cg")."""
     # G_u = ratio FFT[f - p 1_map]/N_pad: sqrt(dot/ratio) is the imbalance's rms normalised to the map
     res = max(math.sqrt(max(st.ops.dot(st.Gu, st.Gu), 0.0) / ratio), abs(st.Gd)) / p_ref
     history.append(res)
@@ -161,7 +177,9 @@ def _check(st: _FreeState, ratio: float, p_ref: float, tol: float, max_iter: int
         return "converged"
     if st.sigma0 < 0 and rng is not None and float(st.g.min()) > _DETACHED * rng:
         return "detached"
-    return "max_iter" if st.nfev >= max_iter else None
+    if st.nfev >= max_iter:
+        return "max_iter"
+    return "stalled" if best is not None and _stalled(st, res, best) else None
 
 
 def _cg(st: _FreeState, minv_u: Any, minv_d: float, ratio: float, p_ref: float, tol: float, max_iter: int,
@@ -176,9 +194,10 @@ def _cg(st: _FreeState, minv_u: Any, minv_d: float, ratio: float, p_ref: float, 
     D: Any = None
     zg_old = alpha = slope_old = 0.0
     G_old: Any = None
+    best = None  # no stall test: CG wanders at ~1e-7 for hundreds of evaluations before it reaches 1e-9
     while True:
         deadline.check()  # a task time limit ends the solve between iterations
-        stop = _check(st, ratio, p_ref, tol, max_iter, rng, history)
+        stop = _check(st, ratio, p_ref, tol, max_iter, rng, history, best)
         if stop:
             return stop
         Zu, zd = minv_u * st.Gu, minv_d * st.Gd
@@ -221,6 +240,7 @@ def _lbfgs(st: _FreeState, minv_u: Any, minv_d: float, ratio: float, p_ref: floa
     y_hist: list = []
     r_hist: list[float] = []
     status = "max_iter"
+    best = [math.inf, math.inf, 0]
 
     def precondition(G: tuple[Any, float]) -> tuple[Any, float]:
         return minv_u * G[0], minv_d * G[1]
@@ -233,7 +253,7 @@ def _lbfgs(st: _FreeState, minv_u: Any, minv_d: float, ratio: float, p_ref: floa
     while True:
         deadline.check()  # a task time limit ends the solve between iterations
         grad = (st.Gu, st.Gd)
-        stop = _check(st, ratio, p_ref, tol, max_iter, rng, history)
+        stop = _check(st, ratio, p_ref, tol, max_iter, rng, history, best)
         if stop:
             status = stop
             break
@@ -283,6 +303,51 @@ def _lbfgs(st: _FreeState, minv_u: Any, minv_d: float, ratio: float, p_ref: floa
     return status
 
 
+class _FreeSolver(_Solver):
+    """The periodic minimiser's solver (``gfmd._smooth._Solver``: solves at any load from any start, follows
+    loads by continuation, brackets pull-off) on the free-boundary state: the unknowns are the pair
+    ``(u~ on the doubled grid, delta)``, the minimiser this module's L-BFGS (or CG)."""
+
+    def __init__(self, free: FreeGrid, pad: Grid, law: SmoothInteraction, h: Any, k: Any, ratio: float,
+                 method: str, memory: int, max_iter: int) -> None:
+        self.free, self.pad, self.law, self.h, self.k, self.ratio = free, pad, law, h, k, ratio
+        self.grid = pad
+        self.method, self.memory, self.max_iter = method, memory, max_iter
+        self.ops = _make_ops(pad)
+        self.rng = law.range()
+        self.nfev = 0  # evaluations spent by every stage together (the result's ``iterations``)
+        self.history: list[float] = []
+        self.info: dict[str, float] = {}
+
+    def at(self, sigma0: float, Z: Any, tol: float, budget: int | None = None) -> tuple[_FreeState, str]:
+        """Minimise at load ``sigma0`` from ``Z = (u~, delta)`` (not modified) to ``tol``, with at most ``budget``
+        evaluations (default: what is left of ``max_iter``)."""
+        law, k, ratio = self.law, self.k, self.ratio
+        c = law.curvature(sigma0)
+        # Local stiffness c acts on the map only, a quarter of the doubled grid: its mean over the grid, c/ratio,
+        # is the Fourier-diagonal estimate (as the periodic preconditioner takes the mean of p/rho). Measured on a
+        # 256 x 192 crop (exponential, sigma0 = 0.05): 146 iterations against 215 with c.
+        minv_u = 1.0 / (k + c / ratio) if c > 0 else 1.0 / k
+        minv_d = 1.0 / c if c > 0 else 1.0 / max(law.pressure_scale(sigma0) / (law.range() or 1.0), 1e-300)
+        p_ref = law.pressure_scale(sigma0)
+        st = _FreeState(self.free, self.pad, law, self.h, k, sigma0, Z[0], Z[1], self.ops)
+        left = max(self.max_iter - self.nfev, 1)
+        cap = left if budget is None else min(budget, left)
+        if self.method == "cg":
+            status = _cg(st, minv_u, minv_d, ratio, p_ref, tol, cap, self.rng, self.history)
+        else:
+            status = _lbfgs(st, minv_u, minv_d, ratio, p_ref, tol, cap, self.rng, self.memory, self.history)
+        self.nfev += st.nfev
+        return st, status
+
+    def _lin(self, a: Any, b: Any, t: float) -> Any:
+        return a[0] + (a[0] - b[0]) * t, a[1] + (a[1] - b[1]) * t
+
+    def _dist(self, a: Any, b: Any) -> float:
+        du = a[0] - b[0]
+        return math.sqrt(max(self.pad.dot(du, du), 0.0) + (a[1] - b[1]) ** 2)
+
+
 def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: float, length: Any, tol: float,
              method: str, backend: str, max_iter: int, initial: Any, threads: int | None, host: Any,
              t_start: float, periodic: bool = False, memory: int | None = None) -> GFMDResult:
@@ -309,14 +374,7 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
         raise FloatingPointError("free-boundary Green's function has a non-positive Fourier mode")
     ratio = pad.size / (nx * ny)
     k = ratio / green
-    c = law.curvature(sigma0)
-    # Local stiffness c acts on the map only, a quarter of the doubled grid: its mean over the grid, c/ratio, is
-    # the Fourier-diagonal estimate (as the periodic preconditioner takes the mean of p/rho). Measured on a
-    # 256 x 192 crop (exponential, sigma0 = 0.05): 146 iterations against 215 with c.
-    minv_u = 1.0 / (k + c / ratio) if c > 0 else 1.0 / k
-    minv_d = 1.0 / c if c > 0 else 1.0 / max(law.pressure_scale(sigma0) / (law.range() or 1.0), 1e-300)
     p_ref = law.pressure_scale(sigma0)
-    rng = law.range()
     if initial is None:
         U = xp.zeros((2 * nx, ny + 1), dtype=xp.complex128)
         delta = float(h.max())
@@ -331,14 +389,27 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
     else:
         raise ValueError(f"initial must be None or a GFMDResult of a free-boundary (periodic=False) solve of a "
                          f"{nx} x {ny} map")
-    st = _FreeState(free, pad, law, h, k, sigma0, U, delta)
-    history: list[float] = []
-
+    sv = _FreeSolver(free, pad, law, h, k, ratio, method, memory, max_iter)
+    step_tol = max(tol, _STEP_TOL)
     with np.errstate(all="ignore"):
-        if method == "cg":
-            status = _cg(st, minv_u, minv_d, ratio, p_ref, tol, max_iter, rng, history)
+        if initial is None and sigma0 < 0:
+            # the periodic minimiser's start at tensile loads (docs/gfmd.md "Tensile loads"): zero load from the
+            # flat body, then unloaded quasi-statically to sigma0 (a direct solve from the flat body is pulled
+            # off before contact forms: "detached" where an attached equilibrium exists, issue 36)
+            st, status = sv.at(0.0, (U, delta), step_tol)
+            if status == "converged":
+                st2, status = sv.follow(0.0, st.Z, sigma0, tol)
+                st = st2 if st2 is not None else st
         else:
-            status = _lbfgs(st, minv_u, minv_d, ratio, p_ref, tol, max_iter, rng, memory, history)
+            st, status = sv.at(sigma0, (U, delta), tol)
+            s_init = float(getattr(initial, "sigma0", math.nan))
+            if (status in ("detached", "stalled") and isinstance(initial, GFMDResult) and initial.converged
+                    and sigma0 < 0 and s_init > sigma0 and sv.nfev < max_iter):
+                log.info("%s (free boundaries): %s at sigma0=%g from the initial state; following the load from %g",
+                         law.name, status, sigma0, s_init)
+                st2, status = sv.follow(s_init, (U, delta), sigma0, tol, retry=True)
+                st = st2 if st2 is not None else st
+        history = sv.history
 
         # Returned fields from the state; their residual decides (issue 9).
         u_pad = pad.inv(st.U)
@@ -361,17 +432,17 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
     converged = fields_ok and status == "converged" and residual <= tol and load_error <= tol
     if status == "converged" and not converged:
         status = "stalled"
-    log.debug("%s (free boundaries): %s after %d evaluations, residual %.3g", law.name, status, st.nfev, residual)
+    log.debug("%s (free boundaries): %s after %d evaluations, residual %.3g", law.name, status, sv.nfev, residual)
     fields = {"gap": gap, "pressure": p, "displacement": u}
     fields.update(pad.to_host_many({k_: fields[k_] for k_ in host_fields(host)}))
     gap, p, u = fields["gap"], fields["pressure"], fields["displacement"]
     pad.synchronize()
     return GFMDResult(
-        mean_gap=g0, gap=gap, pressure=p, displacement=u, iterations=st.nfev, converged=converged,
+        mean_gap=g0, gap=gap, pressure=p, displacement=u, iterations=sv.nfev, converged=converged,
         residual=residual, load_error=load_error, wall_time=time.perf_counter() - t_start, method=method,
         backend=pad.backend, status=status, sigma0=sigma0, rho=getattr(law, "rho", math.nan),
         gamma0=getattr(law, "gamma0", math.nan), e_star=e_star, length=length, tol=tol, history=history,
         interaction=law.name, params=law.params(), contact_area=area, elastic_energy=elastic,
         contact_criterion=law.contact_criterion, periodic=False,
-        diagnostics={"pressure_scale": p_ref, "interaction_energy": e_int, "approach": st.delta},
+        diagnostics={"pressure_scale": p_ref, "interaction_energy": e_int, "approach": st.delta, **sv.info},
     )

@@ -354,9 +354,10 @@ def _lean_result(sv: LeanSolver, st: Any, status: str, sigma0: float, e_star: fl
     p_ref = law.pressure_scale(sigma0)
     with np.errstate(all="ignore"):
         z0 = grid.mode0(st.Z).real
-        gap = grid.slab.irfft2(st.Z)
+        grid.set_mode0(st.Z, 0.0)  # u from the q != 0 modes alone (no round-off of g0 in u: _smooth._result)
+        u = grid.slab.irfft2(st.Z)
         st.Z = None
-        u = gap - z0
+        gap = u + z0
         gap -= h
         p = xp.empty_like(gap)
         e_int = n_c = 0.0

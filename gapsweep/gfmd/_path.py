@@ -8,11 +8,13 @@ from __future__ import annotations
 
 import logging
 import math
+import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from gapsweep.gfmd._common import UnderResolvedWarning
 from gapsweep.gfmd._result import GFMDResult
 
 log = logging.getLogger("gapsweep.gfmd")
@@ -65,7 +67,10 @@ def solve_path(heights: Any, loads: Any, *, jump_area: float = 0.1, jump_factor:
     path = LoadPath(loads=arr, results=[])
     prev: GFMDResult | None = None
     for i, s0 in enumerate(arr):
-        r = solve(heights, sigma0=float(s0), interaction=law, initial=prev, **kwargs)
+        with warnings.catch_warnings():
+            if i > 0:  # UnderResolvedWarning once per path (the first load's), not once per load
+                warnings.simplefilter("ignore", UnderResolvedWarning)
+            r = solve(heights, sigma0=float(s0), interaction=law, initial=prev, **kwargs)
         path.results.append(r)
         if prev is not None and not law.convex:  # a convex energy has one equilibrium per load: no jumps
             da, dg = abs(r.contact_area - prev.contact_area), abs(r.mean_gap - prev.mean_gap)

@@ -128,9 +128,9 @@ def _wolfe(st: _State, D: Any, slope: float, alpha: float, c1: float = 1e-4, c2:
 
 def _stalled(st: Any, res: float, best: list) -> bool:
     """The stall test of :func:`_lbfgs` (its docstring); ``best = [residual, energy, at]`` updated in place."""
-    grid = st.grid
     f = st.energy()
-    f_scale = _STALL_ENERGY * (abs(f) + abs(st.e_law) + abs(st.sigma0 * grid.mode0(st.Z).real))
+    approach = st.delta if hasattr(st, "delta") else st.grid.mode0(st.Z).real  # free boundaries: the approach
+    f_scale = _STALL_ENERGY * (abs(f) + abs(st.e_law) + abs(st.sigma0 * approach))
     if res < 0.9 * best[0] or best[1] - f > f_scale:
         best[:] = [min(res, best[0]), f, st.nfev]
         return False
@@ -241,6 +241,14 @@ class _Solver:
         self.nfev += st.nfev
         return st, status
 
+    def _lin(self, a: Any, b: Any, t: float) -> Any:
+        """The secant predictor ``a + t (a - b)`` of two states' unknowns (a new array)."""
+        return a + (a - b) * t
+
+    def _dist(self, a: Any, b: Any) -> float:
+        """rms distance of two states' unknowns (Parseval)."""
+        return math.sqrt(max(self.grid.dot(a - b, a - b), 0.0))
+
     def follow(self, s_from: float, Z_from: Any, target: float, tol: float,
                retry: bool = False) -> tuple[_State | None, str]:
         """Quasi-static unloading from the equilibrium ``Z_from`` at ``s_from`` to the tensile ``target``.
@@ -258,7 +266,7 @@ class _Solver:
         tried yet; ``_FIRST_STEP`` of the load scale ``min(|target - s_from|, law scale)`` when ``retry`` (a
         solve straight from ``Z_from`` at ``target`` has just failed: a whole-span first step would repeat it,
         and near pull-off land in the same stall)."""
-        grid, law = self.grid, self.law
+        law = self.law
         span = target - s_from
         scale = min(abs(span), law.pressure_scale(0.0))
         first = scale if retry else min(abs(span), law.pressure_scale(0.0) * _FIRST_STEP)
@@ -273,7 +281,7 @@ class _Solver:
             final = s_k + step <= target + 1e-12 * scale
             s_new = target if final else s_k + step
             step = s_new - s_k
-            Zp = Z_k if Z_prev is None else Z_k + (Z_k - Z_prev) * (step / ds_prev)
+            Zp = Z_k if Z_prev is None else self._lin(Z_k, Z_prev, step / ds_prev)
             # A step on the branch converges in about as many evaluations as the steps before it; one that
             # takes many more is leaving it (a body peeling off slowly), and is cut short and halved.
             budget = max(_STEP_BUDGET_MIN, _STEP_BUDGET * self.nfev // (accepted + 1))
@@ -281,8 +289,7 @@ class _Solver:
             ok = status == "converged"
             dev = 0.0
             if ok and Z_prev is not None:
-                moved = math.sqrt(max(grid.dot(Zp - Z_k, Zp - Z_k), 0.0))
-                dev = math.sqrt(max(grid.dot(st.Z - Zp, st.Z - Zp), 0.0)) / max(moved, 1e-300)
+                dev = self._dist(st.Z, Zp) / max(self._dist(Zp, Z_k), 1e-300)
             smallest = abs(step) <= ds_min * (1 + 1e-9)
             if ok and (dev <= _MAX_DEV or smallest):
                 if dev > _MAX_DEV:
@@ -394,9 +401,14 @@ def _result(sv: _Solver, st: _State, status: str, sigma0: float, e_star: float, 
     xp = grid.xp
     p_ref = law.pressure_scale(sigma0)
     with np.errstate(all="ignore"):
-        z = grid.inv(st.Z)
-        u = z - grid.mode0(st.Z).real
-        gap = z - h
+        # u from the q != 0 coefficients alone: forming z = g0 + u first and subtracting g0 leaves the round-off
+        # of g0 (~1e-16 g0) in u, which k u amplifies to a residual of ~1e-16 g0 q_max E*/sigma0 (6.7e-6 at
+        # sigma0 = 1e-9: "stalled" on converged states, issue 36)
+        z0 = grid.mode0(st.Z).real
+        Zc = st.Z.copy()
+        grid.set_mode0(Zc, 0.0)
+        u = grid.inv(Zc)
+        gap = (u + z0) - h
         p = law.pressure(gap, xp)
         U = grid.fwd(u)
         F = k * U - grid.fwd(p)

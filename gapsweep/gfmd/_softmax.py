@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import math
 import time
-import warnings
 from typing import Any
 
 import numpy as np
@@ -25,7 +24,7 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
              t_start: float) -> GFMDResult:
     """Exponential repulsion ``law`` on the square grid ``heights`` (inputs validated by ``gfmd.solve``)."""
     host_fields(host)  # validate before any work
-    from gapsweep.gfmd._common import UnderResolvedWarning, _make_ops, _transfer_modes
+    from gapsweep.gfmd._common import _make_ops, _transfer_modes
 
     shape = heights.shape
     lx, ly = length if isinstance(length, tuple) else (length, length)
@@ -62,20 +61,11 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
             raise ValueError("heights contain NaN or inf")
     elif not bool(xp.all(xp.isfinite(h))):
         raise ValueError("heights contain NaN or inf")
-    dx = length / n
-    if rho < dx:
-        warnings.warn(
-            f"rho/dx = {rho / dx:.3g} < 1 (rho={rho:g}, dx={dx:g}): the interaction range is under-resolved; "
-            "the solver still converges but the mean gap carries a discretisation error (refine n)",
-            UnderResolvedWarning,
-            stacklevel=3,
-        )
     if lean:
         return _solve_lean(h, h_sum / (n * n), law, fft, ops, sigma0=sigma0, e_star=e_star, length=length, tol=tol,
                            method=method, backend=backend, max_iter=max_iter, initial=initial, host=host,
                            t_start=t_start)
-    h = h - h.mean()  # only h - <h> matters: <h> shifts g0 by a constant; report the gap of h - <h>
-    h_shift = float(xp.asarray(heights, dtype=xp.float64).mean())
+    h = h - h.mean()  # only h - <h> matters: the gap does not depend on <h> (docs/model.md M3, "Mean gap")
 
     if initial is None:
         Hq = fft.rfft2(h) * (1.0 / (n * n))
@@ -110,7 +100,7 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
         lse = m + math.log(S / (n * n)) if S > 0 else math.nan  # S >= 1 whenever m is finite
         g0 = law.mean_gap(lse, sigma0)
         p = e * (sigma0 * n * n / S) if S > 0 else e * math.nan
-        gap = (g0 - h_shift) - rho * w  # g = g0 + u - h with the caller's h (mean included)
+        gap = g0 - rho * w  # g = g0 + u - (h - <h>): invariant under h -> h + c
         # Residual of the returned fields (issue 9: the running value drifts from it at the round-off floor):
         # rms(p_el - (p - <p>)) / sigma0 by Parseval, one more forward FFT of u and of p.
         U = xp.array(fft.rfft2(u)) * (1.0 / (n * n))
@@ -119,7 +109,7 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
         F[0, 0] = 0.0
         residual = math.sqrt(max(pb.ops.dot(F, F), 0.0)) / sigma0
         elastic = 0.5 * pb.ops.dot(U, pb.k * U)  # (E*/4) sum_q q |u~|^2 per area
-        area = float(xp.count_nonzero(law.contact(gap + h_shift, p))) / (n * n)
+        area = float(xp.count_nonzero(law.contact(gap, p))) / (n * n)
     load_error = abs(float(p.mean()) / sigma0 - 1.0)
     fields_ok = math.isfinite(g0) and bool(xp.all(xp.isfinite(gap))) and bool(xp.all(xp.isfinite(p)))
     if not fields_ok:
@@ -132,7 +122,7 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
     gap, p, u = (fields[k] for k in FIELDS)
     fft.synchronize()
     return GFMDResult(
-        mean_gap=g0 - h_shift,
+        mean_gap=g0,
         gap=gap,
         pressure=p,
         displacement=u,
@@ -212,11 +202,11 @@ def _solve_lean(h: Any, h_mean: float, law: Exponential, fft: Any, ops: Any, *, 
         S, _, _ = ops.expstats(w, m, e)
         lse = m + math.log(S / (n * n)) if S > 0 else math.nan  # S >= 1 whenever m is finite
         g0 = law.mean_gap(lse, sigma0)
-        p_sum, n_contact, n_bad = ops.final(w, e, sigma0 * n * n / S if S > 0 else math.nan, g0 - h_mean, rho,
-                                            h_mean, rho)
+        # gap = g0 - rho W with W of the centred surface: the gap of h - <h> (docs/model.md M3, "Mean gap")
+        p_sum, n_contact, n_bad = ops.final(w, e, sigma0 * n * n / S if S > 0 else math.nan, g0, rho, 0.0, rho)
         gap, p = w, e
         if type(law).contact is not Exponential.contact:  # a law with its own contact criterion
-            n_contact = int(xp.count_nonzero(law.contact(gap + h_mean, p)))
+            n_contact = int(xp.count_nonzero(law.contact(gap, p)))
         # Residual of the returned fields (issue 9), rms(p_el - (p - <p>)) / sigma0 by Parseval, and the elastic
         # energy (E*/4) sum_q q |u~|^2 from one pass over rfft2(u) (kept in G) and rfft2(p).
         U = pb.G
@@ -239,7 +229,7 @@ def _solve_lean(h: Any, h_mean: float, law: Exponential, fft: Any, ops: Any, *, 
     gap, p, u = (fields[k] for k in FIELDS)
     fft.synchronize()
     return GFMDResult(
-        mean_gap=g0 - h_mean, gap=gap, pressure=p, displacement=u, iterations=nfev, converged=converged,
+        mean_gap=g0, gap=gap, pressure=p, displacement=u, iterations=nfev, converged=converged,
         residual=residual, load_error=load_error, wall_time=time.perf_counter() - t_start, method=method,
         backend=backend, status=status, sigma0=sigma0, rho=rho, gamma0=law.gamma0, e_star=e_star, length=length,
         tol=tol, history=history, interaction=law.name, params=law.params(), contact_area=area,

@@ -5,6 +5,7 @@ the minimiser of the interaction law's load control, periodic or with free bound
 from __future__ import annotations
 
 import time
+import warnings
 from typing import Any
 
 import numpy as np
@@ -12,7 +13,7 @@ import numpy as np
 from gapsweep.core import checks as chk
 from gapsweep.core.fft import BACKENDS
 from gapsweep.gfmd import _constrained, _free, _smooth, _softmax
-from gapsweep.gfmd._common import UnderResolvedWarning  # noqa: F401 - raised by the minimisers
+from gapsweep.gfmd._common import UnderResolvedWarning, under_resolved
 from gapsweep.gfmd._ops import _is_cupy
 from gapsweep.gfmd._result import GFMDResult
 from gapsweep.gfmd.interactions import Interaction, resolve
@@ -72,7 +73,8 @@ def solve(
     shared Fourier modes carried over; hard wall: a pressure; adhesive: ``(displacement, mean gap)``); default
     for the exponential law is the linear response of M4. ``threads``: FFTW threads. ``host``: which fields of
     a cupy run come to the host (pinned, asynchronous copies): True (all), False (none: they stay on the GPU) or
-    names such as ``("gap",)``. Warns (UnderResolvedWarning) when ``rho < length/n`` (M7, exponential law).
+    names such as ``("gap",)``. Warns (UnderResolvedWarning) when the law's range ``rho`` is below the grid
+    spacing ``max(Lx/nx, Ly/ny)`` (M7; every law with a range, every grid shape, periodic or free).
 
     ``periodic``: True, the map is one period of a periodic surface (docs/model.md M1); False, a finite map on
     an elastic half-space with free boundaries (docs/gfmd.md, "Periodic or free boundaries"): the Boussinesq
@@ -157,6 +159,9 @@ def solve(
                          f"{law.name!r}{'' if periodic else ' with periodic=False'}; got {method!r}")
     if not isinstance(backend, str) or backend not in ("auto", *BACKENDS):
         raise ValueError(f"backend must be one of {', '.join(map(repr, ('auto', *BACKENDS)))}; got {backend!r}")
+    text = under_resolved(law, shape, length)
+    if text is not None:  # every law with a range, every grid shape and boundary (docs/gfmd.md, "Warnings")
+        warnings.warn(text, UnderResolvedWarning, stacklevel=2)
     if periodic:
         return minimise(heights, law, sigma0=sigma0, e_star=e_star, length=length, tol=tol, method=method,
                         backend=backend, max_iter=max_iter, initial=initial, threads=threads, host=host,

@@ -377,8 +377,7 @@ def _softmax_batch(heights: list, laws: list, sigma0s: list[float], starts: list
     if not bool(xp.all(xp.isfinite(h))):
         bad = [i for i in range(B) if not bool(xp.all(xp.isfinite(h[i])))]
         raise ValueError(f"heights of batch problem(s) {bad} contain NaN or inf")
-    h_shift = _host(xp, h.mean(axis=(1, 2)))
-    h = h - xp.asarray(h_shift).reshape(-1, 1, 1)
+    h = h - h.mean(axis=(1, 2), keepdims=True)  # only h - <h> enters the gap (docs/model.md M3)
     rho = np.array([law.rho for law in laws])
     s0 = np.array(sigma0s, dtype=np.float64)
     k = 0.5 * e_star * _half_q(xp, n, length)
@@ -426,8 +425,8 @@ def _softmax_batch(heights: list, laws: list, sigma0s: list[float], starts: list
         nonlocal X, h, minv, W, e, G, G_old, D, Wt, et, m, S, r2, rho, s0, restart, zg_old, ids, nfev, alive
         for j in slots:
             i = ids[j]
-            results[i] = _softmax_fields(xp, ops, X[j], h[j], laws[i], float(s0[j]), float(h_shift[i]),
-                                         status[i], int(nfev[j]), history[i], e_star, length, tol, host, t_start)
+            results[i] = _softmax_fields(xp, ops, X[j], h[j], laws[i], float(s0[j]), status[i],
+                                         int(nfev[j]), history[i], e_star, length, tol, host, t_start)
             alive[j] = False
         if alive.sum() > 0.75 * len(ids):
             return
@@ -539,7 +538,7 @@ def _softmax_batch(heights: list, laws: list, sigma0s: list[float], starts: list
     return results  # type: ignore[return-value]
 
 
-def _softmax_fields(xp, ops: _Stack, X, h, law, sigma0: float, h_shift: float, status: str, nfev: int,
+def _softmax_fields(xp, ops: _Stack, X, h, law, sigma0: float, status: str, nfev: int,
                     history: list[float], e_star: float, length: float, tol: float, host: Any,
                     t_start: float) -> GFMDResult:
     """Fields and record of one finished problem, as at the end of :func:`gapsweep.gfmd._softmax.minimise`."""
@@ -554,7 +553,7 @@ def _softmax_fields(xp, ops: _Stack, X, h, law, sigma0: float, h_shift: float, s
         lse = m + math.log(S / (n * n)) if S > 0 else math.nan
         g0 = law.mean_gap(lse, sigma0)
         p = e * (sigma0 * n * n / S) if S > 0 else e * math.nan
-        gap = (g0 - h_shift) - rho * w
+        gap = g0 - rho * w  # the gap of h - <h>: invariant under h -> h + c (docs/model.md M3)
     load_error = abs(float(p.mean()) / sigma0 - 1.0)
     residual = history[-1] if history else math.inf
     fields_ok = math.isfinite(g0) and bool(xp.all(xp.isfinite(gap))) and bool(xp.all(xp.isfinite(p)))
@@ -567,7 +566,7 @@ def _softmax_fields(xp, ops: _Stack, X, h, law, sigma0: float, h_shift: float, s
     wanted = {k: fields[k] for k in host_fields(host) if _is_cupy(fields[k])}
     if wanted:  # pinned, asynchronous copies as in gfmd.solve
         fields.update(get_backend("cupy", n).to_host_many(wanted))
-    return GFMDResult(mean_gap=g0 - h_shift, gap=fields["gap"], pressure=fields["pressure"],
+    return GFMDResult(mean_gap=g0, gap=fields["gap"], pressure=fields["pressure"],
                       displacement=fields["displacement"], iterations=nfev, converged=converged, residual=residual,
                       load_error=load_error, wall_time=time.perf_counter() - t_start, method="cg",
                       backend="cupy" if xp is not np else "numpy", status=status, sigma0=sigma0, rho=rho,

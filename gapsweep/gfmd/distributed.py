@@ -337,7 +337,7 @@ def _softmax(h, law: Any, grid: SlabGrid, *, sigma0: float, e_star: float, tol: 
         p = e
         gap = w
         gap *= -rho
-        gap += g0 - h_shift  # g = g0 + u - h with the caller's h (mean included), in w's memory
+        gap += g0  # g = g0 + u - (h - <h>), in w's memory: invariant under h -> h + c (model.md M3)
         del w
         U = grid.fwd(u)
         F = k * U - grid.fwd(p)
@@ -345,7 +345,7 @@ def _softmax(h, law: Any, grid: SlabGrid, *, sigma0: float, e_star: float, tol: 
         residual = math.sqrt(max(grid.dot(F, F), 0.0)) / sigma0
         elastic = 0.5 * grid.dot(U, k * U)
         del F, U
-        area = grid.count(law.contact(gap + h_shift, p)) / n2  # the law's criterion on the centred gap
+        area = grid.count(law.contact(gap, p)) / n2
         load_error = abs(grid.mean(p) / sigma0 - 1.0)
     fields_ok = math.isfinite(g0) and grid.all_finite(gap) and grid.all_finite(p)
     if not fields_ok:
@@ -353,7 +353,7 @@ def _softmax(h, law: Any, grid: SlabGrid, *, sigma0: float, e_star: float, tol: 
     converged = status == "converged" and residual <= tol and load_error <= tol and fields_ok
     if status == "converged" and not converged:
         status = "stalled"
-    scalars = dict(mean_gap=g0 - h_shift, iterations=nfev, converged=converged, residual=residual,
+    scalars = dict(mean_gap=g0, iterations=nfev, converged=converged, residual=residual,
                    load_error=load_error, method=method, status=status, history=history, contact_area=area,
                    elastic_energy=elastic, diagnostics={"running_residual": history[-1] if history else math.inf})
     return scalars, {"gap": gap, "pressure": p, "displacement": u}
@@ -564,12 +564,11 @@ def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interact
         kw = dict(comm=comm, sigma0=sigma0, interaction=law, e_star=e_star, length=length, method=method,
                   backend=backend, max_iter=max_iter, host=False, memory=memory, tol=coarse_tol)
         initial, coarse = _run_coarse(h, grid, n_levels, control != "softmax", kw)
-    rng = law.range()
-    if rng is not None and rng < min(lx / shape[0], ly / shape[1]) and law.name == "exponential" and red.rank == 0:
-        from gapsweep.gfmd._common import UnderResolvedWarning
+    from gapsweep.gfmd._common import UnderResolvedWarning, under_resolved
 
-        warnings.warn(f"rho/dx = {rng / (lx / shape[0]):.3g} < 1: the interaction range is under-resolved",
-                      UnderResolvedWarning, stacklevel=2)
+    text = under_resolved(law, shape, (lx, ly))
+    if text is not None and red.rank == 0:  # every law with a range (docs/gfmd.md, "Warnings and errors")
+        warnings.warn(text, UnderResolvedWarning, stacklevel=2)
     common = dict(sigma0=sigma0, e_star=e_star, length=length, tol=tol, method=method, backend=backend,
                   max_iter=max_iter, threads=None, host=False, t_start=t_start, grid=grid)
     if control == "softmax":
@@ -630,9 +629,12 @@ def _run_coarse(h: Any, grid: SlabGrid, levels: int, smooth: bool, kw: dict) -> 
     when no level gave a finite answer) and the levels' records. On GPUs the memory pool's free blocks and
     cupy's FFT plans of the coarse grids are dropped before the requested grid runs (its peak stays its own)."""
     from gapsweep.gfmd import _coarse
+    from gapsweep.gfmd._common import UnderResolvedWarning
 
     def level(hl: Any, init: Any) -> Any:
-        return solve(hl, initial=init, start="flat", **kw)
+        with warnings.catch_warnings():  # a coarse level's own spacing: the requested grid's warning is the one
+            warnings.simplefilter("ignore", UnderResolvedWarning)
+            return solve(hl, initial=init, start="flat", **kw)
 
     Z, records = _coarse.chain(h, grid.slab, levels, level, smooth)
     if grid.xp is not np:
