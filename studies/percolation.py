@@ -20,7 +20,7 @@ import platform
 import subprocess
 import sys
 import time
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> None:
            "reference": "Dapp, Lucke, Persson & Muser, PRL 108, 244301 (2012): about 0.42",
            "command": "python -m studies.percolation " + " ".join(sys.argv[1:] if argv is None else argv),
            "commit": commit, "machine": f"{platform.node()} {platform.machine()} {platform.processor()}",
-           "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+           "date": datetime.now(UTC).isoformat(timespec="seconds"),
            "parameters": {"hurst": a.hurst, "lambda_l": a.lambda_l, "lambda_s_px": a.lambda_s_px,
                           "rms_slope": 0.1, "steps": a.steps},
            "summary": summary, "samples": rows}

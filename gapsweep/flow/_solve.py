@@ -307,7 +307,7 @@ def _linear_solve(A: sp.csr_matrix, b: np.ndarray, diag: np.ndarray, *, tol: flo
     m = A.shape[0]
     maxit = max_iter if max_iter is not None else max(1000, 10 * int(math.sqrt(m)) + 200)
     if gpu:
-        return _gpu_cg(A, b, diag, tol=tol, max_iter=max(maxit, 20 * int(math.sqrt(m)) + 1000)) + ("cupy",)
+        return (*_gpu_cg(A, b, diag, tol=tol, max_iter=max(maxit, 20 * int(math.sqrt(m)) + 1000)), "cupy")
     if solver == "auto":
         if m <= DIRECT_MAX:
             solver = "direct"

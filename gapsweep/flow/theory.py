@@ -64,7 +64,6 @@ def _weights(g: Any, density: Any, contact: float) -> tuple[np.ndarray, np.ndarr
                          f"{p.size} >= 2), got {g.size} values")
     if np.any(x < 0):
         raise ValueError("gaps must be >= 0")
-    w = np.where(x > 0, w, 0.0)
     mass = float(w.sum())
     if contact < 1.0:
         if mass <= 0:
@@ -104,14 +103,16 @@ def bruggeman(gap: Any, density: Any, contact: float, *, viscosity: float = 1.0)
     if c >= 0.5:
         return 0.0
     k = x ** 3 / (12.0 * mu)
-    k, w = k[w > 0], w[w > 0]
+    k, w = k[w > 0], w[w > 0]  # a point at g = 0 keeps its weight: k = 0 there acts as contact
 
     def f(logk: float) -> float:
         kk = math.exp(logk)
         return c + float(np.sum(w * (kk - k) / (kk + k)))
 
+    if not np.any(k > 0):  # all open weight at g = 0
+        return 0.0
     hi = math.log(float(k.max()))
-    lo = math.log(float(k[k > 0].min())) - 60.0
+    lo = math.log(float(k[k > 0].min())) - 60.0 if np.any(k > 0) else -700.0
     if f(hi) <= 0:  # round-off: every weight at the largest k
         return float(k.max())
     return math.exp(brentq(f, lo, hi, xtol=1e-12, rtol=1e-12))
@@ -120,17 +121,26 @@ def bruggeman(gap: Any, density: Any, contact: float, *, viscosity: float = 1.0)
 def critical_gap(gap: Any, density: Any, contact: float, *, threshold: float = DAPP_THRESHOLD) -> float:
     """The critical gap ``g_c``: ``contact + int_0^{g_c} P(g) dg = threshold`` (0 when ``contact >= threshold``),
     interpolated linearly in the cumulative distribution. Units of the gap."""
-    x, w, c = _weights(gap, density, contact)
+    _x, _w, c = _weights(gap, density, contact)  # checks, and the normalisation of the open part
     if not (0.0 < threshold < 1.0):
         raise ValueError(f"threshold must be in (0, 1), got {threshold!r}")
     if c >= threshold:
         return 0.0
-    cum = c + np.cumsum(w)
+    # the cumulative distribution on the nodes (bin edges, or the points with the trapezoid rule), exact for a
+    # density that is constant on each bin (edges) or linear between the points
+    g = np.asarray(gap, dtype=np.float64).ravel()
+    p = np.asarray(density, dtype=np.float64).ravel()
+    if g.size == p.size + 1:
+        cum = np.concatenate([[0.0], np.cumsum(p * np.diff(g))])
+    else:
+        cum = np.concatenate([[0.0], np.cumsum(0.5 * np.diff(g) * (p[1:] + p[:-1]))])
+    cum = c + cum * ((1.0 - c) / cum[-1])
     i = int(np.searchsorted(cum, threshold))
-    if i >= x.size:
-        return float(x[-1])
-    c0, x0 = (cum[i - 1], x[i - 1]) if i > 0 else (c, 0.0)
-    return float(x0 + (threshold - c0) / (cum[i] - c0) * (x[i] - x0)) if cum[i] > c0 else float(x[i])
+    if i >= g.size:
+        return float(g[-1])
+    if i == 0:
+        return float(g[0])
+    return float(g[i - 1] + (threshold - cum[i - 1]) / (cum[i] - cum[i - 1]) * (g[i] - g[i - 1]))
 
 
 def critical_junction(gap: Any, density: Any, contact: float, *, viscosity: float = 1.0,
