@@ -23,7 +23,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from gapsweep import flow, gfmd, surface  # noqa: E402
+from gapsweep import flow, gfmd, surface
 
 
 def one(n: int, sigma0: float, repeat: int) -> dict:
