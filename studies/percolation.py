@@ -1,5 +1,5 @@
 """Where the leak rate vanishes: the relative contact area at which the non-contact area of a hard-wall contact
-on a self-affine surface stops percolating, at several grid sizes (docs/model.md M9; compare Dapp, Lucke,
+on a self-affine surface stops percolating, at several grid sizes (docs/model.md M8; compare Dapp, Lucke,
 Persson & Muser, PRL 108, 244301 (2012): about 0.42 for large systems).
 
 For each size and seed the load ``sigma0`` is bisected (geometrically) between a load that leaks and one that

@@ -1,4 +1,4 @@
-"""The leak-rate solve (gapsweep.flow, docs/model.md M9) against exact results: a uniform gap, gaps varying along
+"""The leak-rate solve (gapsweep.flow, docs/model.md M8) against exact results: a uniform gap, gaps varying along
 one direction (harmonic and arithmetic means of g^3, exact for the harmonic face rule), contact that blocks or
 channels the flow, isolated pockets, the 2-D duality of log-symmetric media (geometric mean), grid convergence,
 the percolation point of hard-wall contacts (Dapp et al. 2012), the gap-distribution theories, the GPU path on the
@@ -164,7 +164,7 @@ def _percolation_point(n, seed, steps=10):
 def test_percolation_near_dapp_threshold():
     """Hard-wall GFMD contacts of self-affine surfaces (H = 0.8, 64^2, 4 seeds): the leak rate vanishes at a
     relative contact area near 0.42 (Dapp et al. 2012; studies/percolation.py measures the finite-size trend:
-    docs/model.md M9). Small maps scatter: the mean of 4 seeds within 0.36 .. 0.56, each within 0.25 .. 0.65."""
+    docs/model.md M8). Small maps scatter: the mean of 4 seeds within 0.36 .. 0.56, each within 0.25 .. 0.65."""
     th = [_percolation_point(64, s) for s in range(4)]
     assert all(0.25 < t < 0.65 for t in th), th
     assert 0.36 < np.mean(th) < 0.56, th
@@ -205,7 +205,7 @@ def test_theories_exact_cases():
 def test_theories_bracket_a_gfmd_contact():
     """On a hard-wall GFMD gap field (64^2, seed 5, sigma0 = 0.005 E*: ~15% contact): the two estimates from its
     gap histogram are positive and within a factor 10 of the solved conductance (they are estimates, not exact:
-    docs/model.md M9 lists where they are expected to fail)."""
+    docs/model.md M8 lists where they are expected to fail)."""
     h = surface.self_affine(64, 0.8, seed=5, lambda_l=0.5, lambda_s=4 / 64, rms_slope=0.1)
     r = gfmd.solve(h, sigma0=0.005, interaction="hard_wall", tol=1e-8)
     K = flow.solve(r.gap, axis=1).conductance

@@ -1,4 +1,4 @@
-"""Leakage through the gap (docs/model.md, "M9 Leakage through the gap"): steady laminar flow of an
+"""Leakage through the gap (docs/model.md, "M8 Leakage through the gap"): steady laminar flow of an
 incompressible fluid through a gap field by the Reynolds equation (:func:`solve`), the open clusters that join
 inlet and outlet (:func:`open_clusters`), and the effective-medium and critical-junction estimates of the
 conductance from a gap distribution (:mod:`gapsweep.flow.theory`).

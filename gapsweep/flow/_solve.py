@@ -1,4 +1,4 @@
-"""Steady laminar flow through the gap: the Reynolds equation on a finite-volume grid (docs/model.md, "M9 Leakage
+"""Steady laminar flow through the gap: the Reynolds equation on a finite-volume grid (docs/model.md, "M8 Leakage
 through the gap").
 
 The fluid is incompressible and Newtonian, the gap ``g(x, y)`` is fixed (no deformation by the fluid pressure) and
@@ -53,7 +53,7 @@ DIRECT_MAX = 70_000
 
 @dataclass
 class FlowResult:
-    """The flow through one gap field (docs/model.md M9).
+    """The flow through one gap field (docs/model.md M8).
 
     ``leak_rate``: volume flux per unit width of the map across the pressure drop, in units of
     ``length^3 pressure / (viscosity length)`` (m^2/s for g in m, dp in Pa, mu in Pa s).
@@ -133,7 +133,7 @@ def open_clusters(gap: Any, *, axis: int = 1, periodic: bool = True, threshold: 
                   ) -> tuple[np.ndarray, bool]:
     """The open cells (``gap > threshold``) joined through open faces to both the inlet (index 0) and the outlet
     (last index) edge along ``axis``, as a boolean map, and whether any exist (the gap percolates). Neighbours
-    are the 4 nearest cells; the direction across ``axis`` wraps when ``periodic``. docs/model.md M9."""
+    are the 4 nearest cells; the direction across ``axis`` wraps when ``periodic``. docs/model.md M8."""
     g = _host(gap)
     open_ = g > threshold
     nx, ny = g.shape
@@ -175,7 +175,7 @@ def solve(
 ) -> FlowResult:
     """Leak rate through the gap field ``gap`` (``nx x ny``, units of ``length``; numpy or cupy) under the
     pressure drop ``pressure_drop`` along array ``axis`` (0 or 1), by the Reynolds equation
-    ``div(g^3/(12 mu) grad p) = 0`` (docs/model.md M9; module docstring for the discretisation).
+    ``div(g^3/(12 mu) grad p) = 0`` (docs/model.md M8; module docstring for the discretisation).
 
     ``length``: the map's size, a number or ``(Lx, Ly)`` (one entry per array axis, as in ``gfmd.solve``).
     ``viscosity`` (``mu``) and ``pressure_drop`` (``dp``) are positive; the leak rate is

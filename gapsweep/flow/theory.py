@@ -1,11 +1,11 @@
-"""Estimates of the leak conductance from a gap distribution alone (docs/model.md, "M9 Leakage through the gap").
+"""Estimates of the leak conductance from a gap distribution alone (docs/model.md, "M8 Leakage through the gap").
 
 Both take the distribution in the store's convention: a density ``P(g)`` of the open gap (``g > 0``) that
 integrates to ``1 - contact``, and the contact fraction ``contact`` (the atom at ``g = 0``, the relative contact
 area). They serve GFMD's gap histogram (``edges``, ``density``, ``contact_atom`` of a store row, or
 :func:`gap_density` of a gap field), Persson's/Almqvist's ``theory.persson.gap_distribution`` (points and atom) and
 the SDE / Fokker-Planck densities. The local conductivity of a gap ``g`` is ``k(g) = g^3 / (12 mu)`` (Reynolds,
-M9); the estimates return an effective conductance ``K`` in the same units (length^3 / (viscosity)), the leak rate
+M8); the estimates return an effective conductance ``K`` in the same units (length^3 / (viscosity)), the leak rate
 per unit width being ``K dp / L``.
 
 * :func:`bruggeman` -- the 2-D Bruggeman effective-medium estimate (Bruggeman 1935; for seals Bottiglione,
