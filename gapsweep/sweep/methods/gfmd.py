@@ -24,7 +24,7 @@ from gapsweep.core.fft import BACKENDS as FFT_BACKENDS
 from gapsweep.sweep import fields
 from gapsweep.sweep import readers as rd
 from gapsweep.sweep.context import Context, extra, hist, host, use_gpu
-from gapsweep.sweep.methods.base import LENGTH, Env, Method, axes, grid_tasks, n_list, register
+from gapsweep.sweep.methods.base import LENGTH, Env, Method, axes, extend_row, grid_tasks, n_list, register
 from gapsweep.sweep.schema import FIELD_NAMES, FLAG_DETACHED, FLAG_JUMP, JobSpec, SpecError, Task, TaskResult
 
 JUMP_FACTOR = 3.0  # a jump: the mean gap moved by more than this times the secant prediction (docs/store.md)
@@ -371,7 +371,8 @@ def gfmd_row(t: Task, ctx: Context, res: Any, prev: Any = None, stats: Any = Non
     # fields are dropped with the result once the row is made); the other laws start from the whole result
     # (hard wall: its pressure; adhesive: displacement and mean gap) and it marks jumps.
     state = (res.displacement if t.law == "exponential" else res) if ok else None
-    return TaskResult(status, msg, v, stats.hist(t, gap, hard), phist), state
+    # the switched-on extensions' columns (e.g. the leak rate of gapsweep.sweep.methods.flow) from this result
+    return extend_row(t, res, TaskResult(status, msg, v, stats.hist(t, gap, hard), phist)), state
 
 
 def _fill_quantities(t: Task, res: Any, v: dict[str, float], gap: Any, xp: Any) -> None:

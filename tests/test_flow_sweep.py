@@ -1,0 +1,121 @@
+"""Plug-in columns (docs/store.md "Plug-in columns") and the flow extension of the GFMD method
+(gapsweep.sweep.methods.flow): a job with ``[methods.gfmd] flow = ...`` stores leak rate, conductance and the
+percolating flag in columns that no edit of the schema declared, equal to gapsweep.flow.solve on the same GFMD
+gap; jobs without it keep the built-in table (layout 4) and their task ids; such stores validate, resume and
+merge; a damaged declaration is refused."""
+
+from __future__ import annotations
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+
+from gapsweep import flow, gfmd, spec, store, surface
+from gapsweep.sweep import methods, runner, schema
+
+JOB = """
+[job]
+name = "flow-test"
+[grid]
+hurst = 0.8
+sigma0 = [2e-3, 3e-2, 0.3]
+[surface]
+lambda_l = 0.5
+lambda_s = 0.125
+rms_slope = 0.1
+[interaction]
+kind = "hard_wall"
+[histogram]
+bins = 40
+[methods.gfmd]
+n = 32
+tol = 1e-8
+backend = "numpy"
+{flow}
+"""
+
+
+def _job(tmp_path, flow_line):
+    p = tmp_path / "job.toml"
+    p.write_text(JOB.format(flow=flow_line))
+    return p
+
+
+def test_flow_columns_in_the_store(tmp_path):
+    job = _job(tmp_path, "flow = { viscosity = 2.0, pressure_drop = 3.0, axis = 0 }")
+    js = spec.load(job)
+    assert methods.job_columns(js)[:4] == [("leak_rate", "float"), ("conductance", "float"),
+                                           ("conductance_ratio", "float"), ("percolating", "int")]
+    runner.run(job, tmp_path / "s.h5", mpi="off", progress="none")
+    df = store.read(tmp_path / "s.h5").sort_values("sigma0")
+    assert (df.status == "done").all()
+    # the same numbers from the physics alone: the GFMD gap of each load, then flow.solve
+    h = surface.self_affine(32, 0.8, seed=0, lambda_l=0.5, lambda_s=0.125, rms_slope=0.1)
+    for _, row in df.iterrows():
+        r = gfmd.solve(h, sigma0=row.sigma0, interaction="hard_wall", tol=1e-8)
+        f = flow.solve(r.gap, axis=0, viscosity=2.0, pressure_drop=3.0)
+        assert row.leak_rate == pytest.approx(f.leak_rate, rel=1e-6, abs=1e-300)
+        assert row.conductance == pytest.approx(f.conductance, rel=1e-6, abs=1e-300)
+        assert row.percolating == int(f.percolating)
+        assert row.contact_area == pytest.approx(r.contact_area, abs=1e-12)
+    assert df.percolating.iloc[0] == 1 and df.leak_rate.iloc[0] > df.leak_rate.iloc[1]
+    assert df.percolating.iloc[-1] == 0 and df.leak_rate.iloc[-1] == 0.0  # 0.3 E*: sealed
+    with h5py.File(tmp_path / "s.h5", "r") as f:
+        assert json.loads(f.attrs[schema.PLUGIN_COLUMNS])[0] == ["leak_rate", "float"]
+        assert schema.layout_of(f.attrs["format_version"], f["results"].dtype, False, True).name == "4"
+    # resume (nothing to do) and merge keep the columns
+    runner.run(job, tmp_path / "s.h5", mpi="off", progress="none", resume=True)
+    store.merge([tmp_path / "s.h5"], tmp_path / "m.h5")
+    assert store.diff(tmp_path / "s.h5", tmp_path / "m.h5") == []
+    assert list(store.read(tmp_path / "m.h5").leak_rate) == list(store.read(tmp_path / "s.h5").leak_rate)
+
+
+def test_without_flow_the_store_is_the_builtin_table(tmp_path):
+    """Switched off (or absent): no plug-in column, the task ids of the job without the key, layout 4."""
+    a, b = spec.load(_job(tmp_path, "")), spec.loads(JOB.format(flow="flow = false"))
+    assert methods.job_columns(a) == [] and a.sha256 == b.sha256
+    runner.run(_job(tmp_path, ""), tmp_path / "p.h5", mpi="off", progress="none")
+    with h5py.File(tmp_path / "p.h5", "r") as f:
+        assert f["results"].dtype == schema.RESULT_DTYPE and schema.PLUGIN_COLUMNS not in f.attrs
+    assert "leak_rate" not in store.read(tmp_path / "p.h5").columns
+
+
+def test_damaged_declaration_is_refused(tmp_path):
+    job = _job(tmp_path, "flow = true")
+    runner.run(job, tmp_path / "s.h5", mpi="off", progress="none")
+    with h5py.File(tmp_path / "s.h5", "r+") as f:  # a new declaration without its checksum
+        f.attrs[schema.PLUGIN_COLUMNS] = json.dumps([["leak_rate", "int"]])
+    with pytest.raises(store.StoreError, match="plugin_columns"):
+        store.read(tmp_path / "s.h5")
+
+
+@pytest.mark.parametrize("line, match", [
+    ("flow = 3", r"methods\.gfmd\.flow"), ("flow = { viscosity = 0.0 }", r"methods\.gfmd\.flow\.viscosity"),
+    ("flow = { axis = 2 }", r"methods\.gfmd\.flow\.axis"), ("flow = { mu = 1.0 }", r"methods\.gfmd\.flow\.mu"),
+])
+def test_bad_flow_options(line, match):
+    with pytest.raises(spec.SpecError, match=match):
+        spec.loads(JOB.format(flow=line))
+
+
+def test_plugin_column_dtypes():
+    d = schema.results_dtype([("leak_rate", "float"), ("percolating", "int")])
+    assert schema.plugin_columns_of(d) == [("leak_rate", "float"), ("percolating", "int")]
+    assert d.names[:len(schema.RESULT_DTYPE.names)] == schema.RESULT_DTYPE.names
+    assert all(schema.plugin_columns_of(x.results) == [] for x in schema.LAYOUTS)
+    assert schema.layout_of(3, d, False, False) is None  # plug-in columns came with format 4
+    assert schema.plugin_columns_of(np.dtype([("status", "i1")])) is None
+    from gapsweep.sweep.store import empty_results
+
+    r = empty_results(2, d)
+    assert np.isnan(r["leak_rate"]).all() and (r["percolating"] == -1).all()
+    from gapsweep.sweep.methods import base
+
+    class Bad(base.Method):
+        name = "bad_cols"
+        own_columns = {"mean_gap": schema.Column("float", "x")}  # noqa: RUF012
+    with pytest.raises(ValueError, match="column of the store itself"):
+        base.register(Bad)
+    assert "bad_cols" not in base._REGISTRY
