@@ -167,7 +167,7 @@ def solve(
     pressure_drop: float = 1.0,
     periodic: bool = True,
     threshold: float = 0.0,
-    tol: float = 1e-10,
+    tol: float = 1e-8,
     max_iter: int | None = None,
     solver: str = "auto",
     backend: str = "auto",

@@ -62,7 +62,7 @@ class Flow(Extension):
             "pressure_drop": rd.number(f"{key}.pressure_drop", value.get("pressure_drop", 1.0), gt=0.0),
             "axis": rd.integer(f"{key}.axis", value.get("axis", 1), ge=0, le=1),
             "threshold": rd.number(f"{key}.threshold", value.get("threshold", 0.0), ge=0.0),
-            "tol": rd.number(f"{key}.tol", value.get("tol", 1e-10), gt=0.0, lt=1e-2),
+            "tol": rd.number(f"{key}.tol", value.get("tol", 1e-8), gt=0.0, lt=1e-2),
         }
 
     def compute(self, t: Task, options: dict[str, Any], result: Any) -> tuple[dict[str, float], str]:
