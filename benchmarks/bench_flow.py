@@ -7,7 +7,8 @@ For each size: a self-affine surface (H = 0.8, lambda_l = L/2, lambda_s = 4 pixe
 hard-wall GFMD solve at ``--sigma0`` (tol 1e-8, defaults otherwise) timed with its wall clock, then
 ``flow.solve`` on its gap field (pressure drop along axis 1, ``solver="auto"``: a direct solve up to 70 000
 unknowns, else pyamg's AMG-preconditioned CG when installed; tol 1e-8, the default) timed the same way, each the
-best of ``--repeat`` runs after one warm-up on a small grid (so neither pays numba's compilation). Both on the CPU in one process; the GPU path is not timed here (no GPU).
+best of ``--repeat`` runs after one warm-up on a small grid (so neither pays numba's compilation). Both on the
+CPU in one process; the GPU path is not timed here (no GPU).
 """
 
 from __future__ import annotations
