@@ -65,6 +65,18 @@ def test_flow_columns_in_the_store(tmp_path):
     with h5py.File(tmp_path / "s.h5", "r") as f:
         assert json.loads(f.attrs[schema.PLUGIN_COLUMNS])[0] == ["leak_rate", "float"]
         assert schema.layout_of(f.attrs["format_version"], f["results"].dtype, False, True).name == "4"
+    # the xarray view and the netCDF export carry them (the flag as 0/1, its long name from the plug-in)
+    pytest.importorskip("xarray")
+    ds = store.to_dataset(tmp_path / "s.h5")
+    lr = ds["gfmd_leak_rate"].squeeze().values
+    np.testing.assert_array_equal(lr, df.leak_rate.to_numpy())
+    assert list(ds["gfmd_percolating"].squeeze().values) == list(df.percolating.astype(float))
+    assert "contact seals" in ds["gfmd_percolating"].attrs["long_name"]
+    nc = store.export_netcdf(tmp_path / "s.h5", tmp_path / "s.nc")
+    import xarray as xr
+
+    with xr.open_dataset(nc) as back:
+        np.testing.assert_array_equal(back["gfmd_conductance"].squeeze().values, df.conductance.to_numpy())
     # resume (nothing to do) and merge keep the columns
     runner.run(job, tmp_path / "s.h5", mpi="off", progress="none", resume=True)
     store.merge([tmp_path / "s.h5"], tmp_path / "m.h5")
