@@ -51,6 +51,8 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--out", type=Path, default=Path("benchmarks/results/flow/bench_flow.json"))
     a = ap.parse_args()
+    # the commit the run starts from (read now: HEAD may move while a long run goes on)
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     one(32, a.sigma0, 1)  # warm-up: numba's compilation, pyamg's import
     rows = []
     for n in a.n:
@@ -62,7 +64,6 @@ def main() -> None:
         amg = pyamg.__version__
     except ImportError:
         amg = None
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     out = {"what": "flow solve vs the hard-wall contact solve that made the gap, same map, CPU, one process",
            "command": "python benchmarks/bench_flow.py " + " ".join(sys.argv[1:]), "commit": commit,
            "machine": f"{platform.node()} {platform.machine()} {platform.processor()}, 2 cores shared",

@@ -66,6 +66,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--steps", type=int, default=10)
     ap.add_argument("--out", type=Path, default=Path("docs/results/flow/percolation.json"))
     a = ap.parse_args(argv)
+    # the commit the run starts from (read now: HEAD may move while a long run goes on)
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     rows, summary = [], []
     for n in a.sizes:
         t0 = time.perf_counter()
@@ -79,7 +81,6 @@ def main(argv: list[str] | None = None) -> None:
                         "sem": float(x.std(ddof=1) / math.sqrt(x.size)) if x.size > 1 else math.nan,
                         "min": float(x.min()), "max": float(x.max()), "seconds": time.perf_counter() - t0})
         print(json.dumps(summary[-1]), flush=True)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
     out = {"what": "relative contact area where the non-contact area stops percolating (hard wall, GFMD)",
            "reference": "Dapp, Lucke, Persson & Muser, PRL 108, 244301 (2012): about 0.42",
            "command": "python -m studies.percolation " + " ".join(sys.argv[1:] if argv is None else argv),
