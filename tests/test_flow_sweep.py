@@ -131,3 +131,26 @@ def test_plugin_column_dtypes():
     with pytest.raises(ValueError, match="column of the store itself"):
         base.register(Bad)
     assert "bad_cols" not in base._REGISTRY
+
+
+def test_flow_on_a_measured_map_with_free_boundaries(tmp_path):
+    """The shipped leakage_measured job at one load: a non-periodic map in um and MPa, GFMD with free boundaries,
+    the flow with closed sides along axis 0; the row equals flow.solve(periodic=False) on the same gap, in the
+    job's units (mu = 1e-9 MPa s, dp = 0.1 MPa)."""
+    from gapsweep import jobs, topography
+
+    text = jobs.path("leakage_measured").read_text().replace("sigma0 = [1.0, 2.0, 3.0, 5.0, 7.0, 10.0, 14.0, 20.0]",
+                                                            "sigma0 = [5.0]")
+    assert "sigma0 = [5.0]" in text
+    folder = jobs.path("leakage_measured").parent  # the map lives beside the shipped job
+    p = tmp_path / "job.toml"
+    p.write_text(text.replace('path = "data/', f'path = "{folder}/data/'))
+    runner.run(p, tmp_path / "m.h5", mpi="off", progress="none")
+    row = store.read(tmp_path / "m.h5").query("method == 'gfmd'").iloc[0]
+    assert row.status == "done" and row.percolating == 1
+    topo = topography.load(folder / "data" / "measured_tilted_192x128.npz", key="heights", unit="um",
+                           pixel_size=0.5, detrend="plane")
+    r = gfmd.solve(topo, sigma0=5.0, e_star=1000.0, interaction="hard_wall", tol=1e-8)
+    f = flow.solve(r.gap, length=topo.length, axis=0, viscosity=1e-9, pressure_drop=0.1, periodic=False)
+    assert not topo.periodic and row.leak_rate == pytest.approx(f.leak_rate, rel=1e-6)
+    assert row.conductance == pytest.approx(f.leak_rate * topo.length[0] / 0.1, rel=1e-6)
