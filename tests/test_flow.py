@@ -288,3 +288,24 @@ def test_bad_gap():
         flow.solve(np.ones(5))
     with pytest.raises(TypeError, match="gap"):
         flow.solve("gap")
+
+
+def test_theories_from_persson_gap_distribution():
+    """Persson's gap distribution (points and contact atom) feeds both estimates: positive below the thresholds,
+    falling with the load, 0 from the critical-junction threshold on; the critical gap reproduces the threshold
+    through the cumulative distribution of the points (trapezoid rule)."""
+    from gapsweep.theory import persson
+
+    kw = dict(hurst=0.8, lambda_l=0.5, lambda_s=1 / 32, rms_slope=0.1)
+    h_rms = surface.continuum_rms_height(0.8, lambda_l=0.5, lambda_s=1 / 32, rms_slope=0.1)
+    u = np.linspace(0.0, 8 * h_rms, 1601)[1:]
+    out = []
+    for s0 in (1e-3, 1e-2):
+        d, atom = persson.gap_distribution(u, s0, **kw)
+        assert 0 < atom < 0.42
+        gc = flow.critical_gap(u, d, atom)
+        # the closed fraction up to g_c is the threshold (trapezoid CDF of the normalised open density)
+        cdf = atom + (1 - atom) * np.trapezoid(np.where(u <= gc, d, 0.0), u) / np.trapezoid(d, u)
+        assert cdf == pytest.approx(0.42, abs=2e-3)
+        out.append((flow.bruggeman(u, d, atom), flow.critical_junction(u, d, atom)))
+    assert out[0][0] > out[1][0] > 0 and out[0][1] > out[1][1] > 0

@@ -154,3 +154,14 @@ def test_flow_on_a_measured_map_with_free_boundaries(tmp_path):
     f = flow.solve(r.gap, length=topo.length, axis=0, viscosity=1e-9, pressure_drop=0.1, periodic=False)
     assert not topo.periodic and row.leak_rate == pytest.approx(f.leak_rate, rel=1e-6)
     assert row.conductance == pytest.approx(f.leak_rate * topo.length[0] / 0.1, rel=1e-6)
+
+
+def test_flow_enters_cost_and_memory_estimates():
+    from gapsweep.sweep import tasks
+
+    on, off = spec.loads(JOB.format(flow="flow = true")), spec.loads(JOB.format(flow=""))
+    ton, toff = tasks.expand(on)[0], tasks.expand(off)[0]
+    g = methods.get("gfmd")
+    assert g.cost(ton) == pytest.approx(g.cost(toff) + 3e-5 * 32 * 32)
+    assert g.memory(ton) > g.memory(toff)
+    assert ton.task_id != toff.task_id and ton.opt("ext.flow") and toff.opt("ext.flow") is None

@@ -172,6 +172,14 @@ class Extension:
         refuse combinations it cannot serve). Raise ``SpecError`` naming ``key``."""
         raise NotImplementedError
 
+    def cost(self, t: Task, options: dict[str, Any]) -> float:
+        """Rough wall time it adds to one row of the host on one CPU core [s] (scheduling, ``gapsweep plan``)."""
+        return 0.0
+
+    def memory(self, t: Task, options: dict[str, Any]) -> float:
+        """Peak working memory it needs beside the host's result [bytes]."""
+        return 0.0
+
     def compute(self, t: Task, options: dict[str, Any], result: Any) -> tuple[dict[str, float], str]:
         """The values of its columns for one row of the host (``result``: the host's solver result) and a
         problem ("" none; else the row is not counted as done and the message says why)."""
@@ -236,6 +244,17 @@ def register_extension(cls: type[Extension]) -> type[Extension]:
 def extensions(host: str) -> dict[str, Extension]:
     """The extensions of method ``host`` by name, in name order."""
     return {k: _EXTENSIONS[k] for k in sorted(_EXTENSIONS) if _EXTENSIONS[k].host == host}
+
+
+def extension_cost(t: Task) -> tuple[float, float]:
+    """(seconds, bytes) the task's switched-on extensions add to its host's cost and memory estimates."""
+    sec = mem = 0.0
+    for name, e in extensions(t.method).items():
+        raw = t.opt(f"ext.{name}")
+        if raw:
+            o = json.loads(raw)
+            sec, mem = sec + e.cost(t, o), max(mem, e.memory(t, o))
+    return sec, mem
 
 
 def extend_row(t: Task, result: Any, row: TaskResult) -> TaskResult:
