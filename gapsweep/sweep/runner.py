@@ -168,7 +168,7 @@ def plan(job: str | Path | specmod.JobSpec, shard: tuple[int, int] | None = None
     longest = max((u.cost for u in units), default=0.0)
     lines.append(f"  estimated cost ~{total:.1f} core-s; on {ranks} rank(s) ~{max(total / ranks, longest):.1f} s "
                  "wall (rough model, see docs/jobs.md)")
-    size = budget.store_bytes(len(tasks), spec.histogram["bins"], len(spec.text))
+    size = budget.store_bytes(len(tasks), spec.histogram["bins"], len(spec.text), len(registry.job_columns(spec)))
     lines.extend(_check_resources(tasks, ranks_per_gpu))
     lines.extend(_check_collective(tasks, ranks))  # distributed tasks: their slabs on `ranks` ranks
     lines.extend(_propose(units))
@@ -250,7 +250,7 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
     On resume the store is validated (docs/reliability.md): pending rows, rows of unknown status and done rows
     without a complete result are run again."""
     if not path.exists() or overwrite:
-        size = budget.store_bytes(len(tasks), spec.histogram["bins"], len(spec.text))
+        size = budget.store_bytes(len(tasks), spec.histogram["bins"], len(spec.text), len(registry.job_columns(spec)))
         free = budget.disk_free(path.parent)
         if size > free:
             raise RunError(f"store {path}: needs ~{budget.human(size)}, only {budget.human(free)} free there")
