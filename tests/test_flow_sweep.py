@@ -165,3 +165,44 @@ def test_flow_enters_cost_and_memory_estimates():
     assert g.cost(ton) == pytest.approx(g.cost(toff) + 3e-5 * 32 * 32)
     assert g.memory(ton) > g.memory(toff)
     assert ton.task_id != toff.task_id and ton.opt("ext.flow") and toff.opt("ext.flow") is None
+
+
+def test_a_method_declares_columns_for_some_jobs_only(tmp_path):
+    """A method's own columns may depend on the job (Method.job_own_columns): here a theory-like toy method adds
+    a column only for the hard-wall law; its values reach the store and the view, other jobs keep the built-in
+    table."""
+    from gapsweep.sweep.methods import base
+
+    class Toy(base.Method):
+        name = "toy_cols"
+        order = 50
+        own_columns = {"toy_area": schema.Column("float", "a toy quantity"),  # noqa: RUF012
+                       "toy_flag": schema.Column("int", "a toy flag")}
+
+        def job_own_columns(self, spec):
+            return dict(self.own_columns) if spec.law == "hard_wall" else {}
+
+        def expand(self, spec):
+            yield from base.grid_tasks(spec, self.name, seeds=[0], with_hist=False)
+
+        def cost(self, t):
+            return 1e-4
+
+        def run(self, t, ctx, prev):
+            return schema.TaskResult("done", "", {"toy_area": 2 * t.sigma0, "toy_flag": 1}), None
+
+    base.register(Toy)
+    try:
+        text = JOB.format(flow="").replace("[methods.gfmd]\nn = 32\ntol = 1e-8\nbackend = \"numpy\"\n",
+                                           "[methods.toy_cols]\n")
+        p = tmp_path / "job.toml"
+        p.write_text(text)
+        assert methods.job_columns(spec.load(p)) == [("toy_area", "float"), ("toy_flag", "int")]
+        runner.run(p, tmp_path / "t.h5", mpi="off", progress="none")
+        df = store.read(tmp_path / "t.h5")
+        assert list(df.toy_area) == [2 * s for s in df.sigma0] and list(df.toy_flag) == [1, 1, 1]
+        exp = spec.loads(text.replace('[interaction]\nkind = "hard_wall"\n', "").replace(
+            "hurst = 0.8\n", "hurst = 0.8\nrho = 0.01\n"))
+        assert methods.job_columns(exp) == []
+    finally:
+        base._REGISTRY.pop("toy_cols", None)

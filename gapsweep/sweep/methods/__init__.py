@@ -69,7 +69,10 @@ def job_columns(spec: JobSpec) -> list[tuple[str, str]]:
     for name, m in all_methods().items():
         if name not in spec.methods:
             continue
-        cols = dict(m.own_columns)
+        cols = m.job_own_columns(spec)
+        undeclared = [k for k in cols if k not in m.own_columns]
+        if undeclared:
+            raise ValueError(f"method {name!r}: job_own_columns returned {undeclared}, not in its own_columns")
         for ename, e in extensions(name).items():
             if spec.methods[name].get(f"ext.{ename}"):
                 cols.update(e.own_columns)

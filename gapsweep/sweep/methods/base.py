@@ -101,6 +101,12 @@ class Method:
     select: str | None = None  # the option ("n" or "c2") of which the dataset view keeps one value
     extra_target: tuple[str, str, tuple[str, ...]] | None = None  # (module, function, keys the sweep sets)
 
+    def job_own_columns(self, spec: JobSpec) -> dict[str, Column]:
+        """The own columns this method's rows have in ``spec``'s store: ``own_columns`` (default). A method whose
+        columns depend on the job (a quantity of one interaction law only) returns those the job needs, so other
+        jobs' stores stay as they were; each must still be declared in ``own_columns`` (checked at registration)."""
+        return dict(self.own_columns)
+
     # -- validation --------------------------------------------------------------------------------------
     def validate(self, key: str, t: dict[str, Any], env: Env) -> dict[str, Any]:
         """The method's own options of ``[methods.<name>]`` (table ``t``), checked and with defaults filled in.
