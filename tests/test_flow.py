@@ -309,3 +309,15 @@ def test_theories_from_persson_gap_distribution():
         assert cdf == pytest.approx(0.42, abs=2e-3)
         out.append((flow.bruggeman(u, d, atom), flow.critical_junction(u, d, atom)))
     assert out[0][0] > out[1][0] > 0 and out[0][1] > out[1][1] > 0
+
+
+@pytest.mark.parametrize("solver", ["cg", "amg"])
+def test_not_converged_is_reported(solver, caplog):
+    """An iterative solve stopped before tol says so (converged False, a warning), never a silent success."""
+    rng = np.random.default_rng(11)
+    g = np.exp(gaussian_filter(rng.normal(size=(64, 64)), 2, mode="wrap") * 3)
+    with caplog.at_level("WARNING", logger="gapsweep.flow"):
+        r = flow.solve(g, solver=solver, max_iter=2, tol=1e-12)
+    assert not r.converged and r.residual > 1e-11 and "not converged" in caplog.text
+    ok = flow.solve(g, solver=solver, tol=1e-10)
+    assert ok.converged and ok.conductance == pytest.approx(flow.solve(g, solver="direct").conductance, rel=1e-7)

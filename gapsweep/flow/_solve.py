@@ -307,9 +307,11 @@ def _linear_solve(A: sp.csr_matrix, b: np.ndarray, diag: np.ndarray, *, tol: flo
                   solver: str, gpu: bool) -> tuple[np.ndarray, int, str, str]:
     """Solve the SPD system ``A x = b``: (solution, iterations, solver name, backend)."""
     m = A.shape[0]
+    # defaults: AMG-CG's iterations stay flat with the grid; Jacobi-CG's grow with its side
     maxit = max_iter if max_iter is not None else max(1000, 10 * int(math.sqrt(m)) + 200)
+    maxit_cg = max_iter if max_iter is not None else 20 * int(math.sqrt(m)) + 1000
     if gpu:
-        return (*_gpu_cg(A, b, diag, tol=tol, max_iter=max(maxit, 20 * int(math.sqrt(m)) + 1000)), "cupy")
+        return (*_gpu_cg(A, b, diag, tol=tol, max_iter=maxit_cg), "cupy")
     if solver == "auto":
         if m <= DIRECT_MAX:
             solver = "direct"
@@ -345,7 +347,7 @@ def _linear_solve(A: sp.csr_matrix, b: np.ndarray, diag: np.ndarray, *, tol: flo
 
     def cb(_: Any) -> None:
         count[0] += 1
-    y, _info = cg(As, b * s, rtol=tol, atol=0.0, maxiter=max(maxit, 20 * int(math.sqrt(m)) + 1000), callback=cb)
+    y, _info = cg(As, b * s, rtol=tol, atol=0.0, maxiter=maxit_cg, callback=cb)
     return np.asarray(y) * s, count[0], "cg", "numpy"
 
 
