@@ -206,3 +206,19 @@ def test_a_method_declares_columns_for_some_jobs_only(tmp_path):
         assert methods.job_columns(exp) == []
     finally:
         base._REGISTRY.pop("toy_cols", None)
+
+
+def test_unconverged_flow_makes_the_row_not_converged(tmp_path, monkeypatch):
+    """A flow solve that stops short of its tolerance is never stored as done: the row is not_converged and its
+    message says why (here forced: Jacobi CG with one iteration); a sealed row (nothing to solve) stays done."""
+    import gapsweep.flow
+
+    orig = gapsweep.flow.solve
+    monkeypatch.setattr(gapsweep.flow, "solve", lambda *a, **k: orig(*a, **{**k, "solver": "cg", "max_iter": 1}))
+    runner.run(_job(tmp_path, "flow = true"), tmp_path / "u.h5", mpi="off", progress="none")
+    df = store.read(tmp_path / "u.h5").sort_values("sigma0")
+    leaks = df[df.percolating == 1]
+    assert len(leaks) >= 1 and (leaks.status == "not_converged").all()
+    assert leaks.message.str.startswith("flow: flow solve not converged").all()
+    sealed = df[df.percolating == 0]
+    assert len(sealed) >= 1 and (sealed.status == "done").all()
