@@ -222,3 +222,22 @@ def test_unconverged_flow_makes_the_row_not_converged(tmp_path, monkeypatch):
     assert leaks.message.str.startswith("flow: flow solve not converged").all()
     sealed = df[df.percolating == 0]
     assert len(sealed) >= 1 and (sealed.status == "done").all()
+
+
+def test_report_has_the_leak_figure(tmp_path):
+    """`gapsweep report` of a store with the flow columns draws conductance against load with the two
+    estimates (analysis/leak.py); its table holds the store's own means over seeds."""
+    from gapsweep.analysis import leak, report
+
+    runner.run(_job(tmp_path, "flow = true"), tmp_path / "s.h5", mpi="off", progress="none")
+    out = tmp_path / "rep"
+    text = report.main([tmp_path / "s.h5"], out).read_text()
+    import pandas as pd
+
+    figs = set(pd.read_csv(out / "figures.csv")["figure"])
+    assert "leak_flow_test" in figs and (out / "leak_flow_test.png").is_file() and "Leak conductance" in text
+    df = store.read(tmp_path / "s.h5").assign(job="flow-test")
+    t = leak.table(df, "flow-test")
+    g = df[df.method == "gfmd"].sort_values("sigma0")
+    np.testing.assert_array_equal(t.conductance.to_numpy(), g.conductance.to_numpy())
+    assert not leak.has_flow(df.drop(columns=["conductance"]), "flow-test")
