@@ -45,9 +45,9 @@ __all__ = ["FlowResult", "open_clusters", "solve"]
 
 BACKENDS = ("auto", "numpy", "cupy")
 SOLVERS = ("auto", "amg", "direct", "cg")
-# Up to this many unknowns (a 256^2 map) a direct sparse factorisation (SuperLU) is used: on a hard-wall gap of
-# 256^2 it took 1.1 s against 2.2 s for AMG-CG to 1e-10 (this machine, one thread; benchmarks/bench_flow.py
-# times the solver "auto" picks).
+# Up to this many unknowns (a 256^2 map) a direct sparse factorisation (SuperLU) is used: in exploratory runs on a
+# hard-wall gap of 256^2 it took about half the time of AMG-CG with its setup (benchmarks/bench_flow.py times the
+# solver "auto" picks, docs/benchmarks.md).
 DIRECT_MAX = 70_000
 
 
@@ -330,10 +330,11 @@ def _linear_solve(A: sp.csr_matrix, b: np.ndarray, diag: np.ndarray, *, tol: flo
         from gapsweep.core.extras import require
 
         pyamg = require("pyamg", "the flow solve's multigrid preconditioner (solver='amg')")
-        # On the unscaled matrix: with a symmetric Jacobi scaling first, AMG-CG needed 450 iterations instead
-        # of 56 on a lognormal gap (512^2, ln g of unit variance, pyamg 5.4). The evolution strength measure
-        # follows the decades of g^3 near contact edges: 23 iterations against 124 (default measure) and 193
-        # (classical Ruge-Stuben) on a hard-wall GFMD gap (256^2, 20% contact).
+        # On the unscaled matrix, with the evolution strength measure (exploratory runs, pyamg 5.4): a symmetric
+        # Jacobi scaling first made AMG-CG need about 8x the iterations on a lognormal gap (512^2); the evolution
+        # measure follows the decades of g^3 near contact edges, about 5x fewer iterations than the default
+        # measure and 8x fewer than classical Ruge-Stuben on a hard-wall GFMD gap (256^2, 20% contact); energy
+        # smoothing, root-node aggregation, W-cycles and Jacobi smoothing were slower (docs/benchmarks.md).
         ml = pyamg.smoothed_aggregation_solver(A, symmetry="symmetric", strength="evolution", max_coarse=500)
         res: list[float] = []
         y = ml.solve(b, tol=tol, maxiter=maxit, accel="cg", residuals=res)
