@@ -5,9 +5,10 @@ conductance from a gap distribution (:mod:`gapsweep.flow.theory`).
 
 A physics package: it imports numpy, scipy and gapsweep.core only (pyamg and cupy optionally), never the sweep.
 
-    >>> from gapsweep import flow
-    >>> r = flow.solve(gap, length=1.0, axis=1, viscosity=1e-3, pressure_drop=1e5)
-    >>> r.leak_rate, r.conductance, r.percolating
+    from gapsweep import flow, gfmd
+    res = gfmd.solve(heights, sigma0=1e-2, interaction="hard_wall")
+    r = flow.solve(res.gap, length=1.0, axis=1, viscosity=1e-3, pressure_drop=1e5)
+    r.leak_rate, r.conductance, r.percolating
 """
 
 from gapsweep.flow._solve import FlowResult, open_clusters, solve
