@@ -15,7 +15,7 @@ import gapsweep
 
 PKG = Path(gapsweep.__file__).resolve().parent
 PHYSICS = ("gapsweep.core", "gapsweep.surfaces", "gapsweep.gfmd", "gapsweep.theory", "gapsweep.gapdist",
-           "gapsweep.reference")
+           "gapsweep.flow", "gapsweep.reference")
 
 
 def _module_name(path: Path) -> str:

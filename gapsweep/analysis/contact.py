@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from gapsweep.analysis import figures
+from gapsweep.analysis import figures, leak
 from gapsweep.theory import persson
 
 __all__ = ["CONTACT_LAWS", "Labels", "fig_contact", "fig_distributions", "fig_map", "is_contact", "job_info",
@@ -680,6 +680,10 @@ def plan(df: pd.DataFrame, hists: Mapping[str, tuple], phists: Mapping[str, tupl
                            + ("hard-wall theory" if law != "hard_wall" else "map not found")) + ")",
                         lambda job=job, a=a, info=info: fig_distributions(df, hists, phists, job=job,
                                                                           note=note(a, job), info=info)))
+        if leak.has_flow(df, job):  # the flow extension's columns (docs/model.md M8)
+            out.append((f"leak_{tag}", f"Leak conductance against pressure, {law} (job {job}; the flow solve on "
+                        "the GFMD gaps, Bruggeman and critical junction from their gap histograms)",
+                        lambda job=job, a=a, info=info: leak.fig_leak(df, job=job, info=info, note=note(a, job))))
         if info.get("heights") is not None or info.get("store") or (info.get("has_spec") and not info.get("file")):
             f = map_fields(df, job, info)
             if f["note"]:

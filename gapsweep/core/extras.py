@@ -13,6 +13,7 @@ runs sweeps in one process and writes reports. Everything else is an extra of ``
 | ``xarray`` | xarray, h5netcdf | ``store.to_dataset``, ``gapsweep export`` (netCDF4 via h5netcdf), kept fields |
 | ``topography`` | SurfaceTopography | height maps in SurfaceTopography's formats; peer-code surfaces |
 | ``progress`` | tqdm | a progress bar on a terminal (log lines otherwise) |
+| ``flow`` | pyamg | the multigrid preconditioner of the leak-rate solve (``gapsweep.flow``; Jacobi CG otherwise) |
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ EXTRAS: dict[str, tuple[str, str]] = {
     "h5netcdf": ("h5netcdf", "xarray"),
     "SurfaceTopography": ("SurfaceTopography", "topography"),
     "tqdm": ("tqdm", "progress"),
+    "pyamg": ("pyamg", "flow"),
 }
 
 

@@ -18,10 +18,12 @@ CUDA_CONTEXT = 0.5e9  # a CUDA context and cupy's pools per process on the GPU [
 TASK_LIST_BYTES = 1600  # one expanded Task with its options, on every rank (measured: ~1.5 kB) [bytes]
 
 
-def store_bytes(n_tasks: int, bins: int, spec_text_len: int = 0) -> int:
-    """Size of a store of ``n_tasks`` rows and ``bins`` histogram bins: all datasets are allocated at
-    creation (docs/store.md), plus attributes and HDF5 metadata [bytes]."""
-    per_row = TASK_DTYPE.itemsize + RESULT_DTYPE.itemsize + 2 * (2 * bins + 1) * 8  # gap + pressure histograms
+def store_bytes(n_tasks: int, bins: int, spec_text_len: int = 0, plugin_columns: int = 0) -> int:
+    """Size of a store of ``n_tasks`` rows and ``bins`` histogram bins (and ``plugin_columns`` 8-byte plug-in
+    columns, docs/store.md): all datasets are allocated at creation (docs/store.md), plus attributes and HDF5
+    metadata [bytes]."""
+    per_row = (TASK_DTYPE.itemsize + RESULT_DTYPE.itemsize + 8 * plugin_columns
+               + 2 * (2 * bins + 1) * 8)  # gap + pressure histograms
     return int(n_tasks * per_row + 2 * spec_text_len + 64 * 1024)
 
 

@@ -62,7 +62,27 @@ _LEN = {"units": "1", "reference_unit": "L"}
 def _variables() -> dict[str, tuple[dict[str, tuple[str, str, dict[str, str]]], tuple[str, ...], str | None]]:
     """Per method: store column -> (variable, long_name, unit attributes), the seed-free columns and the option
     of which one value is kept (the method plug-ins declare them, gapsweep.sweep.methods)."""
-    return {name: (m.variables, m.seed_free, m.select) for name, m in registry.all_methods().items()}
+    out = {}
+    for name, m in registry.all_methods().items():
+        cols = dict(m.variables)
+        # plug-in columns (docs/store.md "Plug-in columns"): the method's own and its extensions', named
+        # <method>_<column> unless the plug-in names the variable itself
+        own = {**m.own_columns, **{k: c for e in registry.extensions(name).values() for k, c in e.own_columns.items()}}
+        for e in registry.extensions(name).values():
+            cols.update(e.variables)
+        for k, c in own.items():
+            cols.setdefault(k, (f"{name}_{k}", c.description, c.units))
+        out[name] = (cols, m.seed_free, m.select)
+    return out
+
+
+def _int_columns() -> set[str]:
+    """Integer columns whose -1 means "not computed" (NaN in the view): built-in ones and plug-ins' "int" ones."""
+    out = {"iterations", "flags"}
+    for name, m in registry.all_methods().items():
+        for cols in (m.own_columns, *(e.own_columns for e in registry.extensions(name).values())):
+            out.update(k for k, c in cols.items() if c.kind == "int")
+    return out
 
 
 STATUS_FLAGS = dict(STATUS)
@@ -104,6 +124,7 @@ def from_frame(df: Any, *, n: int | None = None, c2: float | None = None, attrs:
     index = {k: {v: i for i, v in enumerate(c)} for k, c in coords.items()}
     ds_attrs: dict[str, Any] = {}
     data: dict[str, Any] = {}
+    ints = _int_columns()
     for method, (cols, seed_free, select) in _variables().items():
         sub = df[df["method"].astype(str) == method]
         if sub.empty:
@@ -116,7 +137,7 @@ def from_frame(df: Any, *, n: int | None = None, c2: float | None = None, attrs:
             if col not in sub:
                 continue
             vals = pd.to_numeric(sub[col], errors="coerce").to_numpy(float)
-            if col in ("iterations", "flags"):
+            if col in ints:
                 vals = np.where(vals < 0, np.nan, vals)
             if not np.isfinite(vals[done]).any():
                 continue

@@ -15,9 +15,10 @@ from typing import Any
 import numpy as np
 
 from gapsweep.sweep import lease, outputs, provenance, storecheck
+from gapsweep.sweep import methods as registry
 from gapsweep.sweep import spec as specmod
 from gapsweep.sweep import tasks as tasksmod
-from gapsweep.sweep.schema import PRESSURE_HIST, STATUS, STATUS_NAMES, VOLATILE, StoreError
+from gapsweep.sweep.schema import PRESSURE_HIST, STATUS, STATUS_NAMES, VOLATILE, StoreError, results_dtype
 from gapsweep.sweep.store import Store, _same, empty_results, open_read, read, read_attrs, seal, upgrade_results
 
 __all__ = ["CONFLICT_CHOICES", "merge"]
@@ -62,14 +63,14 @@ def _not_own_merge(out: Path, sha: str, done: set[str]) -> str | None:
 
 
 def _write(tmp: Path, out: Path, tasks: list, attrs: dict, bins: int, results: np.ndarray,
-           hists: tuple[np.ndarray, ...]) -> None:
+           hists: tuple[np.ndarray, ...], columns: Sequence[tuple[str, str]] = ()) -> None:
     """Write the merged store under its temporary name. A write error (full disk, file-size limit) is one line
     naming the output; the file is then not closed -- HDF5 crashes closing or releasing a file whose write failed
     (issue 31) -- and the CLI leaves with os._exit (store.write_failed)."""
     from gapsweep.sweep.store import StoreWriteError, write_failed
 
     try:
-        st = Store.create(tmp, tasks, attrs, bins)
+        st = Store.create(tmp, tasks, attrs, bins, columns=columns)
     except StoreWriteError as e:
         raise StoreWriteError(f"merge --out {out}: cannot be written ({str(e).split(' failed ', 1)[-1].strip()}); "
                               "nothing was written, the shards are untouched") from None
@@ -134,7 +135,9 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
                                                         "runs": json.dumps(runs)})
     attrs["spec_sha256"] = metas[0]["spec_sha256"]
     bins = js.histogram["bins"]
-    results = empty_results(len(tasks))
+    columns = registry.job_columns(js)  # the job's plug-in columns (docs/store.md "Plug-in columns")
+    rdtype = results_dtype(columns)
+    results = empty_results(len(tasks), rdtype)
     edges = np.full((len(tasks), bins + 1), np.nan)
     dens = np.full((len(tasks), bins), np.nan)
     pedges = np.full((len(tasks), bins + 1), np.nan)
@@ -152,7 +155,7 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
                 raise StoreError(f"merge: {s} has {f['histograms/density'].shape[1]} histogram bins, the job {bins}")
             ids = [x.decode("utf-8", "replace") for x in f["tasks"].fields("task_id")[...]]
             old_rms = "h_rms_spectrum" not in f["results"].dtype.names
-            r = upgrade_results(f["results"][...])  # a format-1 shard: by column name
+            r = upgrade_results(f["results"][...], rdtype)  # a format-1 shard: by column name
             if old_rms and js.surface.get("kind") == "file":
                 r = _map_rms_to_format5(r, js.surface, map_rms)
             e, d = f["histograms/edges"][...], f["histograms/density"][...]
@@ -201,7 +204,7 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
         _guard(outp, shards, overwrite, lambda o: _not_own_merge(o, metas[0]["spec_sha256"], done))
         tmp = outp.with_name(f".{outp.name}.tmp-{os.getpid()}")
         try:
-            _write(tmp, outp, tasks, attrs, bins, results, (edges, dens, pedges, pdens))
+            _write(tmp, outp, tasks, attrs, bins, results, (edges, dens, pedges, pdens), columns)
             os.replace(tmp, outp)
         except BaseException:
             tmp.unlink(missing_ok=True)

@@ -172,7 +172,7 @@ def plan(job: str | Path | specmod.JobSpec, shard: tuple[int, int] | None = None
     longest = max((u.cost for u in units), default=0.0)
     lines.append(f"  estimated cost ~{total:.1f} core-s; on {ranks} rank(s) ~{max(total / ranks, longest):.1f} s "
                  "wall (rough model, see docs/jobs.md)")
-    size = budget.store_bytes(len(tasks), spec.histogram["bins"], len(spec.text))
+    size = budget.store_bytes(len(tasks), spec.histogram["bins"], len(spec.text), len(registry.job_columns(spec)))
     lines.extend(_check_resources(tasks, ranks_per_gpu))
     lines.extend(_check_collective(tasks, ranks))  # distributed tasks: their slabs on `ranks` ranks
     lines.extend(_propose(units))
@@ -254,7 +254,7 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
     On resume the store is validated (docs/reliability.md): pending rows, rows of unknown status and done rows
     without a complete result are run again."""
     if not path.exists() or overwrite:
-        size = budget.store_bytes(len(tasks), spec.histogram["bins"], len(spec.text))
+        size = budget.store_bytes(len(tasks), spec.histogram["bins"], len(spec.text), len(registry.job_columns(spec)))
         free = budget.disk_free(path.parent)
         if size > free:
             raise RunError(f"store {path}: needs ~{budget.human(size)}, only {budget.human(free)} free there")
@@ -771,7 +771,8 @@ class _Run:
         if self.wmode == "mpio" or rank == 0:
             with self.stop.critical():
                 self.st = _open_store(self.path, self.mode, self.tasks, attrs, self.spec.histogram["bins"],
-                                      comm if self.wmode == "mpio" else None, rank, self.run_id)
+                                      comm if self.wmode == "mpio" else None, rank, self.run_id,
+                                      registry.job_columns(self.spec))
                 if self.held is not None:  # the file opened is the one leased (issue 19: keyed by device and inode)
                     self.held.bind(self.path)
                 if self.mode == "resume":  # every byte of a re-run row is written again, NaN histograms included
@@ -921,14 +922,14 @@ def _interrupted(signum: int, counts: dict[str, int]) -> dict[str, Any]:
 
 
 def _open_store(path: Path, mode: str, tasks: list[Task], attrs: dict[str, Any], bins: int, comm: Any, rank: int,
-                run_id: str) -> Store:
+                run_id: str, columns: Sequence[tuple[str, str]] = ()) -> Store:
     """Open the store for writing; a new one is created under a temporary name and renamed into place
     (collectively under mpio), so that a store path never holds a half-created file."""
     if mode == "create":
         tmp = path.with_name(f".{path.name}.tmp-{run_id}")
         try:
             try:
-                Store.create(tmp, tasks, attrs, bins, comm=comm).close()
+                Store.create(tmp, tasks, attrs, bins, comm=comm, columns=columns).close()
             except StoreWriteError as e:
                 raise StoreWriteError(f"store {path}: cannot be created ({str(e).split(': ', 1)[-1]}); "
                                       "nothing was written") from None

@@ -32,9 +32,11 @@ __all__ = [
     "INTEGRITY",
     "INT_RESULTS",
     "LAYOUTS",
+    "PLUGIN_COLUMNS",
     "RESULT_DTYPE",
     "STATUS",
     "TASK_DTYPE",
+    "Column",
     "JobSpec",
     "Layout",
     "SpecError",
@@ -47,6 +49,8 @@ __all__ = [
     "integrity_record",
     "layout_of",
     "make_task",
+    "plugin_columns_of",
+    "results_dtype",
     "task_id",
 ]
 
@@ -141,6 +145,32 @@ FLOAT_RESULTS = (
     "h_rms_spectrum", "g_rms_spectrum",
 )
 INT_RESULTS = ("iterations", "count", "rank", "flags")
+# Columns a plug-in declares itself (a method's or an extension's ``own_columns``; docs/store.md "Plug-in
+# columns"): appended after the columns above in the stores of the jobs that use the plug-in, listed in the store's
+# attribute PLUGIN_COLUMNS. A job that uses no such plug-in writes exactly the table above.
+PLUGIN_COLUMNS = "plugin_columns"
+_PLUGIN_KINDS = {"float": "f8", "int": "i8"}
+
+
+@dataclass(frozen=True)
+class Column:
+    """A store column declared by a plug-in: ``kind`` "float" (float64, NaN where not computed) or "int" (int64,
+    -1 where not computed; a flag is 0/1), a one-line ``description`` (the xarray view's long name) and the
+    view's unit attributes (``{"units": "1"}``, or with ``reference_unit``)."""
+
+    kind: str
+    description: str
+    units: dict[str, str] = field(default_factory=lambda: {"units": "1"})
+
+    def __post_init__(self) -> None:
+        if self.kind not in _PLUGIN_KINDS:
+            raise ValueError(f"Column kind must be one of {sorted(_PLUGIN_KINDS)}, got {self.kind!r}")
+
+    @property
+    def dtype(self) -> str:
+        return _PLUGIN_KINDS[self.kind]
+
+
 # Bits of the ``flags`` column (GFMD rows; 0 = none, -1 = not a GFMD row): a jump along the load path (adhesion)
 # and detachment (adhesion beyond pull-off: no equilibrium in contact, the row is not_converged). docs/store.md.
 FLAG_JUMP = 1
@@ -337,11 +367,46 @@ def layout_of(version: Any, results: np.dtype, checksums_dataset: bool, integrit
         v = int(version)
     except (TypeError, ValueError):
         v = None
+    if results not in RESULT_DTYPES and plugin_columns_of(results):  # plug-in columns came with format 5
+        if not integrity or (v is not None and v < 5):
+            return None
+        results = RESULT_DTYPE
     for x in LAYOUTS:
         if (x.results == results and x.integrity == integrity
                 and (x.row_checksums == "dataset") == checksums_dataset and (v is None or v == x.version)):
             return x
     return None
+
+
+def results_dtype(plugin: Sequence[tuple[str, str]] = ()) -> np.dtype:
+    """The ``/results`` table of a new store: :data:`RESULT_DTYPE`, then the plug-in columns ``(name, kind)``
+    (kind "float" or "int") in the order given. Without plug-in columns: :data:`RESULT_DTYPE` itself."""
+    if not plugin:
+        return RESULT_DTYPE
+    return np.dtype([(k, RESULT_DTYPE.fields[k][0]) for k in RESULT_DTYPE.names]
+                    + [(name, _PLUGIN_KINDS[kind]) for name, kind in plugin])
+
+
+def plugin_columns_of(results: np.dtype) -> list[tuple[str, str]] | None:
+    """The plug-in columns ``(name, kind)`` of a ``/results`` table: [] for a table of a layout ever written
+    (:data:`RESULT_DTYPES`), the trailing float64/int64 columns of a table that begins with :data:`RESULT_DTYPE`
+    exactly (same columns, types and offsets), None for anything else (not a gapsweep table)."""
+    if results in RESULT_DTYPES:
+        return []
+    names = results.names or ()
+    base = RESULT_DTYPE.names
+    if names[:len(base)] != base or len(names) == len(base):
+        return None
+    if any(results.fields[k][:2] != RESULT_DTYPE.fields[k][:2] for k in base):
+        return None
+    back = {np.dtype(v): k for k, v in _PLUGIN_KINDS.items()}
+    out = []
+    for k in names[len(base):]:
+        kind = back.get(results.fields[k][0])
+        if kind is None:
+            return None
+        out.append((k, kind))
+    return out if results == results_dtype(out) else None
 PRESSURE_HIST = ("histograms/pressure_edges", "histograms/pressure_density")
 # Format 3: each results row carries a checksum over its task parameters, itself (checksum field zero) and its
 # four histogram rows; written with the row, after its payload. A finished row whose bytes no longer match is

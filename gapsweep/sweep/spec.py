@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import importlib
 import inspect
+import json
 import math
 import os
 import tomllib
@@ -108,10 +109,16 @@ def _method(name: str, t: dict, env: Env) -> dict[str, Any]:
     """``[methods.<name>]``: the plug-in's own keys (validated by the plug-in), grid overrides and ``extra``."""
     key = f"methods.{name}"
     m = registry.get(name)
-    rd.known(key, t, (*m.keys, "extra", *GRID_AXES))
+    exts = registry.extensions(name)
+    rd.known(key, t, (*m.keys, *exts, "extra", *GRID_AXES))
     if env.file and "seeds" in t:
         raise SpecError(f"{key}.seeds: a file surface is one map with one seed; remove seeds")
-    o = m.validate(key, t, env)
+    o = m.validate(key, {k: v for k, v in t.items() if k not in exts}, env)
+    for ename, e in exts.items():  # an extension's options: only when switched on (other task ids unchanged)
+        if ename in t:
+            opts = e.validate(f"{key}.{ename}", t[ename], o, env)
+            if opts is not None:
+                o[f"ext.{ename}"] = json.dumps(opts, sort_keys=True)
     o.update(_grid(key, t, required=False, law=env.law, file=env.file))
     extra = rd.table(f"{key}.extra", t.get("extra", {}))
     for k, v in extra.items():

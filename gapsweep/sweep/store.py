@@ -25,6 +25,7 @@ written and flushed at creation. Reliability (leases, validation, write errors):
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 from collections.abc import Iterable, Sequence
@@ -45,6 +46,7 @@ from gapsweep.sweep.schema import (  # noqa: F401 - the store's layout, re-expor
     INTEGRITY,
     MESSAGE_LEN,
     NEW_IN_V2,
+    PLUGIN_COLUMNS,
     PRESSURE_HIST,
     RESULT_DTYPE,
     RESULT_DTYPE_V1,
@@ -58,6 +60,8 @@ from gapsweep.sweep.schema import (  # noqa: F401 - the store's layout, re-expor
     Task,
     TaskResult,
     integrity_record,
+    plugin_columns_of,
+    results_dtype,
     row_checksum,
 )
 from gapsweep.sweep.writefail import KEEP_TYPES, io_failed, one_line, write_failed  # noqa: F401 - re-exported
@@ -140,6 +144,7 @@ def task_rows(tasks: Sequence[Task]) -> np.ndarray:
 
 
 def empty_results(n: int, dtype: np.dtype = RESULT_DTYPE) -> np.ndarray:
+    """``n`` pending rows of the table ``dtype``: float results NaN, integer results -1 (plug-in columns too)."""
     r = np.zeros(n, dtype=dtype)
     for k in FLOAT_RESULTS:
         if k in dtype.names:
@@ -147,16 +152,19 @@ def empty_results(n: int, dtype: np.dtype = RESULT_DTYPE) -> np.ndarray:
     for k in INT_RESULTS:
         if k in dtype.names:
             r[k] = -1
+    for k, kind in plugin_columns_of(dtype) or ():
+        r[k] = np.nan if kind == "float" else -1
     return r
 
 
-def upgrade_results(r: np.ndarray) -> np.ndarray:
-    """Results rows of any format as rows of the current one (copied by column name; new columns NaN / -1)."""
-    if r.dtype == RESULT_DTYPE:
+def upgrade_results(r: np.ndarray, dtype: np.dtype = RESULT_DTYPE) -> np.ndarray:
+    """Results rows of any format as rows of the table ``dtype`` (default: the current one without plug-in
+    columns; copied by column name; new columns NaN / -1)."""
+    if r.dtype == dtype:
         return r
-    out = empty_results(r.shape[0])
+    out = empty_results(r.shape[0], dtype)
     for k in r.dtype.names:
-        if k in RESULT_DTYPE.names:
+        if k in dtype.names:
             out[k] = r[k]
     return out
 
@@ -181,6 +189,8 @@ def result_row(res: TaskResult, dtype: np.dtype = RESULT_DTYPE) -> np.ndarray:
             row[k] = float(v)
         elif k in INT_RESULTS:
             row[k] = int(v)
+        elif dtype.fields[k][0].kind in "fi":  # a plug-in column (docs/store.md "Plug-in columns")
+            row[k] = float(v) if dtype.fields[k][0].kind == "f" else int(v)
     if res.hist is not None:
         row["count"] = int(res.hist[2])
     return row
@@ -275,16 +285,19 @@ class Store:
 
     @classmethod
     def create(cls, path: str | Path, tasks: Sequence[Task], attrs: dict[str, Any], bins: int, *,
-               comm: Any = None) -> Store:
+               comm: Any = None, columns: Sequence[tuple[str, str]] = ()) -> Store:
         """Create the file with every dataset preallocated. With ``comm`` (mpio) all ranks must call this with
-        the same arguments; rank 0 then writes the task table and the initial (pending) rows."""
+        the same arguments; rank 0 then writes the task table and the initial (pending) rows. ``columns``: the
+        job's plug-in columns ``(name, kind)`` (docs/store.md "Plug-in columns"; ``methods.job_columns``)."""
         with _quiet_dealloc():
-            return cls._create(path, tasks, attrs, bins, comm)
+            return cls._create(path, tasks, attrs, bins, comm, columns)
 
     @classmethod
     def _create(cls, path: str | Path, tasks: Sequence[Task], attrs: dict[str, Any], bins: int,
-                comm: Any) -> Store:
+                comm: Any, columns: Sequence[tuple[str, str]] = ()) -> Store:
         n = len(tasks)
+        if columns:  # plug-in columns: declared in an attribute (covered by the attribute checksums)
+            attrs = {**attrs, PLUGIN_COLUMNS: json.dumps([list(c) for c in columns])}
         try:
             f = _writer_file(path, "w", comm)
         except (OSError, RuntimeError) as e:
@@ -293,7 +306,8 @@ class Store:
             for k, v in attrs.items():
                 f.attrs[k] = v
             dt = f.create_dataset("tasks", shape=(n,), dtype=TASK_DTYPE, dcpl=_early())
-            dr = f.create_dataset("results", shape=(n,), dtype=RESULT_DTYPE, dcpl=_early())
+            rdtype = results_dtype(columns)
+            dr = f.create_dataset("results", shape=(n,), dtype=rdtype, dcpl=_early())
             g = f.create_group("histograms")
             g.create_dataset("edges", shape=(n, bins + 1), dtype="f8", fillvalue=np.nan, dcpl=_early())
             g.create_dataset("density", shape=(n, bins), dtype="f8", fillvalue=np.nan, dcpl=_early())
@@ -303,7 +317,7 @@ class Store:
             if comm is None or comm.rank == 0:
                 if n:
                     dt[...] = rows
-                    dr[...] = seal(rows, empty_results(n), bins)
+                    dr[...] = seal(rows, empty_results(n, rdtype), bins)
             seal_attrs(f, rows)  # every rank the same (collective under mpio)
             f.flush()
             if comm is not None:
@@ -551,6 +565,8 @@ def read(path: str | Path, *, mark_damaged: bool = True, tolerate_tasks: bool = 
     cols["message"] = [x.decode("utf-8", "replace") for x in r["message"]]
     for k in FLOAT_RESULTS + INT_RESULTS:  # a format-1 store lacks the newer columns: NaN (floats), -1 (flags)
         cols[k] = r[k] if k in r.dtype.names else np.full(len(r), np.nan if k in FLOAT_RESULTS else -1)
+    for k, _ in plugin_columns_of(r.dtype) or ():  # the plug-in columns of the job, after the others
+        cols[k] = r[k]
     return pd.DataFrame(cols)
 
 
@@ -669,7 +685,7 @@ def diff(a: str | Path, b: str | Path, *, ignore: Sequence[str] = VOLATILE) -> l
             if not _same(ta[k], tb[k]):
                 out.append(f"tasks.{k} differs")
         ra, rb = fa["results"][...], fb["results"][...]
-        for k in RESULT_DTYPE.names:
+        for k in dict.fromkeys((*RESULT_DTYPE.names, *ra.dtype.names, *rb.dtype.names)):
             if k in ignore:
                 continue
             if (k in ra.dtype.names) != (k in rb.dtype.names):

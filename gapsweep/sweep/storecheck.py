@@ -26,8 +26,8 @@ from gapsweep.sweep.schema import (
     INTEGRITY,
     INTERRUPTED_PREFIX,
     LAYOUTS,
+    PLUGIN_COLUMNS,
     PRESSURE_HIST,
-    RESULT_DTYPES,
     STATUS,
     TASK_DTYPE,
     TIMEOUT_PREFIX,
@@ -35,6 +35,7 @@ from gapsweep.sweep.schema import (
     StoreError,
     integrity_problem,
     layout_of,
+    plugin_columns_of,
     row_checksum,
 )
 
@@ -201,8 +202,18 @@ def check(f: Any, path: str | Path, *, tolerate_tasks: bool = False) -> Report:
     t, r, e, d = f["tasks"], f["results"], f["histograms/edges"], f["histograms/density"]
     if t.dtype != TASK_DTYPE:
         _fail(path, f"/tasks has dtype {t.dtype}, expected the gapsweep task table")
-    if r.dtype not in RESULT_DTYPES:  # format 2, or format 1 (before the issue-12 columns)
+    plugin = plugin_columns_of(r.dtype)  # [] for every layout ever written; plug-in columns after format 4's
+    if plugin is None:
         _fail(path, f"/results has dtype {r.dtype}, expected the gapsweep results table")
+    if plugin:
+        declared = f.attrs.get(PLUGIN_COLUMNS)
+        try:
+            ok = [tuple(x) for x in json.loads(declared)] == plugin
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            _fail(path, f"/results has plug-in columns {[k for k, _ in plugin]} that its attribute "
+                  f"{PLUGIN_COLUMNS!r} does not declare (damaged store)")
     if e.dtype.kind != "f" or d.dtype.kind != "f" or e.ndim != 2 or d.ndim != 2:
         _fail(path, "/histograms/edges or /density is not a 2-d float array")
     n = t.shape[0]

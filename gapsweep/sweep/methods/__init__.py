@@ -11,10 +11,12 @@ from __future__ import annotations
 import logging
 from importlib import metadata
 
-from gapsweep.sweep.methods import fokker_planck, gfmd, hybrid, multiscale, sde, theory  # noqa: F401 - built-ins
-from gapsweep.sweep.methods.base import Env, Method, register, registered
+from gapsweep.sweep.methods import base, flow, fokker_planck, gfmd, hybrid, multiscale, sde, theory  # noqa: F401 - built-ins
+from gapsweep.sweep.methods.base import Env, Extension, Method, register, register_extension, registered
+from gapsweep.sweep.schema import Column, JobSpec
 
-__all__ = ["Env", "Method", "all_methods", "get", "names", "register"]
+__all__ = ["Env", "Extension", "Method", "all_methods", "extensions", "get", "job_columns", "names", "register",
+           "register_extension"]
 
 log = logging.getLogger("gapsweep.sweep.methods")
 _loaded = False
@@ -51,3 +53,31 @@ def get(name: str) -> Method:
     if name not in reg:
         raise KeyError(f"no sweep method {name!r}; registered: {', '.join(reg)}")
     return reg[name]
+
+
+def extensions(host: str) -> dict[str, Extension]:
+    """The extensions of method ``host`` (built-in and third-party), by name."""
+    _load_entry_points()
+    return base.extensions(host)
+
+
+def job_columns(spec: JobSpec) -> list[tuple[str, str]]:
+    """The plug-in columns ``(name, kind)`` of a job's store (docs/store.md "Plug-in columns"): the
+    ``own_columns`` of each of its methods and of each extension it switches on, in the canonical method order,
+    each name once. [] for a job without such plug-ins (its store has exactly the built-in table)."""
+    out: dict[str, Column] = {}
+    for name, m in all_methods().items():
+        if name not in spec.methods:
+            continue
+        cols = m.job_own_columns(spec)
+        undeclared = [k for k in cols if k not in m.own_columns]
+        if undeclared:
+            raise ValueError(f"method {name!r}: job_own_columns returned {undeclared}, not in its own_columns")
+        for ename, e in extensions(name).items():
+            if spec.methods[name].get(f"ext.{ename}"):
+                cols.update(e.own_columns)
+        for k, c in cols.items():
+            if k in out and out[k].kind != c.kind:
+                raise ValueError(f"plug-in column {k!r} declared as {out[k].kind!r} and {c.kind!r} in one job")
+            out.setdefault(k, c)
+    return [(k, c.kind) for k, c in out.items()]

@@ -5,6 +5,8 @@ with :func:`register`. The class declares in one place everything the sweep need
 
 * ``keys`` and :meth:`Method.validate` -- its ``[methods.<name>]`` spec keys, their types, ranges and defaults;
 * ``columns`` -- the store's result columns it fills (a subset of ``schema.FLOAT_RESULTS + INT_RESULTS``),
+  ``own_columns`` -- columns of its own, declared here and added to the stores of the jobs that use it (no edit
+  of the schema: docs/store.md "Plug-in columns"),
   ``histogram`` -- whether its rows carry a gap histogram, ``variables`` / ``seed_free`` / ``select`` -- how its
   columns appear in the xarray view (gapsweep.sweep.dataset);
 * :meth:`Method.expand` -- how a job spec expands into its tasks (canonical order, content ids);
@@ -13,6 +15,11 @@ with :func:`register`. The class declares in one place everything the sweep need
 * ``extra_target`` -- the solver function that receives ``[methods.<name>.extra]`` keys (checked at validation);
 * :meth:`Method.run` -- how one task runs and becomes a :class:`~gapsweep.sweep.schema.TaskResult`.
 
+An :class:`Extension` adds quantities to the rows of another method (its host, e.g. ``gfmd``) from the host's
+result: switched on by a key of the host's table (``[methods.gfmd] flow = true``), it declares its own columns
+and computes their values in the host's row (the host calls :func:`extend_row`). Register it with
+:func:`register_extension`.
+
 The spec validator, the task expansion, the runner, the store's validation, the dataset view and the report
 iterate :func:`methods`; none of them names a method. Third-party methods register through the entry-point group
 ``gapsweep.methods`` (an entry point names a module that calls :func:`register` on import).
@@ -20,16 +27,44 @@ iterate :func:`methods`; none of them names a method. Third-party methods regist
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from gapsweep.sweep import readers as rd
-from gapsweep.sweep.schema import FLOAT_RESULTS, INT_RESULTS, JobSpec, SpecError, Task, TaskResult, make_task
+from gapsweep.sweep.schema import (
+    CHECKSUM,
+    FLOAT_RESULTS,
+    INT_RESULTS,
+    TASK_DTYPE,
+    Column,
+    JobSpec,
+    SpecError,
+    Task,
+    TaskResult,
+    make_task,
+)
 
-__all__ = ["GRID_AXES", "Env", "Method", "axes", "common_options", "grid_tasks", "h_rms_option", "n_list",
-           "non_finite", "register", "registered"]
+__all__ = [
+    "GRID_AXES",
+    "Column",
+    "Env",
+    "Extension",
+    "Method",
+    "axes",
+    "common_options",
+    "extend_row",
+    "extensions",
+    "grid_tasks",
+    "h_rms_option",
+    "n_list",
+    "non_finite",
+    "register",
+    "register_extension",
+    "registered",
+]
 
 GRID_AXES = ("hurst", "rho", "sigma0", "seeds")
 # unit attributes of a length in the dataset view (lengths in units of the spec's L)
@@ -59,11 +94,18 @@ class Method:
     order: int = 100  # place in the canonical order of task expansion (built-ins 0..3; ties by name)
     keys: tuple[str, ...] = ()
     columns: tuple[str, ...] = ()
+    own_columns: ClassVar[dict[str, Column]] = {}  # its own store columns (docs/store.md "Plug-in columns")
     histogram: bool = False
     variables: ClassVar[dict[str, tuple[str, str, dict[str, str]]]] = {}
     seed_free: tuple[str, ...] = ()
     select: str | None = None  # the option ("n" or "c2") of which the dataset view keeps one value
     extra_target: tuple[str, str, tuple[str, ...]] | None = None  # (module, function, keys the sweep sets)
+
+    def job_own_columns(self, spec: JobSpec) -> dict[str, Column]:
+        """The own columns this method's rows have in ``spec``'s store: ``own_columns`` (default). A method whose
+        columns depend on the job (a quantity of one interaction law only) returns those the job needs, so other
+        jobs' stores stay as they were; each must still be declared in ``own_columns`` (checked at registration)."""
+        return dict(self.own_columns)
 
     # -- validation --------------------------------------------------------------------------------------
     def validate(self, key: str, t: dict[str, Any], env: Env) -> dict[str, Any]:
@@ -120,8 +162,55 @@ class Method:
         raise NotImplementedError
 
 
+class Extension:
+    """Quantities added to another method's rows (module docstring). A subclass declares ``name`` (its key in
+    the host's table, an identifier), ``host`` (the host method's name), ``own_columns`` and ``variables`` (as
+    a method's), and implements :meth:`validate` and :meth:`compute`."""
+
+    name: str = ""
+    host: str = ""
+    own_columns: ClassVar[dict[str, Column]] = {}
+    variables: ClassVar[dict[str, tuple[str, str, dict[str, str]]]] = {}
+
+    def validate(self, key: str, value: Any, host_options: dict[str, Any], env: Env) -> dict[str, Any] | None:
+        """The extension's options from the host table's value at ``key`` (``true``, ``false`` or a table),
+        checked, defaults filled in; None: switched off. ``host_options``: the host's validated options (to
+        refuse combinations it cannot serve). Raise ``SpecError`` naming ``key``."""
+        raise NotImplementedError
+
+    def cost(self, t: Task, options: dict[str, Any]) -> float:
+        """Rough wall time it adds to one row of the host on one CPU core [s] (scheduling, ``gapsweep plan``)."""
+        return 0.0
+
+    def memory(self, t: Task, options: dict[str, Any]) -> float:
+        """Peak working memory it needs beside the host's result [bytes]."""
+        return 0.0
+
+    def compute(self, t: Task, options: dict[str, Any], result: Any) -> tuple[dict[str, float], str]:
+        """The values of its columns for one row of the host (``result``: the host's solver result) and a
+        problem ("" none; else the row is not counted as done and the message says why)."""
+        raise NotImplementedError
+
+
 _REGISTRY: dict[str, Method] = {}
 _ORDERED: tuple[tuple, dict[str, Method]] | None = None
+_EXTENSIONS: dict[str, Extension] = {}
+# names no plug-in column may take: the store's own columns and the task table's
+_RESERVED = frozenset((*FLOAT_RESULTS, *INT_RESULTS, *TASK_DTYPE.names, "status", "message", CHECKSUM))
+
+
+def _check_own_columns(who: str, owner: str, cols: dict[str, Column]) -> None:
+    for k, c in cols.items():
+        if not (isinstance(k, str) and k.isidentifier() and len(k) <= 48):
+            raise ValueError(f"{who}: own column name {k!r} must be an identifier of at most 48 characters")
+        if k in _RESERVED:
+            raise ValueError(f"{who}: own column {k!r} is a column of the store itself (gapsweep.sweep.schema)")
+        if not isinstance(c, Column):
+            raise ValueError(f"{who}: own column {k!r} must be a gapsweep.sweep.schema.Column, got {c!r}")
+        for other in (*_REGISTRY.values(), *_EXTENSIONS.values()):
+            oc = getattr(other, "own_columns", {})
+            if k in oc and oc[k].kind != c.kind and other.name != owner:
+                raise ValueError(f"{who}: own column {k!r} is declared by {other.name!r} as {oc[k].kind!r}")
 
 
 def register(cls: type[Method]) -> type[Method]:
@@ -137,8 +226,55 @@ def register(cls: type[Method]) -> type[Method]:
     unknown = [c for c in m.columns if c not in FLOAT_RESULTS + INT_RESULTS]
     if unknown:
         raise ValueError(f"method {m.name!r}: columns {unknown} are not store columns (gapsweep.sweep.schema)")
+    _check_own_columns(f"method {m.name!r}", m.name, m.own_columns)
     _REGISTRY[m.name] = m
     return cls
+
+
+def register_extension(cls: type[Extension]) -> type[Extension]:
+    """Class decorator: add an :class:`Extension` (its ``name`` new among its host's keys and extensions)."""
+    e = cls()
+    if not e.name or not e.name.isidentifier():
+        raise ValueError(f"extension {cls.__name__}: name must be an identifier, got {e.name!r}")
+    if not e.host:
+        raise ValueError(f"extension {e.name!r}: host (the method whose rows it extends) missing")
+    if e.name in _EXTENSIONS and type(_EXTENSIONS[e.name]) is not cls:
+        raise ValueError(f"extension {e.name!r} is registered twice")
+    if e.host in _REGISTRY and e.name in _REGISTRY[e.host].keys:
+        raise ValueError(f"extension {e.name!r}: a key of method {e.host!r} already")
+    _check_own_columns(f"extension {e.name!r}", e.name, e.own_columns)
+    _EXTENSIONS[e.name] = e
+    return cls
+
+
+def extensions(host: str) -> dict[str, Extension]:
+    """The extensions of method ``host`` by name, in name order."""
+    return {k: _EXTENSIONS[k] for k in sorted(_EXTENSIONS) if _EXTENSIONS[k].host == host}
+
+
+def extension_cost(t: Task) -> tuple[float, float]:
+    """(seconds, bytes) the task's switched-on extensions add to its host's cost and memory estimates."""
+    sec = mem = 0.0
+    for name, e in extensions(t.method).items():
+        raw = t.opt(f"ext.{name}")
+        if raw:
+            o = json.loads(raw)
+            sec, mem = sec + e.cost(t, o), max(mem, e.memory(t, o))
+    return sec, mem
+
+
+def extend_row(t: Task, result: Any, row: TaskResult) -> TaskResult:
+    """Add the values of the task's switched-on extensions (options ``ext.<name>``, JSON) to the host's ``row``;
+    a problem one reports turns a done row into ``not_converged`` with the problem as its message."""
+    for name, e in extensions(t.method).items():
+        raw = t.opt(f"ext.{name}")
+        if not raw:
+            continue
+        vals, problem = e.compute(t, json.loads(raw), result)
+        row.values.update(vals)
+        if problem and row.status == "done":
+            row.status, row.message = "not_converged", f"{name}: {problem}"
+    return row
 
 
 def registered() -> dict[str, Method]:

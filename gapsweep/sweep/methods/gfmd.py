@@ -24,7 +24,17 @@ from gapsweep.core.fft import BACKENDS as FFT_BACKENDS
 from gapsweep.sweep import fields
 from gapsweep.sweep import readers as rd
 from gapsweep.sweep.context import Context, extra, hist, host, use_gpu
-from gapsweep.sweep.methods.base import LENGTH, Env, Method, axes, grid_tasks, n_list, register
+from gapsweep.sweep.methods.base import (
+    LENGTH,
+    Env,
+    Method,
+    axes,
+    extend_row,
+    extension_cost,
+    grid_tasks,
+    n_list,
+    register,
+)
 from gapsweep.sweep.schema import FIELD_NAMES, FLAG_DETACHED, FLAG_JUMP, JobSpec, SpecError, Task, TaskResult
 
 JUMP_FACTOR = 3.0  # a jump: the mean gap moved by more than this times the secant prediction (docs/store.md)
@@ -150,14 +160,16 @@ class GFMD(Method):
         # ~ iterations x (FFT pair + a few array passes); preconditioned CG needs 5..30 (measured at N = 1024,
         # about 15 ms per iteration on one core with pyFFTW).
         cpu = 0.02 + 20 * 1.5e-9 * t.n * t.n * math.log2(t.n)
-        return cpu / 20 if t.opt("backend") == "cupy" else cpu  # an H200 solve is ~20x a CPU core
+        # plus what its switched-on extensions add (the flow solve: gapsweep.sweep.methods.flow)
+        return (cpu / 20 if t.opt("backend") == "cupy" else cpu) + extension_cost(t)[0]  # H200 ~20x a core
 
     def memory(self, t: Task) -> float:
         if t.opt("distributed"):  # each rank's rows (surface and solver) are sized with the rank count by
             # gapsweep.sweep.collective.check_memory; beyond them, a file map read whole by rank 0 and its spectrum
             nx, ny = t.opt("surface.shape") or (t.n, t.n)
             return 8.0 * nx * ny * 4 if t.opt("surface.kind") == "file" else 0.0
-        return 8.0 * t.n * t.n * 28  # 4 cached surfaces + solver vectors + complex FFT buffers
+        # 4 cached surfaces + solver vectors + complex FFT buffers, and what an extension needs beside them
+        return 8.0 * t.n * t.n * 28 + extension_cost(t)[1]
 
     def needs_gpu(self, t: Task) -> bool:
         return t.opt("backend") == "cupy"
@@ -378,7 +390,8 @@ def gfmd_row(t: Task, ctx: Context, res: Any, prev: Any = None, stats: Any = Non
     # fields are dropped with the result once the row is made); the other laws start from the whole result
     # (hard wall: its pressure; adhesive: displacement and mean gap) and it marks jumps.
     state = (res.displacement if t.law == "exponential" else res) if ok else None
-    return TaskResult(status, msg, v, stats.hist(t, gap, hard), phist), state
+    # the switched-on extensions' columns (e.g. the leak rate of gapsweep.sweep.methods.flow) from this result
+    return extend_row(t, res, TaskResult(status, msg, v, stats.hist(t, gap, hard), phist)), state
 
 
 def _fill_quantities(t: Task, res: Any, v: dict[str, float], gap: Any, xp: Any) -> None:
