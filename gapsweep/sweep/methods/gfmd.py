@@ -96,7 +96,8 @@ class GFMD(Method):
     select = "n"
     extra_target = ("gapsweep.gfmd", "solve", ("heights", "sigma0", "gamma0", "rho", "e_star", "length", "tol",
                                                "method", "backend", "max_iter", "initial", "interaction", "work",
-                                               "periodic", "host"))
+                                               "periodic", "host", "thickness", "poisson", "bottom",
+                                               "hardness"))
 
     def validate(self, key: str, t: dict[str, Any], env: Env) -> dict[str, Any]:
         o: dict[str, Any] = {}
@@ -179,7 +180,8 @@ class GFMD(Method):
         return run_gfmd(t, ctx, prev)
 
     def warm_up_key(self, t: Task) -> tuple | None:
-        return (t.law, t.opt("backend"), t.opt("method"), t.opt("surface.periodic") is False)
+        return (t.law, t.opt("backend"), t.opt("method"), t.opt("surface.periodic") is False,
+                t.opt("thickness") is not None, t.opt("hardness") is not None)
 
     def warm_up(self, t: Task, ctx: Context) -> None:
         """One solve of a 32 x 32 surface with the task's law, backend, minimiser and boundaries: numba's kernels
@@ -196,7 +198,7 @@ class GFMD(Method):
         if t.law != "hard_wall":
             kw["rho"] = 1e-2
         gfmd.solve(h, sigma0=abs(t.sigma0) or 1e-2, **kw, tol=1e-4, method=t.opt("method"),
-                   backend=t.opt("backend"), max_iter=200, host=False, **boundaries(t))
+                   backend=t.opt("backend"), max_iter=200, host=False, **boundaries(t), **body(t))
 
 
 def _keep_fields(t: Task, ctx: Context, res: Any, h: Any, gap: Any, comm: Any = None) -> None:
@@ -268,8 +270,16 @@ def run_gfmd(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
     res = gfmd.solve(h, sigma0=t.sigma0, **law_params(t), e_star=t.opt("e_star"),
                      length=sp["length"], tol=t.opt("tol"), method=t.opt("method"), backend=t.opt("backend"),
                      max_iter=t.opt("max_iter"), initial=prev if t.opt("warm_start") else None,
-                     host=gfmd_host_fields(t, ctx), **boundaries(t), **extra(t))
+                     host=gfmd_host_fields(t, ctx), **boundaries(t), **body(t), **extra(t))
     return gfmd_row(t, ctx, res, prev)
+
+
+def body(t: Task) -> dict[str, Any]:
+    """The body's keywords of gfmd.solve beyond E* (``[material] thickness, poisson, bottom, hardness``: an
+    elastic layer, the hard wall's pressure cap; gapsweep.sweep.spec.SUBSTRATE_KEYS): those the job gives."""
+    from gapsweep.sweep.spec import SUBSTRATE_KEYS
+
+    return {k: t.opt(k) for k in SUBSTRATE_KEYS if t.opt(k) is not None}
 
 
 def boundaries(t: Task) -> dict[str, Any]:
