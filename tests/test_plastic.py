@@ -104,3 +104,14 @@ def test_hardness_refusals() -> None:
         solve(h, sigma0=0.01, gamma0=1e-3, rho=1e-2, hardness=0.1)
     r = solve(h, sigma0=0.01, interaction="hard_wall", hardness=np.inf)  # no cap: the elastic hard wall
     assert np.isnan(r.plastic_area)
+
+
+def test_fused_and_generic_passes_agree(monkeypatch) -> None:
+    """The numba passes (gfmd._plastic_ops, the CPU default) against the generic array code of gfmd._plastic."""
+    h = surface(64, seed=12)
+    fused = solve(h, sigma0=0.02, interaction="hard_wall", hardness=0.06, tol=1e-10)
+    monkeypatch.setenv("GAPSWEEP_GENERIC_KERNELS", "1")
+    generic = solve(h, sigma0=0.02, interaction="hard_wall", hardness=0.06, tol=1e-10)
+    assert fused.converged and generic.converged and fused.plastic_area > 0
+    np.testing.assert_allclose(fused.pressure, generic.pressure, atol=1e-8 * 0.02)
+    assert fused.mean_gap == pytest.approx(generic.mean_gap, rel=1e-8)

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import time
 from collections.abc import Callable
 from typing import Any
@@ -46,6 +47,7 @@ METHODS = ("pk", "pcg", "mpcg")
 DEFAULT_METHOD = "mpcg"
 _COARSEST = 128
 _COARSE_TOL = 1e-2
+_REFRESH = 25  # fused loop: iterations between fresh K p while u follows linearly
 log = logging.getLogger("gapsweep.gfmd")
 
 
@@ -183,6 +185,116 @@ def _iterate(grid: Grid, compliance: Callable, stiff: Any, h: Any, p: Any, H: fl
     return p, it, status, pairs
 
 
+def _project_fused(K: Any, trial: Any, on: Any, H: float, target: float, out: Any) -> Any:
+    """:func:`_project` through the fused pass ``K.proj_total`` (``on``: uint8 mask); the result into ``out``."""
+    on_b = on.view(bool)
+    rest = float(trial.sum()) - float(np.sum(trial, where=on_b))
+    n_on = int(np.count_nonzero(on_b))
+    if not (0.0 <= target - rest <= H * n_on):
+        on = np.ones_like(on)
+    lam = 0.0
+    for _ in range(40):
+        s, n_free = K.proj_total(trial, on, H, lam, out)
+        if abs(s - target) <= 1e-14 * target:
+            return out
+        if n_free == 0:
+            break
+        lam -= (target - s) / n_free
+    span = float(np.max(np.abs(trial))) + H
+    lo, hi = -span, span
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if K.proj_total(trial, on, H, mid, out)[0] > target:
+            lo = mid
+        else:
+            hi = mid
+    K.proj_total(trial, on, H, 0.5 * (lo + hi), out)
+    return out
+
+
+def _iterate_fused(grid: Grid, compliance: Callable, stiff: Any, h: Any, p: Any, H: float, sigma0: float,
+                   tol: float, g_ref: float, max_iter: int, history: list[float]) -> tuple[Any, int, str, int]:
+    """:func:`_iterate` with numba's fused passes (gfmd._plastic_ops; numpy arrays): the same iteration, and ``u``
+    follows ``u - tau K t`` when nothing was projected (a fresh ``K p`` after a projection and every
+    ``_REFRESH`` iterations)."""
+    from gapsweep.gfmd._plastic_ops import kernels
+
+    K = kernels()
+    target = sigma0 * grid.size
+    shape = grid.real_shape
+    t, gs, z, r, trial = (np.zeros(shape) for _ in range(5))
+    F, F_old = np.zeros(shape, dtype=np.uint8), np.zeros(shape, dtype=np.uint8)
+    p = np.ascontiguousarray(p, dtype=np.float64)
+    h = np.ascontiguousarray(h)
+    delta, gz_old, it, status, since = 0.0, 1.0, 0, "max_iter", 0
+    with np.errstate(all="ignore"):
+        u = np.ascontiguousarray(compliance(p))
+        pairs = 1
+        while True:
+            deadline.check()
+            n_s, sd, lower, upper = K.kkt1(u, h, p, H)
+            if n_s:
+                g0 = -sd / n_s
+            else:
+                lo = lower if lower > -1e308 else -math.inf
+                up = upper if upper < 1e308 else math.inf
+                g0 = lo if not math.isfinite(up) else up if not math.isfinite(lo) else 0.5 * (lo + up)
+            F, F_old = F_old, F
+            s2, overlap, lift, n_f, same = K.kkt2(u, h, p, H, g0, gs, F, F_old)
+            res = max(math.sqrt(s2 / max(n_s, 1)), overlap, lift) / g_ref
+            history.append(res)
+            if not math.isfinite(res):
+                status = "non_finite"
+                break
+            if res <= tol:
+                if since:  # decide on a fresh K p
+                    u = np.ascontiguousarray(compliance(p, u))
+                    pairs += 1
+                    since = 0
+                    continue
+                status = "converged"
+                break
+            if it >= max_iter:
+                break
+            it += 1
+            if stiff is not None:
+                z = grid.convolve(gs, stiff, z)
+                pairs += 1
+                gz = K.dot(gs, z)
+            else:
+                z, gz = gs, s2
+            c = delta * gz / gz_old if (gz_old > 0 and same) else 0.0
+            t_sum = K.direction(t, z, F, c)
+            gst = K.centre(t, F, t_sum / max(n_f, 1), gs)
+            gz_old = gz
+            r = compliance(t, r)
+            pairs += 1
+            rt = K.dot(r, t)
+            if not rt > 0:
+                status = "stalled" if math.isfinite(rt) else "non_finite"
+                break
+            tau = gst / rt
+            np.copyto(trial, p)
+            clipped = K.step(trial, t, tau, H)
+            if clipped:
+                p = _project_fused(K, trial, F, H, target, p)
+                delta = 0.0
+                u = compliance(p, u)
+                pairs += 1
+                since = 0
+            else:
+                p, trial = trial, p
+                delta = 1.0
+                if since >= _REFRESH:
+                    u = compliance(p, u)
+                    pairs += 1
+                    since = 0
+                else:
+                    K.follow(u, r, tau)
+                    since += 1
+    return p, it, status, pairs
+
+
 def minimise(heights: Any, law: Interaction, *, hardness: float, sigma0: float, e_star: float, length: Any,
              tol: float, method: str, backend: str, max_iter: int, initial: Any, threads: int | None, host: Any,
              t_start: float, periodic: bool = True, make_grid: Callable[[tuple[int, int]], Grid] | None = None
@@ -214,8 +326,8 @@ def minimise(heights: Any, law: Interaction, *, hardness: float, sigma0: float, 
         grid.set_mode0(kinv, 0.0)
         kinv = grid.multiplier(kinv)
 
-        def compliance(a: Any) -> Any:
-            return grid.convolve(a, kinv)
+        def compliance(a: Any, out: Any = None) -> Any:
+            return grid.convolve(a, kinv, out)
     else:
         compliance = grid.compliance(e_star)
     stiff = grid.multiplier((0.5 * e_star) * grid.q) if method != "pk" else None
@@ -241,7 +353,11 @@ def minimise(heights: Any, law: Interaction, *, hardness: float, sigma0: float, 
                              "with a positive sum")
         p = _project(p, p > 0, H, sigma0 * grid.size, xp)
     history: list[float] = []
-    p, it, status, pairs = _iterate(grid, compliance, stiff, h, p, H, sigma0, tol, g_ref, max_iter, history)
+    from gapsweep.gfmd._constrained_ops import _have_numba
+
+    fused = xp is np and _have_numba() and os.environ.get("GAPSWEEP_GENERIC_KERNELS") != "1"
+    p, it, status, pairs = (_iterate_fused if fused else _iterate)(grid, compliance, stiff, h, p, H, sigma0, tol,
+                                                                   g_ref, max_iter, history)
     with np.errstate(all="ignore"):
         u = compliance(p)
         _, g, S, plastic, residual = _kkt(u, h, p, H, xp, g_ref)

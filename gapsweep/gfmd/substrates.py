@@ -111,6 +111,8 @@ class LayerGrid(Grid):
     """A periodic grid on an elastic layer: :class:`Grid` with ``q`` replaced by the effective wavenumber
     ``q f(q t)`` (module docstring), 0 at ``q = 0`` (the mean mode stays eliminated)."""
 
+    plain_periodic = True  # one whole periodic grid: the hard wall's FFTW spectral loop applies (gfmd._constrained)
+
     def __init__(self, shape: tuple[int, int], length: Any, backend: str, threads: int | None, on_gpu: bool,
                  *, thickness: float, poisson: float, bottom: str) -> None:
         super().__init__(shape, length, backend, threads, on_gpu)
@@ -156,8 +158,22 @@ def minimise_on(heights: Any, law: Any, *, layer: tuple[float, float, str] | Non
             # "mpcg"'s coarse levels are half-space solves (gfmd._constrained._coarse_start): a layer takes "pcg"
             if method not in ("auto", "pk", "pcg"):
                 raise ValueError(f"method must be 'auto', 'pk' or 'pcg' for the hard wall on a layer; got {method!r}")
+            coarse: list[int] = []
+            if method == "auto" and initial is None and min(grid.shape) >= 2 * _constrained._COARSEST \
+                    and grid.shape[0] % 2 == 0 and grid.shape[1] % 2 == 0:
+                # coarse-to-fine start on the layer (as the half-space's "mpcg"): the coarsened surface solved
+                # on the same layer to _COARSE_TOL, recursively, its pressure copied to 2 x 2 pixels
+                xp = grid.xp
+                h = grid.asarray(heights)
+                hc = _constrained.coarsen(h - grid.mean(h), xp)
+                rc = minimise_on(hc, law, layer=layer, hardness=None, sigma0=sigma0, e_star=e_star, length=length,
+                                 tol=_constrained._COARSE_TOL, method="auto", backend=backend, max_iter=2000,
+                                 initial=None, threads=threads, host=False, t_start=t_start, periodic=True)
+                common["initial"] = xp.repeat(xp.repeat(rc.pressure, 2, axis=0), 2, axis=1)
+                coarse = [rc.iterations, *rc.diagnostics.get("coarse_iterations", [])]
             r = _constrained.minimise(heights, law, method="pcg" if method == "auto" else method, grid=grid,
                                       **common)
+            r.diagnostics["coarse_iterations"] = coarse
         else:
             # the exponential law's own minimiser is written for the half-space: every smooth law runs on the
             # generic one (gfmd._smooth, L-BFGS)
