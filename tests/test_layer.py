@@ -133,3 +133,22 @@ def test_layer_refusals() -> None:
         solve(h, sigma0=0.01, interaction="hard_wall", thickness=0.1, poisson=0.3, method="mpcg")
     with pytest.raises(ValueError, match="start"):
         solve(h, sigma0=0.01, gamma0=1e-3, rho=1e-2, thickness=0.1, poisson=0.3, start="coarse")
+
+
+def test_exponential_on_a_layer_two_minimisers_agree() -> None:
+    """The exponential law's own minimiser with the layer's stiffness (square grid, CPU) against the generic smooth
+    minimiser (L-BFGS on gfmd._smooth, which a rectangular grid takes) on the same square map."""
+    from gapsweep.gfmd import _smooth
+    from gapsweep.gfmd.interactions import resolve
+    from gapsweep.gfmd.substrates import LayerGrid
+
+    h = self_affine(48, 0.7, lambda_l=0.5, lambda_s=4 / 48, seed=13)
+    kw = dict(sigma0=0.02, e_star=1.5, length=1.0, tol=1e-9)
+    own = solve(h, gamma0=1e-3, rho=3e-2, thickness=0.03, poisson=0.4, **kw)
+    law = resolve("exponential", gamma0=1e-3, rho=3e-2)
+    grid = LayerGrid(h.shape, 1.0, "numpy", None, False, thickness=0.03, poisson=0.4, bottom="bonded")
+    gen = _smooth.minimise(h, law, method="lbfgs", backend="numpy", max_iter=5000, initial=None, threads=None,
+                           host=True, t_start=0.0, grid=grid, **kw)
+    assert own.converged and gen.converged and own.method != "lbfgs"
+    assert own.mean_gap == pytest.approx(gen.mean_gap, rel=1e-6)
+    np.testing.assert_allclose(own.pressure, gen.pressure, atol=1e-5 * 0.02 * 50)

@@ -174,9 +174,19 @@ def minimise_on(heights: Any, law: Any, *, layer: tuple[float, float, str] | Non
             r = _constrained.minimise(heights, law, method="pcg" if method == "auto" else method, grid=grid,
                                       **common)
             r.diagnostics["coarse_iterations"] = coarse
+        elif law.load_control == "softmax" and grid.xp is np and grid.shape[0] == grid.shape[1] \
+                and grid.lx == grid.ly:
+            # the exponential law's own minimiser with the layer's stiffness (CPU, square grids)
+            from gapsweep.gfmd import _softmax
+
+            if method not in ("auto", *_softmax.METHODS):
+                raise ValueError(f"method must be one of {('auto', *_softmax.METHODS)} for interaction "
+                                 f"{law.name!r} on a layer; got {method!r}")
+            r = _softmax.minimise(heights, law, method=method, stiffness=np.ascontiguousarray(
+                (0.5 * e_star) * grid.q), **{**common, "length": grid.lx})
         else:
-            # the exponential law's own minimiser is written for the half-space: every smooth law runs on the
-            # generic one (gfmd._smooth, L-BFGS)
+            # the exponential law on the GPU or a rectangular grid, the adhesive law: the generic smooth minimiser
+            # (gfmd._smooth, L-BFGS; the exponential law's fused GPU kernels assume the half-space)
             if method not in ("auto", "lbfgs"):
                 raise ValueError(f"method must be 'auto' or 'lbfgs' for interaction {law.name!r} on a layer; "
                                  f"got {method!r}")

@@ -26,7 +26,7 @@ from gapsweep.sweep import methods as registry
 from gapsweep.sweep import readers as rd
 from gapsweep.sweep.filesurface import file_surface
 from gapsweep.sweep.methods.base import GRID_AXES, Env
-from gapsweep.sweep.schema import JobSpec, SpecError
+from gapsweep.sweep.schema import SUBSTRATE_KEYS, JobSpec, SpecError
 
 __all__ = ["MAX_TASKS", "JobSpec", "SpecError", "check_extra", "load", "loads", "max_tasks"]
 
@@ -205,8 +205,6 @@ def _interaction(t: dict) -> dict[str, Any]:
 # [material] keys of the body beyond E*: an elastic layer on a rigid base and the hard wall's pressure cap
 # (gapsweep.gfmd.substrates, gapsweep.gfmd._plastic; docs/jobs.md "The body: layer and hardness"). Present in
 # the task options only when given, so older specs keep their task ids.
-SUBSTRATE_KEYS = ("thickness", "poisson", "bottom", "hardness")
-SUBSTRATE_METHODS = ("gfmd",)  # the methods that solve them; the theories have no layer / cap (refused)
 
 
 def _substrate(m: dict, law: str, grid: dict) -> dict[str, Any]:
@@ -330,20 +328,11 @@ def loads(text: str, base: str | Path | None = None) -> JobSpec:
     methods = {k: _method(k, rd.table(f"methods.{k}", v), env) for k, v in meth.items()}
     body = [k for k in SUBSTRATE_KEYS if k in material]
     if body:
+        able = [k for k in names if registry.get(k).takes_body]
         for k in methods:
-            if k not in SUBSTRATE_METHODS:
+            if not registry.get(k).takes_body:
                 raise SpecError(f"methods.{k}: not available with material.{body[0]} (no theory of a layer or of "
-                                f"a plastic cap is implemented for it); methods that take them: "
-                                f"{', '.join(SUBSTRATE_METHODS)}")
-        if methods.get("gfmd", {}).get("distributed"):
-            raise SpecError(f"methods.gfmd.distributed: a solve with material.{body[0]} runs on one process "
-                            "(remove distributed)")
-        if "thickness" in material and "gfmd" in methods:  # gapsweep.gfmd.substrates.minimise_on
-            ok = ("auto", "pk", "pcg") if law == "hard_wall" and "hardness" not in material else \
-                ("auto", "pk", "pcg", "mpcg") if law == "hard_wall" else ("auto", "lbfgs")
-            if methods["gfmd"]["method"] not in ok:
-                raise SpecError(f"methods.gfmd.method: on an elastic layer (material.thickness) allowed: "
-                                f"{', '.join(map(repr, ok))}; got {methods['gfmd']['method']!r}")
+                                f"a plastic cap is implemented for it); methods that take them: {', '.join(able)}")
         if kind == "file" and surface.get("periodic") is False and "thickness" in material:
             raise SpecError("material.thickness: an elastic layer is solved with periodic boundaries only; this "
                             "file surface is non-periodic (free boundaries)")

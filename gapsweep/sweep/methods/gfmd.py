@@ -25,7 +25,16 @@ from gapsweep.sweep import fields
 from gapsweep.sweep import readers as rd
 from gapsweep.sweep.context import Context, extra, hist, host, use_gpu
 from gapsweep.sweep.methods.base import LENGTH, Env, Method, axes, grid_tasks, n_list, register
-from gapsweep.sweep.schema import FIELD_NAMES, FLAG_DETACHED, FLAG_JUMP, JobSpec, SpecError, Task, TaskResult
+from gapsweep.sweep.schema import (
+    FIELD_NAMES,
+    FLAG_DETACHED,
+    FLAG_JUMP,
+    SUBSTRATE_KEYS,
+    JobSpec,
+    SpecError,
+    Task,
+    TaskResult,
+)
 
 JUMP_FACTOR = 3.0  # a jump: the mean gap moved by more than this times the secant prediction (docs/store.md)
 
@@ -94,6 +103,7 @@ class GFMD(Method):
                                {"units": "1", "reference_unit": "E*"}),
     }
     select = "n"
+    takes_body = True  # [material] thickness, poisson, bottom, hardness (gapsweep.gfmd.substrates, _plastic)
     extra_target = ("gapsweep.gfmd", "solve", ("heights", "sigma0", "gamma0", "rho", "e_star", "length", "tol",
                                                "method", "backend", "max_iter", "initial", "interaction", "work",
                                                "periodic", "host", "thickness", "poisson", "bottom",
@@ -127,6 +137,7 @@ class GFMD(Method):
         """Every ``keep_fields`` selector value must be one of the job's: a selector that matches no task would
         silently keep nothing."""
         o = spec.methods[self.name]
+        _check_body(spec, o)
         if not o.get("keep_fields"):
             return
         sel = json.loads(o["keep_fields"])
@@ -245,6 +256,25 @@ def gfmd_host_fields(t: Task, ctx: Context) -> bool | tuple[str, ...]:
     return False
 
 
+def _check_body(spec: JobSpec, o: dict[str, Any]) -> None:
+    """A layer or a pressure cap (``[material] thickness``, ``hardness``): one process, and the minimisers that
+    solve them (gapsweep.gfmd.substrates.minimise_on)."""
+    m = spec.material
+    body = [k for k in SUBSTRATE_KEYS if k in m]
+    if not body:
+        return
+    if o.get("distributed"):
+        raise SpecError(f"methods.gfmd.distributed: a solve with material.{body[0]} runs on one process "
+                        "(remove distributed)")
+    if "thickness" in m:
+        hard = spec.law == "hard_wall"
+        ok = ("auto", "pk", "pcg", "mpcg") if hard and "hardness" in m else ("auto", "pk", "pcg") if hard else \
+            ("auto", "lbfgs")
+        if o["method"] not in ok:
+            raise SpecError(f"methods.gfmd.method: on an elastic layer (material.thickness) allowed: "
+                            f"{', '.join(map(repr, ok))}; got {o['method']!r}")
+
+
 def _check_distributed(key: str, o: dict[str, Any], env: Env) -> None:
     """``distributed = true``: refuse what a solve split over ranks cannot do (docs/jobs.md)."""
     if o["backend"] not in ("auto", "numpy", "cupy"):
@@ -277,8 +307,6 @@ def run_gfmd(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
 def body(t: Task) -> dict[str, Any]:
     """The body's keywords of gfmd.solve beyond E* (``[material] thickness, poisson, bottom, hardness``: an
     elastic layer, the hard wall's pressure cap; gapsweep.sweep.spec.SUBSTRATE_KEYS): those the job gives."""
-    from gapsweep.sweep.spec import SUBSTRATE_KEYS
-
     return {k: t.opt(k) for k in SUBSTRATE_KEYS if t.opt(k) is not None}
 
 
