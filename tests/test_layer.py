@@ -5,6 +5,7 @@ and the refusals. The comparison with ContactMechanics is in tests/test_peers_la
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -152,3 +153,32 @@ def test_exponential_on_a_layer_two_minimisers_agree() -> None:
     assert own.converged and gen.converged and own.method != "lbfgs"
     assert own.mean_gap == pytest.approx(gen.mean_gap, rel=1e-6)
     np.testing.assert_allclose(own.pressure, gen.pressure, atol=1e-5 * 0.02 * 50)
+
+
+def test_persson_contact_area_of_a_layer() -> None:
+    """Persson's contact area with E* -> E* f(q t): the half-space's for a thick layer; at small loads
+    ``A -> sqrt(2/pi) sigma0 / sqrt(V_c)`` with the Winkler variance ``V_c = k(0)^2 h_rms^2`` for a thin one; a
+    thinner (stiffer) layer makes less contact; the mean separation is refused."""
+    from gapsweep.theory import persson, persson_layer
+    from gapsweep.theory import spectrum as spec
+
+    kw = dict(hurst=0.8, lambda_l=0.25, lambda_s=0.01, rms_slope=0.5)
+    s = np.array([1e-4, 1e-3, 1e-2])
+    half = persson.contact_area(s, **kw)
+    for variant in ("persson2001", "yang_persson2008"):
+        thick = persson_layer.contact_area(s, thickness=1e6, poisson=0.3, variant=variant, **kw)
+        np.testing.assert_allclose(thick, persson.contact_area(s, variant=variant, **kw), rtol=1e-12)
+    t, nu = 1e-6, 0.3
+    sp = spec.self_affine(0.8, lambda_l=0.25, lambda_s=0.01, rms_slope=0.5)
+    k0 = stiffness_q0(1.0, t, nu, "bonded")
+    assert persson_layer.full_contact_variance(sp, 1.0, t, nu, "bonded") == pytest.approx(
+        (k0 * sp.h_rms) ** 2, rel=1e-4)
+    tiny = 1e-6 * k0 * sp.h_rms
+    a = persson_layer.contact_area(tiny, thickness=t, poisson=nu, **kw)
+    assert a == pytest.approx(math.sqrt(2 / math.pi) * tiny / (k0 * sp.h_rms), rel=1e-6)
+    areas = [persson_layer.contact_area(1e-3, thickness=tt, poisson=nu, **kw) for tt in (1e-3, 1e-2, 1e-1, 1.0)]
+    assert all(a1 < a2 for a1, a2 in itertools.pairwise(areas)) and areas[-1] <= half[1] * (1 + 1e-12)
+    with pytest.raises(NotImplementedError, match="not available"):
+        persson_layer.mean_separation(1e-3, thickness=0.1, poisson=0.3, **kw)
+    with pytest.raises(ValueError, match="poisson"):
+        persson_layer.contact_area(1e-3, thickness=0.1, **kw)
