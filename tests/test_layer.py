@@ -182,3 +182,15 @@ def test_persson_contact_area_of_a_layer() -> None:
         persson_layer.mean_separation(1e-3, thickness=0.1, poisson=0.3, **kw)
     with pytest.raises(ValueError, match="poisson"):
         persson_layer.contact_area(1e-3, thickness=0.1, **kw)
+
+
+def test_layer_coarse_start_agrees_with_plain_pk() -> None:
+    """N = 256: "auto" (pcg from the coarse-to-fine start solved on the same layer, FFTW spectral loop) against
+    the plain Polonsky-Keer iteration from the flat start."""
+    h = self_affine(256, 0.8, lambda_l=0.5, lambda_s=8 / 256, seed=21)
+    kw = dict(sigma0=0.01, interaction="hard_wall", tol=1e-9, thickness=0.03, poisson=0.45)
+    a = solve(h, **kw)
+    b = solve(h, method="pk", **kw)
+    assert a.converged and b.converged and a.diagnostics["coarse_iterations"]
+    assert a.mean_gap == pytest.approx(b.mean_gap, rel=1e-7)
+    assert a.contact_area == b.contact_area

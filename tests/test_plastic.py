@@ -115,3 +115,14 @@ def test_fused_and_generic_passes_agree(monkeypatch) -> None:
     assert fused.converged and generic.converged and fused.plastic_area > 0
     np.testing.assert_allclose(fused.pressure, generic.pressure, atol=1e-8 * 0.02)
     assert fused.mean_gap == pytest.approx(generic.mean_gap, rel=1e-8)
+
+
+def test_displacement_from_the_gap_and_the_plastic_field() -> None:
+    """The identity the sweep's kept fields use (gapsweep.sweep.methods.gfmd._keep_fields): with the gap to the
+    flattened surface, ``u = gap - (mean_gap - <u_pl>) + (h - <h>) - u_pl``."""
+    h = surface(48, seed=6) + 0.3
+    r = solve(h, sigma0=0.02, interaction="hard_wall", hardness=0.06, tol=1e-10)
+    assert r.converged and r.plastic_area > 0
+    u_pl = r.plastic_displacement
+    u = r.gap - (r.mean_gap - u_pl.mean()) + (h - h.mean()) - u_pl
+    np.testing.assert_allclose(u, r.displacement, atol=1e-9 * h.std())

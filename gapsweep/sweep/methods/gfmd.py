@@ -225,6 +225,10 @@ def _keep_fields(t: Task, ctx: Context, res: Any, h: Any, gap: Any, comm: Any = 
     gap = np.asarray(host(gap), dtype=float)
     arrays = {"gap": gap, "height": np.asarray(host(h), dtype=float)}
     arrays["displacement"] = gap - g0 + arrays["height"]  # g = g0 + u - h (docs/model.md M3)
+    u_pl = getattr(res, "plastic_displacement", None)
+    if u_pl is not None:  # a pressure cap: the gap is to the flattened surface h - u_pl (gfmd._plastic)
+        u_pl = np.asarray(host(u_pl), dtype=float)
+        arrays["displacement"] += float(u_pl.mean()) - u_pl
     p = getattr(res, "pressure", None)
     arrays["pressure"] = np.asarray(host(p) if p is not None else t.opt("gamma0") / t.rho * np.exp(-gap / t.rho),
                                     dtype=float)
