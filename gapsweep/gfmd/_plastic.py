@@ -10,14 +10,17 @@ through :class:`gapsweep.gfmd.substrates.LayerGrid`, or the free-boundary Boussi
     0 < p < H  ->  g = 0    (elastic contact, the set S)
     p = H      ->  g <= 0   (plastic flow: the surface is flattened by ``u_pl = -g``)
 
-Algorithm: Polonsky & Keer's constrained conjugate gradients (Wear 231, 206, 1999) on the free set ``S`` with the
-pressure saturated at ``H`` (as tamaas' KatoSaturated / Almqvist et al., Wear 262, 2007, solve the same
-problem): a conjugate direction ``t`` on ``S`` (preconditioned with ``M = E* q/2``, method "pcg", or plain,
-"pk"), load-neutral on ``S``; the step ``tau = <g t>_S / <t K t>_S``; ``p <- clip(p - tau t, 0, H)``; pixels that
-violate their condition re-enter ``S`` (``p = 0`` with ``g < 0``: ``p = -tau g``; ``p = H`` with ``g > 0``:
-``p = H - tau g``) and conjugacy restarts; the load is restored by a uniform shift of the loaded pixels' pressure
-(``p <- clip(p + lambda, 0, H)`` on ``p > 0``, ``lambda`` solved exactly on the piecewise-linear sum). Method
-"mpcg": "pcg" started from the pressure of the coarsened surface (recursively, as the hard wall's "mpcg").
+Algorithm: Polonsky & Keer's constrained conjugate gradients (Wear 231, 206, 1999) with the pressure saturated at
+``H`` (tamaas' KatoSaturated and Almqvist et al., Wear 262, 2007, solve the same problem by other iterations). The
+free set ``F`` is the elastic pixels ``S`` plus the violators (``p = 0`` with an overlap ``g < 0``, ``p = H``
+with ``g > 0``); the conjugate direction ``t`` lives on ``F`` (preconditioned with ``M = E* q/2``, method "pcg",
+or plain, "pk"), load-neutral there; the step ``tau = <g t>_F / <t K t>``; where ``p - tau t`` leaves the box,
+the Euclidean projection of it on ``{0 <= p <= H, <p> = sigma0}`` over ``F`` (``clip(trial - lambda, 0, H)``,
+``lambda`` by Newton steps on the piecewise-linear sum, bisection as a fallback) and conjugacy restarts (also when
+``F`` changes). Rescaling the load instead (the plain hard wall's way) oscillates once many pixels sit at ``H``.
+Method "mpcg": "pcg" started from the pressure of the coarsened surface (recursively, as the hard wall's "mpcg").
+CPU: fused numba passes (gfmd._plastic_ops) with ``u`` following ``u - tau K t`` between projections; other
+arrays (cupy) the array code of :func:`_iterate`.
 
 Convergence on the returned fields: ``residual = max(rms_S(g), max(0, -min_{p=0} g), max(0, max_{p=H} g)) / h_rms``
 with ``g0 = -<u - h>_S`` (without elastic pixels: the middle of the interval the KKT conditions leave);
