@@ -80,3 +80,19 @@ def test_shipped_body_jobs_match_direct_solves(job: str, tmp_path: Path) -> None
         sig = np.array([t.sigma0 for t in ts])
         area = np.array([row[t.task_id]["contact_area"] for t in ts])
         assert np.all(area >= sig / js.material["hardness"] - 1e-12)
+    # the report: the contact map re-solved with the body, no Persson half-space overlay
+    from gapsweep.analysis import contact, report
+
+    df, _, prov = report.load([out])
+    cdf = df[contact.is_contact(df)]
+    info = contact.job_infos(cdf, prov)[js.name]
+    assert info["body"] == {k: js.material[k] for k in ("thickness", "poisson", "bottom", "hardness")
+                            if k in js.material}
+    assert any("Persson's half-space distributions are not drawn" in n for n in info["notes"])
+    f = contact.map_fields(cdf, js.name, info)
+    r = f["row"]
+    h = ctx.surface(next(t for t in ts if t.task_id == str(r["task_id"]).split(":")[-1]), int(r["n"]))
+    direct = gfmd.solve(h, sigma0=float(r["sigma0"]), interaction="hard_wall", tol=1e-8, **info["body"])
+    np.testing.assert_array_equal(f["mask"], direct.pressure > 0)
+    half = gfmd.solve(h, sigma0=float(r["sigma0"]), interaction="hard_wall", tol=1e-8)
+    assert not np.array_equal(f["mask"], half.pressure > 0)  # the body changes the map: the check can fail
