@@ -126,3 +126,15 @@ def test_displacement_from_the_gap_and_the_plastic_field() -> None:
     u_pl = r.plastic_displacement
     u = r.gap - (r.mean_gap - u_pl.mean()) + (h - h.mean()) - u_pl
     np.testing.assert_allclose(u, r.displacement, atol=1e-9 * h.std())
+
+
+@pytest.mark.parametrize("kw", [{"periodic": False}, {"thickness": 0.03, "poisson": 0.3}])
+def test_coarse_start_with_the_cap_agrees_with_plain_pk(kw) -> None:
+    """N = 256: "mpcg" (coarse levels of the same substrate: block means for free boundaries, the layer's grid)
+    against plain PK from the uniform start."""
+    h = self_affine(256, 0.8, lambda_l=0.5, lambda_s=8 / 256, seed=3, rms_slope=0.5)
+    a = solve(h, sigma0=0.02, interaction="hard_wall", hardness=0.2, tol=1e-9, **kw)
+    b = solve(h, sigma0=0.02, interaction="hard_wall", hardness=0.2, tol=1e-9, method="pk", **kw)
+    assert a.converged and b.converged and a.diagnostics["coarse_iterations"]
+    assert a.mean_gap == pytest.approx(b.mean_gap, rel=1e-8)
+    assert a.plastic_area == b.plastic_area > 0
