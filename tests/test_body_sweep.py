@@ -31,6 +31,7 @@ BASE = ('[job]\nname = "x"\n[grid]\nhurst = [0.5]\nsigma0 = [1e-2, 2e-2]\n[surfa
      "methods.theory"),                                                   # no theory of a cap: refused
     ("hard_wall", "thickness = 0.1\nbottom = \"slip\"\n", "method = \"mpcg\"\n", "methods.gfmd.method"),
     ("hard_wall", "thickness = 0.1\nbottom = \"slip\"\n", "distributed = true\n", "methods.gfmd.distributed"),
+    ("hard_wall", "hardness = 0.05\n", "sigma0 = [0.01, 0.1]\n", "material.hardness"),  # a method's own sigma0
 ])
 def test_bad_body_keys_name_the_key(law: str, material: str, more: str, key: str) -> None:
     with pytest.raises(spec.SpecError) as e:

@@ -270,6 +270,11 @@ def _check_body(spec: JobSpec, o: dict[str, Any]) -> None:
     if o.get("distributed"):
         raise SpecError(f"methods.gfmd.distributed: a solve with material.{body[0]} runs on one process "
                         "(remove distributed)")
+    if "hardness" in m:  # the method's own sigma0 (a grid override) too
+        top = max(float(x) for x in axes(spec, "gfmd")["sigma0"])
+        if not m["hardness"] > top:
+            raise SpecError(f"material.hardness: must exceed every sigma0 of methods.gfmd (the largest is {top!r}: "
+                            f"at sigma0 >= H the whole surface flows), got {m['hardness']!r}")
     if "thickness" in m:
         hard = spec.law == "hard_wall"
         ok = ("auto", "pk", "pcg", "mpcg") if hard and "hardness" in m else ("auto", "pk", "pcg") if hard else \
