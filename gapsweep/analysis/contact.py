@@ -256,6 +256,13 @@ def job_info(job: str, rows: pd.DataFrame, prov: Mapping[str, Any] | None = None
         "gamma": float(theory.get("persson_gamma", 0.42)),
         "tol": float(_table(raw, "methods", "gfmd").get("tol", 1e-8)),
         "store": prov.get("path"), "heights": None, "length": math.nan, "notes": [], "has_spec": bool(raw)}
+    # the body beyond the half-space ([material] thickness, poisson, bottom, hardness: docs/jobs.md): the map is
+    # re-solved with it, and Persson's half-space distributions are not drawn against it
+    mat = _table(raw, "material")
+    info["body"] = {k: mat[k] for k in ("thickness", "poisson", "bottom", "hardness") if k in mat}
+    if info["body"]:
+        info["notes"].append(f"Job {job}: an elastic layer or a pressure cap ([material] "
+                             f"{', '.join(sorted(info['body']))}); Persson's half-space distributions are not drawn.")
     if info["file"]:
         topo, why = _load_map(surf, prov, rows) if raw else (None, "the store holds no job spec")
         if topo is None:
@@ -269,7 +276,7 @@ def job_info(job: str, rows: pd.DataFrame, prov: Mapping[str, Any] | None = None
 def _persson_kw(info: Mapping[str, Any], row: Mapping[str, Any]) -> dict[str, Any] | None:
     """Spectrum keywords of ``gapsweep.theory.persson`` for one row: the map's own spectrum (file surface) or the
     self-affine parameters (synthetic); None when the law is not the hard wall or the surface is unknown."""
-    if info.get("law") != "hard_wall":
+    if info.get("law") != "hard_wall" or info.get("body"):
         return None
     if info.get("file"):
         return None if info.get("heights") is None else {"heights": info["heights"], "length": info["length"],
@@ -551,9 +558,9 @@ def map_fields(df: pd.DataFrame, job: str, info: Mapping[str, Any]) -> dict[str,
         else:
             from gapsweep import gfmd
 
-            kw: dict[str, Any] = {}
+            kw: dict[str, Any] = dict(info.get("body") or {})
             if law == "adhesive":
-                kw = {"work": float(info["interaction"].get("work", math.nan)), "rho": rho}
+                kw.update({"work": float(info["interaction"].get("work", math.nan)), "rho": rho})
             try:
                 length = out["length"]
                 length = tuple(map(float, length)) if isinstance(length, (tuple, list)) else float(length)
@@ -674,10 +681,12 @@ def plan(df: pd.DataFrame, hists: Mapping[str, tuple], phists: Mapping[str, tupl
                                                                 info=info)))
         tids = set(a[a["method"].astype(str) == "gfmd"]["task_id"])
         if tids & set(hists) or tids & set(phists):
-            overlay = law == "hard_wall" and (not info.get("file") or info.get("heights") is not None)
+            overlay = law == "hard_wall" and (not info.get("file") or info.get("heights") is not None) \
+                and not info.get("body")
             out.append((f"contact_distributions_{tag}", f"Gap and pressure distributions, {law} (job {job}; "
                         + ("Persson's theory dashed" if overlay else "no Persson overlay: "
-                           + ("hard-wall theory" if law != "hard_wall" else "map not found")) + ")",
+                           + ("hard-wall theory" if law != "hard_wall" else "half-space theory (layer or cap)"
+                              if info.get("body") else "map not found")) + ")",
                         lambda job=job, a=a, info=info: fig_distributions(df, hists, phists, job=job,
                                                                           note=note(a, job), info=info)))
         if leak.has_flow(df, job):  # the flow extension's columns (docs/model.md M8)

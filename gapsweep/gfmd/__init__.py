@@ -62,6 +62,7 @@ from gapsweep.gfmd import _softmax
 from gapsweep.gfmd._common import STATUSES, UnderResolvedWarning, _make_ops, _transfer_modes  # noqa: F401
 from gapsweep.gfmd._ops import _have_numba, _is_cupy  # noqa: F401
 from gapsweep.gfmd._path import LoadPath, solve_path
+from gapsweep.gfmd._plastic import residual_surface
 from gapsweep.gfmd._result import GFMDResult
 from gapsweep.gfmd._solve import _FREE, _MINIMISERS, solve  # noqa: F401
 from gapsweep.gfmd._solvers import _half_q, _Problem  # noqa: F401 - used by benchmarks (gfmd._Problem)
@@ -70,7 +71,7 @@ from gapsweep.gfmd.batched import solve_batch
 from gapsweep.gfmd.interactions import INTERACTIONS, Interaction, resolve  # noqa: F401
 
 __all__ = ["INTERACTIONS", "METHODS", "BatchProblem", "GFMDResult", "Interaction", "LoadPath",
-           "UnderResolvedWarning", "slab_rows", "solve", "solve_batch", "solve_path"]
+           "UnderResolvedWarning", "residual_surface", "slab_rows", "solve", "solve_batch", "solve_path"]
 
 METHODS = _softmax.METHODS  # methods of the exponential law (the job-spec validator uses this list)
 DEFAULT_METHOD = _softmax.DEFAULT_METHOD

@@ -229,7 +229,8 @@ def _spectral_state(grid: Grid, kinv_q: Any) -> _Spectral:
     from gapsweep.gfmd._constrained_ops import _have_numba
 
     fft = getattr(grid, "_fft", None)
-    if fft is not None and getattr(fft, "name", "") == "pyfftw" and _have_numba() and type(grid) is Grid:
+    plain = type(grid) is Grid or getattr(grid, "plain_periodic", False)  # a layer's grid too (gfmd.substrates)
+    if fft is not None and getattr(fft, "name", "") == "pyfftw" and _have_numba() and plain:
         return _SpectralFFTW(grid, kinv_q)
     return _Spectral(grid, kinv_q)
 

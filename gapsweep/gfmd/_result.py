@@ -56,6 +56,9 @@ class GFMDResult:
     ``(E*/4) sum_q q |u~(q)|^2``, pressure x length), ``interaction`` (the law's name) with its ``params``,
     ``diagnostics`` (the minimiser's further convergence measures, e.g. complementarity for the hard wall).
     ``periodic``: False for a finite map solved with free boundaries (``solve(..., periodic=False)``).
+    ``plastic_area`` and ``plastic_displacement``: a capped hard wall's plastic set (``solve(..., hardness=H)``,
+    docs/gfmd.md "Plastic contact (pressure cap)"). ``substrate``: an elastic layer's parameters (``solve(...,
+    thickness=t)``), empty for the half-space.
     """
 
     mean_gap: float
@@ -84,6 +87,13 @@ class GFMDResult:
     contact_criterion: str = ""
     diagnostics: dict[str, float] = field(default_factory=dict)
     periodic: bool = True  # False: a finite map with free boundaries (docs/gfmd.md)
+    # The hard wall with a pressure cap (solve(..., hardness=H); gfmd._plastic): fraction of the nominal area at
+    # p = H, and the plastic displacement field (length; 0 off the plastic set). NaN / None without a cap.
+    plastic_area: float = math.nan
+    plastic_displacement: Any = field(default=None, repr=False)
+    # The substrate: {} for the half-space; a layer's {"thickness", "poisson", "bottom", "mean_compression"}
+    # (gfmd.substrates, docs/model.md "Elastic layer on a rigid base").
+    substrate: dict[str, Any] = field(default_factory=dict)
 
     @property
     def n(self) -> int:

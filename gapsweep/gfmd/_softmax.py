@@ -21,8 +21,10 @@ DEFAULT_METHOD = "cg"  # decided by benchmarks/bench_gfmd.py speed (docs/benchma
 
 def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, length: float, tol: float,
              method: str, backend: str, max_iter: int, initial: Any, threads: int | None, host: bool,
-             t_start: float) -> GFMDResult:
-    """Exponential repulsion ``law`` on the square grid ``heights`` (inputs validated by ``gfmd.solve``)."""
+             t_start: float, stiffness: Any = None) -> GFMDResult:
+    """Exponential repulsion ``law`` on the square grid ``heights`` (inputs validated by ``gfmd.solve``).
+    ``stiffness``: the substrate's ``k(q)`` on the rfft2 half grid instead of the half-space's ``E* q/2`` (an
+    elastic layer, gfmd.substrates; numpy arrays, square grids)."""
     host_fields(host)  # validate before any work
     from gapsweep.gfmd._common import _make_ops, _transfer_modes
 
@@ -53,7 +55,7 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
     ops = _make_ops(xp, n)
     # GPU with the fused kernels (issue 22): set-up and result in single passes without temporaries, the surface
     # centred inside the pass that forms W (no centred copy), CG with one gradient array; see _solve_lean.
-    lean = hasattr(ops, "final")
+    lean = hasattr(ops, "final") and stiffness is None
     if lean:
         h = xp.ascontiguousarray(h)
         h_sum, bad = ops.sum_finite(h)
@@ -69,7 +71,7 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
 
     if initial is None:
         Hq = fft.rfft2(h) * (1.0 / (n * n))
-        k = 0.5 * e_star * _half_q(xp, n, length)
+        k = 0.5 * e_star * _half_q(xp, n, length) if stiffness is None else stiffness
         x0 = Hq * ((sigma0 / rho) / (k + sigma0 / rho))  # linear response of M4: h~ / (1 + eta zeta)
     else:
         u0 = initial.displacement if isinstance(initial, GFMDResult) else initial
@@ -88,7 +90,8 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
     history: list[float] = []
     # Non-finite values are caught by the status checks (residual, fields), not by numpy warnings.
     with np.errstate(all="ignore"):
-        pb = _Problem(h, x0, sigma0=sigma0, rho=rho, e_star=e_star, length=length, fft=fft, ops=ops)
+        pb = _Problem(h, x0, sigma0=sigma0, rho=rho, e_star=e_star, length=length, fft=fft, ops=ops,
+                      stiffness=stiffness)
         status = _RUNNERS[method](pb, tol, max_iter, history)
 
         # Fields from the Fourier state (fresh transform, no accumulated drift between X and W).

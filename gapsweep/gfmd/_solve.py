@@ -55,6 +55,10 @@ def solve(
     start: str = "flat",
     levels: int | None = None,
     coarse_tol: float | None = None,
+    thickness: float | None = None,
+    poisson: float | None = None,
+    bottom: str = "bonded",
+    hardness: float | None = None,
 ) -> GFMDResult:
     """Equilibrium gap of an elastic half-space on the rigid surface ``heights`` at mean pressure ``sigma0``.
 
@@ -97,7 +101,25 @@ def solve(
     solver's minimisers (:func:`gapsweep.gfmd.distributed.solve`; without ``comm`` on one process: the adhesive
     law then keeps ``memory=2`` L-BFGS pairs) and returns a ``SlabResult`` whose ``diagnostics["levels"]`` lists
     the coarse levels.
+
+    ``thickness``, ``poisson``, ``bottom``: the body is an elastic layer of thickness ``t`` (units of ``length``;
+    None: the half-space) and Poisson ratio ``-1 < nu < 0.5`` on a rigid base, "bonded" (no slip; needs
+    ``poisson``) or "slip" (frictionless; its stiffness does not depend on ``nu``), ``e_star`` its contact
+    modulus ``E/(1 - nu^2)`` (docs/model.md, "Elastic layer on a rigid base"; :mod:`gapsweep.gfmd.substrates`).
+    Periodic, one process; every law. ``hardness``: the hard wall's pressure cap ``H > sigma0`` (elastic-perfectly
+    plastic contact, :mod:`gapsweep.gfmd._plastic`; ``result.plastic_area``, ``result.plastic_displacement``,
+    :func:`gapsweep.gfmd.residual_surface`); periodic or free boundaries, on the half-space or a layer.
     """
+    from gapsweep.gfmd import _plastic, substrates
+
+    if bottom == "slip" and poisson is None:
+        poisson = 0.0  # the slip layer's stiffness in E* does not depend on nu
+    if thickness is not None and poisson is None:
+        raise ValueError("poisson is needed with thickness and bottom='bonded' (-1 < poisson < 0.5)")
+    layer = substrates.check_layer(thickness, poisson, bottom)
+    if (layer is not None or hardness is not None) and (comm is not None or start != "flat"):
+        raise ValueError("thickness / hardness: solved on one process from the flat start (comm=None, "
+                         "start='flat')")
     if start != "flat" and comm is None:
         if start != "coarse":
             raise ValueError(f"start must be 'flat' or 'coarse', got {start!r}")
@@ -162,6 +184,17 @@ def solve(
     text = under_resolved(law, shape, length)
     if text is not None:  # every law with a range, every grid shape and boundary (docs/gfmd.md, "Warnings")
         warnings.warn(text, UnderResolvedWarning, stacklevel=2)
+    if layer is not None or hardness is not None:
+        cap = _plastic.check_hardness(hardness, sigma0)
+        if cap is not None and law.name != "hard_wall":
+            raise ValueError(f"hardness: the pressure cap is for interaction='hard_wall', got {law.name!r}")
+        if layer is not None or cap is not None:
+            r = substrates.minimise_on(heights, law, layer=layer, hardness=cap, sigma0=sigma0, e_star=e_star,
+                                       length=length, tol=tol, method=method, backend=backend, max_iter=max_iter,
+                                       initial=initial, threads=threads, host=host, t_start=t_start,
+                                       periodic=periodic)
+            r.periodic = periodic
+            return r
     if periodic:
         return minimise(heights, law, sigma0=sigma0, e_star=e_star, length=length, tol=tol, method=method,
                         backend=backend, max_iter=max_iter, initial=initial, threads=threads, host=host,

@@ -49,7 +49,7 @@ class _Problem:
     Fourier gradient ``G = (E* q/2) u~ - p~`` and ``r2 = <G G>`` (M3)."""
 
     def __init__(self, h, x0, *, sigma0, rho, e_star, length, fft: FFTBackend, ops: _Ops,
-                 h_mean: float | None = None, share_gold: bool = False) -> None:
+                 h_mean: float | None = None, share_gold: bool = False, stiffness: Any = None) -> None:
         """``h_mean`` (GPU, ops with ``field``): ``h`` is the caller's surface, centred in the pass that forms
         ``W`` (no centred copy is kept). ``share_gold`` (CG on the GPU): ``G_old`` is ``G`` itself, the
         gradient pass reading each old mode before writing the new one (one half spectrum less)."""
@@ -57,11 +57,13 @@ class _Problem:
         n = h.shape[0]
         self.xp, self.n, self.fft, self.ops = xp, n, fft, ops
         self.sigma0, self.rho = sigma0, rho
-        self.k = 0.5 * e_star * _half_q(xp, n, length)  # elastic stiffness E* q / 2 per mode
+        # elastic stiffness E* q / 2 per mode; ``stiffness``: another substrate's k(q) on the same half grid (an
+        # elastic layer, gfmd.substrates; CPU ops only: the GPU's fused kernels recompute E* q / 2 per mode)
+        self.k = 0.5 * e_star * _half_q(xp, n, length) if stiffness is None else stiffness
         self.mass = self.k + sigma0 / rho  # Fourier-diagonal Hessian estimate M(q)
         self.minv = 1.0 / self.mass
         self.minv[0, 0] = 0.0  # <u> = 0: the q = 0 mode is not an unknown
-        if hasattr(ops, "bind_stiffness"):  # GPU: k and M^-1 recomputed per mode beat reading them
+        if hasattr(ops, "bind_stiffness") and stiffness is None:  # GPU: k, M^-1 recomputed per mode beat reading
             ops.bind_stiffness(self.k, self.minv, 0.5 * e_star, 2 * np.pi / length, sigma0 / rho)
         self.h = h
         self.X = x0

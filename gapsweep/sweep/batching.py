@@ -68,6 +68,8 @@ def _batchable(t: Task, mode: str) -> bool:
         return False
     if any(k.startswith("extra.") for k, _ in t.options):
         return False
+    if t.opt("thickness") is not None or t.opt("hardness") is not None:  # a layer / a cap: not in solve_batch
+        return False
     return mode == "all" or t.opt("backend") == "cupy"
 
 

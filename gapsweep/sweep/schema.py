@@ -184,6 +184,9 @@ TIMEOUT_PREFIX = "timeout:"
 # signal inside numba's JIT compilation, delivered in an llvmlite callback, surfaces as "no compiled object yet";
 # issue 31): never a result of the task's parameters, so --resume runs such rows again.
 INTERRUPTED_PREFIX = "interrupted:"
+# [material] keys of the body beyond E* (an elastic layer, the hard wall's pressure cap; docs/jobs.md "The body:
+# layer and hardness"), validated by gapsweep.sweep.spec, passed to gfmd.solve by the gfmd method.
+SUBSTRATE_KEYS = ("thickness", "poisson", "bottom", "hardness")
 # The kept fields of a GFMD task (docs/jobs.md "keep_fields", gapsweep.sweep.fields).
 FIELD_NAMES = ("gap", "pressure", "displacement", "height")
 

@@ -27,7 +27,7 @@ from gapsweep.sweep import methods as registry
 from gapsweep.sweep import readers as rd
 from gapsweep.sweep.filesurface import file_surface
 from gapsweep.sweep.methods.base import GRID_AXES, Env
-from gapsweep.sweep.schema import JobSpec, SpecError
+from gapsweep.sweep.schema import SUBSTRATE_KEYS, JobSpec, SpecError
 
 __all__ = ["MAX_TASKS", "JobSpec", "SpecError", "check_extra", "load", "loads", "max_tasks"]
 
@@ -209,6 +209,41 @@ def _interaction(t: dict) -> dict[str, Any]:
     return out
 
 
+# [material] keys of the body beyond E*: an elastic layer on a rigid base and the hard wall's pressure cap
+# (gapsweep.gfmd.substrates, gapsweep.gfmd._plastic; docs/jobs.md "The body: layer and hardness"). Present in
+# the task options only when given, so older specs keep their task ids.
+
+
+def _substrate(m: dict, law: str, grid: dict) -> dict[str, Any]:
+    """``[material] thickness`` (> 0, units of the surface's length), ``poisson`` (-1 < nu < 0.5; required with
+    a bonded layer), ``bottom`` ("bonded" default, "slip"), ``hardness`` (> every sigma0 of the grid, units of
+    E*; interaction.kind = "hard_wall" only)."""
+    out: dict[str, Any] = {}
+    if "thickness" in m:
+        out["thickness"] = rd.number("material.thickness", m["thickness"], gt=0.0)
+        out["bottom"] = rd.string("material.bottom", m.get("bottom", "bonded"), ("bonded", "slip"))
+        if "poisson" in m:
+            out["poisson"] = rd.number("material.poisson", m["poisson"], gt=-1.0, lt=0.5)
+        elif out["bottom"] == "bonded":
+            raise SpecError("material.poisson: missing; a bonded layer (material.bottom = 'bonded') needs its "
+                            "Poisson ratio, -1 < poisson < 0.5")
+    else:
+        for k in ("poisson", "bottom"):
+            if k in m:
+                raise SpecError(f"material.{k}: describes an elastic layer; give material.thickness too (or "
+                                "remove it: the half-space)")
+    if "hardness" in m:
+        if law != "hard_wall":
+            raise SpecError(f"material.hardness: the pressure cap of the hard wall; not used with "
+                            f"interaction.kind = {law!r} (set interaction.kind = 'hard_wall' or remove it)")
+        out["hardness"] = rd.number("material.hardness", m["hardness"], gt=0.0)
+        top = max(grid["sigma0"])
+        if not out["hardness"] > top:
+            raise SpecError(f"material.hardness: must exceed every grid.sigma0 (the largest is {top!r}: at "
+                            f"sigma0 >= H the whole surface flows), got {out['hardness']!r}")
+    return out
+
+
 def loads(text: str, base: str | Path | None = None) -> JobSpec:
     """Parse and validate a job spec from TOML text; raise :class:`SpecError` on any problem. ``base``: the
     directory a file surface's ``path`` is relative to (default: the current directory)."""
@@ -267,7 +302,7 @@ def loads(text: str, base: str | Path | None = None) -> JobSpec:
                         f"got {grid['seeds']}")
 
     m = rd.table("material", raw.get("material", {}))
-    rd.known("material", m, ("e_star", "gamma0", "pressure_unit"))
+    rd.known("material", m, ("e_star", "gamma0", "pressure_unit", *SUBSTRATE_KEYS))
     material = {"e_star": rd.number("material.e_star", m.get("e_star", 1.0), gt=0.0)}
     if "pressure_unit" in m:  # a label: E*, sigma0, gamma0/rho and work/rho are then in this unit (docs/jobs.md)
         material["pressure_unit"] = _unit_label("material.pressure_unit", m["pressure_unit"], PRESSURE_UNITS)
@@ -276,6 +311,8 @@ def loads(text: str, base: str | Path | None = None) -> JobSpec:
     elif "gamma0" in m:
         raise SpecError(f"material.gamma0: the exponential law's amplitude; not used with interaction.kind = "
                         f"{law!r} (remove it)")
+
+    material.update(_substrate(m, law, grid))
 
     h = rd.table("histogram", raw.get("histogram", {}))
     rd.known("histogram", h, ("bins", "range"))
@@ -296,6 +333,16 @@ def loads(text: str, base: str | Path | None = None) -> JobSpec:
         raise SpecError(f"methods: empty; add at least one of [methods.{'], [methods.'.join(names)}]")
     env = Env(law=law, file_n=file_n, nyquist=nyquist, norm=norm)
     methods = {k: _method(k, rd.table(f"methods.{k}", v), env) for k, v in meth.items()}
+    body = [k for k in SUBSTRATE_KEYS if k in material]
+    if body:
+        able = [k for k in names if registry.get(k).takes_body]
+        for k in methods:
+            if not registry.get(k).takes_body:
+                raise SpecError(f"methods.{k}: not available with material.{body[0]} (no theory of a layer or of "
+                                f"a plastic cap is implemented for it); methods that take them: {', '.join(able)}")
+        if kind == "file" and surface.get("periodic") is False and "thickness" in material:
+            raise SpecError("material.thickness: an elastic layer is solved with periodic boundaries only; this "
+                            "file surface is non-periodic (free boundaries)")
     js = JobSpec(name=name, description=description, text=text, grid=grid, surface=surface,
                  material=material, histogram=histogram, methods=methods, interaction=interaction,
                  base_dir=str(base) if base is not None else "")

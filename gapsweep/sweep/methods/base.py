@@ -100,6 +100,9 @@ class Method:
     seed_free: tuple[str, ...] = ()
     select: str | None = None  # the option ("n" or "c2") of which the dataset view keeps one value
     extra_target: tuple[str, str, tuple[str, ...]] | None = None  # (module, function, keys the sweep sets)
+    # whether the method solves the body keys of [material] (schema.SUBSTRATE_KEYS: a layer, a pressure cap);
+    # a job with them refuses every other method (docs/jobs.md "The body: layer and hardness")
+    takes_body: bool = False
 
     def job_own_columns(self, spec: JobSpec) -> dict[str, Column]:
         """The own columns this method's rows have in ``spec``'s store: ``own_columns`` (default). A method whose

@@ -35,7 +35,16 @@ from gapsweep.sweep.methods.base import (
     n_list,
     register,
 )
-from gapsweep.sweep.schema import FIELD_NAMES, FLAG_DETACHED, FLAG_JUMP, JobSpec, SpecError, Task, TaskResult
+from gapsweep.sweep.schema import (
+    FIELD_NAMES,
+    FLAG_DETACHED,
+    FLAG_JUMP,
+    SUBSTRATE_KEYS,
+    JobSpec,
+    SpecError,
+    Task,
+    TaskResult,
+)
 
 JUMP_FACTOR = 3.0  # a jump: the mean gap moved by more than this times the secant prediction (docs/store.md)
 
@@ -106,9 +115,11 @@ class GFMD(Method):
                                {"units": "1", "reference_unit": "E*"}),
     }
     select = "n"
+    takes_body = True  # [material] thickness, poisson, bottom, hardness (gapsweep.gfmd.substrates, _plastic)
     extra_target = ("gapsweep.gfmd", "solve", ("heights", "sigma0", "gamma0", "rho", "e_star", "length", "tol",
                                                "method", "backend", "max_iter", "initial", "interaction", "work",
-                                               "periodic", "host"))
+                                               "periodic", "host", "thickness", "poisson", "bottom",
+                                               "hardness"))
 
     def validate(self, key: str, t: dict[str, Any], env: Env) -> dict[str, Any]:
         o: dict[str, Any] = {}
@@ -138,6 +149,7 @@ class GFMD(Method):
         """Every ``keep_fields`` selector value must be one of the job's: a selector that matches no task would
         silently keep nothing."""
         o = spec.methods[self.name]
+        _check_body(spec, o)
         if not o.get("keep_fields"):
             return
         sel = json.loads(o["keep_fields"])
@@ -193,7 +205,8 @@ class GFMD(Method):
         return run_gfmd(t, ctx, prev)
 
     def warm_up_key(self, t: Task) -> tuple | None:
-        return (t.law, t.opt("backend"), t.opt("method"), t.opt("surface.periodic") is False)
+        return (t.law, t.opt("backend"), t.opt("method"), t.opt("surface.periodic") is False,
+                t.opt("thickness") is not None, t.opt("hardness") is not None)
 
     def warm_up(self, t: Task, ctx: Context) -> None:
         """One solve of a 32 x 32 surface with the task's law, backend, minimiser and boundaries: numba's kernels
@@ -210,7 +223,7 @@ class GFMD(Method):
         if t.law != "hard_wall":
             kw["rho"] = 1e-2
         gfmd.solve(h, sigma0=abs(t.sigma0) or 1e-2, **kw, tol=1e-4, method=t.opt("method"),
-                   backend=t.opt("backend"), max_iter=200, host=False, **boundaries(t))
+                   backend=t.opt("backend"), max_iter=200, host=False, **boundaries(t), **body(t))
 
 
 def _keep_fields(t: Task, ctx: Context, res: Any, h: Any, gap: Any, comm: Any = None) -> None:
@@ -226,6 +239,10 @@ def _keep_fields(t: Task, ctx: Context, res: Any, h: Any, gap: Any, comm: Any = 
     gap = np.asarray(host(gap), dtype=float)
     arrays = {"gap": gap, "height": np.asarray(host(h), dtype=float)}
     arrays["displacement"] = gap - g0 + arrays["height"]  # g = g0 + u - h (docs/model.md M3)
+    u_pl = getattr(res, "plastic_displacement", None)
+    if u_pl is not None:  # a pressure cap: the gap is to the flattened surface h - u_pl (gfmd._plastic)
+        u_pl = np.asarray(host(u_pl), dtype=float)
+        arrays["displacement"] += float(u_pl.mean()) - u_pl
     p = getattr(res, "pressure", None)
     arrays["pressure"] = np.asarray(host(p) if p is not None else t.opt("gamma0") / t.rho * np.exp(-gap / t.rho),
                                     dtype=float)
@@ -257,6 +274,30 @@ def gfmd_host_fields(t: Task, ctx: Context) -> bool | tuple[str, ...]:
     return False
 
 
+def _check_body(spec: JobSpec, o: dict[str, Any]) -> None:
+    """A layer or a pressure cap (``[material] thickness``, ``hardness``): one process, and the minimisers that
+    solve them (gapsweep.gfmd.substrates.minimise_on)."""
+    m = spec.material
+    body = [k for k in SUBSTRATE_KEYS if k in m]
+    if not body:
+        return
+    if o.get("distributed"):
+        raise SpecError(f"methods.gfmd.distributed: a solve with material.{body[0]} runs on one process "
+                        "(remove distributed)")
+    if "hardness" in m:  # the method's own sigma0 (a grid override) too
+        top = max(float(x) for x in axes(spec, "gfmd")["sigma0"])
+        if not m["hardness"] > top:
+            raise SpecError(f"material.hardness: must exceed every sigma0 of methods.gfmd (the largest is {top!r}: "
+                            f"at sigma0 >= H the whole surface flows), got {m['hardness']!r}")
+    if "thickness" in m:
+        hard = spec.law == "hard_wall"
+        ok = ("auto", "pk", "pcg", "mpcg") if hard and "hardness" in m else ("auto", "pk", "pcg") if hard else \
+            ("auto", "lbfgs")
+        if o["method"] not in ok:
+            raise SpecError(f"methods.gfmd.method: on an elastic layer (material.thickness) allowed: "
+                            f"{', '.join(map(repr, ok))}; got {o['method']!r}")
+
+
 def _check_distributed(key: str, o: dict[str, Any], env: Env) -> None:
     """``distributed = true``: refuse what a solve split over ranks cannot do (docs/jobs.md)."""
     if o["backend"] not in ("auto", "numpy", "cupy"):
@@ -282,8 +323,14 @@ def run_gfmd(t: Task, ctx: Context, prev: Any) -> tuple[TaskResult, Any]:
     res = gfmd.solve(h, sigma0=t.sigma0, **law_params(t), e_star=t.opt("e_star"),
                      length=sp["length"], tol=t.opt("tol"), method=t.opt("method"), backend=t.opt("backend"),
                      max_iter=t.opt("max_iter"), initial=prev if t.opt("warm_start") else None,
-                     host=gfmd_host_fields(t, ctx), **boundaries(t), **extra(t))
+                     host=gfmd_host_fields(t, ctx), **boundaries(t), **body(t), **extra(t))
     return gfmd_row(t, ctx, res, prev)
+
+
+def body(t: Task) -> dict[str, Any]:
+    """The body's keywords of gfmd.solve beyond E* (``[material] thickness, poisson, bottom, hardness``: an
+    elastic layer, the hard wall's pressure cap; gapsweep.sweep.spec.SUBSTRATE_KEYS): those the job gives."""
+    return {k: t.opt(k) for k in SUBSTRATE_KEYS if t.opt(k) is not None}
 
 
 def boundaries(t: Task) -> dict[str, Any]:

@@ -1,0 +1,99 @@
+"""The body's job keys (``[material] thickness, poisson, bottom, hardness``; docs/jobs.md "The body: layer and
+hardness"): validated up front naming the key, absent from the task options when not given (older task ids
+unchanged), and the shipped jobs layer_quick and plastic_quick run end to end with rows equal to direct solves."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from gapsweep import gfmd, spec
+from gapsweep.sweep import tasks
+
+ROOT = Path(__file__).resolve().parents[1]
+BASE = ('[job]\nname = "x"\n[grid]\nhurst = [0.5]\nsigma0 = [1e-2, 2e-2]\n[surface]\nlambda_s = 0.0625\n'
+        '[interaction]\nkind = "{law}"\n[methods.gfmd]\nn = 64\n{more}[material]\n')
+
+
+@pytest.mark.parametrize(("law", "material", "more", "key"), [
+    ("hard_wall", "thickness = 0.0\npoisson = 0.3\n", "", "material.thickness"),
+    ("hard_wall", "thickness = -1\npoisson = 0.3\n", "", "material.thickness"),
+    ("hard_wall", "thickness = 0.1\n", "", "material.poisson"),             # bonded needs nu
+    ("hard_wall", "thickness = 0.1\npoisson = 0.5\n", "", "material.poisson"),
+    ("hard_wall", "thickness = 0.1\npoisson = 0.3\nbottom = \"glued\"\n", "", "material.bottom"),
+    ("hard_wall", "poisson = 0.3\n", "", "material.poisson"),             # a layer key without thickness
+    ("hard_wall", "hardness = 0.02\n", "", "material.hardness"),          # not above every sigma0
+    ("hard_wall", "hardness = -1.0\n", "", "material.hardness"),
+    ("hard_wall", "hardness = 1.0\n", "method = \"pk\"\n[methods.theory]\nforms = [\"persson\"]\n",
+     "methods.theory"),                                                   # no theory of a cap: refused
+    ("hard_wall", "thickness = 0.1\nbottom = \"slip\"\n", "method = \"mpcg\"\n", "methods.gfmd.method"),
+    ("hard_wall", "thickness = 0.1\nbottom = \"slip\"\n", "distributed = true\n", "methods.gfmd.distributed"),
+    ("hard_wall", "hardness = 0.05\n", "sigma0 = [0.01, 0.1]\n", "material.hardness"),  # a method's own sigma0
+])
+def test_bad_body_keys_name_the_key(law: str, material: str, more: str, key: str) -> None:
+    with pytest.raises(spec.SpecError) as e:
+        spec.loads(BASE.format(law=law, more=more) + material)
+    assert str(e.value).startswith(key), str(e.value)
+
+
+def test_hardness_needs_the_hard_wall() -> None:
+    text = BASE.format(law="exponential", more="").replace("hurst = [0.5]", "hurst = [0.5]\nrho = [1e-2]")
+    with pytest.raises(spec.SpecError, match=r"^material\.hardness"):
+        spec.loads(text + "hardness = 1.0\n")
+
+
+def test_task_options_carry_the_body_only_when_given() -> None:
+    plain = tasks.expand(spec.loads(BASE.format(law="hard_wall", more="")))
+    layer = tasks.expand(spec.loads(BASE.format(law="hard_wall", more="") + "thickness = 0.1\nbottom = \"slip\"\n"))
+    assert all(t.opt("thickness") is None and t.opt("hardness") is None for t in plain)
+    assert all(t.opt("thickness") == 0.1 and t.opt("bottom") == "slip" for t in layer)
+    assert {t.task_id for t in plain}.isdisjoint({t.task_id for t in layer})
+
+
+@pytest.mark.parametrize("job", ["layer_quick", "plastic_quick"])
+def test_shipped_body_jobs_match_direct_solves(job: str, tmp_path: Path) -> None:
+    from gapsweep import runner
+    from gapsweep.sweep.context import Context
+
+    path = ROOT / "jobs" / f"{job}.toml"
+    out = tmp_path / "s.h5"
+    runner.run(path, out, progress="none", mpi="off")
+    js = spec.load(path)
+    ts = [t for t in tasks.expand(js) if t.method == "gfmd"]
+    with h5py.File(out) as f:
+        res = f["results"][...]
+        ids = [x.decode() for x in f["tasks"]["task_id"]]
+    assert (res["status"] == 1).all()
+    row = {i: r for i, r in zip(ids, res)}
+    ctx = Context()
+    for t in ts[:2]:
+        h = ctx.surface(t, t.n)
+        m = js.material
+        kw = {k: m[k] for k in ("thickness", "poisson", "bottom", "hardness") if k in m}
+        r = gfmd.solve(h, sigma0=t.sigma0, interaction="hard_wall", length=t.surface_params()["length"], tol=1e-8,
+                       **kw)
+        assert row[t.task_id]["mean_gap"] == pytest.approx(r.mean_gap, rel=1e-6)
+        assert row[t.task_id]["contact_area"] == pytest.approx(r.contact_area, abs=2.0 / h.size)
+    if job == "plastic_quick":  # contact area at least sigma0 / H
+        sig = np.array([t.sigma0 for t in ts])
+        area = np.array([row[t.task_id]["contact_area"] for t in ts])
+        assert np.all(area >= sig / js.material["hardness"] - 1e-12)
+    # the report: the contact map re-solved with the body, no Persson half-space overlay
+    from gapsweep.analysis import contact, report
+
+    df, _, prov = report.load([out])
+    cdf = df[contact.is_contact(df)]
+    info = contact.job_infos(cdf, prov)[js.name]
+    assert info["body"] == {k: js.material[k] for k in ("thickness", "poisson", "bottom", "hardness")
+                            if k in js.material}
+    assert any("Persson's half-space distributions are not drawn" in n for n in info["notes"])
+    f = contact.map_fields(cdf, js.name, info)
+    r = f["row"]
+    h = ctx.surface(next(t for t in ts if t.task_id == str(r["task_id"]).split(":")[-1]), int(r["n"]))
+    direct = gfmd.solve(h, sigma0=float(r["sigma0"]), interaction="hard_wall", tol=1e-8, **info["body"])
+    np.testing.assert_array_equal(f["mask"], direct.pressure > 0)
+    half = gfmd.solve(h, sigma0=float(r["sigma0"]), interaction="hard_wall", tol=1e-8)
+    assert not np.array_equal(f["mask"], half.pressure > 0)  # the body changes the map: the check can fail
