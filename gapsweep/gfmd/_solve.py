@@ -11,7 +11,7 @@ import numpy as np
 
 from gapsweep.core import checks as chk
 from gapsweep.core.fft import BACKENDS
-from gapsweep.gfmd import _constrained, _free, _smooth, _softmax
+from gapsweep.gfmd import _bounded, _constrained, _free, _smooth, _softmax
 from gapsweep.gfmd._common import UnderResolvedWarning  # noqa: F401 - raised by the minimisers
 from gapsweep.gfmd._ops import _is_cupy
 from gapsweep.gfmd._result import GFMDResult
@@ -22,6 +22,7 @@ _MINIMISERS: dict[str, tuple[Any, tuple[str, ...]]] = {
     "softmax": (_softmax.minimise, _softmax.METHODS),
     "multiplier": (_constrained.minimise, _constrained.METHODS),
     "variable": (_smooth.minimise, _smooth.METHODS),
+    "bounded": (_bounded.minimise, _bounded.METHODS),
 }
 # Minimisers that take periodic=False (free boundaries), by load_control: the hard wall's own (its compliance
 # swapped for the free one), every smooth law (the exponential one included) on gfmd._free.
@@ -29,6 +30,7 @@ _FREE: dict[str, tuple[Any, tuple[str, ...]]] = {
     "multiplier": (_constrained.minimise, _constrained.METHODS),
     "softmax": (_free.minimise, _free.METHODS),
     "variable": (_free.minimise, _free.METHODS),
+    "bounded": (_bounded.minimise, _bounded.METHODS),  # refuses periodic=False with a clear message
 }
 
 
