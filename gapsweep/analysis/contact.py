@@ -243,7 +243,7 @@ def job_info(job: str, rows: pd.DataFrame, prov: Mapping[str, Any] | None = None
     info: dict[str, Any] = {
         "job": job, "units": units(prov), "law": law, "file": surf.get("kind") == "file",
         "map_path": str(surf["path"]) if surf.get("kind") == "file" and "path" in surf else None,
-        "interaction": _table(raw, "interaction"), "surface": surf,
+        "interaction": _table(raw, "interaction"), "surface": surf, "gfmd": _table(raw, "methods", "gfmd"),
         "variant": str(theory.get("persson_variant", "persson2001")),
         "gamma": float(theory.get("persson_gamma", 0.42)),
         "tol": float(_table(raw, "methods", "gfmd").get("tol", 1e-8)),
