@@ -297,10 +297,11 @@ def loads(text: str, base: str | Path | None = None) -> JobSpec:
         raise SpecError(f"methods: empty; add at least one of [methods.{'], [methods.'.join(names)}]")
     env = Env(law=law, file_n=file_n, nyquist=nyquist, norm=norm)
     methods = {k: _method(k, rd.table(f"methods.{k}", v), env) for k, v in meth.items()}
-    if "lambda_r" in surface and set(methods) - {"gfmd"}:
-        raise SpecError(f"surface.lambda_r: a roll-off spectrum is solved by [methods.gfmd] only (the theories "
-                        f"assume the spectrum of M2, zero below q_l); remove "
-                        f"{', '.join(f'[methods.{k}]' for k in sorted(set(methods) - {'gfmd'}))} or lambda_r")
+    refused = sorted(k for k in methods if not registry.get(k).rolloff)
+    if "lambda_r" in surface and refused:
+        raise SpecError(f"surface.lambda_r: a roll-off spectrum is not taken by {', '.join(refused)} (they assume "
+                        f"the spectrum of M2, zero below q_l); remove "
+                        f"{', '.join(f'[methods.{k}]' for k in refused)} or lambda_r")
     js = JobSpec(name=name, description=description, text=text, grid=grid, surface=surface,
                  material=material, histogram=histogram, methods=methods, interaction=interaction,
                  base_dir=str(base) if base is not None else "")

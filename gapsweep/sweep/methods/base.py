@@ -64,6 +64,7 @@ class Method:
     seed_free: tuple[str, ...] = ()
     select: str | None = None  # the option ("n" or "c2") of which the dataset view keeps one value
     extra_target: tuple[str, str, tuple[str, ...]] | None = None  # (module, function, keys the sweep sets)
+    rolloff: bool = False  # takes a roll-off spectrum ([surface] lambda_r; docs/jobs.md "Roll-off spectrum")
 
     # -- validation --------------------------------------------------------------------------------------
     def validate(self, key: str, t: dict[str, Any], env: Env) -> dict[str, Any]:

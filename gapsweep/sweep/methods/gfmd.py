@@ -64,6 +64,7 @@ def _keep_fields_option(key: str, v: Any) -> str:
 @register
 class GFMD(Method):
     name = "gfmd"
+    rolloff = True  # solves any surface; the theories assume M2's spectrum
     order = 1
     keys = ("n", "tol", "max_iter", "method", "backend", "warm_start", "order", "keep_fields", "distributed")
     columns = ("mean_gap", "h_rms", "g_rms", "residual", "load_error", "iterations", "gap_std", "gap_min",
