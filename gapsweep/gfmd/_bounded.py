@@ -62,6 +62,14 @@ _FIRST_STEP = 1 / 64
 _MIN_STEP = 1e-4
 
 
+def solve_memory(shape: tuple[int, int]) -> int:
+    """Bytes a solve of an ``nx x ny`` grid holds at its peak, counted from the code (not measured): the
+    ``2 _MEMORY`` L-BFGS vectors plus about 16 grid arrays (state, gradient, spectra, the direction, the trial
+    point and its spectrum, FFT temporaries), float64. ``65536^2``: about 1.3 TB (one process)."""
+    nx, ny = (int(v) for v in shape)
+    return (2 * _MEMORY + 16) * nx * ny * 8
+
+
 class _State:
     """A gap field ``g >= 0`` with its spectrum, energy and gradient (module docstring)."""
 
