@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from gapsweep.analysis import aggregate, compare, contact, figures
+from gapsweep.analysis import aggregate, challenge, compare, contact, figures
 
 __all__ = ["AGREE", "MATCH_L1", "build", "load", "main", "paper_matches", "plan_figures", "provenance", "quick_jobs",
            "verdicts"]
@@ -687,6 +687,12 @@ def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
     infos = contact.job_infos(cdf, prov) if len(cdf) else {}
     if len(cdf):
         plan = contact.plan(cdf, hists, phists or {}, cpoints, cpersson, quick, infos) + plan
+    # the contact-mechanics challenge's outputs (jobs with its law; gapsweep.analysis.challenge)
+    cplan, ctables = challenge.plan(cdf, cpoints, infos, quick) if len(cdf) else ([], {})
+    plan = cplan + plan
+    for name, frame in ctables.items():
+        if len(frame):
+            frame.to_csv(out / f"{name}.csv", index=False)
     omitted = plan[MAX_FIGURES:]
     made: list[dict[str, Any]] = []
     for name, cap, make in plan[:MAX_FIGURES]:
@@ -728,6 +734,7 @@ def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
                + ", ".join(n for n, _, _ in omitted) + "._", ""]
     if len(cdf):
         md += _contact_section(cpoints, cpersson, csummary, infos)
+        md += challenge.section(ctables, _md_table)
     if field_theory:
         md += _field_theory_sections(cmp, summary, dist, calib)
     md += _provenance_section(prov, out)

@@ -491,6 +491,9 @@ def _options(law: Interaction, shape: tuple[int, int], box: tuple[float, float],
     control = law.load_control
     if control == "softmax" and not (shape[0] == shape[1] and box[0] == box[1]):
         control = "variable"  # as one process: the exponential law on rectangles runs on the smooth minimiser
+    if control not in METHODS:
+        raise ValueError(f"interaction {law.name!r} has no distributed solver yet (comm= and start='coarse' "
+                         "are for the exponential, hard-wall and adhesive laws); solve it on one process")
     methods = METHODS[control]
     if not isinstance(method, str) or method not in ("auto", *methods):
         raise ValueError(f"method must be one of {', '.join(map(repr, ('auto', *methods)))} for interaction "

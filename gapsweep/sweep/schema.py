@@ -81,7 +81,8 @@ class JobSpec:
 
     @property
     def law(self) -> str:
-        """The interaction law's name: "exponential" (default), "hard_wall" or "adhesive" (docs/gfmd.md)."""
+        """The interaction law's name: "exponential" (default), "hard_wall", "adhesive" or "hard_wall_adhesive"
+        (docs/gfmd.md)."""
         return self.interaction.get("kind", "exponential")
 
     @property

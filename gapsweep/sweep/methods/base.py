@@ -103,6 +103,7 @@ class Method:
     # whether the method solves the body keys of [material] (schema.SUBSTRATE_KEYS: a layer, a pressure cap);
     # a job with them refuses every other method (docs/jobs.md "The body: layer and hardness")
     takes_body: bool = False
+    rolloff: bool = False  # takes a roll-off spectrum ([surface] lambda_r; docs/jobs.md "Roll-off spectrum")
 
     def job_own_columns(self, spec: JobSpec) -> dict[str, Column]:
         """The own columns this method's rows have in ``spec``'s store: ``own_columns`` (default). A method whose
