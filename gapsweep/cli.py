@@ -1,4 +1,5 @@
-"""Command-line interface (thin): ``gapsweep plan | run | jobs | status | merge | submit | report | export | demo``.
+"""Command-line interface (thin): ``gapsweep plan | run | jobs | status | merge | repair | submit | report | export |
+demo``.
 
 Exit codes: 0 success, 1 a task-independent error (a run that cannot start, a store that cannot be read or
 merged, a write error, a missing optional dependency, an output that exists), 2 an invalid job spec or argument
@@ -31,6 +32,7 @@ and SDE / Fokker-Planck ensembles, over whole parameter grids (docs/model.md; jo
   gapsweep jobs                                   the shipped job specs (gapsweep run fig2 --store OUT.h5)
   gapsweep submit JOB.toml OUT_DIR --shards N     run it on Slurm: N shards + a merge job (docs/running.md)
   gapsweep status OUT.h5                          counts, failures, the cost and time left
+  gapsweep repair OUT.h5 [--job JOB.toml]         mend damaged attributes where every row verifies
   gapsweep report OUT.h5 --out DIR                figures, tables and (for the paper's sets) verdicts
   gapsweep export OUT.h5 --out OUT.nc             the store as netCDF4 (xarray, ncdump, ...)
 """
@@ -124,6 +126,13 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--break-lease", action="store_true", help="take over the output's lease from a merge that is gone")
     s.add_argument("--skip-damaged", action="store_true",
                    help="merge without the shard rows whose checksum does not match (default: refuse)")
+
+    s = sub.add_parser("repair", help="rebuild a store's damaged provenance attributes and restore its job spec "
+                                      "attributes (--job) where every row verifies (docs/reliability.md)")
+    s.add_argument("store", help="the store (HDF5)")
+    s.add_argument("--job", default=None, help="the job spec the store was run from (needed where its spec text "
+                                               "is damaged; every task row is checked against it)")
+    s.add_argument("--break-lease", action="store_true", help="take over the store's lease from a process that is gone")
 
     s = sub.add_parser("report", help="figures, tables and verdicts from one or more stores (gapsweep.analysis)")
     s.add_argument("store", nargs="+", help="HDF5 stores; figures are chosen from their axes and methods")
@@ -302,6 +311,17 @@ def _dispatch(args: argparse.Namespace) -> int:
                              break_lease=args.break_lease, skip_damaged=args.skip_damaged)
         print(f"merged {len(args.shards)} shard(s) into {args.out}: "
               + ", ".join(f"{v} {k}" for k, v in counts.items()))
+        return 0
+    if args.command == "repair":
+        from gapsweep.sweep import repair
+
+        job = None
+        if args.job:
+            from gapsweep import jobs
+
+            job = jobs.resolve(args.job)
+        for line in repair.repair(args.store, job, break_lease=args.break_lease):
+            print(f"repair {args.store}: {line}")
         return 0
     if args.command == "report":
         from gapsweep.analysis.report import main as report_main

@@ -42,6 +42,7 @@ from gapsweep.sweep.execute import run_task
 from gapsweep.sweep.farm import DeviceFault, Farm, Worker, device_fault
 from gapsweep.sweep.fields import fields_dir, remove_fields, remove_partial
 from gapsweep.sweep.limits import Interrupted, TaskTimeout
+from gapsweep.sweep.repair import job_mismatch
 from gapsweep.sweep.schema import PRESSURE_HIST, STATUS, Task, TaskResult, Unit
 from gapsweep.sweep.spec import check_extra
 from gapsweep.sweep.store import Store, StoreError, StoreWriteError, open_read
@@ -264,6 +265,9 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
         with open_read(path, check=False) as f:
             report = storecheck.check(f, path, tolerate_tasks=resume)  # once: it reads and checksums every row
             sha, shard = f.attrs.get("spec_sha256"), f.attrs.get("shard")
+            # issue 40 item 1: spec attributes that fail their checksum are not compared; the job is this store's
+            # when every task row is the job's (the rows verify on their own checksums)
+            not_job = None if report.spec_trusted else job_mismatch(f, spec)
             todo = storecheck.incomplete_rows(f, path, report)
             moved, kept = _moved_rows(f, tasks, set(report.damaged), set(todo))
             runs_bad = report.runs_damaged is not None
@@ -277,14 +281,25 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
         raise RunError(f"{e}; pass --overwrite to replace it") from None
     if isinstance(sha, bytes):
         sha = sha.decode()
-    if (sha not in (spec.sha256, spec.text_sha256) and not reordered) or shard != shard_text or moved is None:
+    if not report.spec_trusted:
+        what = ", ".join(report.spec_damaged) or "the attribute checksums"
+        if not_job is not None or shard != shard_text:
+            raise RunError(f"store {path}: its job spec attributes are damaged ({what}) and this job is not the "
+                           f"store's ({not_job or 'another shard'}): resume it with the job file it was run from; "
+                           "its rows verify on their own checksums")
+        if not resume:
+            raise RunError(f"store {path}: its job spec attributes are damaged ({what}); its rows verify on their "
+                           "own checksums: pass --resume to restore them from this job file (checked against every "
+                           f"task row), or run `gapsweep repair {path} --job JOB`")
+    elif (sha not in (spec.sha256, spec.text_sha256) and not reordered) or shard != shard_text or moved is None:
         raise RunError(f"store {path} was written for another job spec or shard; pass --overwrite to replace "
                        "it or choose another --store")
     if kept:  # done rows whose results verify against the spec's task row: only their task row is restored
         log.warning("store %s: %d done row(s) with a damaged task row verify against the job spec's: kept, their "
                     "task rows are restored (rows %s)", path, len(kept), sorted(kept)[:5])
         todo = [i for i in todo if i not in kept]
-    if not todo and not moved and not (resume and runs_bad):  # --resume rebuilds damaged run records
+    if not todo and not moved and not (resume and (runs_bad or report.attrs_need_repair)):  # --resume rebuilds
+        # damaged run records, provenance and spec attributes
         return "noop", [], len(failed)
     if not resume and not todo:
         raise RunError(f"store {path}: {len(moved)} damaged task row(s) (rows {sorted(moved)[:5]}): pass --resume to "
@@ -942,7 +957,8 @@ def _open_store(path: Path, mode: str, tasks: list[Task], attrs: dict[str, Any],
             if rank == 0:
                 tmp.unlink(missing_ok=True)
             raise
-    st = Store.open(path, comm=comm, repair_tasks=mode == "resume")
+    restore = {k: v for k, v in attrs.items() if k in ("job_name", "spec_text", "spec_sha256", "units", "spec_dir")}
+    st = Store.open(path, comm=comm, repair_tasks=mode == "resume", restore=restore if mode == "resume" else None)
     if mode == "resume" and rank == 0 and (gone := remove_partial(fields_dir(path))):
         log.info("store %s: removed %d partial kept-field file(s) of an interrupted run", path, gone)
     if mode == "resume":  # task rows damaged since they were written come back from the spec (their rows re-run)

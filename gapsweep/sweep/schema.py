@@ -32,7 +32,9 @@ __all__ = [
     "INTEGRITY",
     "INT_RESULTS",
     "LAYOUTS",
+    "PROVENANCE_ATTRS",
     "RESULT_DTYPE",
+    "SPEC_ATTRS",
     "STATUS",
     "TASK_DTYPE",
     "JobSpec",
@@ -44,6 +46,7 @@ __all__ = [
     "TaskResult",
     "Unit",
     "integrity_problem",
+    "integrity_problems",
     "integrity_record",
     "layout_of",
     "make_task",
@@ -402,11 +405,19 @@ def integrity_record(attrs: dict[str, Any], tasks: np.ndarray) -> str:
     return json.dumps({**items, "self": _record_digest(items)}, sort_keys=True, separators=(",", ":"))
 
 
-def integrity_problem(record: Any, attrs: dict[str, Any], tasks: Any, skip: tuple[str, ...] = ()) -> str | None:
-    """The first item that fails its checksum, as the rest of a one-line message ("attribute 'units' fails its
-    checksum"), or None. ``attrs``: the file's other attributes (an unreadable one as an exception instance);
-    ``tasks``: a callable returning the ``/tasks`` table (read only when the attributes pass; None: none there,
-    which the structural check reports)."""
+# Attributes whose damage leaves every row usable (issue 40 item 1): the provenance (rebuilt, marked as lost,
+# by --resume and `gapsweep repair`) and the job spec's own (restored from the job file after checking every row).
+# Damage to any other attribute (format, format_version, shard) still refuses the store.
+PROVENANCE_ATTRS = ("created", "finished", "versions", "git_commit", "gapsweep_version", "merged_from", "job_name")
+SPEC_ATTRS = ("spec_text", "spec_sha256", "units", "spec_dir")
+
+
+def integrity_problems(record: Any, attrs: dict[str, Any], tasks: Any, skip: tuple[str, ...] = ()
+                       ) -> list[tuple[str, str]]:
+    """Every item that fails its checksum, as ``(key, rest of a one-line message)``: key ``"integrity"`` (the
+    record itself is damaged: nothing else can be checked, the list ends there), ``"attr:<name>"`` or
+    ``"table:/tasks"``. ``attrs``: the file's other attributes (an unreadable one as an exception instance);
+    ``tasks``: a callable returning the ``/tasks`` table (None: none there, which the structural check reports)."""
     try:
         rec = json.loads(record)
         items = {k: v for k, v in rec.items() if k != "self"}
@@ -414,16 +425,25 @@ def integrity_problem(record: Any, attrs: dict[str, Any], tasks: Any, skip: tupl
     except (TypeError, ValueError, AttributeError):
         ok = False
     if not ok or rec.get("self") != _record_digest(items):
-        return f"attribute {INTEGRITY!r} (the checksums of the others) is damaged"
+        return [(INTEGRITY, f"attribute {INTEGRITY!r} (the checksums of the others) is damaged")]
+    out = []
     for k, v in attrs.items():
         if f"attr:{k}" not in items:
-            return f"attribute {k!r} is not in the store's checksums (added or renamed after the store was written)"
-        if isinstance(v, Exception) or _digest(_value_bytes(v)) != items[f"attr:{k}"]:
-            return f"attribute {k!r} fails its checksum"
+            out.append((f"attr:{k}", f"attribute {k!r} is not in the store's checksums (added or renamed after the "
+                        "store was written)"))
+        elif isinstance(v, Exception) or _digest(_value_bytes(v)) != items[f"attr:{k}"]:
+            out.append((f"attr:{k}", f"attribute {k!r} fails its checksum"))
     for k in items:
         if k.startswith("attr:") and k[5:] not in attrs and k not in skip:
-            return f"attribute {k[5:]!r} is missing (it is in the store's checksums)"
+            out.append((k, f"attribute {k[5:]!r} is missing (it is in the store's checksums)"))
     table = tasks()
     if table is not None and _digest(np.ascontiguousarray(table).tobytes()) != items.get("table:/tasks"):
-        return "table '/tasks' (task ids and parameters) fails its checksum"
-    return None
+        out.append(("table:/tasks", "table '/tasks' (task ids and parameters) fails its checksum"))
+    return out
+
+
+def integrity_problem(record: Any, attrs: dict[str, Any], tasks: Any, skip: tuple[str, ...] = ()) -> str | None:
+    """The first of :func:`integrity_problems` as the rest of a one-line message ("attribute 'units' fails its
+    checksum"), or None."""
+    probs = integrity_problems(record, attrs, tasks, skip)
+    return probs[0][1] if probs else None

@@ -254,6 +254,7 @@ class Store:
         self._has_hist = (np.isfinite(self._edges[:, 0]) if n else np.zeros(0, bool)) if self._ck else None
         self._has_phist = (np.isfinite(self._pedges[:, 0]) if n else np.zeros(0, bool)) \
             if self._ck and self._pedges is not None else None
+        self._deferred: dict[str, Any] = {}  # attribute fixes waiting for repair_tasks (Store.open)
         self._integrity = INTEGRITY in f.attrs  # format 4: attribute writes keep the checksums current
         # ... of the task table as this process knows it (the same on every rank: read once, or the job's)
         self._tasks_now = f["tasks"][...] if self._integrity else None
@@ -311,19 +312,48 @@ class Store:
         return cls(f, comm)
 
     @classmethod
-    def open(cls, path: str | Path, *, comm: Any = None, repair_tasks: bool = False) -> Store:
+    def open(cls, path: str | Path, *, comm: Any = None, repair_tasks: bool = False,
+             restore: dict[str, Any] | None = None) -> Store:
         """Open an existing store for writing (validated; ``repair_tasks``: a ``/tasks`` table that fails its
-        checksum is accepted, for :meth:`repair_tasks` to restore from the job)."""
+        checksum is accepted, for :meth:`repair_tasks` to restore from the job).
+
+        Attributes that fail their checksum while the rows verify (issue 40 item 1, storecheck.Report) are
+        mended first: damaged provenance is rebuilt, marked as lost (provenance.rebuilt); the job spec's
+        attributes (or all of them, when the checksum record itself is damaged) are set to ``restore`` -- the
+        caller's, checked against every row (``--resume`` with the job file, ``gapsweep repair``) -- and the
+        checksums written again. Without ``restore`` such a store is refused in one line naming the remedy."""
         try:
             f = _writer_file(path, "r+", comm)
         except OSError as e:
             raise StoreError(f"store {path}: cannot open for writing ({e})") from None
         try:
-            storecheck.check(f, path, tolerate_tasks=repair_tasks)
+            rep = storecheck.check(f, path, tolerate_tasks=repair_tasks)
+            fixes: dict[str, Any] = {}
+            if rep.attrs_need_repair:
+                if not rep.spec_trusted and restore is None:
+                    raise StoreError(f"store {path}: {rep.lines()[0]}")
+                from gapsweep.sweep.provenance import rebuilt
+
+                fixes = rebuilt(rep.provenance_damaged)
+                fixes.update({k: v for k, v in (restore or {}).items() if k in rep.provenance_damaged})
+                if not rep.spec_trusted:
+                    fixes.update(restore or {})
+                if comm is not None:  # every rank writes the same values (collective)
+                    fixes = comm.bcast(fixes, root=0)
         except BaseException:
             f.close()
             raise
-        return cls(f, comm)
+        st = cls(f, comm)
+        if fixes and rep.tasks_damaged:  # sealed now, the damaged /tasks would verify: after repair_tasks
+            st._deferred = fixes
+        elif fixes:
+            st._fix_attrs(fixes)
+        return st
+
+    def _fix_attrs(self, fixes: dict[str, Any]) -> None:
+        self.set_attrs(fixes, flush=True)
+        log.warning("store %s: attribute(s) %s rebuilt or restored, their checksums written again", self.path,
+                    ", ".join(sorted(fixes)))
 
     def repair_tasks(self, tasks: Sequence[Task], *, write: bool = True) -> list[int]:
         """Rewrite the ``/tasks`` rows that differ from the job's (rows found damaged by their checksums;
@@ -343,6 +373,9 @@ class Store:
             self._task_rows = want
         if self._integrity:
             self._tasks_now = want
+        if self._deferred:
+            fixes, self._deferred = self._deferred, {}
+            self._fix_attrs(fixes)
         return bad
 
     def force_histograms(self, rows: Iterable[int]) -> None:
