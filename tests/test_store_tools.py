@@ -1,0 +1,97 @@
+"""Issue 40 items 2, 3, 7, 8, 9: the store's tools around its rows.
+
+* item 9: ``status --json`` reports a store whose task table fails its checksum (it refused it where ``status``
+  reported and went on); a flat height map fails ``plan`` with one error naming ``surface.path`` (every task
+  failed at run time); the merge job script with a shard count or pattern that matches nothing exits non-zero.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from gapsweep import cli, spec
+from gapsweep.sweep import runner
+
+ROOT = Path(__file__).resolve().parents[1]
+JOB = ROOT / "tests" / "faults" / "jobs" / "units.toml"
+
+
+@pytest.fixture(scope="module")
+def ref(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("tools") / "u.h5"
+    s = runner.run(JOB, path, mpi="off", progress="none")
+    assert s["done"] == s["tasks"] == 2
+    return path
+
+
+def _copy(ref: Path, tmp_path: Path, name: str = "s.h5") -> Path:
+    p = tmp_path / name
+    shutil.copy(ref, p)
+    return p
+
+
+def _cli(capsys, *args) -> tuple[int, str, str]:
+    rc = cli.main([str(a) for a in args])
+    out = capsys.readouterr()
+    return rc, out.out, out.err
+
+
+# ---- item 9 --------------------------------------------------------------------------------------------------
+
+
+def test_status_json_reports_a_damaged_task_table(ref, tmp_path, capsys):
+    path = _copy(ref, tmp_path)
+    with h5py.File(path, "r+") as f:
+        t = f["tasks"][...]
+        tid = bytearray(t["task_id"][1])
+        tid[3] ^= 1
+        t["task_id"][1] = bytes(tid)
+        f["tasks"][...] = t
+    rc, out, err = _cli(capsys, "status", "--json", path)
+    assert rc == 0, err
+    js = json.loads(out)
+    assert any("table '/tasks'" in x for x in js["check"]), js["check"]
+    assert sum(js["total"].values()) == 2 and js["total"].get("damaged") == 1, js["total"]
+    rc, out, _ = _cli(capsys, "status", path)
+    assert rc == 0 and "table '/tasks'" in out
+
+
+@pytest.mark.parametrize("detrend,heights", [
+    ("mean", lambda x, y: np.full(x.shape, 3.0)),             # a constant map
+    ("plane", lambda x, y: 0.3 * x - 0.7 * y + 2.0),           # a tilted plane, flat once detrended
+])
+def test_flat_map_fails_plan(tmp_path, capsys, detrend, heights):
+    x, y = np.meshgrid(np.arange(24.0), np.arange(20.0), indexing="ij")
+    np.save(tmp_path / "flat.npy", heights(x, y))
+    job = tmp_path / "flat.toml"
+    job.write_text('[job]\nname = "flat"\n[grid]\nsigma0 = [1e-2]\n[surface]\nkind = "file"\npath = "flat.npy"\n'
+                   f'pixel_size = 1.0\ndetrend = "{detrend}"\n[interaction]\nkind = "hard_wall"\n[methods.gfmd]\n')
+    rc, _, err = _cli(capsys, "plan", job)
+    assert rc == 2 and "surface.path" in err and "flat" in err and "Traceback" not in err, err
+    assert len([x for x in err.splitlines() if "invalid job spec" in x]) == 1
+    # a rough map of the same shape passes (the check is not a blanket refusal)
+    np.save(tmp_path / "flat.npy", np.random.default_rng(3).normal(size=x.shape))
+    assert spec.load(job).surface["kind"] == "file"
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["s{i}.h5", "0", "m.h5"], "integer >= 1"),
+    (["s{i}.h5", "two", "m.h5"], "integer >= 1"),
+    (["s.h5", "2", "m.h5"], "has no {i}"),
+    (["none{i}.h5", "2", "m.h5"], "matches no shard store"),
+])
+def test_merge_job_with_nothing_to_merge_fails(tmp_path, args, needle):
+    """bash runs the merge job script as Slurm does; ``gapsweep`` is a stub that would succeed."""
+    env = {**os.environ, "SLURM_SUBMIT_DIR": str(tmp_path), "GAPSWEEP": "true"}
+    p = subprocess.run(["bash", str(ROOT / "slurm" / "merge_job.sbatch"), *args], env=env, capture_output=True,
+                       text=True, timeout=30)
+    assert p.returncode != 0 and needle in p.stderr, (p.returncode, p.stderr)
+    assert not (tmp_path / "m.h5").exists()
