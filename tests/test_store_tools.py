@@ -1,5 +1,8 @@
 """Issue 40 items 2, 3, 7, 8, 9: the store's tools around its rows.
 
+* item 2: two exports to one ``--out``: the second, started while the first writes (a barrier inside the first,
+  not a sleep), is refused by the output's lease; the file holds the data of the export that exited 0. Before,
+  both shared one fixed temporary name and the one that exited 0 could leave the other store's data.
 * item 9: ``status --json`` reports a store whose task table fails its checksum (it refused it where ``status``
   reported and went on); a flat height map fails ``plan`` with one error naming ``surface.path`` (every task
   failed at run time); the merge job script with a shard count or pattern that matches nothing exits non-zero.
@@ -95,3 +98,44 @@ def test_merge_job_with_nothing_to_merge_fails(tmp_path, args, needle):
                        text=True, timeout=30)
     assert p.returncode != 0 and needle in p.stderr, (p.returncode, p.stderr)
     assert not (tmp_path / "m.h5").exists()
+
+
+# ---- item 2 --------------------------------------------------------------------------------------------------
+
+
+def test_concurrent_exports_to_one_out(ref, tmp_path, monkeypatch):
+    pytest.importorskip("xarray")
+    pytest.importorskip("h5netcdf")
+    import sys
+
+    import xarray as xr
+
+    from gapsweep.sweep import dataset
+
+    other_job = tmp_path / "other.toml"
+    other_job.write_text(JOB.read_text().replace('name = "faults-units"', 'name = "faults-other"'))
+    other = tmp_path / "o.h5"
+    runner.run(other_job, other, mpi="off", progress="none")
+    out = tmp_path / "x.nc"
+    second: list[subprocess.CompletedProcess] = []
+    real = dataset._write_nc
+
+    def write_then_race(ds, tmp, outp):
+        real(ds, tmp, outp)  # this export's file is written under its temporary name ...
+        # ... and before it is moved into place, a second export of another store to the same --out runs to its end
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+        second.append(subprocess.run([sys.executable, "-m", "gapsweep", "export", str(other), "--out", str(out),
+                                      "--overwrite"], env=env, capture_output=True, text=True, timeout=120))
+
+    monkeypatch.setattr(dataset, "_write_nc", write_then_race)
+    dataset.export_netcdf(ref, out)
+    (p,) = second
+    assert p.returncode != 0 and "lease" in p.stderr and "Traceback" not in p.stderr, p.stderr
+    with xr.open_dataset(out, engine="h5netcdf") as ds:
+        assert ds.attrs["gapsweep_job_name"] == "faults-units"  # the data of the export that exited 0
+    assert sorted(x.name for x in tmp_path.iterdir() if x.name.startswith(".x.nc")) == []  # no temporary left
+    # afterwards the other export may replace it (--overwrite of an earlier export), with its own data
+    monkeypatch.setattr(dataset, "_write_nc", real)
+    dataset.export_netcdf(other, out, overwrite=True)
+    with xr.open_dataset(out, engine="h5netcdf") as ds:
+        assert ds.attrs["gapsweep_job_name"] == "faults-other"

@@ -298,19 +298,28 @@ def export_netcdf(path: str | Path, out: str | Path, *, overwrite: bool = False,
     ds = to_dataset(path, **kw)
     require("h5netcdf", "the netCDF4 export")
     outp.parent.mkdir(parents=True, exist_ok=True)
-    tmp = outp.with_name(f".{outp.name}.tmp")
-    # room first (the data, 1.5x for HDF5's and netCDF's own structures, + 1 MiB): a write that fails inside
-    # h5netcdf crashed HDF5 2.0 (gapsweep.sweep.writefail.reserve)
-    err = writefail.reserve(tmp, int(1.5 * ds.nbytes) + (1 << 20))
-    if err is not None:
-        raise StoreWriteError(f"export --out {outp}: cannot be written ({err}); nothing was written, the store "
-                              "is untouched")
-    try:
-        _write_nc(ds, tmp, outp)
-        os.replace(tmp, outp)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    from gapsweep.sweep import lease
+
+    # issue 40 item 2: two exports to one --out shared one temporary name and took no lease, so the one that
+    # exited 0 could leave the other store's data in the file. Now the output's lease excludes a second export
+    # (refused, naming the holder) and the temporary name is this process's own.
+    with lease.acquire(outp, purpose="export"):
+        outputs.guard_output(outp, [path], "export --out", overwrite=overwrite,  # again: one may have finished
+                             own=lambda o: None if outputs.is_export(o) else "is not a netCDF file written by "
+                             "gapsweep export")
+        tmp = outp.with_name(f".{outp.name}.tmp-{os.getpid()}-{os.urandom(4).hex()}")
+        # room first (the data, 1.5x for HDF5's and netCDF's own structures, + 1 MiB): a write that fails inside
+        # h5netcdf crashed HDF5 2.0 (gapsweep.sweep.writefail.reserve)
+        err = writefail.reserve(tmp, int(1.5 * ds.nbytes) + (1 << 20))
+        if err is not None:
+            raise StoreWriteError(f"export --out {outp}: cannot be written ({err}); nothing was written, the "
+                                  "store is untouched")
+        try:
+            _write_nc(ds, tmp, outp)
+            os.replace(tmp, outp)
+        finally:
+            if tmp.exists():
+                tmp.unlink()
     return outp
 
 
