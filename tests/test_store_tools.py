@@ -3,6 +3,9 @@
 * item 2: two exports to one ``--out``: the second, started while the first writes (a barrier inside the first,
   not a sleep), is refused by the output's lease; the file holds the data of the export that exited 0. Before,
   both shared one fixed temporary name and the one that exited 0 could leave the other store's data.
+* item 7: the hidden temporary file of a SIGKILLed creation, merge or export (``.NAME.tmp-*``) is removed by the
+  next command on that store -- status (when no live lease holds the store: none, or its holder dead), a run,
+  merge or export under their lease -- and named; a live holder's file is kept. Before it stayed for good.
 * item 9: ``status --json`` reports a store whose task table fails its checksum (it refused it where ``status``
   reported and went on); a flat height map fails ``plan`` with one error naming ``surface.path`` (every task
   failed at run time); the merge job script with a shard count or pattern that matches nothing exits non-zero.
@@ -139,3 +142,73 @@ def test_concurrent_exports_to_one_out(ref, tmp_path, monkeypatch):
     dataset.export_netcdf(other, out, overwrite=True)
     with xr.open_dataset(out, engine="h5netcdf") as ds:
         assert ds.attrs["gapsweep_job_name"] == "faults-other"
+
+
+# ---- item 7 --------------------------------------------------------------------------------------------------
+
+
+def _dead_pid() -> int:
+    p = subprocess.Popen(["true"])
+    p.wait()
+    return p.pid
+
+
+def _stale_lease(store_path: Path) -> None:
+    import socket
+
+    from gapsweep.sweep import lease
+
+    lease.lease_path(store_path).write_text(json.dumps({"host": socket.gethostname(), "pid": _dead_pid(),
+                                                        "run_id": "deadbeef0000", "started": "x"}))
+
+
+@pytest.mark.parametrize("holder", ["none", "dead"])
+def test_status_removes_a_killed_writers_temporary_file(ref, tmp_path, capsys, holder):
+    path = _copy(ref, tmp_path)
+    left = tmp_path / f".s.h5.tmp-{_dead_pid()}"
+    left.write_bytes(b"\0" * 4096)
+    if holder == "dead":
+        _stale_lease(path)
+    rc, out, err = _cli(capsys, "status", path)
+    assert rc == 0 and not left.exists(), out + err
+    assert f"removed: {left.name}" in out and left.name in err, out + err
+    left.write_bytes(b"x")
+    rc, out, _ = _cli(capsys, "status", "--json", path)
+    assert json.loads(out)["removed_leftovers"] == [left.name] and not left.exists()
+
+
+def test_a_live_lease_keeps_its_temporary_file(ref, tmp_path, capsys):
+    from gapsweep.sweep import lease
+
+    path = _copy(ref, tmp_path)
+    mine = tmp_path / ".s.h5.tmp-0123456789ab"
+    mine.write_bytes(b"x")
+    with lease.acquire(path, purpose="test"):
+        rc, out, _ = _cli(capsys, "status", path)
+        assert rc == 0 and mine.exists() and "removed" not in out
+
+
+def test_merge_export_and_run_remove_leftovers(ref, tmp_path):
+    """Each under its own lease: the file of a killed merge beside --out, of a killed export, of a killed
+    creation beside the store that --resume opens."""
+    from gapsweep.sweep import merge
+
+    m = tmp_path / "m.h5"
+    left = tmp_path / f".m.h5.tmp-{_dead_pid()}"
+    left.write_bytes(b"x" * 100)
+    merge.merge([ref], m)
+    assert not left.exists() and m.exists()
+    path = _copy(ref, tmp_path)
+    left = tmp_path / ".s.h5.tmp-abcdef012345"
+    left.write_bytes(b"x")
+    runner.run(JOB, path, resume=True, mpi="off", progress="none")
+    assert not left.exists()
+    import importlib.util
+
+    if importlib.util.find_spec("h5netcdf") and importlib.util.find_spec("xarray"):
+        from gapsweep.sweep import dataset
+
+        left = tmp_path / f".x.nc.tmp-{_dead_pid()}-00ff00ff"
+        left.write_bytes(b"x")
+        dataset.export_netcdf(ref, tmp_path / "x.nc")
+        assert not left.exists()

@@ -186,6 +186,7 @@ def summary(path: str | Path) -> dict[str, Any]:
     :func:`cost_left`."""
     from gapsweep.sweep.store import read, read_attrs
 
+    gone = lease.remove_leftovers(path)  # a killed creation's or merge's temporary file (issue 40 item 7)
     # a damaged /tasks or attribute is reported (key "check"), as by `gapsweep status` (issue 40 item 9)
     attrs = read_attrs(path, tolerate_tasks=True)
     df = read(path, tolerate_tasks=True)
@@ -197,7 +198,7 @@ def summary(path: str | Path) -> dict[str, Any]:
     return {"job": attrs.get("job_name"), "shard": attrs.get("shard", ""),
             "counts": counts, "total": {str(k): int(v) for k, v in df.status.value_counts().items()},
             "lease": held, "last_run": runs[-1] if runs else None, "cost_left": _cost_or_reason(path),
-            "check": report.lines()}
+            "check": report.lines(), "removed_leftovers": gone}
 
 
 def _cost_or_reason(path: str | Path) -> dict[str, Any]:

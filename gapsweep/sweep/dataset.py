@@ -304,6 +304,7 @@ def export_netcdf(path: str | Path, out: str | Path, *, overwrite: bool = False,
     # exited 0 could leave the other store's data in the file. Now the output's lease excludes a second export
     # (refused, naming the holder) and the temporary name is this process's own.
     with lease.acquire(outp, purpose="export"):
+        lease.remove_leftovers(outp, held=True)  # of a killed export (issue 40 item 7)
         outputs.guard_output(outp, [path], "export --out", overwrite=overwrite,  # again: one may have finished
                              own=lambda o: None if outputs.is_export(o) else "is not a netCDF file written by "
                              "gapsweep export")

@@ -197,6 +197,7 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
         log.warning("merge: %s (kept the %s)", c, on_conflict)
     done = {t.task_id for t, s in zip(tasks, results["status"], strict=True) if s == STATUS["done"]}
     with lease.acquire(outp, break_lease=break_lease, purpose="merge"):  # a live writer is named first
+        lease.remove_leftovers(outp, held=True)  # of a killed creation or merge (issue 40 item 7)
         _guard(outp, shards, overwrite, lambda o: _not_own_merge(o, sha, done))
         tmp = outp.with_name(f".{outp.name}.tmp-{os.getpid()}")
         try:

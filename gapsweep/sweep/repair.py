@@ -82,6 +82,7 @@ def repair(path: str | Path, job: str | Path | None = None, *, break_lease: bool
     or ``job`` is not this store's."""
     p = Path(path)
     with lease.acquire(p, break_lease=break_lease, purpose="repair"):
+        gone = lease.remove_leftovers(p, held=True)
         with open_read(p, check=False) as f:
             rep = storecheck.check(f, p, tolerate_tasks=True)
             if rep.tasks_damaged and rep.attrs_need_repair:
@@ -105,7 +106,7 @@ def repair(path: str | Path, job: str | Path | None = None, *, break_lease: bool
                                          "nothing was changed")
                     sha = f.attrs.get("spec_sha256")
                     restore = restore_attrs(spec, sha.decode() if isinstance(sha, bytes) else sha)
-        out = []
+        out = [f"removed {x}, the temporary file of a killed creation or merge" for x in gone]
         if rep.attrs_need_repair:
             Store.open(p, repair_tasks=True, restore=restore).close()
             if rep.provenance_damaged:

@@ -566,6 +566,7 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
             _guard_store(path, _inputs(job, spec), overwrite)
             path.parent.mkdir(parents=True, exist_ok=True)
             held = lease.acquire(path, break_lease=break_lease)
+            lease.remove_leftovers(path, held=True)  # of a killed creation or merge (issue 40 item 7)
             order = _stored_order(path, spec, tasks, shard_text, overwrite)
             ordered = _store_order(tasks, [], order)[0]
             decision = (order, *_decide(path, spec, ordered, shard_text, resume, overwrite,

@@ -619,7 +619,9 @@ def read_histograms(path: str | Path, task_ids: Iterable[str] | None = None,
 
 
 def status(path: str | Path) -> str:
-    """A short text summary of a running or finished store (counts per method and status, runs, failures)."""
+    """A short text summary of a running or finished store (counts per method and status, runs, failures).
+    Temporary files of a killed creation or merge of this store are removed first and named (issue 40 item 7)."""
+    gone = lease.remove_leftovers(path)
     attrs = read_attrs(path, tolerate_tasks=True)  # a damaged /tasks is a line of the summary, not its end
     df = read(path, tolerate_tasks=True)
     with open_read(path, check=False) as f:
@@ -629,6 +631,8 @@ def status(path: str | Path) -> str:
     held = lease.read(path)
     if held is not None:
         lines.append(f"lease: held by {lease.describe(held)}")
+    lines.extend(f"removed: {x}, the temporary file of a killed creation, merge or export of this store"
+                 for x in gone)
     lines.extend(f"check: {x}" for x in report.lines())
     if len(df):
         tab = df.groupby(["method", "status"]).size().unstack(fill_value=0)
