@@ -6,6 +6,9 @@
 * item 7: the hidden temporary file of a SIGKILLed creation, merge or export (``.NAME.tmp-*``) is removed by the
   next command on that store -- status (when no live lease holds the store: none, or its holder dead), a run,
   merge or export under their lease -- and named; a live holder's file is kept. Before it stayed for good.
+* item 8: a reader of a store that a live process is writing (its lease) retries a read that fails, and where the
+  failure persists says "being written by ..." instead of "truncated or damaged" (78 of 4,241 polling reads of a
+  running mpio store were told so); without a live writer the damage is named as before.
 * item 9: ``status --json`` reports a store whose task table fails its checksum (it refused it where ``status``
   reported and went on); a flat height map fails ``plan`` with one error naming ``surface.path`` (every task
   failed at run time); the merge job script with a shard count or pattern that matches nothing exits non-zero.
@@ -212,3 +215,46 @@ def test_merge_export_and_run_remove_leftovers(ref, tmp_path):
         left.write_bytes(b"x")
         dataset.export_netcdf(ref, tmp_path / "x.nc")
         assert not left.exists()
+
+
+# ---- item 8 --------------------------------------------------------------------------------------------------
+
+
+def test_reader_of_a_store_being_written_retries(ref, tmp_path, monkeypatch):
+    from gapsweep.sweep import lease, storecheck
+    from gapsweep.sweep import store as st
+
+    path = _copy(ref, tmp_path)
+    monkeypatch.setattr(st, "RETRY_DELAYS", (0.0, 0.0, 0.0))
+    real, calls = storecheck.check, []
+
+    def torn(f, p, **kw):  # the first two reads meet metadata being written
+        calls.append(1)
+        if len(calls) <= 2:
+            raise st.StoreError(f"store {p}: not a readable HDF5 file (bad object header): truncated or damaged")
+        return real(f, p, **kw)
+
+    monkeypatch.setattr(st.storecheck, "check", torn)
+    with lease.acquire(path, purpose="test"):
+        assert (st.read(path).status == "done").all() and len(calls) == 3
+        calls.clear()
+        assert "2 tasks" in st.status(path)  # nested readers: one retry loop
+    calls.clear()
+    with pytest.raises(st.StoreError, match="truncated or damaged"):  # no writer: the damage is named
+        st.read(path)
+
+
+def test_persistent_failure_while_written_says_being_written(ref, tmp_path, monkeypatch):
+    from gapsweep.sweep import lease
+    from gapsweep.sweep import store as st
+
+    path = _copy(ref, tmp_path)
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 3])  # what a reader may meet: a file whose metadata is not all there
+    monkeypatch.setattr(st, "RETRY_DELAYS", (0.0,))
+    with lease.acquire(path, purpose="test"):
+        with pytest.raises(st.StoreError) as e:
+            st.read(path)
+    assert "being written by" in str(e.value) and "damaged" not in str(e.value).split("(`gapsweep status`")[0]
+    with pytest.raises(st.StoreError, match="truncated or damaged"):
+        st.read(path)

@@ -34,7 +34,7 @@ from gapsweep.sweep import methods as registry
 from gapsweep.sweep import spec as specmod
 from gapsweep.sweep.repair import own_spec
 from gapsweep.sweep.schema import STATUS, TIMEOUT_PREFIX, StoreError
-from gapsweep.sweep.store import open_read
+from gapsweep.sweep.store import open_read, while_written
 from gapsweep.sweep.tasks import expand
 
 __all__ = ["calibrate", "cost_left", "describe", "summary"]
@@ -181,6 +181,7 @@ def describe(c: dict[str, Any]) -> list[str]:
     return lines
 
 
+@while_written
 def summary(path: str | Path) -> dict[str, Any]:
     """``gapsweep status --json``: the job, the row counts per method and status, the lease, the last run and
     :func:`cost_left`."""

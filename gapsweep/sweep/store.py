@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import logging
 import math
+import threading
 from collections.abc import Iterable, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -507,6 +508,59 @@ class Store:
 # reading
 
 
+# Readers of a store that a live process is writing (issue 40 item 8: under mpio 78 of 4,241 polling reads were
+# told "truncated or damaged" while metadata was being written): the read is tried again after these pauses (s),
+# then reported as "being written" rather than damaged.
+RETRY_DELAYS = (0.02, 0.05, 0.1, 0.2, 0.4, 0.8)
+_retrying = threading.local()
+
+
+def _being_written(path: str | Path) -> dict[str, Any] | None:
+    """The lease of ``path`` where a live process (or one on another host, which cannot be checked) holds it."""
+    try:
+        held = lease.read(path)
+    except OSError:
+        return None
+    return held if held is not None and held.get("alive") is not False else None
+
+
+def while_written(fn: Any) -> Any:
+    """Decorate a reader ``fn(path, ...)``: a StoreError (or OSError other than a missing file) raised while a
+    live writer holds the store's lease is retried after :data:`RETRY_DELAYS`; if it persists, it is raised as
+    "being written by <holder>" with the reader's own message, not as damage. Nested readers retry once."""
+    import functools
+    import time
+
+    @functools.wraps(fn)
+    def wrapper(path: str | Path, *a: Any, **kw: Any) -> Any:
+        if getattr(_retrying, "on", False):
+            return fn(path, *a, **kw)
+        _retrying.on = True
+        try:
+            for delay in (*RETRY_DELAYS, None):
+                try:
+                    return fn(path, *a, **kw)
+                except FileNotFoundError:
+                    raise
+                except (StoreError, OSError) as e:
+                    held = _being_written(path)
+                    if held is None or isinstance(e, StoreWriteError):
+                        raise
+                    if delay is None:
+                        log.debug("store %s: the last read while being written: %s", path, e)
+                        raise StoreError(f"store {path}: being written by {lease.describe(held)}; the reads met "
+                                         "parts still being written: read again in a moment or when it finishes "
+                                         "(`gapsweep status` once the lease is gone tells whether it is damaged)"
+                                         ) from None
+                    log.debug("store %s: read while being written failed (%s); trying again", path, e)
+                    time.sleep(delay)
+        finally:
+            _retrying.on = False
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    return wrapper
+
+
 @contextmanager
 def open_read(path: str | Path, *, check: bool = True, tolerate_tasks: bool = False):
     """Open a store read-only without taking HDF5's file lock (it may be running). With ``check`` the
@@ -542,12 +596,14 @@ def open_read(path: str | Path, *, check: bool = True, tolerate_tasks: bool = Fa
             raise StoreError(f"store {p}: read error ({e}): damaged store") from None
 
 
+@while_written
 def read_attrs(path: str | Path, *, tolerate_tasks: bool = False) -> dict[str, Any]:
     """File attributes as Python values (strings decoded). ``tolerate_tasks``: see :func:`storecheck.check`."""
     with open_read(path, tolerate_tasks=tolerate_tasks) as f:
         return {k: (v.decode("utf-8", "replace") if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
 
 
+@while_written
 def read(path: str | Path, *, mark_damaged: bool = True, tolerate_tasks: bool = False):
     """One row per task: parameters, status (string), message and results (``docs/store.md``).
 
@@ -579,6 +635,7 @@ def read(path: str | Path, *, mark_damaged: bool = True, tolerate_tasks: bool = 
     return pd.DataFrame(cols)
 
 
+@while_written
 def read_pressure_histograms(path: str | Path, task_ids: Iterable[str] | None = None,
                              ) -> dict[str, tuple[np.ndarray, np.ndarray, float]]:
     """``{task_id: (edges, density, atom)}`` of the local pressure for GFMD rows that have one (format-2
@@ -598,6 +655,7 @@ def read_pressure_histograms(path: str | Path, task_ids: Iterable[str] | None = 
     return out
 
 
+@while_written
 def read_histograms(path: str | Path, task_ids: Iterable[str] | None = None,
                     ) -> dict[str, tuple[np.ndarray, np.ndarray, int]]:
     """``{task_id: (edges, density, count)}`` for tasks that have a histogram (density integrates to 1 over
@@ -618,6 +676,7 @@ def read_histograms(path: str | Path, task_ids: Iterable[str] | None = None,
     return out
 
 
+@while_written
 def status(path: str | Path) -> str:
     """A short text summary of a running or finished store (counts per method and status, runs, failures).
     Temporary files of a killed creation or merge of this store are removed first and named (issue 40 item 7)."""
