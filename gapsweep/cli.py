@@ -283,7 +283,21 @@ def _jobs(args: argparse.Namespace) -> int:
     return 0
 
 
+_READS = {"status": "store", "merge": "shards", "export": "store", "report": "store", "repair": "store"}
+
+
+def _probe_stores(args: argparse.Namespace) -> None:
+    """The stores a reading command opens, read first in a forked child (store.crash_probe): a store whose
+    damaged HDF5 metadata crashes the library is one line and exit 1, not a segfault (issue 40 item 3)."""
+    from gapsweep.sweep import store
+
+    names = getattr(args, _READS.get(args.command, ""), None)
+    for p in [names] if isinstance(names, str) else names or []:
+        store.crash_probe(p)
+
+
 def _dispatch(args: argparse.Namespace) -> int:
+    _probe_stores(args)
     if args.command in ("plan", "run", "submit"):  # a job argument may be a shipped job's name (gapsweep jobs)
         from gapsweep import jobs
 

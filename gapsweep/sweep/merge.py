@@ -14,10 +14,10 @@ from typing import Any
 
 import numpy as np
 
-from gapsweep.sweep import lease, outputs, provenance, storecheck
+from gapsweep.sweep import budget, lease, outputs, provenance, storecheck, writefail
 from gapsweep.sweep import spec as specmod
 from gapsweep.sweep import tasks as tasksmod
-from gapsweep.sweep.schema import PRESSURE_HIST, STATUS, STATUS_NAMES, VOLATILE, StoreError
+from gapsweep.sweep.schema import PRESSURE_HIST, STATUS, STATUS_NAMES, VOLATILE, StoreError, StoreWriteError
 from gapsweep.sweep.store import Store, _same, empty_results, open_read, read, read_attrs, seal, upgrade_results
 
 __all__ = ["CONFLICT_CHOICES", "merge"]
@@ -200,6 +200,13 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
         lease.remove_leftovers(outp, held=True)  # of a killed creation or merge (issue 40 item 7)
         _guard(outp, shards, overwrite, lambda o: _not_own_merge(o, sha, done))
         tmp = outp.with_name(f".{outp.name}.tmp-{os.getpid()}")
+        # room first (issue 40 item 3): a merge whose HDF5 writes failed on a full disk or under a file-size limit
+        # segfaulted (exit 139); the whole store is reserved before HDF5 writes a byte (writefail.reserve)
+        need = budget.store_bytes(len(tasks), bins, len(js.text) + len(attrs.get("runs", "")))
+        err = writefail.reserve(tmp, int(1.5 * need) + (1 << 20))
+        if err is not None:
+            raise StoreWriteError(f"merge --out {outp}: cannot be written ({err}); nothing was written, the "
+                                  "shards are untouched")
         try:
             _write(tmp, outp, tasks, attrs, bins, results, (edges, dens, pedges, pdens))
             os.replace(tmp, outp)

@@ -226,6 +226,20 @@ def _layout(f: Any, path: Any, r: Any, integrity: bool) -> Layout:
 
 
 def check(f: Any, path: str | Path, *, tolerate_tasks: bool = False) -> Report:
+    """:func:`_check`; an error of the HDF5 library while reading damaged metadata (a flipped byte in an object
+    header: KeyError "Unable to open object", OSError, ValueError, TypeError) is a one-line StoreError naming the
+    store (issue 40 item 3: such errors reached the user as tracebacks)."""
+    try:
+        return _check(f, path, tolerate_tasks=tolerate_tasks)
+    except StoreError:
+        raise
+    except (KeyError, OSError, ValueError, TypeError, IndexError, AttributeError, RuntimeError) as e:
+        msg = str(e.args[0]) if isinstance(e, KeyError) and e.args else str(e)
+        _fail(path, f"damaged HDF5 structure ({type(e).__name__}: {msg})")
+        raise  # pragma: no cover - _fail raises
+
+
+def _check(f: Any, path: str | Path, *, tolerate_tasks: bool = False) -> Report:
     """Validate an open store ``f`` (h5py.File); raise StoreError on a structural problem (a format-4 store's
     attributes and task table first: one that fails its checksum is named). ``tolerate_tasks`` (``--resume``,
     which restores task rows from the job; ``status``; ``merge --skip-damaged``): a ``/tasks`` table that
