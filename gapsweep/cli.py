@@ -94,7 +94,11 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--reuse", action="append", default=[], metavar="OTHER.h5",
                    help="copy the done rows of the same tasks (same task id) from another store instead of "
                         "running them, where their checksums verify (repeatable; the run record names the "
-                        "sources)")
+                        "sources); only rows computed by the current algorithm version of their method, with "
+                        "their kept fields")
+    s.add_argument("--reuse-older", action="store_true",
+                   help="with --reuse: also copy rows computed by another (older or unknown) algorithm version of "
+                        "their method; the run record and `gapsweep status` name them")
 
     s = sub.add_parser("jobs", help="list the job specs shipped with gapsweep (run one by name: gapsweep run fig2 ...)")
     s.add_argument("--path", metavar="NAME", help="print the path of the shipped spec NAME instead")
@@ -370,7 +374,7 @@ def _run(args: argparse.Namespace) -> int:
                        shard=runner.parse_shard(args.shard), writer=args.writer, progress=args.progress,
                        coordinator_works=args.coordinator_works, mpi=args.mpi, break_lease=args.break_lease,
                        task_timeout=args.task_timeout, batch=args.batch, ranks_per_gpu=args.ranks_per_gpu,
-                       lookahead=args.lookahead, reuse=args.reuse)
+                       lookahead=args.lookahead, reuse=args.reuse, reuse_older=args.reuse_older)
         if s["rank"] == 0 and args.progress != "none":
             print(f"{s['store']}: {s['mode']}, {s['todo']} of {s['tasks']} tasks run: {s['done']} done, "
                   f"{s['failed']} failed, {s['not_converged']} not converged"

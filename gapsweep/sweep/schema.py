@@ -140,13 +140,15 @@ FLOAT_RESULTS = (
     # tensile loads: the most tensile load at which the solve stayed attached (the pull-off bracket)
     "error_estimate", "last_attached_load",
 )
-INT_RESULTS = ("iterations", "count", "rank", "flags")
+# format 5 (issue 40 item 5): ``algorithm_version``, the ALGORITHM_VERSION of the method plug-in that computed the
+# row (-1: unknown -- a row of an older store, or one not computed); --reuse copies only rows of the same version
+INT_RESULTS = ("iterations", "count", "rank", "flags", "algorithm_version")
 # Bits of the ``flags`` column (GFMD rows; 0 = none, -1 = not a GFMD row): a jump along the load path (adhesion)
 # and detachment (adhesion beyond pull-off: no equilibrium in contact, the row is not_converged). docs/store.md.
 FLAG_JUMP = 1
 FLAG_DETACHED = 2
 # Columns filled by the sweep itself for every row (not by a method).
-COMMON_RESULTS = ("wall_time", "rank")
+COMMON_RESULTS = ("wall_time", "rank", "algorithm_version")
 # The message prefix of a row that ran out of its time limit (--task-timeout): such failed rows are run again by
 # --resume (a slow node or a cold cache may have caused them).
 TIMEOUT_PREFIX = "timeout:"
@@ -253,7 +255,7 @@ FORMAT = "gapsweep-store"
 # One format version per layout (the table LAYOUTS below, docs/store.md "Formats"): 4: format 3's last table
 # with the attribute checksums (INTEGRITY); 3: per-row checksums (four layouts, written before the rule);
 # 2: the issue-12 columns and pressure histograms; 1: the first format
-FORMAT_VERSION = 4
+FORMAT_VERSION = 5
 MESSAGE_LEN = 240
 
 TASK_DTYPE = np.dtype([
@@ -287,6 +289,7 @@ RESULT_DTYPE_V2 = _results_dtype(_F2, _I2, False)
 RESULT_DTYPE_V3B = _results_dtype((*_F2, "error_estimate"), _I2, False)
 RESULT_DTYPE_V3C = _results_dtype((*_F2, "error_estimate"), _I2, True)
 RESULT_DTYPE_V3D = _results_dtype((*_F2, "error_estimate", "last_attached_load"), _I2, True)
+RESULT_DTYPE_V4 = RESULT_DTYPE_V3D  # format 4 added the attribute checksums, no column
 # The attribute of format 4 that holds the checksums of every other attribute and of /tasks (docs/store.md).
 INTEGRITY = "integrity"
 
@@ -321,7 +324,8 @@ LAYOUTS = (
     Layout("3b", 3, RESULT_DTYPE_V3B, "dataset", False, "de98333"),
     Layout("3c", 3, RESULT_DTYPE_V3C, "column", False, "9093b41 .. 6bc25eb"),
     Layout("3d", 3, RESULT_DTYPE_V3D, "column", False, "be10c32 .. a6b475f"),
-    Layout("4", 4, RESULT_DTYPE, "column", True, "this version"),
+    Layout("4", 4, RESULT_DTYPE_V4, "column", True, "576c959 .. bb77f13"),
+    Layout("5", 5, RESULT_DTYPE, "column", True, "this version"),
 )
 CURRENT_LAYOUT = LAYOUTS[-1]
 RESULT_DTYPES = tuple(dict.fromkeys(x.results for x in LAYOUTS))

@@ -65,6 +65,8 @@ from gapsweep.sweep.schema import (  # noqa: F401 - the store's layout, re-expor
 )
 from gapsweep.sweep.writefail import KEEP_TYPES, io_failed, one_line, write_failed  # noqa: F401 - re-exported
 
+ALGO_COLUMN = "algorithm_version"  # format 5 (issue 40 item 5)
+
 log = logging.getLogger("gapsweep.store")
 
 __all__ = [
@@ -252,6 +254,7 @@ class Store:
         # format 3: each row carries its checksum (over its task row, itself and its histograms); which rows hold
         # histograms now, so that a row without one writes none (its NaN rows are already what is stored)
         self._ck = CHECKSUM in (self._rdtype.names or ())
+        self._versions = ALGO_COLUMN in (self._rdtype.names or ()) and self._ck
         n = self._res.shape[0]
         self._task_rows = f["tasks"][...] if self._ck and n else None
         self._has_hist = (np.isfinite(self._edges[:, 0]) if n else np.zeros(0, bool)) if self._ck else None
@@ -432,6 +435,8 @@ class Store:
                 self.f.flush()
             self._inject()
             row = result_row(res, self._rdtype)[0]
+            if self._versions:  # format 5: the algorithm that computed the row (issue 40 item 5; every path)
+                row[ALGO_COLUMN] = self._algorithm_version(i)
             if ck:  # the checksum travels in the row's own write, after the payload
                 row[CHECKSUM] = row_checksum(self._task_rows[i], row, (*hist, *phist))
                 self._has_hist[i] = res.hist is not None
@@ -442,6 +447,12 @@ class Store:
                 self.f.flush()
         except (OSError, RuntimeError) as e:
             raise _failed(f"store {self.path}: writing row {i} failed ({e})") from None
+
+    def _algorithm_version(self, i: int) -> int:
+        """ALGORITHM_VERSION of the method plug-in of row ``i`` (docs/store.md "Algorithm versions")."""
+        from gapsweep.sweep import methods as registry
+
+        return int(registry.get(self._task_rows[i]["method"].decode()).algorithm_version)
 
     def _mark_pending(self, i: int, flush: bool) -> None:
         """A row that is not pending in the file (run again: timed out, damaged, incomplete) is first written back
@@ -756,6 +767,9 @@ def status(path: str | Path) -> str:
             end = f"{r.get('stopped_at')} (stopped: {r['stopped']})"
         lines.append(f"run: started {r.get('started')} finished {end} "
                      f"ranks {r.get('mpi_size')} writer {r.get('writer')} hosts {','.join(r.get('hosts', []))}")
+        if r.get("reused_older"):
+            lines.append(f"  --reuse-older: rows of another algorithm version copied from {r['reused_older']}")
+    lines.extend(_versions(df))
     bad = df[df.status.isin(["failed", "not_converged"])]
     for _, row in bad.head(10).iterrows():
         lines.append(f"  {row.status}: {row.task_id} {row.method} H={row.hurst:g} rho={row.rho:g} "
@@ -764,6 +778,30 @@ def status(path: str | Path) -> str:
         lines.append(f"  ... and {len(bad) - 10} more")
     lines.extend(_unfinished(path, df))
     return "\n".join(lines)
+
+
+def _versions(df: Any) -> list[str]:
+    """Status lines about finished rows not computed by the current algorithm version of their method (column
+    algorithm_version: another version, or -1 unknown -- a store written before format 5, or a row copied from one
+    by ``--reuse-older``); issue 40 item 5."""
+    from gapsweep.sweep import methods as registry
+
+    out = []
+    fin = df[df.status.isin(["done", "failed", "not_converged"])]
+    for m, g in fin.groupby("method"):
+        try:
+            cur = registry.get(str(m)).algorithm_version
+        except (KeyError, ValueError):
+            continue
+        v = g.algorithm_version.astype(int)
+        unknown, other = int((v < 0).sum()), g[(v >= 0) & (v != cur)]
+        if len(other):
+            out.append(f"algorithm: {len(other)} {m} row(s) computed by version(s) "
+                       f"{sorted(set(other.algorithm_version.astype(int)))} (current {cur})")
+        if unknown:
+            out.append(f"algorithm: {unknown} {m} row(s) of unknown algorithm version (written before format 5, "
+                       "or copied from such a store by --reuse-older)")
+    return out
 
 
 def _unfinished(path: str | Path, df: Any) -> list[str]:

@@ -64,6 +64,10 @@ class Method:
     seed_free: tuple[str, ...] = ()
     select: str | None = None  # the option ("n" or "c2") of which the dataset view keeps one value
     extra_target: tuple[str, str, tuple[str, ...]] | None = None  # (module, function, keys the sweep sets)
+    # The version of the method's algorithm (the plug-in module's ALGORITHM_VERSION), stored in every row it
+    # computes (column algorithm_version, docs/store.md): bumped when its results change beyond the tolerance its
+    # docs state, so that --reuse never copies a row of the older code as current (issue 40 item 5)
+    algorithm_version: int = 1
 
     # -- validation --------------------------------------------------------------------------------------
     def validate(self, key: str, t: dict[str, Any], env: Env) -> dict[str, Any]:

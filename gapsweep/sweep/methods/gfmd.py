@@ -61,8 +61,14 @@ def _keep_fields_option(key: str, v: Any) -> str:
     return json.dumps(out, sort_keys=True)
 
 
+# The algorithm's version (Method.algorithm_version, stored per row): bump it when a change moves this
+# method's results beyond the tolerance its docs state (docs/store.md "Algorithm versions").
+ALGORITHM_VERSION = 1
+
+
 @register
 class GFMD(Method):
+    algorithm_version = ALGORITHM_VERSION
     name = "gfmd"
     order = 1
     keys = ("n", "tol", "max_iter", "method", "backend", "warm_start", "order", "keep_fields", "distributed")
