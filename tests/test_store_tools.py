@@ -226,7 +226,32 @@ def test_merge_export_and_run_remove_leftovers(ref, tmp_path):
 # ---- item 8 --------------------------------------------------------------------------------------------------
 
 
-def test_reader_of_a_store_being_written_retries(ref, tmp_path, monkeypatch):
+@pytest.fixture()
+def writer_lease():
+    """A lease of another live process (a child that waits), as a running writer holds it; the lease of this
+    process would not count (a merge reading its own output must get its own errors)."""
+    import socket
+    import sys
+
+    from gapsweep.sweep import lease
+
+    child = subprocess.Popen([sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE)
+    made = []
+
+    def take(path: Path) -> None:
+        lp = lease.lease_path(path)
+        lp.write_text(json.dumps({"host": socket.gethostname(), "pid": child.pid, "run_id": "0123456789ab",
+                                  "started": "now", "purpose": "run"}))
+        made.append(lp)
+
+    yield take
+    child.stdin.close()
+    child.wait()
+    for lp in made:
+        lp.unlink(missing_ok=True)
+
+
+def test_reader_of_a_store_being_written_retries(ref, tmp_path, monkeypatch, writer_lease):
     from gapsweep.sweep import lease, storecheck
     from gapsweep.sweep import store as st
 
@@ -241,16 +266,21 @@ def test_reader_of_a_store_being_written_retries(ref, tmp_path, monkeypatch):
         return real(f, p, **kw)
 
     monkeypatch.setattr(st.storecheck, "check", torn)
-    with lease.acquire(path, purpose="test"):
-        assert (st.read(path).status == "done").all() and len(calls) == 3
-        calls.clear()
-        assert "2 tasks" in st.status(path)  # nested readers: one retry loop
+    with lease.acquire(path, purpose="test"):  # this process's own lease: its errors are its own, no retry
+        with pytest.raises(st.StoreError, match="truncated or damaged"):
+            st.read(path)
+    calls.clear()
+    writer_lease(path)
+    assert (st.read(path).status == "done").all() and len(calls) == 3
+    calls.clear()
+    assert "2 tasks" in st.status(path)  # nested readers: one retry loop
+    lease.lease_path(path).unlink()
     calls.clear()
     with pytest.raises(st.StoreError, match="truncated or damaged"):  # no writer: the damage is named
         st.read(path)
 
 
-def test_persistent_failure_while_written_says_being_written(ref, tmp_path, monkeypatch):
+def test_persistent_failure_while_written_says_being_written(ref, tmp_path, monkeypatch, writer_lease):
     from gapsweep.sweep import lease
     from gapsweep.sweep import store as st
 
@@ -258,9 +288,10 @@ def test_persistent_failure_while_written_says_being_written(ref, tmp_path, monk
     data = path.read_bytes()
     path.write_bytes(data[: len(data) // 3])  # what a reader may meet: a file whose metadata is not all there
     monkeypatch.setattr(st, "RETRY_DELAYS", (0.0,))
-    with lease.acquire(path, purpose="test"):
-        with pytest.raises(st.StoreError) as e:
-            st.read(path)
+    writer_lease(path)
+    with pytest.raises(st.StoreError) as e:
+        st.read(path)
+    lease.lease_path(path).unlink()
     assert "being written by" in str(e.value) and "damaged" not in str(e.value).split("(`gapsweep status`")[0]
     with pytest.raises(st.StoreError, match="truncated or damaged"):
         st.read(path)

@@ -529,12 +529,19 @@ _retrying = threading.local()
 
 
 def _being_written(path: str | Path) -> dict[str, Any] | None:
-    """The lease of ``path`` where a live process (or one on another host, which cannot be checked) holds it."""
+    """The lease of ``path`` where another live process (or one on another host, which cannot be checked) holds
+    it; a lease of this process (a merge reading its own output) does not count: its errors are its own."""
+    import socket
+
     try:
         held = lease.read(path)
     except OSError:
         return None
-    return held if held is not None and held.get("alive") is not False else None
+    if held is None or held.get("alive") is False:
+        return None
+    if held.get("host") == socket.gethostname() and held.get("pid") == os.getpid():
+        return None
+    return held
 
 
 def while_written(fn: Any) -> Any:
