@@ -603,9 +603,15 @@ def crash_probe(path: str | Path) -> None:
             os.dup2(devnull, 1)
             os.dup2(devnull, 2)
             logging.disable(logging.CRITICAL)
+            # the readers' own path (the check every command starts with), then every table: a crash of HDF5 on
+            # damaged metadata is undefined behaviour, most faithfully met by the same calls in the same (forked)
+            # memory as the command's; costs one more check of the store
             with open_read(p, check=False) as f:
-                storecheck.check(f, p, tolerate_tasks=True)
-                for k in ("histograms/edges", "histograms/density", *PRESSURE_HIST):
+                try:
+                    storecheck.check(f, p, tolerate_tasks=True)
+                except StoreError:
+                    pass
+                for k in ("tasks", "results", "histograms/edges", "histograms/density", *PRESSURE_HIST):
                     if k in f:
                         f[k][...]
         except BaseException:
