@@ -183,6 +183,14 @@ def test_repair_without_job(ref, tmp_path, name):
     assert store.diff(path, ref) == []
 
 
+def test_repair_restores_the_job_name_from_the_spec(ref, tmp_path, capsys):
+    path = _copy(ref, tmp_path)
+    flip(path, "job_name")
+    rc, out, err = _cli(capsys, "repair", path)
+    assert rc == 0 and "restored from the spec: job_name" in out, out + err
+    assert store.read_attrs(path)["job_name"] == "faults-units" and not _verified(path).attrs_need_repair
+
+
 def test_repair_of_spec_text_needs_the_job(ref, tmp_path):
     path = _copy(ref, tmp_path)
     flip(path, "spec_text")

@@ -89,6 +89,9 @@ def repair(path: str | Path, job: str | Path | None = None, *, break_lease: bool
                 raise StoreError(f"repair {p}: its /tasks table fails its checksum too: `gapsweep run JOB --store "
                                  f"{p} --resume` restores both from the job file; nothing was changed")
             restore = None
+            if rep.spec_trusted and "job_name" in rep.provenance_damaged:  # the job's name is in its spec
+                own = own_spec(f)
+                restore = {"job_name": own.name} if own is not None else None
             if not rep.spec_trusted:
                 if job is not None:
                     spec = specmod.load(job)
@@ -109,8 +112,11 @@ def repair(path: str | Path, job: str | Path | None = None, *, break_lease: bool
         out = [f"removed {x}, the temporary file of a killed creation or merge" for x in gone]
         if rep.attrs_need_repair:
             Store.open(p, repair_tasks=True, restore=restore).close()
-            if rep.provenance_damaged:
-                out.append(f"rebuilt (marked as lost): {', '.join(rep.provenance_damaged)}")
+            lost = [x for x in rep.provenance_damaged if x not in (restore or {})]
+            if lost:
+                out.append(f"rebuilt (marked as lost): {', '.join(lost)}")
+            if restore and "job_name" in rep.provenance_damaged:
+                out.append("restored from the spec: job_name")
             if not rep.spec_trusted:
                 out.append(f"restored from {'the job ' + str(job) if job else 'its own verified spec text'}: "
                            f"{', '.join(rep.spec_damaged) or 'the spec attributes'}"
