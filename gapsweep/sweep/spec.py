@@ -348,6 +348,9 @@ def loads(text: str, base: str | Path | None = None) -> JobSpec:
             if not registry.get(k).takes_body:
                 raise SpecError(f"methods.{k}: not available with material.{body[0]} (no theory of a layer or of "
                                 f"a plastic cap is implemented for it); methods that take them: {', '.join(able)}")
+        if law == "hard_wall_adhesive" and "thickness" in material:
+            raise SpecError("material.thickness: interaction.kind 'hard_wall_adhesive' is not available on an "
+                            "elastic layer yet (the half-space only); remove material.thickness")
         if kind == "file" and surface.get("periodic") is False and "thickness" in material:
             raise SpecError("material.thickness: an elastic layer is solved with periodic boundaries only; this "
                             "file surface is non-periodic (free boundaries)")

@@ -80,8 +80,14 @@ def _keep_fields_option(key: str, v: Any) -> str:
     return json.dumps(out, sort_keys=True)
 
 
+# The algorithm's version (Method.algorithm_version, stored per row): bump it when a change moves this
+# method's results beyond the tolerance its docs state (docs/store.md "Algorithm versions").
+ALGORITHM_VERSION = 1
+
+
 @register
 class GFMD(Method):
+    algorithm_version = ALGORITHM_VERSION
     name = "gfmd"
     rolloff = True  # solves any surface; the theories assume M2's spectrum
     order = 1
