@@ -422,9 +422,11 @@ PRESSURE_HIST = ("histograms/pressure_edges", "histograms/pressure_density")
 # four histogram rows; written with the row, after its payload. A finished row whose bytes no longer match is
 # "damaged" (docs/store.md "Checksums").
 CHECKSUM = "checksum"
-# Columns that differ between two runs of the same job by nature (compare stores without them); the checksum
-# covers the wall time, so it differs with it.
-VOLATILE = ("wall_time", "rank", "checksum")
+# Columns that differ between two runs of the same job by nature, or say how a row was computed rather than what it
+# holds (compare stores without them: merge's conflicts, diff); the checksum covers the wall time, so it differs
+# with it; algorithm_version: rows equal in every value do not conflict because an older code computed one of
+# them (the kept row keeps its own version)
+VOLATILE = ("wall_time", "rank", "checksum", "algorithm_version")
 
 
 class StoreError(RuntimeError):
