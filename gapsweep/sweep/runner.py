@@ -766,14 +766,21 @@ class _Run:
         self.work = [k for k, u in enumerate(self.units) if any(i in self.todo for i in u.tasks)]
         if self.wmode == "mpio" or rank == 0:
             with self.stop.critical():
+                # A new store is created with this run's record among its attributes (issue 40): it appears at
+                # its path (a rename) with the record, so no kill (mpiexec SIGKILLs its ranks 1 s after
+                # forwarding a SIGTERM) between its creation and a later attribute write leaves a store that
+                # names no run.
+                if self.mode == "create":
+                    attrs = {**attrs, "runs": json.dumps([record])}
                 self.st = _open_store(self.path, self.mode, self.tasks, attrs, self.spec.histogram["bins"],
                                       comm if self.wmode == "mpio" else None, rank, self.run_id)
                 if self.held is not None:  # the file opened is the one leased (issue 19: keyed by device and inode)
                     self.held.bind(self.path)
                 if self.mode == "resume":  # every byte of a re-run row is written again, NaN histograms included
                     self.st.force_histograms(self.todo_list)
-                runs = _earlier_runs(self.st, self.path)
-                self.st.set_attrs({"runs": json.dumps([*runs, record])}, flush=True)  # survives a kill -9
+                if self.mode != "create":
+                    runs = _earlier_runs(self.st, self.path)
+                    self.st.set_attrs({"runs": json.dumps([*runs, record])}, flush=True)  # survives a kill -9
                 _copy_reused(self.st, self.reused)
         self.prog = Progress(len(self.todo), self.progress if rank == 0 else "none")
         if comm is not None and rank == 0 and self.wmode == "rank0":  # issue 19: mpiexec's 1-s grace, see below

@@ -6,7 +6,8 @@ until ``<dir>/release`` exists or a SIGINT/SIGTERM has arrived. Points: ``k`` (a
 process's ``k``-th store row write (the row complete and flushed; inside the write, so a signal is acted on when
 the write returns, as for any write; the store's stop file ``<store>.stop`` ends the wait too); ``import``: when
 the run command has loaded its runner (signal handlers installed, nothing opened); ``lease``: the lease taken,
-the store not yet opened or created; ``create``: a new store created, not yet opened by the run. A test then
+the store not yet opened or created; ``create``: a new store created, not yet opened by the run; ``opened``: the
+store at its path opened by the run (a new one renamed into place), before anything else is written. A test then
 knows where the run is (a barrier instead of a race between the run's speed and the test's): a second writer, a
 signal, a kill or a full disk meets a run that is certainly in the middle of its work, on a loaded machine too.
 
@@ -58,6 +59,16 @@ def _patch_store(mod) -> None:
             return st
 
         mod.Store.create = classmethod(created)
+        return
+    if _POINT == "opened":  # the store at its path (created and renamed into place, or resumed), just opened
+        open_ = mod.Store.open.__func__
+
+        def opened(cls, *a, **kw):
+            st = open_(cls, *a, **kw)
+            _hold()
+            return st
+
+        mod.Store.open = classmethod(opened)
         return
     if not _POINT.isdigit():
         return
