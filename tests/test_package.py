@@ -5,6 +5,7 @@ to the pins of constraints.txt)."""
 
 from __future__ import annotations
 
+import argparse
 import os
 import re
 import shutil
@@ -113,3 +114,32 @@ def test_wheel_contents(tmp_path):
     meta = zipfile.ZipFile(whl).read(next(n for n in names if n.endswith("dist-info/METADATA"))).decode()
     lo = re.search(r"^Requires-Python: >=(\d+)\.(\d+)", meta, re.M)
     assert lo and (int(lo[1]), int(lo[2])) == _min_python()
+
+
+def test_help_names_no_docs_file_without_saying_where_and_no_placeholder_urls():
+    """issue 40: a wheel's help pointed to docs/*.md that the wheel does not install, and its project URLs were
+    placeholders. Every help text (the top level and each command's) that names a docs/*.md says that these
+    are the project's source files (not installed), each file it names exists in the source's docs/, and
+    pyproject.toml names no placeholder address."""
+    import tomllib
+
+    from gapsweep import cli
+
+    parser = cli._parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    helps = {"gapsweep": parser.format_help(), **{f"gapsweep {k}": v.format_help() for k, v in sub.choices.items()}}
+    named = 0
+    for who, text in helps.items():
+        files = set(re.findall(r"docs/([A-Za-z_]+)\.md", text)) - {"NAME"}
+        named += len(files)
+        for f in files:
+            assert (ROOT / "docs" / f"{f}.md").is_file(), (who, f)
+        if files:
+            flat = " ".join(text.split())
+            assert "the docs/ folder of the project's source" in flat and "does not install" in flat, who
+    assert named >= 3  # the helps do name docs (the check above has cases)
+    meta = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    for name, url in meta.get("urls", {}).items():
+        host = re.sub(r"^https?://([^/]+).*", r"\1", url)
+        assert not host.endswith((".invalid", ".example", "example.com", "example.org", "localhost")), (name, url)
+    assert "example.invalid" not in (ROOT / "pyproject.toml").read_text()

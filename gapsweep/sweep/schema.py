@@ -151,6 +151,10 @@ TIMEOUT_PREFIX = "timeout:"
 # signal inside numba's JIT compilation, delivered in an llvmlite callback, surfaces as "no compiled object yet";
 # issue 31): never a result of the task's parameters, so --resume runs such rows again.
 INTERRUPTED_PREFIX = "interrupted:"
+# The message prefix of a row that failed because an optional package (an extra: gapsweep.core.extras) is not
+# installed: a fact of the installation, not of the task, so --resume (and the demo) runs such rows again once
+# it is (issue 40: the demo's SDE rows stuck after `pip install 'gapsweep[sde]'`, "nothing to do").
+MISSING_EXTRA_PREFIX = "missing extra:"
 # The kept fields of a GFMD task (docs/jobs.md "keep_fields", gapsweep.sweep.fields).
 FIELD_NAMES = ("gap", "pressure", "displacement", "height")
 
