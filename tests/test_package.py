@@ -143,3 +143,25 @@ def test_help_names_no_docs_file_without_saying_where_and_no_placeholder_urls():
         host = re.sub(r"^https?://([^/]+).*", r"\1", url)
         assert not host.endswith((".invalid", ".example", "example.com", "example.org", "localhost")), (name, url)
     assert "example.invalid" not in (ROOT / "pyproject.toml").read_text()
+
+
+def test_gpu_extra_names_the_cupy_that_was_measured():
+    """issue 40: the gpu extra named cupy-cuda12x >= 13 while every GPU figure in benchmarks/results was measured
+    with cupy 14 on CUDA 13. The extra's distribution is the CUDA major the results record, its version range
+    admits every cupy version they record, and the missing-extra message names the same distribution."""
+    import tomllib
+
+    from packaging.requirements import Requirement
+
+    from gapsweep.core import extras
+
+    (req,) = [Requirement(r) for r in tomllib.loads((ROOT / "pyproject.toml").read_text())["project"][
+        "optional-dependencies"]["gpu"]]
+    texts = [p.read_text(errors="replace") for p in (ROOT / "benchmarks" / "results").rglob("*")
+             if p.is_file() and p.suffix in (".json", ".txt", ".log", ".md")]
+    measured = {v for t in texts for v in re.findall(r'"cupy": "(\d+\.\d+(?:\.\d+)?)"', t)}
+    cuda = {m for t in texts for m in re.findall(r"CUDA (?:Version: |runtime )(\d+)\.", t)}
+    assert measured and cuda, (measured, cuda)
+    assert all(req.specifier.contains(v) for v in measured), (str(req), measured)
+    assert cuda == {"13"} and req.name == "cupy-cuda13x", (req.name, cuda)
+    assert extras.EXTRAS["cupy"] == (req.name, "gpu")
