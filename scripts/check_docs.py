@@ -336,6 +336,8 @@ def check_provenance(files: set[Path] | list[Path], root: Path = ROOT) -> list[s
         if not f.is_file() or not f.is_relative_to(root.resolve()):
             continue
         rel = str(f.relative_to(root.resolve()))
+        if rel == str(UNVERSIONED_LIST) or rel.endswith(rec_mod.SIDECAR):  # the list and records are no results
+            continue
         rec = rec_mod.read(f)
         if not rec or not rec.get("commit"):
             if rel in allow:
