@@ -64,6 +64,25 @@ def test_rows_failed_for_a_missing_extra_run_again_once_it_is_installed(tmp_path
     assert store.diff(path, ref) == []
 
 
+def test_rows_of_a_store_written_before_the_prefix_are_retried_too(tmp_path, monkeypatch):
+    """A store whose SDE rows failed under the old message form ("MissingExtraError: ..."): resumed, they run."""
+    pytest.importorskip("warp")
+    from gapsweep.sweep import execute
+
+    job = tmp_path / "job.toml"
+    job.write_text(JOB)
+    path = tmp_path / "s.h5"
+    with monkeypatch.context() as m:
+        m.setitem(sys.modules, "warp", None)
+        m.setattr(execute, "_missing_extra", lambda e: False)  # the message as the old code wrote it
+        runner.run(job, path, mpi="off", progress="none")
+    sde = store.read(path).query("method == 'sde'")
+    assert (sde.status == "failed").all() and all(x.startswith("MissingExtraError:") for x in sde.message)
+    s = runner.run(job, path, resume=True, mpi="off", progress="none")
+    assert s["todo"] == 2 and s["done"] == 2, s
+    assert (store.read(path).status == "done").all()
+
+
 def test_other_failures_are_not_retried(tmp_path, monkeypatch):
     """A task's own error (not a missing package) stays failed: the resume has nothing to do."""
     from gapsweep.sweep import execute
