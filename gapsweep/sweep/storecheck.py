@@ -306,7 +306,7 @@ def incomplete_rows(f: Any, path: str | Path, rep: Report | None = None) -> list
     # was missing (issue 40: installed since, or it fails again at once)
     timed_out = [i for i in np.flatnonzero(status == STATUS["failed"]).tolist()
                  if msg[i].startswith((TIMEOUT_PREFIX.encode(), INTERRUPTED_PREFIX.encode(),
-                                       MISSING_EXTRA_PREFIX.encode(), b"MissingExtraError:"))]  # and before 0.3
+                                       MISSING_EXTRA_PREFIX.encode(), b"MissingExtraError:"))]  # (its form before)
     if timed_out:
         log.info("store %s: %d timed-out row(s) are run again", path, len(timed_out))
     return sorted(set(np.flatnonzero(status == STATUS["pending"]).tolist()) | set(rep.rerun) | set(timed_out))
