@@ -36,11 +36,11 @@ The convention (docs/benchmarks.md, "How numbers are checked"):
   name) records the commit of this repository it was measured at and the code paths it measures
   (benchmarks/_record.py: a ``"provenance"`` key, a sidecar ``FILE.provenance.json`` or a ``# provenance:``
   line). It fails the check when that commit is unknown to the repository, a code path did not exist at it, or
-  a code path changed in a later commit (``git log COMMIT..HEAD -- PATHS``): the number is stale, re-measure it
-  or stop citing it. A cited file with no record is *unversioned*: allowed, with a warning, only when listed in
-  ``benchmarks/results/UNVERSIONED.txt`` (the files measured before records existed); any other fails. Without
-  a git checkout (a source archive) this part is skipped with a warning; in a shallow clone a commit it lacks
-  is a warning, not a failure.
+  the code paths differ between that commit and HEAD (``git diff COMMIT HEAD -- PATHS``): the number is stale,
+  re-measure it or stop citing it. A cited file with no record is *unversioned*: allowed, with a warning, only
+  when listed in ``benchmarks/results/UNVERSIONED.txt`` (the files measured before records existed); any other
+  fails. Without a git checkout (a source archive) this part is skipped with a warning; in a shallow clone a
+  commit it lacks is a warning, not a failure.
 """
 
 from __future__ import annotations
@@ -361,11 +361,12 @@ def check_provenance(files: set[Path] | list[Path], root: Path = ROOT) -> list[s
             problems.append(f"{rel}: its code path(s) {', '.join(gone)} did not exist at its commit {commit[:12]}: "
                             "the record names the wrong commit or the wrong code")
             continue
-        later = _git_ok(root, "log", "--format=%h %cs", f"{commit}..HEAD", "--", *paths)
-        if later:
-            n = len(later.splitlines())
-            problems.append(f"{rel}: stale: measured at {commit[:12]}, and {', '.join(paths)} changed in {n} later "
-                            f"commit(s) (latest {later.splitlines()[0]}): re-measure it or stop citing it")
+        # stale when the measured code differs between its commit and HEAD (a tree comparison: a result measured
+        # on a branch merged since is judged by the code, not by the history's shape)
+        if _git_ok(root, "diff", "--quiet", commit, "HEAD", "--", *paths) is None:
+            last = _git_ok(root, "log", "-1", "--format=%h %cs", "HEAD", "--", *paths) or "?"
+            problems.append(f"{rel}: stale: measured at {commit[:12]}, and {', '.join(paths)} changed since (last "
+                            f"change {last}): re-measure it or stop citing it")
     return problems
 
 

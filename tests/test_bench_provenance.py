@@ -102,6 +102,12 @@ def test_check_docs_fails_stale_wrong_commit_and_unlisted_unversioned(tmp_path):
     probs = check_docs.check_provenance(files, root)
     assert len(probs) == 2 and all("stale" in p for p in probs), probs
     assert any("fresh.json" in p for p in probs) and any("table.txt" in p for p in probs)
+    (root / "code" / "solver.py").write_text("x = 1\n")  # the change reverted: the code measured is HEAD's again
+    _commit(root, "revert")
+    assert check_docs.check_provenance(files, root) == []
+    (root / "code" / "solver.py").write_text("x = 3\n")
+    _commit(root, "solver change again")
+    assert len(check_docs.check_provenance(files, root)) == 2
     # a record naming a commit the repository lacks, or one at which its code did not exist
     bad = _result(root, "bad.json", {"commit": "f" * 40, "code_paths": ["code/solver.py"]})
     (root / "code" / "new.py").write_text("z = 1\n")
