@@ -428,3 +428,22 @@ def test_killed_right_after_the_store_appears_it_names_its_run(tmp_path, refs, l
     st = gs("status", path)
     assert st.returncode in (0, 4) and "Traceback" not in st.stderr, st.stderr
     resume_to_ref(path, refs["theory"], JOBS["theory"])
+
+
+@needs_mpi
+def test_signal_at_startup_then_sigkill_leaves_the_store_interrupted(tmp_path, refs):
+    """Under mpiexec (rank-0 writer): a SIGTERM reaches rank 0 while it starts (its lease taken, no store yet) and
+    the SIGKILL that mpiexec sends 1 s later lands the moment the new store is opened (both injected by the
+    process itself: tests/faults/hooks, point startup-term-then-kill). The store was born with its run's record
+    already saying interrupted by SIGTERM, the lease says so too, so a plain resume (no --break-lease) reaches
+    the uninterrupted result. The old code left a store with no run record here; a record without the
+    interruption would read "running or killed"."""
+    path, hold = tmp_path / "s.h5", Hold(tmp_path / "hold", "startup-term-then-kill")
+    p = subprocess.run(mpi_cmd(2, "run", JOBS["theory"], "--store", path, "--writer", "rank0", "--progress",
+                               "none"), env=env(**hold.env()), capture_output=True, text=True, timeout=120)
+    assert p.returncode != 0
+    runs = json.loads(store.read_attrs(path)["runs"])
+    assert len(runs) == 1 and runs[0]["interrupted"] == "SIGTERM" and runs[0]["finished"] is None, runs
+    info = lease.read(path)
+    assert info is None or info.get("interrupted"), info
+    _resume_plain(path, refs["theory"])
