@@ -19,6 +19,7 @@ import json
 import logging
 import os
 import sys
+import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -40,7 +41,12 @@ EPILOG = """\
 Open MPI as root needs OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1, and more ranks than cores
 OMPI_MCA_rmaps_base_oversubscribe=1 (docs/running.md). Exit codes: 0 ok, 1 error, 2 invalid spec or argument,
 3 every task of a run failed, 5 a run left rows failed or pending (`gapsweep status STORE` lists them).
-"""
+""" + "{docs}\n"
+# The docs/*.md that the help names are the project's documentation, not installed with the package (issue 40:
+# a wheel's help pointed to files its user does not have): every help that names one says where they are.
+DOCS_NOTE = ("docs/NAME.md: the documentation in the docs/ folder of the project's source (its repository or "
+             "source archive; a wheel does not install it).")
+EPILOG = EPILOG.format(docs=textwrap.fill(DOCS_NOTE, 115))
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -154,6 +160,9 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--out", default="out", help="output directory (default: out)")
     s.add_argument("--job", default=None, help="job spec or shipped job name (default: the shipped demo)")
     s.add_argument("--theory-only", action="store_true", help="only the field-theory figure-2 table and figure")
+    for sp in sub.choices.values():  # subcommands whose help names a docs/*.md say where the docs are
+        if "docs/" in sp.format_help():
+            sp.epilog = DOCS_NOTE
     return p
 
 

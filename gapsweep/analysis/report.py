@@ -963,6 +963,9 @@ def main(store_paths: Sequence[str | Path] | str | Path, out_dir: str | Path, *,
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+        # mkdtemp makes a private folder (0700) whatever the umask; the report is not private: it gets the mode
+        # a plain mkdir would give (0777 less the umask), or the replaced report's (issue 40)
+        tmp.chmod(out.stat().st_mode & 0o7777 if out.is_dir() else 0o777 & ~_umask())
     except OSError as e:
         raise _write_error(out, e) from None
     old = tmp.with_name(tmp.name + ".old")
@@ -983,6 +986,13 @@ def main(store_paths: Sequence[str | Path] | str | Path, out_dir: str | Path, *,
             raise _write_error(out, e) from None
         raise
     return out / "report.md"
+
+
+def _umask() -> int:
+    """The process's umask (read by setting it and setting it back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 class ReportWriteError(RuntimeError):

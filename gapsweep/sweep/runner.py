@@ -826,9 +826,15 @@ class _Run:
                                            batch_units=sum(u.kind == "batch" for u in self.units))
                      if rank == 0 else {})}
         record.update(_reused_record(self.reused))
+        # A signal that arrived while the process started (adopted from the early handler) is in the record the
+        # store is born with: mpiexec SIGKILLs its ranks 1 s after forwarding it, maybe before anything else is
+        # written, and the store must then say interrupted, not "running or killed" (issue 40). Rank 0's view,
+        # broadcast, so that a collective creation writes the same record everywhere.
+        early = self.stop.signum if (rank == 0 and self.stop.requested()) else None
         if comm is not None:
-            attrs, record = comm.bcast((attrs, record), root=0)
+            attrs, record, early = comm.bcast((attrs, record, early), root=0)
         self.record = record
+        birth = {**record, **_interrupted(early, {})} if early is not None else record
         self.ctx = Context(rank=rank, gpu=self.gpu)
         if self.gpu is not None:
             self.ctx.ahead(self.lookahead)  # host threads for the surfaces of the units held ahead
@@ -836,8 +842,18 @@ class _Run:
         self.ctx.writer = self.wmode  # how a distributed task's kept fields are written (gapsweep.sweep.fields)
         self.todo = set(self.todo_list)
         self.work = [k for k, u in enumerate(self.units) if any(i in self.todo for i in u.tasks)]
+        if early is not None and self.held is not None and comm is not None:
+            # the lease says so before the store is made: a SIGKILL from here on leaves either no store or one
+            # born interrupted, and the next run takes the lease over without --break-lease
+            self.held.mark_interrupted()
         if self.wmode == "mpio" or rank == 0:
             with self.stop.critical():
+                # A new store is created with this run's record among its attributes (issue 40): it appears at
+                # its path (a rename) with the record, so no kill (mpiexec SIGKILLs its ranks 1 s after
+                # forwarding a SIGTERM) between its creation and a later attribute write leaves a store that
+                # names no run.
+                if self.mode == "create":
+                    attrs = {**attrs, "runs": json.dumps([birth])}
                 self.st = _open_store(self.path, self.mode, self.tasks, attrs, self.spec.histogram["bins"],
                                       comm if self.wmode == "mpio" else None, rank, self.run_id,
                                       registry.job_columns(self.spec))
@@ -845,12 +861,15 @@ class _Run:
                     self.held.bind(self.path)
                 if self.mode == "resume":  # every byte of a re-run row is written again, NaN histograms included
                     self.st.force_histograms(self.todo_list)
-                runs = _earlier_runs(self.st, self.path)
-                self.st.set_attrs({"runs": json.dumps([*runs, record])}, flush=True)  # survives a kill -9
+                if self.mode != "create":
+                    runs = _earlier_runs(self.st, self.path)
+                    self.st.set_attrs({"runs": json.dumps([*runs, birth])}, flush=True)  # survives a kill -9
                 _copy_reused(self.st, self.reused, self.tasks)
         self.prog = Progress(len(self.todo), self.progress if rank == 0 else "none")
         if comm is not None and rank == 0 and self.wmode == "rank0":  # issue 19: mpiexec's 1-s grace, see below
             self.stop.on_request = lambda sig: _mark_interrupted(self.st, record, self.prog, self.held, sig)
+            if early is None and self.stop.requested():  # signalled during the creation: say so at once
+                _mark_interrupted(self.st, record, self.prog, self.held, self.stop.signum)
         if rank == 0:  # when the farm starts (wall clock): start-up = this minus the launch (benchmarks)
             record["farm_started_unix"] = round(time.time(), 3)
         if rank == 0 and comm is not None and need_gpu:

@@ -193,6 +193,10 @@ INTERRUPTED_PREFIX = "interrupted:"
 # [material] keys of the body beyond E* (an elastic layer, the hard wall's pressure cap; docs/jobs.md "The body:
 # layer and hardness"), validated by gapsweep.sweep.spec, passed to gfmd.solve by the gfmd method.
 SUBSTRATE_KEYS = ("thickness", "poisson", "bottom", "hardness")
+# The message prefix of a row that failed because an optional package (an extra: gapsweep.core.extras) is not
+# installed: a fact of the installation, not of the task, so --resume (and the demo) runs such rows again once
+# it is (issue 40: the demo's SDE rows stuck after `pip install 'gapsweep[sde]'`, "nothing to do").
+MISSING_EXTRA_PREFIX = "missing extra:"
 # The kept fields of a GFMD task (docs/jobs.md "keep_fields", gapsweep.sweep.fields).
 FIELD_NAMES = ("gap", "pressure", "displacement", "height")
 

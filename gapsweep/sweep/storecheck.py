@@ -26,6 +26,7 @@ from gapsweep.sweep.schema import (
     INTEGRITY,
     INTERRUPTED_PREFIX,
     LAYOUTS,
+    MISSING_EXTRA_PREFIX,
     PLUGIN_COLUMNS,
     PRESSURE_HIST,
     PROVENANCE_ATTRS,
@@ -372,9 +373,11 @@ def incomplete_rows(f: Any, path: str | Path, rep: Report | None = None) -> list
     status = f["results"].fields("status")[...]
     msg = f["results"].fields("message")[...]
     # a row that timed out (--task-timeout) is run again: the limit may have been a slow node's or a cold cache's
-    # ... and so is one cut by a signal (issue 31: inside JIT compilation)
+    # ... and so is one cut by a signal (issue 31: inside JIT compilation), or one whose method's optional package
+    # was missing (issue 40: installed since, or it fails again at once)
     timed_out = [i for i in np.flatnonzero(status == STATUS["failed"]).tolist()
-                 if msg[i].startswith((TIMEOUT_PREFIX.encode(), INTERRUPTED_PREFIX.encode()))]
+                 if msg[i].startswith((TIMEOUT_PREFIX.encode(), INTERRUPTED_PREFIX.encode(),
+                                       MISSING_EXTRA_PREFIX.encode(), b"MissingExtraError:"))]  # (its form before)
     if timed_out:
         log.info("store %s: %d timed-out row(s) are run again", path, len(timed_out))
     return sorted(set(np.flatnonzero(status == STATUS["pending"]).tolist()) | set(rep.rerun) | set(timed_out))
