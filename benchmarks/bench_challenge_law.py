@@ -23,6 +23,17 @@ from gapsweep.surfaces import challenge as ch
 ROOT = Path(__file__).resolve().parents[1]
 
 
+
+import sys as _sys  # noqa: E402
+from pathlib import Path as _Path  # noqa: E402
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _record  # noqa: E402
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/gfmd/_bounded.py', 'gapsweep/gfmd/interactions/hard_wall_adhesive.py']
+
 def main() -> None:
     c = ch.CHALLENGE
     rows = []
@@ -47,4 +58,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS)
     main()

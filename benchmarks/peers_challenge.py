@@ -21,8 +21,17 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
+import sys as _sys  # noqa: E402
+from pathlib import Path as _Path  # noqa: E402
+
 import test_peers_challenge as T  # noqa: E402
 
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _record  # noqa: E402
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/gfmd/_bounded.py', 'gapsweep/gfmd/interactions/hard_wall_adhesive.py']
 
 def main() -> None:
     rows = []
@@ -58,4 +67,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS)
     main()
