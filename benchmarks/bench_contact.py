@@ -9,8 +9,8 @@ one core; and the GPU timing. Writes ``<name>.md`` and ``<name>.json`` to --out 
 Surfaces: the figure-2/3 surfaces of docs/model.md M6 (L = 1, E* = 1, lambda_l = 0.25, lambda_s = 2.5e-3,
 rms slope 1, seed 1; H = 0.3 and 0.8; ``--seeds`` for held-out surfaces). A method named ``NAME:restart``
 (e.g. ``mpcg:restart``) runs NAME with the CG restarted at every re-entry (``_constrained._KEEP = 0``, the rule
-before issue 39) for a before/after comparison in one run. Stopping rule: every code is asked for the same tolerance ``tol`` in its
-own measure (gapsweep: gap left in the contact and overlap outside it, over h_rms; tamaas: its
+before issue 39) for a before/after comparison in one run. Stopping rule: every code is asked for the same
+tolerance ``tol`` in its own measure (gapsweep: gap left in the contact and overlap outside it, over h_rms; tamaas: its
 PolonskyKeerRey error; ContactMechanics: pentol = tol h_rms, forcetol = tol sigma0); then every code's fields are
 scored by gapsweep's measure (``resid``) and the three codes' mean gap, contact area and elastic energy are
 compared, so the accuracy reached is visible next to the time; ``err_vs_tight`` is each result's largest relative
