@@ -136,7 +136,7 @@ def write(out: Path, name: str, rows: list[dict], header: str) -> None:
         commit = ""
     meta = {"host": platform.node(), "machine": f"{platform.machine()} {platform.processor()}".strip(),
             "python": platform.python_version(), "cpus": os.cpu_count(), "commit": commit,
-            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
             "command": " ".join(sys.argv)}
     (out / f"{name}.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
     keys = list(rows[0]) if rows else []
