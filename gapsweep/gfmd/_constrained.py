@@ -59,10 +59,13 @@ _FLAT = 1e3 * np.finfo(np.float64).eps  # rms / |mean| below which a map is flat
 # CG restarts (delta = 0) only when more than this fraction of |S| re-entered. Polonsky & Keer restart at every
 # re-entry; near convergence a few boundary pixels re-enter almost every iteration, so the preconditioned CG was
 # steepest descent there. Measured (tuning: N = 1024, seed 2, H 0.3/0.8; held-out seeds 3-5, H 0.3/0.5/0.8,
-# sigma0 5e-3..0.2, periodic 1024 and free 512): 1.1-3.5x fewer fine iterations, same answers to 2e-9;
-# 0.003-0.03 alike, never restarting (1e9) as slow as always restarting.
+# sigma0 5e-3..0.2, periodic 1024 and free 512): 1.06-3.5x fewer fine iterations, same answers to 1.8e-9
+# (benchmarks/results/contact/issue39_restart_iters.json); on the tuning surface 0.003-0.03 alike, never
+# restarting (1e9) as slow as always restarting.
 _KEEP = 0.01
-_REENTRY = 0.01  # re-entry stiffness in units of pixel_stiffness (1e-4..0.1 measured alike, 10 fails)
+# re-entry stiffness in units of pixel_stiffness: 1e-4..0.1 took about the same iterations, 10 ran to max_iter
+# (benchmarks/results/contact/issue36_reentry_scale.txt)
+_REENTRY = 0.01
 _SPECTRAL = True  # periodic grids: p~ kept in Fourier space (_spectral_loop)
 log = logging.getLogger("gapsweep.gfmd")
 
