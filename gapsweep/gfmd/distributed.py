@@ -146,8 +146,8 @@ class _ReducedPK:
     def rstats(self, r, t, gs, p) -> tuple[float, float, float, float]:
         return tuple(self.red.sum(*self.ops.rstats(r, t, gs, p)))
 
-    def update(self, p, t, g, tau: float) -> tuple[bool, int, float]:
-        clipped, n_ov, s = self.ops.update(p, t, g, tau)
+    def update(self, p, t, g, tau: float, tau_g: float) -> tuple[bool, int, float]:
+        clipped, n_ov, s = self.ops.update(p, t, g, tau, tau_g)
         (n_ov, s), _, (c,) = self.red.many(sums=(float(n_ov), s), maxs=(1.0 if clipped else 0.0,))
         return c > 0, int(round(n_ov)), s
 
