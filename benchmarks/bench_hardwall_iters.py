@@ -27,6 +27,18 @@ CASES = [(0.5, 3), (0.8, 4), (0.3, 5)]  # (H, seed), held out
 LOADS = [5e-3, 3e-2, 0.2]
 
 
+
+import sys as _sys  # noqa: E402
+from pathlib import Path as _Path  # noqa: E402
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _record  # noqa: E402
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/gfmd/_constrained.py', 'gapsweep/gfmd/_constrained_ops.py']
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, required=True)
@@ -65,4 +77,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS)
     main()
