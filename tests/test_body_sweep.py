@@ -145,8 +145,8 @@ def test_plastic_columns_are_plug_in_columns(tmp_path: Path) -> None:
     assert sorted(t.task_id for t in tasks.expand(capped)) == ["3b049c97a8eb7477", "630b40d42b77d705"]
 
     for js, name in ((plain, "plain"), (capped, "capped")):
-        p = tmp_path / f"{name}.toml"
-        p.write_text(js.text)
+        p = tmp_path / f"{name}.toml"  # the job without the cap renamed: the report holds both
+        p.write_text(js.text.replace('"plastic-cols"', '"plastic-cols-elastic"') if js is plain else js.text)
         runner.run(p, tmp_path / f"{name}.h5", mpi="off", progress="none")
     with h5py.File(tmp_path / "plain.h5", "r") as f:
         assert f["results"].dtype == schema.RESULT_DTYPE and schema.PLUGIN_COLUMNS not in f.attrs
@@ -177,3 +177,25 @@ def test_plastic_columns_are_plug_in_columns(tmp_path: Path) -> None:
         np.testing.assert_array_equal(back["gfmd_plastic_area"].squeeze().values, df.plastic_area.to_numpy())
         assert back["gfmd_plastic_displacement_mean"].attrs["reference_unit"] == "L"
         assert "p = H" in back["gfmd_plastic_area"].attrs["long_name"]
+
+    # the report: the cap's columns in the contact table, and in the capped job's figure the plastic area, the
+    # rigid-plastic limit sigma0/H and the curves of the job without the cap (found by its spec)
+    from gapsweep.analysis import contact, report
+
+    rdf, _, prov = report.load([tmp_path / "capped.h5", tmp_path / "plain.h5"])
+    cdf = rdf[contact.is_contact(rdf)]
+    points, persson = contact.tables(cdf)
+    infos = contact.job_infos(cdf, prov)
+    assert infos["plastic-cols"]["uncapped"] == "plastic-cols-elastic"
+    assert "uncapped" not in infos["plastic-cols-elastic"]
+    pc = points[points.job == "plastic-cols"].sort_values("sigma0")
+    np.testing.assert_array_equal(pc.plastic_area.to_numpy(), df.plastic_area.to_numpy())
+    fig = contact.fig_contact(points, persson, job="plastic-cols", info=infos["plastic-cols"])
+    lines = {ln.get_label(): ln for ax in fig.axes[:2] for ln in ax.get_lines()}
+    free = store.read(tmp_path / "plain.h5").sort_values("sigma0")
+    gap_line = next(ln for ln in fig.axes[1].get_lines() if ln.get_label().startswith("without the cap"))
+    np.testing.assert_array_equal(gap_line.get_ydata(), free.mean_gap.to_numpy())
+    assert not np.allclose(gap_line.get_ydata(), df.mean_gap.to_numpy())  # the cap changes the mean gap
+    np.testing.assert_allclose(lines[r"rigid-plastic limit $\sigma_0/H$"].get_ydata(), df.sigma0.to_numpy() / H)
+    caps = [c for _, c, _ in contact.plan(cdf, {}, {}, points, persson, infos=infos)]
+    assert any("without the cap (job plastic-cols-elastic)" in c for c in caps)
