@@ -118,8 +118,17 @@ def test_thin_layer_is_a_winkler_foundation(bottom: str, nu: float) -> None:
 
 def test_layer_refusals() -> None:
     h = self_affine(16, 0.8, lambda_l=0.5, lambda_s=4 / 16, seed=1)
-    with pytest.raises(ValueError, match="periodic"):
+    with pytest.raises(ValueError, match="periodic") as e:
         solve(h, sigma0=0.01, interaction="hard_wall", thickness=0.1, poisson=0.3, periodic=False)
+    # the refusal says why and how far this layer is from the half-space at the map's longest wavelength: the
+    # bonded layer's f(2 pi t / L) against its thin-layer (Winkler) limit k(0) / (E* q / 2), which it approaches
+    msg = str(e.value)
+    assert "real-space Green's function" in msg
+    f = float(layer_factor(2 * math.pi * 0.1 / 2.0, 0.3, "bonded"))
+    with pytest.raises(ValueError, match=rf"side 2\) the layer's stiffness is {f:.4g} times") as e:
+        solve(h, sigma0=0.01, interaction="hard_wall", thickness=0.1, poisson=0.3, periodic=False, length=(2.0, 1.0))
+    winkler = (1 - 0.3) ** 2 / ((1 - 2 * 0.3) * 0.1) / (math.pi / 2.0)  # k(0) / (E* q / 2) at q = 2 pi / 2
+    assert 1.0 < f < winkler and f == pytest.approx(winkler, rel=0.2)
     for bad in (0.0, -1.0, math.nan, "1"):
         with pytest.raises(ValueError, match="thickness"):
             solve(h, sigma0=0.01, interaction="hard_wall", thickness=bad, poisson=0.3)

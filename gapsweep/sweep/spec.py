@@ -341,8 +341,12 @@ def loads(text: str, base: str | Path | None = None) -> JobSpec:
                 raise SpecError(f"methods.{k}: not available with material.{body[0]} (no theory of a layer or of "
                                 f"a plastic cap is implemented for it); methods that take them: {', '.join(able)}")
         if kind == "file" and surface.get("periodic") is False and "thickness" in material:
+            from gapsweep.gfmd.substrates import FREE_LAYER_WHY
+
             raise SpecError("material.thickness: an elastic layer is solved with periodic boundaries only; this "
-                            "file surface is non-periodic (free boundaries)")
+                            f"file surface is non-periodic (surface.periodic = false): {FREE_LAYER_WHY}. Instead: "
+                            "surface.periodic = true, or leave out the layer (the half-space) if it is thick "
+                            "against the map")
     js = JobSpec(name=name, description=description, text=text, grid=grid, surface=surface,
                  material=material, histogram=histogram, methods=methods, interaction=interaction,
                  base_dir=str(base) if base is not None else "")
