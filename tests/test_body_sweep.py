@@ -199,3 +199,18 @@ def test_plastic_columns_are_plug_in_columns(tmp_path: Path) -> None:
     np.testing.assert_allclose(lines[r"rigid-plastic limit $\sigma_0/H$"].get_ydata(), df.sigma0.to_numpy() / H)
     caps = [c for _, c, _ in contact.plan(cdf, {}, {}, points, persson, infos=infos)]
     assert any("without the cap (job plastic-cols-elastic)" in c for c in caps)
+
+
+def test_layer_on_a_free_boundary_file_surface_is_refused_with_why(tmp_path: Path) -> None:
+    """A non-periodic file surface with a layer: refused at validation naming the key, saying why (no validated
+    real-space kernel of the layer) and what to do instead; the same map periodic is accepted."""
+    np.save(tmp_path / "m.npy", np.random.default_rng(0).normal(size=(32, 32)) * 1e-3)
+    text = ('[job]\nname = "x"\n[grid]\nsigma0 = [1e-2]\n[surface]\nkind = "file"\npath = "m.npy"\n'
+            'pixel_size = 1.0\nperiodic = {periodic}\n[interaction]\nkind = "hard_wall"\n[methods.gfmd]\n'
+            '[material]\nthickness = 4.0\npoisson = 0.3\n')
+    with pytest.raises(spec.SpecError) as e:
+        spec.loads(text.format(periodic="false"), base=tmp_path)
+    msg = str(e.value)
+    assert msg.startswith("material.thickness") and "real-space Green's function" in msg
+    assert "surface.periodic = true" in msg
+    assert spec.loads(text.format(periodic="true"), base=tmp_path).material["thickness"] == 4.0
