@@ -214,3 +214,31 @@ def test_layer_on_a_free_boundary_file_surface_is_refused_with_why(tmp_path: Pat
     assert msg.startswith("material.thickness") and "real-space Green's function" in msg
     assert "surface.periodic = true" in msg
     assert spec.loads(text.format(periodic="true"), base=tmp_path).material["thickness"] == 4.0
+
+
+def test_persson_theory_runs_on_a_layer_job(tmp_path: Path) -> None:
+    """``[methods.theory] forms = ["persson"]`` on a layer job: the rows are gapsweep.theory.persson_layer's
+    contact area and mean separation with the job's layer (not the half-space's); the field theory on a layer
+    and any theory with a pressure cap are refused naming the key."""
+    from gapsweep import runner, store
+    from gapsweep.theory import persson, persson_layer
+
+    text = ('[job]\nname = "layer-persson"\n[grid]\nhurst = [0.8]\nsigma0 = [3e-3, 2e-2]\n[surface]\n'
+            'lambda_l = 0.5\nlambda_s = 0.125\nrms_slope = 0.1\n[interaction]\nkind = "hard_wall"\n'
+            '[material]\nthickness = 0.03\nbottom = "slip"\n[methods.gfmd]\nn = 64\ntol = 1e-8\n'
+            '[methods.theory]\nforms = ["persson"]\n')
+    p = tmp_path / "j.toml"
+    p.write_text(text)
+    runner.run(p, tmp_path / "s.h5", mpi="off", progress="none")
+    df = store.read(tmp_path / "s.h5")
+    th = df[df.method == "theory"].sort_values("sigma0")
+    assert (th.status == "done").all() and len(th) == 2
+    kw = dict(hurst=0.8, lambda_l=0.5, lambda_s=0.125, rms_slope=0.1)
+    for _, row in th.iterrows():
+        u = persson_layer.mean_separation(row.sigma0, thickness=0.03, bottom="slip", **kw)
+        a = persson_layer.contact_area(row.sigma0, thickness=0.03, bottom="slip", **kw)
+        assert row.mean_gap_persson == pytest.approx(u, rel=1e-12) and row.contact_area == pytest.approx(a, rel=1e-12)
+        assert row.mean_gap_persson > 1.2 * persson.mean_separation(row.sigma0, **kw)  # the layer, not the half-space
+    with pytest.raises(spec.SpecError, match=r"^methods\.theory\.forms"):
+        spec.loads(text.replace('forms = ["persson"]', 'forms = ["paper"]').replace(
+            'kind = "hard_wall"', 'kind = "exponential"').replace("hurst = [0.8]", "hurst = [0.8]\nrho = [1e-3]"))

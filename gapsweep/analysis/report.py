@@ -859,7 +859,8 @@ def _contact_section(points: pd.DataFrame, persson: pd.DataFrame, summ: pd.DataF
     md.append(_md_table(points, cols, 60))
     if len(persson):
         md += ["### GFMD and Persson's theory side by side", "",
-               "Persson's theory (gapsweep.theory.persson, docs/theory.md) with the surface's own spectrum: contact "
+               "Persson's theory (gapsweep.theory.persson; on a layer job gapsweep.theory.persson_layer with the "
+               "layer's stiffness; docs/theory.md) with the surface's own spectrum: contact "
                "area (the job's `persson_variant`) and mean interfacial separation (`persson_gamma`), against the "
                "hard-wall GFMD contact area and mean gap. dev = (Persson - GFMD)/GFMD; gap_dev_h_rms = (Persson - "
                "GFMD)/h_rms. Full table: `contact_vs_persson.csv`.", "",
