@@ -172,3 +172,12 @@ def test_layer_and_cap_gpu_branch_matches_numpy(cp, kw, periodic) -> None:
         np.testing.assert_array_equal(np.asarray(r.pressure) > 0, ref.pressure > 0)
     if "hardness" in kw:
         assert r.plastic_area == ref.plastic_area > 0
+        # the sweep's plastic columns (gapsweep.sweep.methods.gfmd) from the field where it lives (cupy here)
+        from gapsweep.gfmd._ops import _is_cupy
+        from gapsweep.sweep.methods.gfmd import _plastic_values
+
+        assert _is_cupy(r.plastic_displacement)
+        got, want = _plastic_values(r), _plastic_values(ref)
+        assert got["plastic_area"] == want["plastic_area"]
+        for k in ("plastic_displacement_mean", "plastic_displacement_max"):
+            assert got[k] == pytest.approx(want[k], rel=1e-6) and want[k] > 0

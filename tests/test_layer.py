@@ -118,8 +118,17 @@ def test_thin_layer_is_a_winkler_foundation(bottom: str, nu: float) -> None:
 
 def test_layer_refusals() -> None:
     h = self_affine(16, 0.8, lambda_l=0.5, lambda_s=4 / 16, seed=1)
-    with pytest.raises(ValueError, match="periodic"):
+    with pytest.raises(ValueError, match="periodic") as e:
         solve(h, sigma0=0.01, interaction="hard_wall", thickness=0.1, poisson=0.3, periodic=False)
+    # the refusal says why and how far this layer is from the half-space at the map's longest wavelength: the
+    # bonded layer's f(2 pi t / L) against its thin-layer (Winkler) limit k(0) / (E* q / 2), which it approaches
+    msg = str(e.value)
+    assert "real-space Green's function" in msg
+    f = float(layer_factor(2 * math.pi * 0.1 / 2.0, 0.3, "bonded"))
+    with pytest.raises(ValueError, match=rf"side 2\) the layer's stiffness is {f:.4g} times") as e:
+        solve(h, sigma0=0.01, interaction="hard_wall", thickness=0.1, poisson=0.3, periodic=False, length=(2.0, 1.0))
+    winkler = (1 - 0.3) ** 2 / ((1 - 2 * 0.3) * 0.1) / (math.pi / 2.0)  # k(0) / (E* q / 2) at q = 2 pi / 2
+    assert 1.0 < f < winkler and f == pytest.approx(winkler, rel=0.2)
     for bad in (0.0, -1.0, math.nan, "1"):
         with pytest.raises(ValueError, match="thickness"):
             solve(h, sigma0=0.01, interaction="hard_wall", thickness=bad, poisson=0.3)
@@ -178,8 +187,8 @@ def test_persson_contact_area_of_a_layer() -> None:
     assert a == pytest.approx(math.sqrt(2 / math.pi) * tiny / (k0 * sp.h_rms), rel=1e-6)
     areas = [persson_layer.contact_area(1e-3, thickness=tt, poisson=nu, **kw) for tt in (1e-3, 1e-2, 1e-1, 1.0)]
     assert all(a1 < a2 for a1, a2 in itertools.pairwise(areas)) and areas[-1] <= half[1] * (1 + 1e-12)
-    with pytest.raises(NotImplementedError, match="not available"):
-        persson_layer.mean_separation(1e-3, thickness=0.1, poisson=0.3, **kw)
+    with pytest.raises(ValueError, match="poisson"):
+        persson_layer.mean_separation(1e-3, thickness=0.1, **kw)
     with pytest.raises(ValueError, match="poisson"):
         persson_layer.contact_area(1e-3, thickness=0.1, **kw)
 
@@ -194,3 +203,33 @@ def test_layer_coarse_start_agrees_with_plain_pk() -> None:
     assert a.converged and b.converged and a.diagnostics["coarse_iterations"]
     assert a.mean_gap == pytest.approx(b.mean_gap, rel=1e-7)
     assert a.contact_area == b.contact_area
+
+
+def test_persson_mean_separation_on_a_layer() -> None:
+    """Persson's mean separation with the layer's stiffness (gapsweep.theory.persson_layer; docs/theory.md): the
+    half-space's value as t -> oo (continuum spectrum: its closed form against the layer's shell sum; a map's own
+    spectrum: the same shells), and against hard-wall GFMD on the same maps (square, and rectangular with a
+    rectangular box) on layers of three kinds: within 12 % at every load, where the layer raises GFMD's mean gap
+    by up to several times the half-space's (so the half-space's theory would fail the same check)."""
+    from gapsweep.theory import persson, persson_layer
+
+    sa = dict(hurst=0.8, lambda_l=0.25, lambda_s=0.01, rms_slope=0.1)
+    loads = [1e-4, 1e-3, 1e-2]
+    thick = persson_layer.mean_separation(loads, thickness=1e4, poisson=0.3, **sa)
+    np.testing.assert_allclose(thick, persson.mean_separation(loads, **sa), rtol=2e-4)
+    h = self_affine(64, 0.8, lambda_l=0.5, lambda_s=8 / 64, rms_slope=0.1, seed=11)
+    np.testing.assert_allclose(persson_layer.mean_separation(loads, thickness=1e4, bottom="slip", heights=h),
+                               persson.mean_separation(loads, heights=h), rtol=1e-9)
+    loads = [3e-3, 1e-2, 3e-2]
+    rect = self_affine(64, 0.8, lambda_l=0.5, lambda_s=8 / 64, rms_slope=0.1, seed=4)[:, :48]
+    for hh, length in ((h, 1.0), (rect, (1.0, 0.75))):
+        half = np.array([solve(hh, sigma0=s, interaction="hard_wall", tol=1e-8, length=length).mean_gap
+                         for s in loads])
+        for kw in (dict(thickness=0.1, poisson=0.3), dict(thickness=0.03, poisson=0.45),
+                   dict(thickness=0.03, bottom="slip")):
+            g = np.array([solve(hh, sigma0=s, interaction="hard_wall", tol=1e-8, length=length, **kw).mean_gap
+                          for s in loads])
+            u = persson_layer.mean_separation(loads, heights=hh, length=length, **kw)
+            np.testing.assert_allclose(u, g, rtol=0.12, err_msg=str(kw))
+            if kw["thickness"] < 0.05:  # the layer matters here: twice the half-space's gap at the top load
+                assert g[-1] > 2 * half[-1]

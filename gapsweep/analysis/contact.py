@@ -35,6 +35,10 @@ log = logging.getLogger("gapsweep.analysis.contact")
 CONTACT_LAWS = ("hard_wall", "adhesive", "hard_wall_adhesive")
 PERSSON = {"color": "tab:purple", "ls": "-", "marker": "s", "ms": 4, "mfc": "none", "label": "Persson's theory"}
 MAX_CURVES = 5
+# the pressure cap's columns (the GFMD plug-in's own, in the stores of jobs with [material] hardness only)
+PLASTIC = ("plastic_area", "plastic_displacement_mean")
+UNCAPPED = {"color": "tab:blue", "marker": "^", "ms": 5, "mfc": "none", "ls": "--", "lw": 1.0}
+PLASTIC_AREA = {"color": "tab:orange", "marker": "D", "ms": 4, "mfc": "none", "ls": "none"}
 SYMBOLS = (
     "Symbols of the contact figures: sigma0 applied mean pressure, E* contact modulus, g0 mean gap, A/A0 contact "
     "area fraction, P(g) density of the gaps of the free points, P(p) density of the local pressures of the loaded "
@@ -78,7 +82,7 @@ def tables(df: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
                                    "flags": int(np.bitwise_or.reduce(np.maximum(flags.to_numpy(), 0)))
                                    if len(flags) else 0}
             for col in ("contact_area", "elastic_energy", "mean_gap", "contact_atom", "pressure_atom", "h_rms",
-                        "g_rms", "e_star"):
+                        "g_rms", "e_star", *(c for c in PLASTIC if c in g)):
                 rec[col], rec[f"{col}_sem"] = _mean(done, col)
             rec["sigma0_reduced"] = s0 / (rec["e_star"] * rec["g_rms"]) if rec["g_rms"] else math.nan
             # adhesion at a tensile load: the most tensile load the continuation from zero load stayed attached
@@ -260,6 +264,9 @@ def job_info(job: str, rows: pd.DataFrame, prov: Mapping[str, Any] | None = None
     # re-solved with it, and Persson's half-space distributions are not drawn against it
     mat = _table(raw, "material")
     info["body"] = {k: mat[k] for k in ("thickness", "poisson", "bottom", "hardness") if k in mat}
+    # the same job without the pressure cap (another store of the report: gfmd rows "without the cap" beside
+    # those with it): the spec with name, description and [material] hardness left out
+    info["twin_key"] = _twin_key(raw) if raw else None
     if info["body"]:
         info["notes"].append(f"Job {job}: an elastic layer or a pressure cap ([material] "
                              f"{', '.join(sorted(info['body']))}); Persson's half-space distributions are not drawn.")
@@ -271,6 +278,14 @@ def job_info(job: str, rows: pd.DataFrame, prov: Mapping[str, Any] | None = None
             info["heights"], info["length"] = np.asarray(topo.heights, float), tuple(map(float, topo.length))
             info["periodic"] = bool(topo.periodic)
     return info
+
+
+def _twin_key(raw: Mapping[str, Any]) -> str:
+    """The job spec ``raw`` (parsed TOML) as canonical JSON without ``[job]`` and ``[material] hardness``: two
+    jobs with the same key differ at most in their pressure cap (and name)."""
+    d = {k: v for k, v in raw.items() if k != "job"}
+    d["material"] = {k: v for k, v in _table(raw, "material").items() if k != "hardness"}
+    return json.dumps(d, sort_keys=True, default=str)
 
 
 def _persson_kw(info: Mapping[str, Any], row: Mapping[str, Any]) -> dict[str, Any] | None:
@@ -385,6 +400,11 @@ def fig_contact(points: pd.DataFrame, persson: pd.DataFrame, *, job: str, note: 
         info = _info(info, job, p)
         lab = Labels(info["units"], file_surface=bool(info.get("file")))
         th = persson[persson["job"] == job].sort_values("sigma0") if len(persson) else persson
+        hardness = float(info.get("body", {}).get("hardness", 0.0)) or None
+        free = points[(points["job"] == info.get("uncapped", "")) & (points["count"] > 0)] \
+            if info.get("uncapped") else points.iloc[:0]
+        if len(free):
+            free = free[free["n"] == free["n"].max()].sort_values("sigma0")
         fig, axes = figures._panels(3, width=3.7, height=3.3)
         ps = lab.scale(_first(p, "e_star", 1.0))
         x = p["sigma0"].to_numpy(float) / ps
@@ -393,13 +413,24 @@ def fig_contact(points: pd.DataFrame, persson: pd.DataFrame, *, job: str, note: 
                 (axes[1], "mean_gap", lab.length("mean gap $g_0$"), "persson_separation", "(b) mean gap"),
                 (axes[2], "elastic_energy", lab.energy(), None, "(c) elastic energy")):
             y = p[col].to_numpy(float)
-            ax.errorbar(x, y, yerr=np.nan_to_num(p[f"{col}_sem"].to_numpy(float)), **figures.GFMD)
+            ax.errorbar(x, y, yerr=np.nan_to_num(p[f"{col}_sem"].to_numpy(float)),
+                        **({**figures.GFMD, "label": f"GFMD, cap H = {hardness:g}"} if hardness else figures.GFMD))
             jump = (p["flags"].to_numpy(int) & 1) > 0
             if jump.any():  # load-path jumps (adhesion) marked, not hidden
                 ax.plot(x[jump], y[jump], ls="none", marker="x", ms=8, color="tab:red",
                         label="jump along the load path")
             if tcol and len(th):
                 ax.plot(th["sigma0"].to_numpy(float) / ps, th[tcol].to_numpy(float), **PERSSON)
+            if len(free):  # the same job without the pressure cap
+                ax.plot(free["sigma0"].to_numpy(float) / ps, free[col].to_numpy(float), **UNCAPPED,
+                        label=f"without the cap (job {info['uncapped']})")
+            if col == "contact_area" and hardness:  # the plastic part of the contact, its rigid-plastic limit
+                if "plastic_area" in p and np.isfinite(p["plastic_area"].to_numpy(float)).any():
+                    ax.errorbar(x, p["plastic_area"].to_numpy(float),
+                                yerr=np.nan_to_num(p["plastic_area_sem"].to_numpy(float)), **PLASTIC_AREA,
+                                label="plastic area ($p = H$)")
+                ax.plot(x, p["sigma0"].to_numpy(float) / hardness, color="tab:orange", ls=":", lw=1.0,
+                        label=r"rigid-plastic limit $\sigma_0/H$")
             for i, s_det in enumerate(detached["sigma0"].to_numpy(float)):
                 ax.axvline(s_det / ps, color="tab:red", ls=":", lw=1.2,
                            label="detached (beyond pull-off)" if i == 0 else None)
@@ -412,7 +443,7 @@ def fig_contact(points: pd.DataFrame, persson: pd.DataFrame, *, job: str, note: 
             ax.set_xlabel(lab.pressure(r"\sigma_0", "pressure"))
             ax.set_ylabel(ylabel)
             ax.set_title(title)
-            _legend(ax)
+            _legend(ax, **({"loc": "lower right"} if hardness and col == "contact_area" else {}))
         _finish(fig, note)
     return fig
 
@@ -652,8 +683,20 @@ def job_infos(df: pd.DataFrame, prov: Sequence[Mapping[str, Any]] = ()) -> dict[
     """:func:`job_info` of every contact job of ``df`` (``prov`` matched by the store's ``job_name``)."""
     by_job = {str(p.get("job_name", "")): p for p in prov}
     cdf = df[is_contact(df)] if len(df) else df
-    return {job: job_info(job, cdf[cdf["job"] == job], by_job.get(job, {}))
-            for job in sorted(set(cdf["job"].astype(str)))} if len(cdf) else {}
+    out = {job: job_info(job, cdf[cdf["job"] == job], by_job.get(job, {}))
+           for job in sorted(set(cdf["job"].astype(str)))} if len(cdf) else {}
+    for job, info in out.items():  # a capped job's twin without the cap, when the report holds it
+        if "hardness" not in info.get("body", {}) or not info.get("twin_key"):
+            continue
+        twins = [j for j, o in out.items() if j != job and o.get("twin_key") == info["twin_key"]
+                 and "hardness" not in o.get("body", {})]
+        if twins:
+            info["uncapped"] = twins[0]
+        else:
+            info["notes"].append(f"Job {job}: no job without the cap in this report (the same spec without "
+                                 "[material] hardness, e.g. the shipped plastic_quick_elastic for plastic_quick): "
+                                 "its curves are not drawn.")
+    return out
 
 
 def plan(df: pd.DataFrame, hists: Mapping[str, tuple], phists: Mapping[str, tuple], points: pd.DataFrame,
@@ -678,8 +721,13 @@ def plan(df: pd.DataFrame, hists: Mapping[str, tuple], phists: Mapping[str, tupl
         law = str(p["interaction"].iloc[0])
         tag = "".join(c if c.isalnum() else "_" for c in job) or "store"
         has_p = len(persson) and (persson["job"] == job).any()
+        cap = ""
+        if "hardness" in (info.get("body") or {}):
+            cap = (f"; pressure cap H = {info['body']['hardness']:g}: plastic area, "
+                   + (f"and without the cap (job {info['uncapped']})" if info.get("uncapped") else
+                      "no job without the cap in the report"))
         out.append((f"contact_{tag}", f"Contact area, mean gap and elastic energy against pressure, {law} (job "
-                    f"{job}{'; GFMD and Persson side by side' if has_p else ''})",
+                    f"{job}{'; GFMD and Persson side by side' if has_p else ''}{cap})",
                     lambda job=job, a=a, info=info: fig_contact(points, persson, job=job, note=note(a, job),
                                                                 info=info)))
         tids = set(a[a["method"].astype(str) == "gfmd"]["task_id"])

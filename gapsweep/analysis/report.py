@@ -853,15 +853,21 @@ def _contact_section(points: pd.DataFrame, persson: pd.DataFrame, summ: pd.DataF
           "gap, the hard wall's contact atom at g = 0 (apart from the gap histogram) and the free-surface atom at "
           "p = 0. `flags`: 1 a jump along the load path, 2 detached beyond pull-off (adhesion; docs/store.md); "
           "`last_attached_load`: adhesion at a tensile load, the most tensile load at which the continuation from "
-          "zero load stayed attached (on a detached row: the pull-off bracket). Full table: `contact.csv`.", ""]
+          "zero load stayed attached (on a detached row: the pull-off bracket). A job with a pressure cap ([material] "
+          "hardness): `plastic_area` (fraction at p = H) and `plastic_displacement_mean` (the mean plastic "
+          "displacement, a length); `mean_gap` is then the gap to the flattened surface. Full table: `contact.csv`.",
+          ""]
     cols = ["job", "interaction", "rho", "n", "sigma0", "count", "not_done", "flags", "contact_area",
             "elastic_energy", "mean_gap", "contact_atom", "pressure_atom"]
     if "last_attached_load" in points and np.isfinite(points["last_attached_load"].to_numpy(float)).any():
         cols.append("last_attached_load")
+    # a pressure cap's columns (jobs with [material] hardness): plastic area fraction, mean plastic displacement
+    cols += [c for c in contact.PLASTIC if c in points and np.isfinite(points[c].to_numpy(float)).any()]
     md.append(_md_table(points, cols, 60))
     if len(persson):
         md += ["### GFMD and Persson's theory side by side", "",
-               "Persson's theory (gapsweep.theory.persson, docs/theory.md) with the surface's own spectrum: contact "
+               "Persson's theory (gapsweep.theory.persson; on a layer job gapsweep.theory.persson_layer with the "
+               "layer's stiffness; docs/theory.md) with the surface's own spectrum: contact "
                "area (the job's `persson_variant`) and mean interfacial separation (`persson_gamma`), against the "
                "hard-wall GFMD contact area and mean gap. dev = (Persson - GFMD)/GFMD; gap_dev_h_rms = (Persson - "
                "GFMD)/h_rms. Full table: `contact_vs_persson.csv`.", "",

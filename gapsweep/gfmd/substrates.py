@@ -124,6 +124,26 @@ class LayerGrid(Grid):
         self.thickness, self.poisson, self.bottom = thickness, poisson, bottom
 
 
+FREE_LAYER_WHY = (
+    "free boundaries need the layer's real-space Green's function (the inverse Hankel transform of 1/k(q), "
+    "docs/model.md \"Elastic layer on a rigid base\"), which gapsweep does not compute: unlike the half-space's "
+    "Boussinesq kernel it has no closed form, and a numerical one is not validated here")
+
+
+def free_layer_refusal(layer: tuple[float, float, str], length: Any) -> str:
+    """The message refusing a layer with free boundaries: why, what to do instead, and how far the layer is from
+    the half-space on this map -- ``f(2 pi t / L)``, the layer's stiffness over the half-space's at the map's
+    longest wavelength ``L`` (its longer side; docs/model.md "Elastic layer on a rigid base")."""
+    thickness, poisson, bottom = layer
+    side = float(np.max(np.atleast_1d(np.asarray(length, dtype=float))))
+    f = float(layer_factor(2.0 * math.pi * thickness / side, poisson, bottom))
+    return (f"thickness: an elastic layer is solved with periodic boundaries only (periodic=True); {FREE_LAYER_WHY}. "
+            f"Instead: periodic=True (the map as one period), or the half-space with free boundaries (leave out "
+            f"thickness) where the layer is thick against the map: here, at the map's longest wavelength (its side "
+            f"{side:g}) the layer's stiffness is {f:.4g} times the half-space's (thickness {thickness:g}, "
+            f"{bottom}; 1 for a half-space)")
+
+
 def minimise_on(heights: Any, law: Any, *, layer: tuple[float, float, str] | None, hardness: float | None,
                 sigma0: float, e_star: float, length: Any, tol: float, method: str, backend: str, max_iter: int,
                 initial: Any, threads: int | None, host: Any, t_start: float, periodic: bool) -> Any:
@@ -135,8 +155,7 @@ def minimise_on(heights: Any, law: Any, *, layer: tuple[float, float, str] | Non
     from gapsweep.gfmd._ops import _is_cupy
 
     if layer is not None and not periodic:
-        raise ValueError("thickness: an elastic layer is solved with periodic boundaries only (periodic=True); "
-                         "the free-boundary response of a layer is not implemented")
+        raise ValueError(free_layer_refusal(layer, length))
     on_gpu = _is_cupy(heights)
 
     def make_grid(shape: tuple[int, int]) -> Grid:

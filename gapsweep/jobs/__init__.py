@@ -3,8 +3,9 @@ out.h5`` and ``gapsweep jobs`` work from an installed wheel (docs/jobs.md "Shipp
 
 The figure jobs of the paper (``fig2``, ``fig3``, ``fig4_5``, ``fig6``, ``fig6_grms1`` and their ``_quick``
 variants), the contact examples (``contact_file``, ``measured_map``, ``adhesion_quick``, with their height maps
-under ``data/``), the body examples (``layer_quick``: an elastic layer; ``plastic_quick``: a pressure cap) and
-``demo``. ``jobs/<name>.toml`` in the repository is a link to the file here.
+under ``data/``), the body examples (``layer_quick``: an elastic layer; ``plastic_quick``: a pressure cap;
+``plastic_quick_elastic``: its twin without the cap) and ``demo``. ``jobs/<name>.toml`` in the repository is a
+link to the file here.
 """
 
 from __future__ import annotations

@@ -352,8 +352,12 @@ def loads(text: str, base: str | Path | None = None) -> JobSpec:
             raise SpecError("material.thickness: interaction.kind 'hard_wall_adhesive' is not available on an "
                             "elastic layer yet (the half-space only); remove material.thickness")
         if kind == "file" and surface.get("periodic") is False and "thickness" in material:
+            from gapsweep.gfmd.substrates import FREE_LAYER_WHY
+
             raise SpecError("material.thickness: an elastic layer is solved with periodic boundaries only; this "
-                            "file surface is non-periodic (free boundaries)")
+                            f"file surface is non-periodic (surface.periodic = false): {FREE_LAYER_WHY}. Instead: "
+                            "surface.periodic = true, or leave out the layer (the half-space) if it is thick "
+                            "against the map")
     refused = sorted(k for k in methods if not registry.get(k).rolloff)
     if "lambda_r" in surface and refused:
         raise SpecError(f"surface.lambda_r: a roll-off spectrum is not taken by {', '.join(refused)} (they assume "

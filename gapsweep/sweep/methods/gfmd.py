@@ -40,6 +40,7 @@ from gapsweep.sweep.schema import (
     FLAG_DETACHED,
     FLAG_JUMP,
     SUBSTRATE_KEYS,
+    Column,
     JobSpec,
     SpecError,
     Task,
@@ -121,12 +122,26 @@ class GFMD(Method):
                                "solve's continuation from zero load stayed attached (pull-off bracket)",
                                {"units": "1", "reference_unit": "E*"}),
     }
+    # columns of a pressure cap ([material] hardness; gapsweep.gfmd._plastic), declared here and added only to the
+    # stores of jobs with a cap (job_own_columns; docs/store.md "Plug-in columns"): no edit of the store's schema
+    own_columns = {  # noqa: RUF012 - read-only table
+        "plastic_area": Column("float", "plastic area fraction: fraction of the nominal area at p = H (the "
+                               "hard wall's pressure cap)"),
+        "plastic_displacement_mean": Column("float", "mean plastic displacement <u_pl> over the nominal area "
+                                            "(volume flattened per nominal area)", LENGTH),
+        "plastic_displacement_max": Column("float", "largest plastic displacement max u_pl", LENGTH),
+    }
     select = "n"
     takes_body = True  # [material] thickness, poisson, bottom, hardness (gapsweep.gfmd.substrates, _plastic)
     extra_target = ("gapsweep.gfmd", "solve", ("heights", "sigma0", "gamma0", "rho", "e_star", "length", "tol",
                                                "method", "backend", "max_iter", "initial", "interaction", "work",
                                                "periodic", "host", "thickness", "poisson", "bottom",
                                                "hardness"))
+
+    def job_own_columns(self, spec: JobSpec) -> dict[str, Column]:
+        """The plastic columns in the stores of jobs with ``[material] hardness`` only (other stores, their spec
+        hashes and task ids stay as they were)."""
+        return dict(self.own_columns) if "hardness" in spec.material else {}
 
     def validate(self, key: str, t: dict[str, Any], env: Env) -> dict[str, Any]:
         o: dict[str, Any] = {}
@@ -426,6 +441,8 @@ def gfmd_row(t: Task, ctx: Context, res: Any, prev: Any = None, stats: Any = Non
     phist = None
     if getattr(res, "pressure", None) is not None:
         phist, v["pressure_atom"] = stats.pressure_hist(t, res.pressure, xp)
+    if t.opt("hardness") is not None:  # the pressure cap's own columns (GFMD.own_columns)
+        v.update(_plastic_values(res))
     if getattr(res, "status", "") == "detached":
         v["flags"] |= FLAG_DETACHED
         msg = (f"gfmd: detached at sigma0 = {t.sigma0:g} (beyond pull-off: no equilibrium in contact; "
@@ -454,6 +471,19 @@ def gfmd_row(t: Task, ctx: Context, res: Any, prev: Any = None, stats: Any = Non
     state = (res.displacement if t.law == "exponential" else res) if ok else None
     # the switched-on extensions' columns (e.g. the leak rate of gapsweep.sweep.methods.flow) from this result
     return extend_row(t, res, TaskResult(status, msg, v, stats.hist(t, gap, hard), phist)), state
+
+
+def _plastic_values(res: Any) -> dict[str, float]:
+    """``plastic_area`` (fraction at ``p = H``), the mean and the largest plastic displacement ``u_pl`` (units of
+    the surface's lengths; 0 off the plastic set) of a capped hard-wall result (gapsweep.gfmd._plastic)."""
+    u = getattr(res, "plastic_displacement", None)
+    out = {"plastic_area": float(getattr(res, "plastic_area", math.nan)),
+           "plastic_displacement_mean": math.nan, "plastic_displacement_max": math.nan}
+    if u is not None:
+        uxp = _xp(u)  # where the field lives (numpy or cupy)
+        out["plastic_displacement_mean"] = float(uxp.mean(u))
+        out["plastic_displacement_max"] = float(uxp.max(u))
+    return out
 
 
 def _fill_quantities(t: Task, res: Any, v: dict[str, float], gap: Any, xp: Any) -> None:

@@ -57,6 +57,9 @@ class Theory(Method):
     # results that never depend on the seed (M4): no seed dimension in the dataset view
     seed_free = ("mean_gap_paper", "mean_gap_continuum", "mean_gap_persson", "contact_area")
     select = "n"
+    # an elastic layer ([material] thickness, poisson, bottom): Persson's theory with the layer's stiffness
+    # (gapsweep.theory.persson_layer); check_job refuses the rest (a pressure cap, the field theory on a layer)
+    takes_body = True
     extra_target = ("gapsweep.theory", "mean_gap", ("sigma0", "form", "hurst", "h_rms", "rho", "gamma0",
                                                      "lambda_l", "lambda_s", "e_star", "heights", "length"))
 
@@ -92,6 +95,18 @@ class Theory(Method):
                 if k in t:
                     raise SpecError(f"{key}.{k}: only allowed when forms contains 'persson'")
         return o
+
+    def check_job(self, spec: JobSpec) -> None:
+        """The body: only Persson's hard-wall theory has a layer version (gapsweep.theory.persson_layer); no theory
+        of a pressure cap or of the field theory (M4) on a layer is implemented."""
+        m = spec.material
+        if "hardness" in m:
+            raise SpecError("methods.theory: not available with material.hardness (no theory of the plastic "
+                            "pressure cap is implemented; GFMD solves it)")
+        if "thickness" in m and spec.methods[self.name]["forms"] != ["persson"]:
+            raise SpecError("methods.theory.forms: with material.thickness (an elastic layer) only Persson's "
+                            "theory of the hard wall is available (forms = [\"persson\"], "
+                            "gapsweep.theory.persson_layer); the field theory (M4) is a half-space result")
 
     def expand(self, spec: JobSpec) -> Iterator[Task]:
         o = spec.methods[self.name]
@@ -147,8 +162,13 @@ def _run_persson(t: Task, ctx: Context) -> dict[str, float]:
         elif "rms_slope" in sp:
             h_rms = surface.continuum_rms_height(t.hurst, lambda_l=sp["lambda_l"], lambda_s=sp["lambda_s"],
                                                  rms_slope=sp["rms_slope"])
-    area = float(persson.contact_area(t.sigma0, variant=t.opt("persson_variant"), **kw))
-    sep = float(persson.mean_separation(t.sigma0, gamma=t.opt("persson_gamma"), **kw))
+    theory: Any = persson
+    if t.opt("thickness") is not None:  # an elastic layer: its stiffness in both (gapsweep.theory.persson_layer)
+        from gapsweep.theory import persson_layer as theory
+
+        kw.update({k: t.opt(k) for k in ("thickness", "poisson", "bottom") if t.opt(k) is not None})
+    area = float(theory.contact_area(t.sigma0, variant=t.opt("persson_variant"), **kw))
+    sep = float(theory.mean_separation(t.sigma0, gamma=t.opt("persson_gamma"), **kw))
     return {"h_rms": h_rms, "g_rms": g_rms, "h_rms_spectrum": h_spec, "g_rms_spectrum": g_spec,
             "mean_gap_persson": sep, "contact_area": area}
 
