@@ -191,7 +191,7 @@ while any(alive(p) for p in pids):
     time.sleep(0.1)
 import subprocess, shutil
 try:
-    subprocess.run([control], input="quit\n", text=True, timeout=120, capture_output=True)
+    subprocess.run([control], input="quit\\n", text=True, timeout=120, capture_output=True)
 finally:
     shutil.rmtree(folder, ignore_errors=True)
 """
