@@ -205,6 +205,9 @@ def _propose(units: list[Unit]) -> list[str]:
     out.append(f"  layout here: {lay.ranks} rank(s) -- {lay.gpu_workers} GPU worker(s) (one per GPU), "
                f"{lay.cpu_workers} CPU worker(s)" + ("" if lay.ranks == 1 else ", rank 0 coordinates")
                + f": {lay.args()} (docs/running.md, \"Which layout\")")
+    if lay.gpu_workers and lay.ranks > 1:
+        out.append(f"  by default the run puts up to {gpus.DEFAULT_PER_GPU} of these ranks on each GPU under CUDA MPS "
+                   "(started and stopped by the run where it may; else one per GPU): --ranks-per-gpu K to choose")
     return out
 
 
@@ -1275,7 +1278,7 @@ def _work(r: _Run) -> None:
             comm.send(_fault(r.rank, r.gpu, e), dest=0, tag=TAG_FAULT)
             continue
         finally:
-            tr.unit(msg[0], t0, r.units[msg[0]].gpu)
+            tr.unit(msg[0], t0, r.units[msg[0]].gpu, len(r.units[msg[0]].tasks))
         if r.stop.signum is not None and not told:
             comm.send(r.stop.signum, dest=0, tag=TAG_STOP)
             told = True

@@ -2,12 +2,12 @@
 environment every MPI rank of a farm writes ``DIR/rank<R>.json`` when it leaves the farm; without it nothing is
 recorded (each hook is one attribute test).
 
-A worker records the units it ran (``[unit, start, end, gpu unit]``, wall clock [s since the epoch], so that the
-ranks of one node share a clock) and the times it asked the coordinator for work (``asks``: every ready message).
-The coordinator records when it handled each worker's ready messages (``handled[worker]``: the k-th entry answers
-that worker's k-th ask, MPI keeping the order of one sender's messages), the seconds it spent handling messages
-and writing rows (``busy_s``), and how many rows it wrote (``rows``). Coordinator latency = handled - asked;
-a worker's idle time = the gaps between its units.
+A worker records the units it ran (``[unit, start, end, gpu unit, tasks in it]``, wall clock [s since the epoch], so
+that the ranks of one node share a clock) and the times it asked the coordinator for work (``asks``: every ready
+message). The coordinator records when it handled each worker's ready messages (``handled[worker]``: the k-th entry
+answers that worker's k-th ask, MPI keeping the order of one sender's messages), the seconds it spent handling
+messages and writing rows (``busy_s``), and how many rows it wrote (``rows``). Coordinator latency = handled -
+asked; a worker's idle time = the gaps between its units.
 """
 
 from __future__ import annotations
@@ -39,9 +39,9 @@ class Trace:
         if self.on:
             self.asks.append(time.time())
 
-    def unit(self, k: int, start: float, gpu_unit: bool) -> None:
+    def unit(self, k: int, start: float, gpu_unit: bool, tasks: int = 0) -> None:
         if self.on:
-            self.units.append([k, start, time.time(), bool(gpu_unit)])
+            self.units.append([k, start, time.time(), bool(gpu_unit), tasks])
 
     def handle(self, wid: int) -> None:
         if self.on:
