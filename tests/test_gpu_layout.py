@@ -132,11 +132,23 @@ def test_mps_processes_are_found_by_name(tmp_path):
     shutil.copy(shutil.which("sleep") or "/bin/sleep", fake)
     p = subprocess.Popen([str(fake), "60"])
     try:
-        assert p.pid in gpus.mps_processes()
+        assert _until(lambda: p.pid in gpus.mps_processes())
     finally:
         p.kill()
         p.wait()
     assert p.pid not in gpus.mps_processes()
+
+
+def _until(cond, timeout: float = 60.0) -> bool:
+    """Wait for ``cond()`` (a process's state seen by another one), at most ``timeout`` seconds."""
+    import time
+
+    end = time.monotonic() + timeout
+    while not cond():
+        if time.monotonic() > end:
+            return False
+        time.sleep(0.05)
+    return True
 
 
 class _FakeCuda:
@@ -270,7 +282,6 @@ def test_farm_default_layout_under_mpi(fake_mps, tmp_path):
     GAPSWEEP_TRACE each rank wrote its timeline: every unit ran once, and the coordinator handled each ask of
     a worker after it was made (latency >= 0), one handling per ask."""
     import json
-    import time
 
     from gapsweep import store
     from tests.mpi.test_mpi import mpirun
@@ -284,12 +295,10 @@ def test_farm_default_layout_under_mpi(fake_mps, tmp_path):
     assert p.returncode in (0, 3, 5), p.stdout + p.stderr  # the SDE rows fail where no CUDA device is: 5 or 3
     rec = json.loads(store.read_attrs(path)["runs"])[-1]
     assert rec["gpus"] == [None, 0, 0] and rec["ranks_per_gpu"] == 2 and "started a daemon" in rec["mps"]
-    end = time.monotonic() + 60  # the watcher quits the daemon once the three ranks are gone
-    while "quit" not in fake_mps.read_text() and time.monotonic() < end:
-        time.sleep(0.05)
+    pipe = Path(fake_mps.read_text().split()[1])
+    assert _until(lambda: not pipe.exists())  # the watcher quits the daemon once the three ranks are gone
     lines = fake_mps.read_text().splitlines()
-    assert [x.split()[0] for x in lines] == ["start", "quit"] and lines[0].split()[1] == lines[1].split()[1]
-    assert not Path(lines[0].split()[1]).exists()
+    assert lines == [f"start {pipe}", f"quit {pipe}"]
     recs = {r: json.loads((trace / f"rank{r}.json").read_text()) for r in range(3)}
     ran = [u[0] for r in (1, 2) for u in recs[r]["units"]]
     assert ran and len(ran) == len(set(ran))

@@ -45,6 +45,7 @@ __all__ = ["DEFAULT_PER_GPU", "MPS_CLIENTS", "Layout", "Mps", "Placement", "assi
 log = logging.getLogger(__name__)
 
 DEFAULT_PER_GPU = 8  # ranks per GPU under MPS by default: issue 38's best one-GPU layout (16 ranks, 8 on the GPU)
+_SMALL_GPU = 8e9  # bytes every GPU that runs MPS clients here is taken to hold (an H200: 141 GiB)
 MPS_CLIENTS = 48  # clients one MPS server admits on a node (issue 26: 64 clients met "Maximum number of clients")
 
 
@@ -282,7 +283,9 @@ def place(comm: Any, coordinator_works: bool, per_gpu: int | None = None, need: 
         plan = None
         if node.rank == 0:
             n = visible_count()
-            have = memory() if need > 0 and per_gpu is None and n > 0 else 0
+            # the memory (one more nvidia-smi call) only where the default's ranks could need more than 8 GB
+            big = per_gpu is None and n > 0 and need * auto_per_gpu(n, working, True) > _SMALL_GPU
+            have = memory() if big else 0
             cap = max(1, int(0.9 * have // need)) if have else MPS_CLIENTS
             k, m, note = _node_plan(n, working, per_gpu, cap)
             plan = (n, k, m.env if m is not None else {}, note)
