@@ -1,10 +1,11 @@
 """The farm on 1, 2 and 4 GPUs of one node, in one call (docs/benchmarks.md, "Several GPUs: the farm").
 
 For each set of jobs and each GPU count k: one launch ``mpiexec -n R --bind-to none python3 -m gapsweep run J1 J2
-... --store S1 --store S2 ...`` with ``CUDA_VISIBLE_DEVICES=0..k-1`` -- rank 0 coordinates, ranks 1..k are the
-GPU workers (one per GPU, no MPS), the others CPU workers (docs/running.md, "Which layout"); R is the same for
-every k. Sets: ``figs`` = jobs/gpu/fig6, fig4_5, fig2, fig3; ``pub`` = jobs/pub/fig2, fig3, fig4_5 (``--pub-seeds
-S``: S seeds instead of 16, copies written under OUT/jobs); ``sde`` = jobs/bench_sde_gpus.toml.
+... --store S1 --store S2 ...`` with ``CUDA_VISIBLE_DEVICES=0..k-1`` -- rank 0 coordinates, the run's default layout
+makes GPU workers (up to 8 per GPU under CUDA MPS, started by the run; one per GPU without MPS) and CPU workers of
+the other ranks (docs/running.md, "Which layout"); R is the same for every k. Sets: ``figs`` = jobs/gpu/fig6,
+fig4_5, fig2, fig3; ``pub`` = jobs/pub/fig2, fig3, fig4_5 (``--pub-seeds S``: S seeds instead of 16, copies written
+under OUT/jobs); ``sde`` = jobs/bench_sde_gpus.toml.
 
 Per run: wall (launch to exit), start-up (launch to the farm's start, ``farm_started_unix`` of the first job's
 run record), sweep = wall - start-up, efficiency T1 / (k Tk) on both, GPU utilisation (nvidia-smi sampled every
@@ -25,6 +26,15 @@ of the budget are left (alone: ``--sets`` with no set).
 
 (the second writes OUT/fault_check.json and reuses the first's /tmp/farm/gpus1/fig2.h5 as its reference; the
 stores stay in --work, default --out).
+
+``--layouts [SET@]G:K[:R] ...`` (issue 38): these layouts in order instead -- G GPUs, K ranks per GPU (``auto``:
+the run's default, no flag), R ranks -- each traced (``GAPSWEEP_TRACE``: per-worker busy/idle timelines, the
+coordinator's latency, the longest units, the tail), with GPU utilisation over the sweep, the processes holding
+contexts on several GPUs (``nvidia-smi --query-compute-apps``), stores against the set's first run, and the table
+against T1_best (the best one-GPU wall time of the set, any layout); writes OUT/NAME.json, OUT/NAME.md and
+OUT/NAME_runs.log (``--name``; benchmarks/gpu_node_issue38.sh runs it).
+
+    python3 benchmarks/bench_multi_gpu.py --out OUT --work /tmp/l --sets pub --layouts 1:auto 1:16 2:auto 4:auto
 
 Writes OUT/results.json (every run, the node, the command) and OUT/table.md (OUT/fault_check.json for the fault
 check alone); logs in OUT/runs.log.
