@@ -302,13 +302,26 @@ def parse_layout(text: str) -> tuple[int, int | None, int | None]:
     return int(parts[0]), k, (int(parts[2]) if len(parts) == 3 else None)
 
 
-def wait_no_mps(timeout: float = 60.0) -> float:
-    """Wait until no MPS daemon runs on the node (the one a run started stops once its ranks are gone)."""
+def wait_no_mps(log, timeout: float = 20.0) -> float:
+    """Wait until no MPS daemon runs on the node (the one a run started stops once its ranks are gone); after
+    ``timeout`` s, quit every daemon of a gapsweep pipe folder left in the temporary folder (and say so)."""
+    import tempfile
+
     from gapsweep.sweep import gpus
 
     t0 = time.monotonic()
     while gpus.mps_processes() and time.monotonic() - t0 < timeout:
         time.sleep(0.1)
+    left = gpus.mps_processes()
+    ctl = shutil.which("nvidia-cuda-mps-control")
+    if left and ctl:
+        for pipe in Path(tempfile.gettempdir()).glob("gapsweep-mps-*/pipe"):
+            log.write(f"!! MPS daemon still running after {timeout:.0f} s ({left}): quit {pipe}\n")
+            subprocess.run([ctl], input="quit\n", text=True, capture_output=True, timeout=60,
+                           env=dict(os.environ, CUDA_MPS_PIPE_DIRECTORY=str(pipe),
+                                    CUDA_MPS_LOG_DIRECTORY=str(pipe.parent / "log")))
+        while gpus.mps_processes() and time.monotonic() - t0 < timeout + 30:
+            time.sleep(0.1)
     return round(time.monotonic() - t0, 2)
 
 
@@ -428,7 +441,7 @@ def layout_run(i: int, name: str, jobs: list[Path], g: int, per_gpu: int | None,
     shutil.rmtree(d, ignore_errors=True)
     d.mkdir(parents=True)
     stores = [d / f"{j.stem}.h5" for j in jobs]
-    waited = wait_no_mps()
+    waited = wait_no_mps(log)
     args = [*extra, *([] if per_gpu is None else ["--ranks-per-gpu", str(per_gpu)])]
     sampler, apps = GpuSampler(), AppSampler()
     t_launch = time.time()

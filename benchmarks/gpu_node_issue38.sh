@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Issue 38 on one GPU node (1, 2 or 4 GPUs; H200): the publication sweep (jobs/pub/fig2, fig3, fig4_5 in one launch,
 # 1,632 rows) in the layouts that matter, traced, in about 8 minutes. From the repository root:
-#   OUT=/some/dir bash benchmarks/gpu_node_issue38.sh        (BUDGET=seconds, default 420; GAPSWEEP_COMMIT=hash)
+#   OUT=/some/dir bash benchmarks/gpu_node_issue38.sh        (BUDGET=seconds, default 400; GAPSWEEP_COMMIT=hash)
 # Needs python3 with numpy, scipy, h5py, mpi4py, cupy (numba optional), Open MPI's mpiexec; CUDA MPS's
 # nvidia-cuda-mps-control for the default layout (gapsweep starts and stops the daemon itself).
 # Runs, in this order, as long as the budget lasts (G GPUs : K ranks per GPU, "auto" = gapsweep's default):
@@ -35,7 +35,7 @@ log="$OUT/gpu_node_issue38.log"
   ngpu=$(nvidia-smi -L | grep -c '^GPU ')
   echo "GPUs: $ngpu"
   $PY benchmarks/bench_multi_gpu.py --out "$OUT" --work "$WORK" --name gpu_node_issue38 --sets pub sde \
-    --max-gpus "$ngpu" --budget "${BUDGET:-420}" --launch-timeout 240 \
+    --max-gpus "$ngpu" --budget "${BUDGET:-400}" --launch-timeout 240 \
     --layouts pub@1:auto pub@2:auto pub@4:auto pub@1:16 $([ "$ngpu" -ge 2 ] && echo "sde@$ngpu:1") pub@4:1 \
     pub@4:12 pub@2:16 pub@1:1
   echo "bench exit: $?"
