@@ -280,20 +280,25 @@ def place(comm: Any, coordinator_works: bool, per_gpu: int | None = None, need: 
     try:
         root_here = node.allreduce(1 if comm.rank == 0 else 0, op=MPI.SUM) > 0
         working = node.size - (1 if root_here and not coordinator_works else 0)
+        pids = node.gather(os.getpid(), root=0)
         plan = None
         if node.rank == 0:
             n = visible_count()
-            # the memory (one more nvidia-smi call) only where the default's ranks could need more than 8 GB
-            big = per_gpu is None and n > 0 and need * auto_per_gpu(n, working, True) > _SMALL_GPU
-            have = memory() if big else 0
-            cap = max(1, int(0.9 * have // need)) if have else MPS_CLIENTS
-            k, m, note = _node_plan(n, working, per_gpu, cap)
+            try:
+                # the memory (one more nvidia-smi call) only where the default's ranks could need more than 8 GB
+                big = per_gpu is None and n > 0 and need * auto_per_gpu(n, working, True) > _SMALL_GPU
+                have = memory() if big else 0
+                cap = max(1, int(0.9 * have // need)) if have else MPS_CLIENTS
+                k, m, note = _node_plan(n, working, per_gpu, cap)
+                if m is not None:
+                    m.watch(pids)  # before any rank connects: the daemon never outlives the ranks
+            except Exception as e:  # the other ranks wait in bcast: never leave them there
+                if m is not None:
+                    m.stop()
+                k, m, note = per_gpu or 1, None, f"MPS: not used ({type(e).__name__}: {e})"
             plan = (n, k, m.env if m is not None else {}, note)
         n, k, env, note = node.bcast(plan, root=0)  # one look per node
         os.environ.update(env)  # before this rank's first CUDA call: its clients connect to that daemon
-        pids = node.gather(os.getpid(), root=0)
-        if m is not None:
-            m.watch(pids)
         local = node.rank
     finally:
         node.Free()
