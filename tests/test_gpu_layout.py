@@ -114,6 +114,15 @@ def test_without_mps_one_rank_per_gpu_and_why(fake_mps, monkeypatch, tmp_path):
     (tmp_path / "elsewhere" / "control").touch()
     k, m, note = gpus._node_plan(1, 15, None, gpus.MPS_CLIENTS)
     assert (k, m) == (8, None) and "using the running daemon" in note
+    # the daemon starts but a client cannot connect (its server refuses): stopped again, one rank per GPU
+    monkeypatch.setattr(gpus, "mps_processes", lambda: [])
+    monkeypatch.delenv("CUDA_MPS_PIPE_DIRECTORY")
+    monkeypatch.setattr(gpus, "_probe_mps", lambda m: "a client of the daemon failed: cudaErrorMpsServerNotReady")
+    k, m, note = gpus._node_plan(1, 15, None, gpus.MPS_CLIENTS)
+    assert (k, m) == (1, None) and "cudaErrorMpsServerNotReady" in note
+    lines = fake_mps.read_text().splitlines()
+    assert lines[-2].startswith("start ") and lines[-1] == "quit " + lines[-2].split()[1]
+    assert not Path(lines[-1].split()[1]).exists()
     # no control program at all
     monkeypatch.setattr(gpus, "mps_processes", lambda: [])
     monkeypatch.setattr(gpus.shutil, "which", lambda name: None)

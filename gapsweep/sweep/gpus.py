@@ -8,7 +8,8 @@ rank ``r`` uses GPU ``r mod G`` if ``r < K G``, else none (it works CPU units: t
 ``W`` the working ranks of the node -- when CUDA MPS is usable (:func:`place`): an MPS daemon this process can
 reach already runs, or none runs and ``nvidia-cuda-mps-control`` is on the PATH, in which case node-local rank 0
 starts one with its own pipe and log folders in a temporary folder (``CUDA_MPS_PIPE_DIRECTORY``,
-``CUDA_MPS_LOG_DIRECTORY``, told to every rank of the node before any of them touches CUDA) and a watcher process
+``CUDA_MPS_LOG_DIRECTORY``, checked with one client in a separate process, told to every rank of the node before
+any of them touches CUDA) and a watcher process
 stops it (``quit``) and removes the folder once every rank of the node has exited -- also after a crash or a
 kill. Otherwise ``K = 1`` and the log says why. 48 is the clients one MPS server admitted on a 4-GPU node (issue
 26). A process outside MPI (serial runs, ``--shard`` processes) is working rank 0 of its node: start one per GPU
@@ -235,6 +236,28 @@ def start_mps() -> tuple[Mps | None, str]:
     return m, ""
 
 
+_PROBE = "import cupy; cupy.cuda.runtime.setDevice(0); cupy.cuda.runtime.memGetInfo()"
+
+
+def _probe_mps(m: Mps) -> str:
+    """One client of the new daemon, in a separate process (this one stays without a CUDA context): "" when it
+    connects, else why not -- a daemon whose server refuses clients (an old GPU, a container without the rights)
+    would turn every GPU task into a device fault. Skipped without cupy."""
+    import importlib.util
+
+    if importlib.util.find_spec("cupy") is None:
+        return ""
+    try:
+        r = subprocess.run([sys.executable, "-c", _PROBE], env={**os.environ, **m.env}, capture_output=True,
+                           text=True, timeout=120, stdin=subprocess.DEVNULL)
+    except (OSError, subprocess.SubprocessError) as e:
+        return f"a client of the daemon failed: {e}"[:300]
+    if r.returncode:
+        last = (r.stderr.strip().splitlines() or [f"exit {r.returncode}"])[-1]
+        return f"a client of the daemon failed: {last}"[:300]
+    return ""
+
+
 @dataclass
 class Placement:
     """Where a rank runs: its ``gpu`` (None: CPU units only), the ranks per GPU of its node (``per_gpu``), the MPS
@@ -259,7 +282,10 @@ def _node_plan(n: int, working: int, per_gpu: int | None, cap: int) -> tuple[int
     else:
         m, why = start_mps()
         if m is not None:
-            return want, m, f"MPS: started a daemon for this run ({m.folder})"
+            why = _probe_mps(m)
+            if not why:
+                return want, m, f"MPS: started a daemon for this run ({m.folder})"
+            m.stop()
     if per_gpu is not None:
         return want, None, f"MPS: not used ({why}): {want} ranks per GPU share it by time slices"
     return 1, None, f"MPS: not used ({why}): one rank per GPU"
