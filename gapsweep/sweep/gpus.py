@@ -200,6 +200,9 @@ finally:
 
 
 def _quit(control: str, folder: Path, env: dict[str, str]) -> None:
+    if not (folder / "pipe" / "control").exists():  # no daemon listens there: nothing to quit
+        shutil.rmtree(folder, ignore_errors=True)
+        return
     try:
         subprocess.run([control], input="quit\n", text=True, timeout=120, capture_output=True, env=env)
     except (OSError, subprocess.SubprocessError) as e:
