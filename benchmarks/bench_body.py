@@ -30,6 +30,19 @@ from gapsweep.surface import self_affine
 ROOT = Path(__file__).resolve().parent.parent
 
 
+
+import sys as _sys  # noqa: E402
+from pathlib import Path as _Path  # noqa: E402
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _record  # noqa: E402
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/gfmd/substrates.py', 'gapsweep/gfmd/_plastic.py', 'gapsweep/gfmd/_plastic_ops.py',
+              'gapsweep/gfmd/_constrained.py', 'gapsweep/gfmd/_constrained_ops.py', 'gapsweep/gfmd/_softmax.py',
+              'gapsweep/gfmd/_solvers.py', 'gapsweep/gfmd/_smooth.py', 'gapsweep/core']
+
 def cases(n: int) -> list[tuple[str, np.ndarray, dict, dict]]:
     """(name, heights, the half-space solve's keywords, the option's extra keywords)."""
     h = self_affine(n, 0.8, lambda_l=0.5, lambda_s=8 / n, seed=5, rms_slope=0.5)
@@ -96,4 +109,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS)
     main()

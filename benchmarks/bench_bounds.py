@@ -43,9 +43,19 @@ import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import sys as _sys
+from pathlib import Path as _Path
+
 from gapsweep import gfmd, surface
 from gapsweep.theory import closure, improved
 from studies.predictors_heldout import FRESH, FRESH_P, HELDOUT, HELDOUT_P, TUNING, TUNING_P, _grid
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _record
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/gfmd', 'gapsweep/theory', 'gapsweep/surfaces']
 
 log = logging.getLogger("bench_bounds")
 
@@ -277,4 +287,5 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS)
     raise SystemExit(main())

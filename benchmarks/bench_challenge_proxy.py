@@ -49,9 +49,19 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+import sys as _sys  # noqa: E402
+from pathlib import Path as _Path  # noqa: E402
+
 from gapsweep import gfmd  # noqa: E402
 from gapsweep.gfmd import distributed  # noqa: E402
 from gapsweep.surfaces.synthetic import self_affine  # noqa: E402
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _record  # noqa: E402  (benchmarks/_record.py: the provenance of every result file)
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/gfmd', 'gapsweep/core', 'gapsweep/surfaces']
 
 DX = 100.0 / 65536  # um: the challenge's pixel
 C = dict(e_star=25.0, work=0.05, rho=2.071e-3, sigma0=0.25, hurst=0.8, lambda_l=20.0, lambda_s=0.1)
@@ -146,4 +156,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS)
     main()

@@ -13,12 +13,22 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import statistics
+import sys as _sys
 import tempfile
 import time
 import timeit
 from pathlib import Path
+from pathlib import Path as _Path
 
 from gapsweep.sweep import runner, store
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _record
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/sweep/store.py', 'gapsweep/sweep/storecheck.py', 'gapsweep/sweep/schema.py',
+              'gapsweep/sweep/runner.py']
 
 
 def _row():
@@ -64,4 +74,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS, header=True)
     main()

@@ -2,13 +2,15 @@
 one core; and the GPU timing. Writes ``<name>.md`` and ``<name>.json`` to --out (rows appended as they finish).
 
     OMP_NUM_THREADS=1 python benchmarks/bench_contact.py cpu --out OUT [--n 2048] [--hurst 0.3 0.8]
-        [--sigma0 1e-3 1e-2 1e-1] [--tol 1e-8] [--methods pcg mpcg pk] [--peers tamaas contactmechanics]
+        [--sigma0 1e-3 1e-2 1e-1] [--seeds 1] [--tol 1e-8] [--methods pcg mpcg pk] [--peers tamaas contactmechanics]
         [--alone]     (gapsweep's methods only, no peer solve: --alone is --peers with no names)
     python benchmarks/bench_contact.py gpu --out OUT [--n 4096] [--sigma0 1e-2]      (cupy on an NVIDIA GPU)
 
 Surfaces: the figure-2/3 surfaces of docs/model.md M6 (L = 1, E* = 1, lambda_l = 0.25, lambda_s = 2.5e-3,
-rms slope 1, seed 1; H = 0.3 and 0.8). Stopping rule: every code is asked for the same tolerance ``tol`` in its
-own measure (gapsweep: gap left in the contact and overlap outside it, over h_rms; tamaas: its
+rms slope 1, seed 1; H = 0.3 and 0.8; ``--seeds`` for held-out surfaces). A method named ``NAME:restart``
+(e.g. ``mpcg:restart``) runs NAME with the CG restarted at every re-entry (``_constrained._KEEP = 0``, the rule
+before issue 39) for a before/after comparison in one run. Stopping rule: every code is asked for the same
+tolerance ``tol`` in its own measure (gapsweep: gap left in the contact and overlap outside it, over h_rms; tamaas: its
 PolonskyKeerRey error; ContactMechanics: pentol = tol h_rms, forcetol = tol sigma0); then every code's fields are
 scored by gapsweep's measure (``resid``) and the three codes' mean gap, contact area and elastic energy are
 compared, so the accuracy reached is visible next to the time; ``err_vs_tight`` is each result's largest relative
@@ -35,8 +37,18 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import sys as _sys
+from pathlib import Path as _Path
+
 from gapsweep import gfmd
 from gapsweep.surface import self_affine
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _record
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/gfmd', 'gapsweep/surfaces']
 
 
 def surf(n: int, hurst: float, seed: int = 1) -> np.ndarray:
@@ -73,9 +85,17 @@ def quiet_fd1():
 
 
 def run_gapsweep(h, s0, tol, method):
-    t, w = time.process_time(), time.perf_counter()
-    r = gfmd.solve(h, sigma0=s0, interaction="hard_wall", tol=tol, method=method, backend="auto")
-    cpu, wall = time.process_time() - t, time.perf_counter() - w
+    from gapsweep.gfmd import _constrained
+
+    method, _, variant = method.partition(":")
+    keep = _constrained._KEEP
+    _constrained._KEEP = 0.0 if variant == "restart" else keep
+    try:
+        t, w = time.process_time(), time.perf_counter()
+        r = gfmd.solve(h, sigma0=s0, interaction="hard_wall", tol=tol, method=method, backend="auto")
+        cpu, wall = time.process_time() - t, time.perf_counter() - w
+    finally:
+        _constrained._KEEP = keep
     # iters: fine-grid iterations; "mpcg" adds its coarse levels' iterations (finest first) in coarse_iters
     return {**score(h, r.displacement, r.pressure), "iters": r.iterations,
             "coarse_iters": "+".join(map(str, r.diagnostics.get("coarse_iterations", []))) or "-",
@@ -116,7 +136,17 @@ def run_contactmechanics(h, s0, tol):
 
 def write(out: Path, name: str, rows: list[dict], header: str) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    meta = {"host": platform.node(), "python": platform.python_version(), "cpus": os.cpu_count(),
+    import datetime
+    import subprocess
+
+    try:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
+                                cwd=Path(__file__).resolve().parents[1]).stdout.strip()
+    except OSError:
+        commit = ""
+    meta = {"host": platform.node(), "machine": f"{platform.machine()} {platform.processor()}".strip(),
+            "python": platform.python_version(), "cpus": os.cpu_count(), "commit": commit,
+            "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
             "command": " ".join(sys.argv)}
     (out / f"{name}.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
     keys = list(rows[0]) if rows else []
@@ -131,8 +161,8 @@ def cmd_cpu(a) -> None:
         a.peers = []
     peers = {"tamaas": run_tamaas, "contactmechanics": run_contactmechanics}
     rows = []
-    for hurst in a.hurst:
-        h = surf(a.n, hurst)
+    for hurst, seed in ((hh, sd) for hh in a.hurst for sd in a.seeds):
+        h = surf(a.n, hurst, seed)
         gfmd.solve(h[:64, :64].copy(), sigma0=1e-2, interaction="hard_wall")  # compile kernels
         gfmd.solve(h, sigma0=a.sigma0[0], interaction="hard_wall", tol=1e-2)  # FFT plans (wisdom)
         for s0 in a.sigma0:
@@ -151,7 +181,7 @@ def cmd_cpu(a) -> None:
             tq = score(h, tight.displacement, tight.pressure)
             for code, r in res.items():
                 r["err_vs_tight"] = max(abs(r["mean_gap"] / tq["mean_gap"] - 1), abs(r["energy"] / tq["energy"] - 1))
-                row = {"H": hurst, "sigma0": s0, "n": a.n, "tol": a.tol, "code": code, **r,
+                row = {"H": hurst, "seed": seed, "sigma0": s0, "n": a.n, "tol": a.tol, "code": code, **r,
                        "gap_rel_diff": abs(r["mean_gap"] - ref["mean_gap"]) / ref["mean_gap"],
                        "energy_rel_diff": abs(r["energy"] - ref["energy"]) / ref["energy"],
                        "cpu_ratio_vs_gapsweep": r["cpu_s"] / ref["cpu_s"]}
@@ -195,6 +225,7 @@ def main() -> None:
     c.add_argument("--n", type=int, default=2048)
     c.add_argument("--hurst", type=float, nargs="+", default=[0.3, 0.8])
     c.add_argument("--sigma0", type=float, nargs="+", default=[1e-3, 1e-2, 1e-1])
+    c.add_argument("--seeds", type=int, nargs="+", default=[1])
     c.add_argument("--tol", type=float, default=1e-8)
     c.add_argument("--tight", type=float, default=1e-12,
                    help="tolerance of the reference solve every code is scored against (err_vs_tight)")
@@ -214,4 +245,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS)
     main()

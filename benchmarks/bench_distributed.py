@@ -65,6 +65,9 @@ from mpi4py import MPI
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+import sys as _sys  # noqa: E402
+from pathlib import Path as _Path  # noqa: E402
+
 import cupy  # noqa: E402
 
 from gapsweep import gfmd  # noqa: E402
@@ -75,6 +78,13 @@ from gapsweep.gfmd import _solvers, distributed  # noqa: E402
 from gapsweep.gfmd._cuda import solve_memory as single_gpu_memory  # noqa: E402
 from gapsweep.gfmd.distributed import solve_memory  # noqa: E402
 from gapsweep.surfaces.synthetic import self_affine, self_affine_rows  # noqa: E402
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _record  # noqa: E402  (benchmarks/_record.py: the provenance of every result file)
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/gfmd', 'gapsweep/core']
 
 WORLD = MPI.COMM_WORLD
 RANK, SIZE = WORLD.Get_rank(), WORLD.Get_size()
@@ -440,4 +450,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS)
     main()

@@ -24,8 +24,17 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import sys as _sys
+from pathlib import Path as _Path
+
 from gapsweep import flow, gfmd, surface
 
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _record
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/flow']
 
 def one(n: int, sigma0: float, repeat: int) -> dict:
     h = surface.self_affine(n, 0.8, seed=1, lambda_l=0.5, lambda_s=4 / n, rms_slope=0.1)
@@ -73,4 +82,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS)
     main()

@@ -10,13 +10,22 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys as _sys
 import time
 from pathlib import Path
+from pathlib import Path as _Path
 
 import numpy as np
 from scipy.stats import norm
 
 from gapsweep import fokker_planck, sde
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _record
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/gapdist']
 
 PARAMS = {
     "fig6": (dict(hurst=0.3, h_rms=0.035444, rho=2e-3, gamma0=1e-3, lambda_l=0.25, lambda_s=2.5e-3), 1e-4, 0.5),
@@ -64,4 +73,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS)
     main()

@@ -44,11 +44,21 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench_gfmd_limit (the reference pair)
 
+import sys as _sys
+from pathlib import Path as _Path
+
 import bench_gfmd_limit
 
 from gapsweep import gfmd
 from gapsweep.gfmd import _free
 from gapsweep.surfaces import self_affine
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _record
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/gfmd', 'gapsweep/core']
 
 GAMMA0, RHO = 1e-3, 2e-3
 warnings.simplefilter("ignore", gfmd.UnderResolvedWarning)
@@ -333,4 +343,5 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS)
     sys.exit(main())

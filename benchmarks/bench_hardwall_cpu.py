@@ -35,10 +35,20 @@ import numpy as np
 # appended, not prepended: PYTHONPATH=<another checkout> times that checkout's kernels (passes on two commits)
 sys.path.append(str(Path(__file__).resolve().parents[1]))
 
+import sys as _sys
+from pathlib import Path as _Path
+
 from gapsweep.core.fft import get_backend
 from gapsweep.gfmd import solve
 from gapsweep.gfmd._constrained_ops import make_ops
 from gapsweep.surface import self_affine
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _record
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/gfmd', 'gapsweep/core']
 
 
 def surf(n: int, hurst: float, seed: int = 1) -> np.ndarray:
@@ -155,4 +165,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS, header=True)
     main()

@@ -50,9 +50,18 @@ import signal
 import statistics
 import subprocess
 import sys
+import sys as _sys
 import threading
 import time
 from pathlib import Path
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _record
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/sweep', 'gapsweep/gfmd', 'gapsweep/gapdist']
 
 ROOT = Path(__file__).resolve().parents[1]
 SETS = {
@@ -671,4 +680,5 @@ def main() -> int:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS)
     sys.exit(main())

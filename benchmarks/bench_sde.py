@@ -13,12 +13,21 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys as _sys
 import time
 from pathlib import Path
+from pathlib import Path as _Path
 
 import numpy as np
 
 from gapsweep import fokker_planck, sde
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _record
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/gapdist']
 
 PARAMS = {
     # paper Fig. 6 spectrum (C0/L^4 = 8e-6, h_rms = 0.0354), rho = 2e-3, sigma0 = 1e-4, C2 = 0.5
@@ -96,4 +105,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS)
     main()

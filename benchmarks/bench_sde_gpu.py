@@ -25,12 +25,21 @@ import json
 import math
 import os
 import statistics
+import sys as _sys
 import time
 from pathlib import Path
+from pathlib import Path as _Path
 
 import numpy as np
 
 from gapsweep import sde
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _record
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/gapdist']
 
 PAPER_SECONDS = 20.0
 
@@ -249,4 +258,5 @@ def kernel_limit(args, fig6: dict, gpu_name: str, device_sync) -> None:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS)
     main()

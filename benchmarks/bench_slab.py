@@ -19,10 +19,20 @@ from mpi4py import MPI
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+import sys as _sys  # noqa: E402
+from pathlib import Path as _Path  # noqa: E402
+
 import cupy  # noqa: E402
 
 from gapsweep.core import slab  # noqa: E402
 from gapsweep.core.fft import get_backend  # noqa: E402
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _record  # noqa: E402  (benchmarks/_record.py: the provenance of every result file)
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/core/slab.py', 'gapsweep/core/fft.py']
 
 WORLD = MPI.COMM_WORLD
 
@@ -87,4 +97,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS)
     main()

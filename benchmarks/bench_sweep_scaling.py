@@ -26,13 +26,22 @@ import shlex
 import shutil
 import subprocess
 import sys
+import sys as _sys
 import tempfile
 import time
 from pathlib import Path
+from pathlib import Path as _Path
 
 import numpy as np
 
 from gapsweep import store
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _record
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/sweep']
 
 SPEC = """
 [job]
@@ -161,4 +170,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS)
     main()

@@ -22,7 +22,17 @@ import numpy as np
 from scipy.linalg.blas import zaxpy
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import sys as _sys
+from pathlib import Path as _Path
+
 from gapsweep.core.vec import axpy, rdot
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _record
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/core/vec.py', 'gapsweep/gfmd']
 
 
 def _busy(stop) -> None:
@@ -118,4 +128,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS)
     main()

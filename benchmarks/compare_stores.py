@@ -11,9 +11,18 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import sys as _sys
+from pathlib import Path as _Path
 
 import h5py
 import numpy as np
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _record
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/sweep/api.py']
 
 # tolerance per method: (mean gap |diff| / h_rms, histogram L1 distance, other means |diff| / h_rms)
 TOL = {
@@ -100,4 +109,5 @@ def main() -> int:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS, header=True)
     sys.exit(main())

@@ -14,7 +14,17 @@ from pathlib import Path
 from gapsweep import fokker_planck
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import sys as _sys
+from pathlib import Path as _Path
+
 from bench_fp import PARAMS
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _record
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/gapdist/fokker_planck.py']
 
 STIFF = dict(hurst=0.3, h_rms=2.34e-3, gamma0=1e-3, lambda_l=0.25, lambda_s=2.5e-3, rho=5e-4)
 
@@ -37,4 +47,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS, header=True)
     main()

@@ -14,15 +14,24 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import sys as _sys
 import time
 import tracemalloc
 import warnings
+from pathlib import Path as _Path
 
 from mpi4py import MPI
 
 from gapsweep.core import slab
 from gapsweep.gfmd import _lean, distributed, slab_rows
 from gapsweep.surfaces.synthetic import self_affine
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _record
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/gfmd', 'gapsweep/core/slab.py']
 
 CASES = [("exponential", "exponential", dict(sigma0=1e-2, gamma0=1e-3, rho=0.01)),
          ("adhesive", "adhesive", dict(sigma0=1e-3, interaction="adhesive", work=1e-3, rho=0.01)),
@@ -67,4 +76,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS)
     main()

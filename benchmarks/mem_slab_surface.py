@@ -16,10 +16,12 @@ from __future__ import annotations
 import argparse
 import json
 import platform
+import sys as _sys
 import tempfile
 import time
 import tracemalloc
 from pathlib import Path
+from pathlib import Path as _Path
 
 import numpy as np
 from mpi4py import MPI
@@ -28,6 +30,13 @@ from gapsweep.sweep import fields, slabs
 from gapsweep.sweep import spec as specmod
 from gapsweep.sweep.context import Context
 from gapsweep.sweep.runner import _select
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _record
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/sweep/slabs.py', 'gapsweep/sweep/fields.py', 'gapsweep/sweep/context.py']
 
 JOB = """
 [job]
@@ -97,4 +106,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS)
     main()

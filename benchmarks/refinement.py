@@ -25,8 +25,18 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import sys as _sys
+from pathlib import Path as _Path
+
 from gapsweep import gfmd
 from gapsweep.surface import rms_height, self_affine
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _record
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/gfmd', 'gapsweep/surfaces']
 
 GAMMA0 = 1e-3
 CASES = [(0.3, 2e-3), (0.3, 1e-3), (0.3, 5e-4), (0.8, 5e-3), (0.8, 2e-3), (0.8, 1e-3)]
@@ -139,4 +149,5 @@ def write_tables(out: Path, rows: list[dict], meta: dict) -> None:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS)
     main()

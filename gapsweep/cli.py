@@ -1,4 +1,5 @@
-"""Command-line interface (thin): ``gapsweep plan | run | jobs | status | merge | submit | report | export | demo``.
+"""Command-line interface (thin): ``gapsweep plan | run | jobs | status | merge | repair | submit | report | export |
+demo``.
 
 Exit codes: 0 success, 1 a task-independent error (a run that cannot start, a store that cannot be read or
 merged, a write error, a missing optional dependency, an output that exists), 2 an invalid job spec or argument
@@ -18,6 +19,7 @@ import json
 import logging
 import os
 import sys
+import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +33,7 @@ and SDE / Fokker-Planck ensembles, over whole parameter grids (docs/model.md; jo
   gapsweep jobs                                   the shipped job specs (gapsweep run fig2 --store OUT.h5)
   gapsweep submit JOB.toml OUT_DIR --shards N     run it on Slurm: N shards + a merge job (docs/running.md)
   gapsweep status OUT.h5                          counts, failures, the cost and time left
+  gapsweep repair OUT.h5 [--job JOB.toml]         mend damaged attributes where every row verifies
   gapsweep report OUT.h5 --out DIR                figures, tables and (for the paper's sets) verdicts
   gapsweep export OUT.h5 --out OUT.nc             the store as netCDF4 (xarray, ncdump, ...)
 """
@@ -38,7 +41,12 @@ EPILOG = """\
 Open MPI as root needs OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1, and more ranks than cores
 OMPI_MCA_rmaps_base_oversubscribe=1 (docs/running.md). Exit codes: 0 ok, 1 error, 2 invalid spec or argument,
 3 every task of a run failed, 5 a run left rows failed or pending (`gapsweep status STORE` lists them).
-"""
+""" + "{docs}\n"
+# The docs/*.md that the help names are the project's documentation, not installed with the package (issue 40:
+# a wheel's help pointed to files its user does not have): every help that names one says where they are.
+DOCS_NOTE = ("docs/NAME.md: the documentation in the docs/ folder of the project's source (its repository or "
+             "source archive; a wheel does not install it).")
+EPILOG = EPILOG.format(docs=textwrap.fill(DOCS_NOTE, 115))
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -93,7 +101,11 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--reuse", action="append", default=[], metavar="OTHER.h5",
                    help="copy the done rows of the same tasks (same task id) from another store instead of "
                         "running them, where their checksums verify (repeatable; the run record names the "
-                        "sources)")
+                        "sources); only rows computed by the current algorithm version of their method, with "
+                        "their kept fields")
+    s.add_argument("--reuse-older", action="store_true",
+                   help="with --reuse: also copy rows computed by another (older or unknown) algorithm version of "
+                        "their method; the run record and `gapsweep status` name them")
 
     s = sub.add_parser("jobs", help="list the job specs shipped with gapsweep (run one by name: gapsweep run fig2 ...)")
     s.add_argument("--path", metavar="NAME", help="print the path of the shipped spec NAME instead")
@@ -126,6 +138,13 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--skip-damaged", action="store_true",
                    help="merge without the shard rows whose checksum does not match (default: refuse)")
 
+    s = sub.add_parser("repair", help="rebuild a store's damaged provenance attributes and restore its job spec "
+                                      "attributes (--job) where every row verifies (docs/reliability.md)")
+    s.add_argument("store", help="the store (HDF5)")
+    s.add_argument("--job", default=None, help="the job spec the store was run from (needed where its spec text "
+                                               "is damaged; every task row is checked against it)")
+    s.add_argument("--break-lease", action="store_true", help="take over the store's lease from a process that is gone")
+
     s = sub.add_parser("report", help="figures, tables and verdicts from one or more stores (gapsweep.analysis)")
     s.add_argument("store", nargs="+", help="HDF5 stores; figures are chosen from their axes and methods")
     s.add_argument("--out", default="out/report", help="report folder (default: out/report)")
@@ -142,6 +161,9 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--out", default="out", help="output directory (default: out)")
     s.add_argument("--job", default=None, help="job spec or shipped job name (default: the shipped demo)")
     s.add_argument("--theory-only", action="store_true", help="only the field-theory figure-2 table and figure")
+    for sp in sub.choices.values():  # subcommands whose help names a docs/*.md say where the docs are
+        if "docs/" in sp.format_help():
+            sp.epilog = DOCS_NOTE
     return p
 
 
@@ -275,7 +297,21 @@ def _jobs(args: argparse.Namespace) -> int:
     return 0
 
 
+_READS = {"status": "store", "merge": "shards", "export": "store", "report": "store", "repair": "store"}
+
+
+def _probe_stores(args: argparse.Namespace) -> None:
+    """The stores a reading command opens, read first in a forked child (store.crash_probe): a store whose
+    damaged HDF5 metadata crashes the library is one line and exit 1, not a segfault (issue 40 item 3)."""
+    from gapsweep.sweep import store
+
+    names = getattr(args, _READS.get(args.command, ""), None)
+    for p in [names] if isinstance(names, str) else names or []:
+        store.crash_probe(p)
+
+
 def _dispatch(args: argparse.Namespace) -> int:
+    _probe_stores(args)
     if args.command in ("plan", "run", "submit"):  # a job argument may be a shipped job's name (gapsweep jobs)
         from gapsweep import jobs
 
@@ -303,6 +339,17 @@ def _dispatch(args: argparse.Namespace) -> int:
                              break_lease=args.break_lease, skip_damaged=args.skip_damaged)
         print(f"merged {len(args.shards)} shard(s) into {args.out}: "
               + ", ".join(f"{v} {k}" for k, v in counts.items()))
+        return 0
+    if args.command == "repair":
+        from gapsweep.sweep import repair
+
+        job = None
+        if args.job:
+            from gapsweep import jobs
+
+            job = jobs.resolve(args.job)
+        for line in repair.repair(args.store, job, break_lease=args.break_lease):
+            print(f"repair {args.store}: {line}")
         return 0
     if args.command == "report":
         from gapsweep.analysis.report import main as report_main
@@ -337,7 +384,7 @@ def _run(args: argparse.Namespace) -> int:
                        shard=runner.parse_shard(args.shard), writer=args.writer, progress=args.progress,
                        coordinator_works=args.coordinator_works, mpi=args.mpi, break_lease=args.break_lease,
                        task_timeout=args.task_timeout, batch=args.batch, ranks_per_gpu=args.ranks_per_gpu,
-                       lookahead=args.lookahead, reuse=args.reuse)
+                       lookahead=args.lookahead, reuse=args.reuse, reuse_older=args.reuse_older)
         if s["rank"] == 0 and args.progress != "none":
             print(f"{s['store']}: {s['mode']}, {s['todo']} of {s['tasks']} tasks run: {s['done']} done, "
                   f"{s['failed']} failed, {s['not_converged']} not converged"

@@ -32,6 +32,15 @@ The convention (docs/benchmarks.md, "How numbers are checked"):
   ``<!-- check: unsourced REASON -->``: it is listed as a debt (``--debts``), not a failure, and
   :data:`KNOWN_DEBTS` caps their number, so a new one fails the check until it is sourced or the cap is raised
   in review.
+* **Provenance** (issue 40): every result file the checked docs cite (a checked number's file, or a path they
+  name) records the commit of this repository it was measured at and the code paths it measures
+  (benchmarks/_record.py: a ``"provenance"`` key, a sidecar ``FILE.provenance.json`` or a ``# provenance:``
+  line). It fails the check when that commit is unknown to the repository, a code path did not exist at it, or
+  the code paths differ between that commit and HEAD (``git diff COMMIT HEAD -- PATHS``): the number is stale,
+  re-measure it or stop citing it. A cited file with no record is *unversioned*: allowed, with a warning, only
+  when listed in ``benchmarks/results/UNVERSIONED.txt`` (the files measured before records existed); any other
+  fails. Without a git checkout (a source archive) this part is skipped with a warning; in a shallow clone a
+  commit it lacks is a warning, not a failure.
 """
 
 from __future__ import annotations
@@ -46,6 +55,7 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
+RECORD = ROOT / "benchmarks" / "_record.py"  # the provenance reader (this checkout's, whatever root is checked)
 LINK = re.compile(r"\[([^\]]*)\]\((<[^>]*>|[^)\s]*)\)")
 CODE = re.compile(r"`[^`]*`")
 NUMBER = re.compile(r"(?<![\w.])([~≈]|[≤<]\s*)?(\d[\d,]*(?:\.\d+)?(?:[eE][-+]?\d+)?|\.\d+)")
@@ -54,6 +64,9 @@ STRICT_MARK = "<!-- check: strict -->"
 UNSOURCED = re.compile(r"<!-- check: unsourced (.*?)-->", re.S)
 KNOWN_DEBTS = 7  # sections quoting numbers of runs whose raw output was not kept, or not run yet (issue 27)
 DEBTS: list[str] = []
+UNVERSIONED_LIST = Path("benchmarks") / "results" / "UNVERSIONED.txt"
+CITED: set[Path] = set()  # result files the checked docs cite (filled by check_file)
+WARNINGS: list[str] = []
 
 
 class CheckError(ValueError):
@@ -213,6 +226,7 @@ def check_links(md: Path, text: str, line0: int) -> tuple[list[str], str]:
             return m[1]  # an ordinary link: its text stays in
         where = f"{md.relative_to(ROOT)}:{line0 + text[: m.start()].count(chr(10))}"
         path, key = tgt
+        CITED.add(path)
         try:
             if not path.is_file():
                 raise CheckError(f"no file {path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}")
@@ -253,6 +267,10 @@ def check_file(md: Path, strict_sections: tuple[str, ...] = (), sourced: bool = 
                 break  # a command not run yet names the files it will write
             if not _exists(md, p.rstrip(".,;:")):
                 problems.append(f"{md.relative_to(ROOT)}:{line0}: names {p}, which does not exist")
+            for base in (md.parent, ROOT):
+                if (base / p.rstrip(".,;:")).is_file():
+                    CITED.add((base / p.rstrip(".,;:")).resolve())
+                    break
     return problems
 
 
@@ -272,13 +290,96 @@ def _names_result(md: Path, body: str) -> bool:
     return any(_exists(md, p.rstrip(".,;:")) for p in RESULT_PATH.findall(body))
 
 
+# --- provenance of the cited result files (issue 40) --------------------------------------------------------------
+
+
+def _record_module() -> Any:
+    """benchmarks/_record.py of this checkout (its functions take the repository root as an argument)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("_bench_record", RECORD)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _git_ok(root: Path, *args: str) -> str | None:
+    import subprocess
+
+    try:
+        p = subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, timeout=60)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return p.stdout.strip() if p.returncode == 0 else None
+
+
+def allowed_unversioned(root: Path = ROOT) -> set[str]:
+    """The legacy result files allowed without a provenance record: the first word of each line of
+    ``benchmarks/results/UNVERSIONED.txt`` (``#`` starts a comment)."""
+    f = root / UNVERSIONED_LIST
+    if not f.is_file():
+        return set()
+    return {line.split("#", 1)[0].split()[0] for line in f.read_text(encoding="utf-8").splitlines()
+            if line.split("#", 1)[0].strip()}
+
+
+def check_provenance(files: set[Path] | list[Path], root: Path = ROOT) -> list[str]:
+    """Problems of the cited result ``files`` (module docstring, "Provenance"); warnings go to WARNINGS."""
+    rec_mod = _record_module()
+    if rec_mod.project_commit(root) is None:
+        WARNINGS.append(f"{root} is not a git checkout of the project: the results' provenance is not checked")
+        return []
+    shallow = _git_ok(root, "rev-parse", "--is-shallow-repository") == "true"
+    allow = allowed_unversioned(root)
+    problems = []
+    for f in sorted({Path(x).resolve() for x in files}):
+        if not f.is_file() or not f.is_relative_to(root.resolve()):
+            continue
+        rel = str(f.relative_to(root.resolve()))
+        if rel == str(UNVERSIONED_LIST) or rel.endswith(rec_mod.SIDECAR):  # the list and records are no results
+            continue
+        rec = rec_mod.read(f)
+        if not rec or not rec.get("commit"):
+            if rel in allow:
+                WARNINGS.append(f"unversioned (measured before provenance records; {UNVERSIONED_LIST}): {rel}")
+            else:
+                problems.append(f"{rel}: a cited result with no provenance record (commit, code paths): measure "
+                                "it with a benchmark that calls benchmarks/_record.py's track(), or, for a file "
+                                f"measured before records existed, list it in {UNVERSIONED_LIST}")
+            continue
+        commit, paths = str(rec["commit"]), [str(x) for x in rec.get("code_paths") or []]
+        if not paths:
+            problems.append(f"{rel}: its provenance names no code paths (CODE_PATHS of its benchmark)")
+            continue
+        if _git_ok(root, "cat-file", "-e", f"{commit}^{{commit}}") is None:
+            (WARNINGS if shallow else problems).append(
+                f"{rel}: records commit {commit[:12]}, which this repository does not have"
+                + (" (a shallow clone)" if shallow else ""))
+            continue
+        gone = [p for p in paths if _git_ok(root, "cat-file", "-e", f"{commit}:{p}") is None]
+        if gone:
+            problems.append(f"{rel}: its code path(s) {', '.join(gone)} did not exist at its commit {commit[:12]}: "
+                            "the record names the wrong commit or the wrong code")
+            continue
+        # stale when the measured code differs between its commit and HEAD (a tree comparison: a result measured
+        # on a branch merged since is judged by the code, not by the history's shape)
+        if _git_ok(root, "diff", "--quiet", commit, "HEAD", "--", *paths) is None:
+            last = _git_ok(root, "log", "-1", "--format=%h %cs", "HEAD", "--", *paths) or "?"
+            problems.append(f"{rel}: stale: measured at {commit[:12]}, and {', '.join(paths)} changed since (last "
+                            f"change {last}): re-measure it or stop citing it")
+    return problems
+
+
 def check(root: Path = ROOT) -> list[str]:
     DEBTS.clear()
+    CITED.clear()
+    WARNINGS.clear()
     problems = check_file(root / "README.md", strict_sections=("At a glance",))
     for md in sorted((root / "docs").glob("benchmarks*.md")):
         problems += check_file(md, sourced=True)
     if len(DEBTS) > KNOWN_DEBTS:
         problems.append(f"{len(DEBTS)} unsourced sections, more than the {KNOWN_DEBTS} known: source the new one")
+    problems += check_provenance(CITED, root)
     return problems
 
 
@@ -290,8 +391,11 @@ def main(argv: list[str] | None = None) -> int:
     if "--debts" in argv:
         for d in DEBTS:
             print(f"debt: {d}")
+        for w in WARNINGS:
+            print(f"warning: {w}")
     print(f"check_docs: {len(problems)} problem(s)" if problems else
-          f"check_docs: every quoted number checked ({len(DEBTS)} unsourced section(s) listed by --debts)")
+          f"check_docs: every quoted number checked ({len(DEBTS)} unsourced section(s), {len(WARNINGS)} warning(s) "
+          "-- unversioned legacy results -- listed by --debts)")
     return 1 if problems else 0
 
 

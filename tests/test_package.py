@@ -5,6 +5,7 @@ to the pins of constraints.txt)."""
 
 from __future__ import annotations
 
+import argparse
 import os
 import re
 import shutil
@@ -113,3 +114,54 @@ def test_wheel_contents(tmp_path):
     meta = zipfile.ZipFile(whl).read(next(n for n in names if n.endswith("dist-info/METADATA"))).decode()
     lo = re.search(r"^Requires-Python: >=(\d+)\.(\d+)", meta, re.M)
     assert lo and (int(lo[1]), int(lo[2])) == _min_python()
+
+
+def test_help_names_no_docs_file_without_saying_where_and_no_placeholder_urls():
+    """issue 40: a wheel's help pointed to docs/*.md that the wheel does not install, and its project URLs were
+    placeholders. Every help text (the top level and each command's) that names a docs/*.md says that these
+    are the project's source files (not installed), each file it names exists in the source's docs/, and
+    pyproject.toml names no placeholder address."""
+    import tomllib
+
+    from gapsweep import cli
+
+    parser = cli._parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    helps = {"gapsweep": parser.format_help(), **{f"gapsweep {k}": v.format_help() for k, v in sub.choices.items()}}
+    named = 0
+    for who, text in helps.items():
+        files = set(re.findall(r"docs/([A-Za-z_]+)\.md", text)) - {"NAME"}
+        named += len(files)
+        for f in files:
+            assert (ROOT / "docs" / f"{f}.md").is_file(), (who, f)
+        if files:
+            flat = " ".join(text.split())
+            assert "the docs/ folder of the project's source" in flat and "does not install" in flat, who
+    assert named >= 3  # the helps do name docs (the check above has cases)
+    meta = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    for name, url in meta.get("urls", {}).items():
+        host = re.sub(r"^https?://([^/]+).*", r"\1", url)
+        assert not host.endswith((".invalid", ".example", "example.com", "example.org", "localhost")), (name, url)
+    assert "example.invalid" not in (ROOT / "pyproject.toml").read_text()
+
+
+def test_gpu_extra_names_the_cupy_that_was_measured():
+    """issue 40: the gpu extra named cupy-cuda12x >= 13 while every GPU figure in benchmarks/results was measured
+    with cupy 14 on CUDA 13. The extra's distribution is the CUDA major the results record, its version range
+    admits every cupy version they record, and the missing-extra message names the same distribution."""
+    import tomllib
+
+    from packaging.requirements import Requirement
+
+    from gapsweep.core import extras
+
+    (req,) = [Requirement(r) for r in tomllib.loads((ROOT / "pyproject.toml").read_text())["project"][
+        "optional-dependencies"]["gpu"]]
+    texts = [p.read_text(errors="replace") for p in (ROOT / "benchmarks" / "results").rglob("*")
+             if p.is_file() and p.suffix in (".json", ".txt", ".log", ".md")]
+    measured = {v for t in texts for v in re.findall(r'"cupy": "(\d+\.\d+(?:\.\d+)?)"', t)}
+    cuda = {m for t in texts for m in re.findall(r"CUDA (?:Version: |runtime )(\d+)\.", t)}
+    assert measured and cuda, (measured, cuda)
+    assert all(req.specifier.contains(v) for v in measured), (str(req), measured)
+    assert cuda == {"13"} and req.name == "cupy-cuda13x", (req.name, cuda)
+    assert extras.EXTRAS["cupy"] == (req.name, "gpu")

@@ -62,3 +62,30 @@ def test_cli_report_refuses_to_overwrite(generic_store, tmp_path):
     forced = subprocess.run([*cmd, "--overwrite"], capture_output=True, text=True, cwd=ROOT, timeout=110)
     assert forced.returncode == 0, forced.stderr[-2000:]
     assert (out / "report.md").stat().st_mtime_ns != before
+
+
+@pytest.mark.parametrize("mask", [0o022, 0o002, 0o077])
+def test_report_folder_mode_follows_the_umask(tmp_path, monkeypatch, mask):
+    """The report folder gets the mode of a plain ``mkdir`` under the umask (0755 under 022, 0775 under 002,
+    0700 under 077); the old one was made by mkdtemp and stayed 0700 for everyone (issue 40). A replaced report
+    keeps its folder's mode. The store reading and figure drawing are stood in for: only the folder is tested."""
+    import os
+    import stat
+
+    from gapsweep.analysis import report
+
+    monkeypatch.setattr(report, "load", lambda paths: (None, {}, {}))
+    monkeypatch.setattr(report, "load_pressure", lambda paths: {})
+    monkeypatch.setattr(report, "build", lambda df, h, out, prov, phists=None: (out / "report.md").write_text("r"))
+    old = os.umask(mask)
+    try:
+        out = tmp_path / "sub" / "rep"
+        report.main([tmp_path / "x.h5"], out)
+        ref = tmp_path / "plain"
+        ref.mkdir()
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(out.stat().st_mode) == stat.S_IMODE(ref.stat().st_mode) == 0o777 & ~mask
+    out.chmod(0o750)
+    report.main([tmp_path / "x.h5"], out, overwrite=True)
+    assert stat.S_IMODE(out.stat().st_mode) == 0o750

@@ -190,7 +190,7 @@ def test_failed_shards_merge_runs_and_names_them(cluster, tmp_path):
     words = p.stdout.split()
     array_id, merge_id = words[words.index("array") + 1], words[words.index("merge") + 1]
     _wait(env, [array_id, merge_id])
-    log = (out / "test_mixed.merge.out").read_text()
+    log = (out / f"test_mixed.merge-{merge_id}.out").read_text()  # a log per job (issue 40)
     assert "site-hook" in log
     assert "2 of 2 shard(s) missing or unfinished" in log and "shard 0" in log and "shard 1" in log, log
 

@@ -41,6 +41,8 @@ def sbatch(tmp_path):
     d.mkdir()
     (d / "sbatch").write_text(FAKE_SBATCH)
     (d / "sbatch").chmod(0o755)
+    (d / "squeue").write_text("#!/bin/bash\nexit 0\n")  # an empty queue (submit refuses when squeue cannot answer)
+    (d / "squeue").chmod(0o755)
     return d
 
 

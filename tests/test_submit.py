@@ -36,6 +36,7 @@ if [ "$1 $2" = "show config" ]; then
 fi
 """,
     "squeue": """#!/bin/bash
+if [ -n "${FAKE_SQUEUE_FAIL:-}" ]; then echo "squeue: error: slurm_load_jobs error: Socket timed out" >&2; exit 1; fi
 if [[ " $* " == *" -r "* ]]; then for ((k = 0; k < ${FAKE_USER_JOBS:-0}; k++)); do echo "$((500 + k))"; done
 else printf '%b' "${FAKE_QUEUE:-}"; fi
 """,
@@ -55,10 +56,12 @@ def fake(tmp_path):
     return d
 
 
-def _submit(fake: Path, tmp_path: Path, *args: str, job: str | Path = JOB, **env: str) -> subprocess.CompletedProcess:
+def _submit(fake: Path, tmp_path: Path, *args: str, job: str | Path = JOB, out: str | Path | None = None,
+            **env: str) -> subprocess.CompletedProcess:
     e = {k: v for k, v in os.environ.items() if not k.startswith(("GAPSWEEP_", "SLURM_", "SBATCH"))}
     e.update(PYTHONPATH=str(ROOT), SB_DIR=str(fake), PATH=f"{fake}:{os.environ['PATH']}", **env)
-    return subprocess.run([sys.executable, "-m", "gapsweep", "submit", str(job), str(tmp_path / "out"), *args],
+    out = tmp_path / "out" if out is None else out
+    return subprocess.run([sys.executable, "-m", "gapsweep", "submit", str(job), str(out), *args],
                           env=e, capture_output=True, text=True, timeout=120, cwd=tmp_path)
 
 
@@ -81,7 +84,7 @@ def test_split_at_max_array_size_throttle_and_merge_on_all(tmp_path, fake):
     assert envs == ["9|0|3", "9|4|3", "9|8|3"]
     key = slurm.store_key(tmp_path / "out" / "test_theory.h5")
     for c in calls[:3]:
-        assert {"--requeue", "--signal=B:USR1@120", f"--comment=gapsweep:{key}"} <= set(c), c
+        assert {"--requeue", "--signal=B:USR1@120", f"--comment=gapsweep:{key}", "--open-mode=append"} <= set(c), c
     merge = calls[3]
     assert "--dependency=afterany:1001:1002:1003" in merge and f"--comment=gapsweep:{key}" in merge
     assert merge[-2:] == ["9", str(tmp_path / "out" / "test_theory.h5")]
@@ -206,3 +209,137 @@ def test_requeue_cli_outside_slurm_and_finished_store(tmp_path):
     ok, why = slurm.requeue(path, 3, "1", act=False)
     assert not ok and "all 48 rows finished" in why
     assert (store.read(path).status == "done").all()
+
+
+# --- issue 40 item 4: the guard keyed by the resolved path and the store's identity; squeue failing; `%` in the
+# output folder; logs per attempt --------------------------------------------------------------------------------
+
+def _path_key(path: Path) -> str:
+    """The guard's key computed here from its definition (SHA-256 of the resolved path), not by slurm.store_key."""
+    import hashlib
+
+    return hashlib.sha256(os.path.realpath(path).encode()).hexdigest()[:16]
+
+
+@pytest.mark.parametrize("spelling", ["dotdot", "symlink", "hardlink"])
+def test_guard_sees_the_same_store_under_another_spelling(tmp_path, fake, spelling):
+    """A first submission to OUT is queued; a second names the same store as ``./x/../out``, through a symlinked
+    folder, or (the store exists) as a hard link in another folder: refused, nothing submitted. The old guard
+    hashed the unresolved absolute path and let all three through."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (tmp_path / "x").mkdir()
+    p = _submit(fake, tmp_path, "--shards", "2", out=out)
+    assert p.returncode == 0, p.stderr
+    tag = next(a for a in _calls(fake)[0] if a.startswith("--comment="))[len("--comment="):]
+    assert tag == f"gapsweep:{_path_key(out / 'test_theory.h5')}"
+    if spelling == "dotdot":
+        other = "./x/../out"  # relative to cwd = tmp_path
+    elif spelling == "symlink":
+        other = tmp_path / "link"
+        other.symlink_to(out)
+    else:  # the store exists (a first run) and a hard link of it sits in another folder
+        (out / "test_theory.h5").write_bytes(b"store")
+        p = _submit(fake, tmp_path, "--shards", "2", out=out, FAKE_QUEUE="")  # its jobs now carry the identity
+        assert p.returncode == 0, p.stderr
+        tag = next(a for a in _calls(fake)[-1] if a.startswith("--comment="))[len("--comment="):]
+        assert tag.count(":") == 2, tag
+        other = tmp_path / "y"
+        other.mkdir()
+        os.link(out / "test_theory.h5", other / "test_theory.h5")
+    before = len(_calls(fake))
+    queue = f"2001_[0-1]|{tag}|PENDING\\n2002|{tag}|PENDING\\n"
+    p = _submit(fake, tmp_path, "--shards", "2", out=other, FAKE_QUEUE=queue)
+    assert p.returncode == 1 and "2001_[0-1], 2002" in p.stderr and "--force" in p.stderr, p.stderr
+    assert len(_calls(fake)) == before
+
+
+def test_squeue_failing_refuses_unless_force(tmp_path, fake):
+    """squeue fails (the controller does not answer): nothing is submitted, the message says why and names
+    --force; the old guard took the failure for "0 queued" and submitted. --force submits; --dry-run notes it."""
+    p = _submit(fake, tmp_path, "--shards", "2", FAKE_SQUEUE_FAIL="1")
+    assert p.returncode == 1 and "squeue failed" in p.stderr and "Socket timed out" in p.stderr, p.stderr
+    assert "nothing was submitted" in p.stderr and "--force" in p.stderr
+    assert not (fake / "count").exists() and "Traceback" not in p.stderr
+    p = _submit(fake, tmp_path, "--shards", "2", "--dry-run", FAKE_SQUEUE_FAIL="1")
+    assert p.returncode == 0 and "not checked" in p.stdout, p.stdout + p.stderr
+    p = _submit(fake, tmp_path, "--shards", "2", "--force", FAKE_SQUEUE_FAIL="1")
+    assert p.returncode == 0, p.stderr
+    assert len(_calls(fake)) == 2  # the array and the merge
+
+
+def _slurm_filename(pattern: str, job: str, task: str = "0") -> str:
+    """What Slurm makes of an --output pattern (its filename patterns: %% a literal %, %j / %A the job id,
+    %a the array index), written here from the sbatch manual, independently of gapsweep."""
+    import re
+
+    table = {"%": "%", "j": job, "A": job, "a": task}
+    return re.sub(r"%(.)", lambda m: table.get(m.group(1), m.group(0)), pattern)
+
+
+@pytest.mark.parametrize("how", [["--shards", "2"], ["--mpi", "2"]])
+def test_logs_in_a_percent_folder_one_per_submission_appended_per_attempt(tmp_path, fake, how):
+    """An output folder with a % in its name: every job's log lands in that folder (sbatch's %% for the literal
+    %; the old --output put "%j" of "r%jun" through as a pattern); a resubmission's logs are new files (the job
+    id in the name) and a requeued attempt (same id) appends (--open-mode=append) instead of truncating."""
+    out = tmp_path / "r%jun"
+    logs = []
+    for _ in range(2):
+        p = _submit(fake, tmp_path, *how, "--force", out=out)
+        assert p.returncode == 0, p.stderr
+    calls = _calls(fake)
+    for k, c in enumerate(calls):
+        assert "--open-mode=append" in c, c
+        job = str(1000 + k + 1)  # the fake sbatch's answer to its (k+1)-th call
+        pat = next(a for a in c if a.startswith("--output="))[len("--output="):]
+        log = Path(_slurm_filename(pat, job, "1"))
+        assert log.parent == out, (pat, log)
+        logs.append(log.name)
+    assert len(set(logs)) == len(logs), logs  # no two jobs of the two submissions share a log
+
+
+def _venv_bin(tmp_path: Path, mpiexec: str | None) -> Path:
+    d = tmp_path / "venv" / "bin"
+    d.mkdir(parents=True)
+    (d / "python").symlink_to(sys.executable)
+    if mpiexec is not None:
+        (d / "mpiexec").write_text(mpiexec)
+        (d / "mpiexec").chmod(0o755)
+    return d
+
+
+def test_mpi_uses_the_venvs_own_mpiexec(tmp_path, fake, monkeypatch):
+    """``.venv/bin/gapsweep submit --mpi 2`` without the venv on PATH: the jobs get the mpiexec beside the
+    interpreter (GAPSWEEP_MPIEXEC, which mpi_job.sbatch launches), not the first one on PATH."""
+    venv = _venv_bin(tmp_path, "#!/bin/sh\necho 'HYDRA build details:'\n")
+    monkeypatch.setattr(sys, "executable", str(venv / "python"))
+    monkeypatch.setenv("PATH", f"{fake}:{os.environ['PATH']}")
+    monkeypatch.delenv("GAPSWEEP_LAUNCHER", raising=False)
+    sub = slurm.submit(JOB, tmp_path / "out", mpi=2, dry_run=True)
+    assert sub.env["GAPSWEEP_MPIEXEC"] == str(venv / "mpiexec")
+    text = sub.dry_run_text()
+    assert f"GAPSWEEP_MPIEXEC={venv / 'mpiexec'}" in text
+    assert "${GAPSWEEP_MPIEXEC:-mpiexec} -n" in text  # the job script launches it
+
+
+def test_mpi_launcher_of_another_mpi_refused_naming_both(tmp_path, fake, monkeypatch):
+    """No mpiexec beside the interpreter and the one on PATH is MPICH's while mpi4py was built with another
+    MPI: refused before anything is queued, naming both and what to do (the old submit queued a job whose
+    ranks failed to start, PMIx exit 16)."""
+    pytest.importorskip("mpi4py")
+    lib = slurm._mpi4py_library()
+    if lib is None or slurm._vendor(lib) in (None, "MPICH"):
+        pytest.skip(f"needs mpi4py built with an MPI other than MPICH, has: {lib}")
+    (fake / "mpiexec").write_text("#!/bin/sh\nprintf 'HYDRA build details:\\n    Version: 4.1.2\\n'\n")
+    (fake / "mpiexec").chmod(0o755)
+    if (Path(sys.executable).parent / "mpiexec").exists():
+        pytest.skip("this interpreter's venv has its own mpiexec (then that one is taken)")
+    monkeypatch.setenv("PATH", f"{fake}:{os.environ['PATH']}")
+    monkeypatch.setenv("SB_DIR", str(fake))
+    monkeypatch.delenv("GAPSWEEP_LAUNCHER", raising=False)
+    monkeypatch.delenv("GAPSWEEP_SETUP", raising=False)
+    with pytest.raises(slurm.SubmitError) as e:
+        slurm.submit(JOB, tmp_path / "out", mpi=2)
+    msg = str(e.value)
+    assert str(fake / "mpiexec") in msg and "MPICH" in msg and slurm._vendor(lib) in msg, msg
+    assert "GAPSWEEP_LAUNCHER" in msg and not (fake / "count").exists()

@@ -32,7 +32,7 @@ __all__ = ["CONTACT_LAWS", "Labels", "fig_contact", "fig_distributions", "fig_ma
 
 log = logging.getLogger("gapsweep.analysis.contact")
 
-CONTACT_LAWS = ("hard_wall", "adhesive")
+CONTACT_LAWS = ("hard_wall", "adhesive", "hard_wall_adhesive")
 PERSSON = {"color": "tab:purple", "ls": "-", "marker": "s", "ms": 4, "mfc": "none", "label": "Persson's theory"}
 MAX_CURVES = 5
 SYMBOLS = (
@@ -251,7 +251,7 @@ def job_info(job: str, rows: pd.DataFrame, prov: Mapping[str, Any] | None = None
     info: dict[str, Any] = {
         "job": job, "units": units(prov), "law": law, "file": surf.get("kind") == "file",
         "map_path": str(surf["path"]) if surf.get("kind") == "file" and "path" in surf else None,
-        "interaction": _table(raw, "interaction"), "surface": surf,
+        "interaction": _table(raw, "interaction"), "surface": surf, "gfmd": _table(raw, "methods", "gfmd"),
         "variant": str(theory.get("persson_variant", "persson2001")),
         "gamma": float(theory.get("persson_gamma", 0.42)),
         "tol": float(_table(raw, "methods", "gfmd").get("tol", 1e-8)),
@@ -559,7 +559,7 @@ def map_fields(df: pd.DataFrame, job: str, info: Mapping[str, Any]) -> dict[str,
             from gapsweep import gfmd
 
             kw: dict[str, Any] = dict(info.get("body") or {})
-            if law == "adhesive":
+            if law in ("adhesive", "hard_wall_adhesive"):
                 kw.update({"work": float(info["interaction"].get("work", math.nan)), "rho": rho})
             try:
                 length = out["length"]
@@ -572,7 +572,8 @@ def map_fields(df: pd.DataFrame, job: str, info: Mapping[str, Any]) -> dict[str,
             except Exception as ex:
                 out["note"] = f"Job {job}: the contact map could not be recomputed ({ex})."
     if gap is not None:
-        out["mask"] = (pressure > 0) if (law == "hard_wall" and pressure is not None) else (gap < rho)
+        out["mask"] = ((pressure > 0) if (law == "hard_wall" and pressure is not None)
+                       else (gap <= 0) if law == "hard_wall_adhesive" else (gap < rho))
     return out
 
 
@@ -587,6 +588,8 @@ def _synthetic_heights(info: Mapping[str, Any], row: Any) -> tuple[Any, float, s
     kw: dict[str, Any] = {"lambda_l": float(surf.get("lambda_l", 0.25)),
                           "lambda_s": float(surf.get("lambda_s", 2.5e-3)), "length": float(surf.get("length", 1.0)),
                           "amplitudes": str(surf.get("amplitudes", "fixed"))}
+    if "lambda_r" in surf:
+        kw["lambda_r"] = float(surf["lambda_r"])
     norms = [k for k in ("rms_slope", "rms_height", "c0") if k in surf]
     kw[norms[0] if norms else "rms_slope"] = float(surf[norms[0]]) if norms else 1.0
     try:

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from gapsweep.analysis import aggregate, compare, contact, figures
+from gapsweep.analysis import aggregate, challenge, compare, contact, figures
 
 __all__ = ["AGREE", "MATCH_L1", "build", "load", "main", "paper_matches", "plan_figures", "provenance", "quick_jobs",
            "verdicts"]
@@ -687,6 +687,12 @@ def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
     infos = contact.job_infos(cdf, prov) if len(cdf) else {}
     if len(cdf):
         plan = contact.plan(cdf, hists, phists or {}, cpoints, cpersson, quick, infos) + plan
+    # the contact-mechanics challenge's outputs (jobs with its law; gapsweep.analysis.challenge)
+    cplan, ctables = challenge.plan(cdf, cpoints, infos, quick) if len(cdf) else ([], {})
+    plan = cplan + plan
+    for name, frame in ctables.items():
+        if len(frame):
+            frame.to_csv(out / f"{name}.csv", index=False)
     omitted = plan[MAX_FIGURES:]
     made: list[dict[str, Any]] = []
     for name, cap, make in plan[:MAX_FIGURES]:
@@ -728,6 +734,7 @@ def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
                + ", ".join(n for n, _, _ in omitted) + "._", ""]
     if len(cdf):
         md += _contact_section(cpoints, cpersson, csummary, infos)
+        md += challenge.section(ctables, _md_table)
     if field_theory:
         md += _field_theory_sections(cmp, summary, dist, calib)
     md += _provenance_section(prov, out)
@@ -956,6 +963,9 @@ def main(store_paths: Sequence[str | Path] | str | Path, out_dir: str | Path, *,
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
+        # mkdtemp makes a private folder (0700) whatever the umask; the report is not private: it gets the mode
+        # a plain mkdir would give (0777 less the umask), or the replaced report's (issue 40)
+        tmp.chmod(out.stat().st_mode & 0o7777 if out.is_dir() else 0o777 & ~_umask())
     except OSError as e:
         raise _write_error(out, e) from None
     old = tmp.with_name(tmp.name + ".old")
@@ -976,6 +986,13 @@ def main(store_paths: Sequence[str | Path] | str | Path, out_dir: str | Path, *,
             raise _write_error(out, e) from None
         raise
     return out / "report.md"
+
+
+def _umask() -> int:
+    """The process's umask (read by setting it and setting it back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 class ReportWriteError(RuntimeError):

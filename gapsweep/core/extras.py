@@ -28,8 +28,8 @@ EXTRAS: dict[str, tuple[str, str]] = {
     "pyfftw": ("pyFFTW", "fast"),
     "numba": ("numba", "fast"),
     "warp": ("warp-lang", "sde"),
-    "cupy": ("cupy-cuda12x", "gpu"),
-    "cupyx": ("cupy-cuda12x", "gpu"),
+    "cupy": ("cupy-cuda13x", "gpu"),  # the wheel the gpu extra installs (pyproject.toml)
+    "cupyx": ("cupy-cuda13x", "gpu"),
     "mpi4py": ("mpi4py", "mpi"),
     "xarray": ("xarray", "xarray"),
     "h5netcdf": ("h5netcdf", "xarray"),

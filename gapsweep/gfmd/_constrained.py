@@ -3,7 +3,8 @@
 Minimises the complementary energy ``(1/2) <p K p> - <p h>`` over pressures ``p >= 0`` with ``<p> = sigma0``,
 ``K`` the half-space compliance ``u~ = p~ / (E* q/2)`` (q != 0). Its gradient is the gap up to a constant; the
 mean gap ``g0`` is the multiplier of the load constraint. Algorithm: Polonsky & Keer (Wear 231, 206, 1999),
-constrained conjugate gradients on the contact set ``S = {p > 0}`` with the load restored by scaling; written
+constrained conjugate gradients on the contact set ``S = {p > 0}`` with the load restored by scaling, overlapping
+points re-entering at ``p = -tau k_in g`` (``k_in`` a stiffness where ``tau`` is a number: unit-invariant); written
 once for numpy and cupy arrays. Methods: "pk", the plain algorithm (as tamaas' PolonskyKeerRey and ContactMechanics'
 constrained_conjugate_gradients); "pcg" (default on the GPU), the same iteration with gapsweep's Fourier
 preconditioner: the search direction is built from ``z = P_S M P_S g`` with ``M = K^-1 = E* q/2`` (exact when
@@ -54,6 +55,17 @@ _COARSE_TOL = 1e-2  # "mpcg": tolerance of the coarse levels (a start only; the 
 _REFRESH = 25  # iterations between fresh K p when the update was unclipped (bounds the drift of u)
 _LAG = False  # lag the projection's K-correction up to _RESYNC iterations (measured: breaks convergence; issue 30)
 _RESYNC = 8  # used only with _LAG
+_FLAT = 1e3 * np.finfo(np.float64).eps  # rms / |mean| below which a map is flat (round-off of its mean)
+# CG restarts (delta = 0) only when more than this fraction of |S| re-entered. Polonsky & Keer restart at every
+# re-entry; near convergence a few boundary pixels re-enter almost every iteration, so the preconditioned CG was
+# steepest descent there. Measured (tuning: N = 1024, seed 2, H 0.3/0.8; held-out seeds 3-5, H 0.3/0.5/0.8,
+# sigma0 5e-3..0.2, periodic 1024 and free 512): 1.06-3.5x fewer fine iterations, same answers to 1.8e-9
+# (benchmarks/results/contact/issue39_restart_iters.json); on the tuning surface 0.003-0.03 alike, never
+# restarting (1e9) as slow as always restarting.
+_KEEP = 0.01
+# re-entry stiffness in units of pixel_stiffness: 1e-4..0.1 took about the same iterations, 10 ran to max_iter
+# (benchmarks/results/contact/issue36_reentry_scale.txt)
+_REENTRY = 0.01
 _SPECTRAL = True  # periodic grids: p~ kept in Fourier space (_spectral_loop)
 log = logging.getLogger("gapsweep.gfmd")
 
@@ -65,6 +77,16 @@ def _violation(g: Any, S: Any, n_s: int, grid: Grid) -> tuple[float, float]:
     off = xp.where(S, xp.inf, g)
     overlap = max(0.0, -grid.amin(off)) if n_s < grid.size else 0.0
     return rms, overlap
+
+
+def pixel_stiffness(grid: Grid, e_star: float) -> float:
+    """``(E*/2) <q>``, the mean of the stiffness ``M = E* q/2`` over the grid's wave vectors (pressure per length):
+    the diagonal of ``M`` in real space, the pressure that pushes one pixel out by a unit length. Its wave vectors
+    sampled at most 256 a side (the mean of a box of ``|q|``; a scale, not a field)."""
+    nx, ny = grid.shape
+    kx = np.fft.fftfreq(min(nx, 256)) * (2 * math.pi * nx / grid.lx)
+    ky = np.fft.fftfreq(min(ny, 256)) * (2 * math.pi * ny / grid.ly)
+    return 0.5 * e_star * float(np.mean(np.sqrt(kx[:, None] ** 2 + ky[None, :] ** 2)))
 
 
 def coarsen(h: Any, xp: Any) -> Any:
@@ -110,7 +132,7 @@ def _stop(res: float, tol: float, it: int, max_iter: int) -> str | None:
 
 
 def _direct_loop(grid: Grid, ops: Any, compliance: Any, h: Any, p: Any, stiff: Any, sigma0: float, tol: float,
-                 g_ref: float, max_iter: int, history: list[float]) -> tuple[Any, Any, int, str, int]:
+                 g_ref: float, max_iter: int, history: list[float], k_in: float) -> tuple[Any, Any, int, str, int]:
     """The iteration on real-space fields: ``r = K t`` (one FFT pair), ``z = M gs`` (one more with ``stiff``)
     and ``u = K p`` afresh when the projection changed ``p`` (else ``u`` follows ``r`` linearly). Free
     boundaries take this loop. Returns ``(p, u, iterations, status, fft_pairs)``."""
@@ -153,8 +175,8 @@ def _direct_loop(grid: Grid, ops: Any, compliance: Any, h: Any, p: Any, stiff: A
                 status = "stalled" if math.isfinite(rt) else "non_finite"
                 break
             tau = gt / rt
-            clipped, n_overlap, p_sum = ops.update(p, t, g, tau)
-            delta = 0.0 if n_overlap else 1.0
+            clipped, n_overlap, p_sum = ops.update(p, t, g, tau, tau * k_in)
+            delta = 0.0 if n_overlap > _KEEP * ns else 1.0
             changed = clipped or n_overlap
             follow = since_fresh < (_RESYNC if _LAG else (0 if changed else _REFRESH))
             ops.rescale(p, u, r, sigma0 * grid.size / p_sum, tau, follow)
@@ -236,7 +258,7 @@ def _spectral_state(grid: Grid, kinv_q: Any) -> _Spectral:
 
 
 def _spectral_loop(grid: Grid, ops: Any, h: Any, p: Any, kinv_q: Any, stiff: Any, sigma0: float, tol: float,
-                   g_ref: float, max_iter: int, history: list[float]) -> tuple[Any, Any, int, str, int]:
+                   g_ref: float, max_iter: int, history: list[float], k_in: float) -> tuple[Any, Any, int, str, int]:
     """Periodic grids: the same iteration with ``p~`` kept in Fourier space. The search direction ``t`` is made
     load-neutral in real space (zero sum on S), so the line search needs only ``<t K t> = N <t~ K t~>``
     (Parseval, from ``t~``: one forward transform); ``p~ <- s (p~ - tau t~)`` when the projection changed nothing,
@@ -280,8 +302,8 @@ def _spectral_loop(grid: Grid, ops: Any, h: Any, p: Any, kinv_q: Any, stiff: Any
                 status = "stalled" if math.isfinite(rt) else "non_finite"
                 break
             tau = gt / rt
-            clipped, n_overlap, p_sum = ops.update(p, t, g, tau)
-            delta = 0.0 if n_overlap else 1.0
+            clipped, n_overlap, p_sum = ops.update(p, t, g, tau, tau * k_in)
+            delta = 0.0 if n_overlap > _KEEP * ns else 1.0
             scale = sigma0 * grid.size / p_sum
             p *= scale
             if clipped or n_overlap or since_fresh >= _REFRESH:
@@ -313,7 +335,10 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
     h_shift = grid.mean(h)
     h = h - h_shift
     h_rms = math.sqrt(grid.mean(h * h))
-    g_ref = h_rms if h_rms > 0 else min(grid.lx / grid.shape[0], grid.ly / grid.shape[1])
+    # A flat map (its rms no more than the round-off of removing its mean) measures gaps in pixels: a round-off
+    # rms depends on the units' digits (a constant free map converged at one length unit, not at another)
+    flat = not h_rms > _FLAT * abs(h_shift)
+    g_ref = min(grid.lx / grid.shape[0], grid.ly / grid.shape[1]) if flat else h_rms
     with np.errstate(divide="ignore"):
         kinv = 1.0 / ((0.5 * e_star) * grid.q)
     grid.set_mode0(kinv, 0.0)
@@ -345,15 +370,19 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
     ops = grid.reduce_ops(make_ops(xp))
     precondition = method != "pk"
     stiff = grid.multiplier((0.5 * e_star) * grid.q)  # M = K^-1 = E* q/2, the Fourier preconditioner
+    # The re-entry of an overlapping point, p = -tau k_in g: with the preconditioner tau is a number (t a
+    # pressure), so k_in must be a stiffness (pressure per length): the pixel stiffness of M; plain PK's tau
+    # is one already (t a length).
+    k_in = _REENTRY * pixel_stiffness(grid, e_star) if precondition else 1.0
     spectral = _SPECTRAL and periodic and not _LAG and xp is np  # the GPU keeps the real-space loop (fused passes)
     if not spectral:
         del kinv_q  # only the spectral loop reads it (half a grid array: gfmd._cuda.solve_memory)
     if spectral:
         p, u, it, status, fft_pairs = _spectral_loop(grid, ops, h, p, kinv_q, stiff if precondition else None,
-                                                     sigma0, tol, g_ref, max_iter, history)
+                                                     sigma0, tol, g_ref, max_iter, history, k_in)
     else:
         p, u, it, status, fft_pairs = _direct_loop(grid, ops, compliance, h, p, stiff if precondition else None,
-                                                   sigma0, tol, g_ref, max_iter, history)
+                                                   sigma0, tol, g_ref, max_iter, history, k_in)
     with np.errstate(all="ignore"):
         # The returned fields and their residual (issue 9: decided on what is returned); u rewritten in place
         u = compliance(p, u)

@@ -59,9 +59,9 @@ class _PKOps:
         return (float(xp.sum(rs)), float(xp.sum(rs * t)), float(xp.sum(xp.where(S, t, 0.0))),
                 float(xp.sum(gs * t)))
 
-    def update(self, p, t, g, tau: float) -> tuple[bool, int, float]:
-        """``p = max(p - tau t, 0)``, then ``p = -tau g`` where ``p = 0`` and ``g < 0`` (overlap re-enters);
-        returns ``(anything clipped, overlap count, sum p)``."""
+    def update(self, p, t, g, tau: float, tau_g: float) -> tuple[bool, int, float]:
+        """``p = max(p - tau t, 0)``, then ``p = -tau_g g`` where ``p = 0`` and ``g < 0`` (overlap re-enters;
+        ``tau_g`` a stiffness, pressure per length); returns ``(anything clipped, overlap count, sum p)``."""
         xp = self.xp
         trial = p - tau * t
         clipped = bool(xp.any(trial < 0))
@@ -69,7 +69,7 @@ class _PKOps:
         ov = (p == 0) & (g < 0)
         n_ov = int(xp.count_nonzero(ov))
         if n_ov:
-            p[...] = xp.where(ov, -tau * g, p)
+            p[...] = xp.where(ov, -tau_g * g, p)
         return clipped, n_ov, float(p.sum())
 
     def rescale(self, p, u, r, scale: float, tau: float, follow: bool) -> None:
@@ -157,7 +157,7 @@ def _kernels() -> Any:
         return a, b, c, d
 
     @jit
-    def update(p, t, g, tau):
+    def update(p, t, g, tau, tau_g):
         n_clip = 0
         n_ov = 0
         s = 0.0
@@ -169,7 +169,7 @@ def _kernels() -> Any:
             v = 0.0 if neg else v
             ov = (v == 0.0) and (gf[i] < 0)
             n_ov += 1 if ov else 0
-            v = -tau * gf[i] if ov else v
+            v = -tau_g * gf[i] if ov else v
             pf[i] = v
             s += v
         return n_clip > 0, n_ov, s
@@ -224,8 +224,8 @@ class _PKNumba(_PKOps):
         a, b, c, d = self.K.rstats(r, t, gs, p)
         return float(a), float(b), float(c), float(d)
 
-    def update(self, p, t, g, tau):
-        clipped, n_ov, s = self.K.update(p, t, g, float(tau))
+    def update(self, p, t, g, tau, tau_g):
+        clipped, n_ov, s = self.K.update(p, t, g, float(tau), float(tau_g))
         return bool(clipped), int(n_ov), float(s)
 
     def rescale(self, p, u, r, scale, tau, follow):

@@ -432,8 +432,8 @@ class _PKCupy:
         v = self._run("pk_rstats", 4, p, self._c(r), self._c(t), self._c(gs), self._c(p))
         return float(v[0]), float(v[1]), float(v[2]), float(v[3])
 
-    def update(self, p, t, g, tau: float) -> tuple[bool, int, float]:
-        v = self._run("pk_update", 3, p, self._c(p), self._c(t), self._c(g), np.float64(tau))
+    def update(self, p, t, g, tau: float, tau_g: float) -> tuple[bool, int, float]:
+        v = self._run("pk_update", 3, p, self._c(p), self._c(t), self._c(g), np.float64(tau), np.float64(tau_g))
         return v[0] > 0, int(v[1]), float(v[2])
 
     def rescale(self, p, u, r, scale: float, tau: float, follow: bool) -> None:

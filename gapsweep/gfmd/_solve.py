@@ -12,7 +12,7 @@ import numpy as np
 
 from gapsweep.core import checks as chk
 from gapsweep.core.fft import BACKENDS
-from gapsweep.gfmd import _constrained, _free, _smooth, _softmax
+from gapsweep.gfmd import _bounded, _constrained, _free, _smooth, _softmax
 from gapsweep.gfmd._common import UnderResolvedWarning, under_resolved
 from gapsweep.gfmd._ops import _is_cupy
 from gapsweep.gfmd._result import GFMDResult
@@ -23,6 +23,7 @@ _MINIMISERS: dict[str, tuple[Any, tuple[str, ...]]] = {
     "softmax": (_softmax.minimise, _softmax.METHODS),
     "multiplier": (_constrained.minimise, _constrained.METHODS),
     "variable": (_smooth.minimise, _smooth.METHODS),
+    "bounded": (_bounded.minimise, _bounded.METHODS),
 }
 # Minimisers that take periodic=False (free boundaries), by load_control: the hard wall's own (its compliance
 # swapped for the free one), every smooth law (the exponential one included) on gfmd._free.
@@ -30,6 +31,7 @@ _FREE: dict[str, tuple[Any, tuple[str, ...]]] = {
     "multiplier": (_constrained.minimise, _constrained.METHODS),
     "softmax": (_free.minimise, _free.METHODS),
     "variable": (_free.minimise, _free.METHODS),
+    "bounded": (_bounded.minimise, _bounded.METHODS),  # refuses periodic=False with a clear message
 }
 
 
@@ -63,18 +65,22 @@ def solve(
     """Equilibrium gap of an elastic half-space on the rigid surface ``heights`` at mean pressure ``sigma0``.
 
     ``interaction``: a law's name or an :class:`Interaction` object (docs/gfmd.md): "exponential" (default;
-    needs ``gamma0``, an energy per area, and ``rho``, a length), "hard_wall", or "adhesive" (``work``, the
-    work of adhesion per area, and ``rho``, its range). For the exponential law the reduced energy of M3
+    needs ``gamma0``, an energy per area, and ``rho``, a length), "hard_wall", "adhesive" (``work``, the
+    work of adhesion per area, and ``rho``, its range) or "hard_wall_adhesive" (the contact-mechanics
+    challenge's hard wall with ``-work exp(-g/rho)``; ``work``, ``rho``; periodic, one process; docs/gfmd.md
+    "Hard wall with adhesion"). For the exponential law the reduced energy of M3
     (module docstring) is minimised until ``residual <= tol`` and ``load_error <= tol``; the other laws'
     convergence measures are in docs/gfmd.md. ``heights``: real ``nx x ny`` array (numpy, or cupy for the
     GPU), units of ``length`` (a number, or ``(Lx, Ly)``); the exponential law's own minimiser needs a square
     grid, other grids run on the generic smooth one. ``sigma0``, ``gamma0/rho`` and ``e_star`` are pressures in
     one unit. ``method``: "auto", or "cg" (default), "lbfgs", "fire" (exponential); "mpcg" (default on the CPU;
-    coarse-to-fine start), "pcg" (default on the GPU), "pk" (hard wall); "lbfgs" (adhesive). ``backend``: "auto"
+    coarse-to-fine start), "pcg" (default on the GPU), "pk" (hard wall); "lbfgs" (adhesive);
+    "plbfgs" (hard_wall_adhesive). ``backend``: "auto"
     (cupy for a cupy array, else pyfftw when installed, else numpy), "numpy", "pyfftw" or "cupy". ``max_iter``:
     force evaluations (hard wall: iterations) allowed.
     ``initial``: an earlier result or a field to start from (exponential: a displacement on any grid size,
-    shared Fourier modes carried over; hard wall: a pressure; adhesive: ``(displacement, mean gap)``); default
+    shared Fourier modes carried over; hard wall: a pressure; adhesive: ``(displacement, mean gap)``;
+    hard_wall_adhesive: a gap field); default
     for the exponential law is the linear response of M4. ``threads``: FFTW threads. ``host``: which fields of
     a cupy run come to the host (pinned, asynchronous copies): True (all), False (none: they stay on the GPU) or
     names such as ``("gap",)``. Warns (UnderResolvedWarning) when the law's range ``rho`` is below the grid

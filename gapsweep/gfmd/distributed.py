@@ -146,8 +146,8 @@ class _ReducedPK:
     def rstats(self, r, t, gs, p) -> tuple[float, float, float, float]:
         return tuple(self.red.sum(*self.ops.rstats(r, t, gs, p)))
 
-    def update(self, p, t, g, tau: float) -> tuple[bool, int, float]:
-        clipped, n_ov, s = self.ops.update(p, t, g, tau)
+    def update(self, p, t, g, tau: float, tau_g: float) -> tuple[bool, int, float]:
+        clipped, n_ov, s = self.ops.update(p, t, g, tau, tau_g)
         (n_ov, s), _, (c,) = self.red.many(sums=(float(n_ov), s), maxs=(1.0 if clipped else 0.0,))
         return c > 0, int(round(n_ov)), s
 
@@ -491,6 +491,9 @@ def _options(law: Interaction, shape: tuple[int, int], box: tuple[float, float],
     control = law.load_control
     if control == "softmax" and not (shape[0] == shape[1] and box[0] == box[1]):
         control = "variable"  # as one process: the exponential law on rectangles runs on the smooth minimiser
+    if control not in METHODS:
+        raise ValueError(f"interaction {law.name!r} has no distributed solver yet (comm= and start='coarse' "
+                         "are for the exponential, hard-wall and adhesive laws); solve it on one process")
     methods = METHODS[control]
     if not isinstance(method, str) or method not in ("auto", *methods):
         raise ValueError(f"method must be one of {', '.join(map(repr, ('auto', *methods)))} for interaction "

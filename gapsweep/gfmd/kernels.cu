@@ -369,15 +369,16 @@ KERNEL pk_rstats(const double* __restrict__ r, const double* __restrict__ t, con
     grid_reduce<4>(v, 0u, part, count, out);
 }
 
-// p = max(p - tau t, 0), then p = -tau g where p = 0 and g < 0; out = (#clipped, #overlap, sum p).
+// p = max(p - tau t, 0), then p = -tau_g g where p = 0 and g < 0 (tau_g: a stiffness); out = (#clipped,
+// #overlap, sum p).
 KERNEL pk_update(double* p, const double* __restrict__ t, const double* __restrict__ g, double tau,
-                 unsigned long long N, double* part, unsigned int* count, double* out) {
+                 double tau_g, unsigned long long N, double* part, unsigned int* count, double* out) {
     double v[3] = {0.0, 0.0, 0.0};
     GRID_LOOP(i, N) {
         double x = __dsub_rn(p[i], __dmul_rn(tau, t[i]));
         if (x < 0.0) { v[0] += 1.0; x = 0.0; }
         const double gg = g[i];
-        if (x == 0.0 && gg < 0.0) { v[1] += 1.0; x = __dmul_rn(-tau, gg); }
+        if (x == 0.0 && gg < 0.0) { v[1] += 1.0; x = __dmul_rn(-tau_g, gg); }
         p[i] = x;
         v[2] += x;
     }

@@ -184,6 +184,9 @@ def minimise_on(heights: Any, law: Any, *, layer: tuple[float, float, str] | Non
                                  f"{law.name!r} on a layer; got {method!r}")
             r = _softmax.minimise(heights, law, method=method, stiffness=np.ascontiguousarray(
                 (0.5 * e_star) * grid.q), **{**common, "length": grid.lx})
+        elif law.load_control == "bounded":
+            raise ValueError(f"thickness: interaction {law.name!r} (a bound-constrained minimiser) is not available "
+                             "on an elastic layer yet; use the half-space (no thickness)")
         else:
             # the exponential law on the GPU or a rectangular grid, the adhesive law: the generic smooth minimiser
             # (gfmd._smooth, L-BFGS; the exponential law's fused GPU kernels assume the half-space)

@@ -5,7 +5,15 @@ A surface is ``h(r) = sum_q h~(q) exp(i q.r)`` on a periodic ``n x n`` grid of s
 
     C(q) = C0 (q / q_l)^(-2H-2)   for q_l <= |q| <= q_s,   zero elsewhere,
 
-``q_l = 2 pi / lambda_l``, ``q_s = 2 pi / lambda_s``. Amplitudes follow M2: ``h~(q) = sqrt(C(q)/A) exp(2 pi i X_q)``
+``q_l = 2 pi / lambda_l``, ``q_s = 2 pi / lambda_s``. With a roll-off wavelength ``lambda_r`` (``lambda_s <
+lambda_r <= lambda_l``; the spectrum of the contact-mechanics challenge, docs/model.md "The contact-mechanics
+challenge") the spectrum is constant below the roll-off instead:
+
+    C(q) = C0   for q_l <= |q| < q_r,     C0 (q / q_r)^(-2H-2)   for q_r <= |q| <= q_s,
+
+``q_r = 2 pi / lambda_r``; ``lambda_l`` is then the longest wavelength kept (the box side for the challenge).
+
+Amplitudes follow M2: ``h~(q) = sqrt(C(q)/A) exp(2 pi i X_q)``
 (``amplitudes="fixed"``, the paper's choice) or a complex Gaussian of the same mean square (``"gaussian"``,
 Rayleigh amplitudes). Array axis 0 is x, axis 1 is y; heights carry the units of ``length``.
 
@@ -88,10 +96,11 @@ def wavevectors(n: int, length: float = 1.0) -> tuple[np.ndarray, np.ndarray, np
 
 
 def mode_set(
-    hurst: float, *, lambda_l: float, lambda_s: float, length: float = 1.0
+    hurst: float, *, lambda_l: float, lambda_s: float, length: float = 1.0, lambda_r: float | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Integer wave numbers ``(kx, ky)`` of the canonical half plane (``ky > 0`` or ``ky == 0, kx > 0``) with
-    ``q_l <= |q| <= q_s`` and the spectral shape ``(q/q_l)^(-2H-2)`` at each (M2). Independent of the grid."""
+    ``q_l <= |q| <= q_s`` and the spectral shape ``(q/q_l)^(-2H-2)`` at each (M2); with ``lambda_r`` the shape
+    ``min(1, (q/q_r)^(-2H-2))`` (constant below the roll-off). Independent of the grid."""
     kl, ks = length / lambda_l, length / lambda_s
     kmax = int(math.floor(ks * (1 + _EDGE)))
     k = np.arange(-kmax, kmax + 1)
@@ -100,7 +109,10 @@ def mode_set(
     k2 = (kx * kx + ky * ky).astype(np.float64)
     keep = (k2 >= (kl * kl) * (1 - _EDGE)) & (k2 <= (ks * ks) * (1 + _EDGE)) & ((ky > 0) | (kx > 0))
     kx, ky, k2 = kx[keep], ky[keep], k2[keep]
-    shape = (np.sqrt(k2) / kl) ** (-2.0 * hurst - 2.0)
+    if lambda_r is None:
+        shape = (np.sqrt(k2) / kl) ** (-2.0 * hurst - 2.0)
+    else:
+        shape = np.minimum((np.sqrt(k2) / (length / lambda_r)) ** (-2.0 * hurst - 2.0), 1.0)
     return kx, ky, shape
 
 
@@ -117,8 +129,10 @@ def self_affine(
     amplitudes: Literal["fixed", "gaussian"] = "fixed",
     seed: int = 0,
     backend: Literal["numpy", "cupy"] = "numpy",
+    lambda_r: float | None = None,
 ) -> np.ndarray:
     """Random-phase self-affine surface ``h`` of shape ``(n, n)`` (M2), zero mean, real, units of ``length``.
+    ``lambda_r``: roll-off wavelength (module docstring): the spectrum is constant between ``q_l`` and ``q_r``.
 
     Exactly one of ``rms_slope`` (``g_rms``, dimensionless), ``rms_height`` (``h_rms``, length) or ``c0``
     (``C0``, length^4, with ``h~(q) = sqrt(C(q)/A) exp(i phase)``) fixes the spectrum; none given means
@@ -132,7 +146,7 @@ def self_affine(
     """
     n, kx, ky, coeff = _coefficients(n, hurst, lambda_l=lambda_l, lambda_s=lambda_s, length=length,
                                      rms_slope=rms_slope, rms_height=rms_height, c0=c0, amplitudes=amplitudes,
-                                     seed=seed)
+                                     seed=seed, lambda_r=lambda_r)
     if backend not in ("numpy", "cupy"):
         raise ValueError(f"backend must be 'numpy' or 'cupy', got {backend!r}")
     # Half-spectrum layout of irfft2 (axis 1 holds ky >= 0). The ky = 0 column needs both kx and -kx.
@@ -147,7 +161,7 @@ def self_affine(
 
 def _coefficients(n: int, hurst: float, *, lambda_l: float, lambda_s: float, length: float,
                   rms_slope: float | None, rms_height: float | None, c0: float | None, amplitudes: str,
-                  seed: int) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+                  seed: int, lambda_r: float | None = None) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
     """Validated ``n`` and the canonical half plane's modes ``(kx, ky)`` with their coefficients ``h~`` (M2)."""
     n = chk.count(n, "n", minimum=2)
     hurst = chk.hurst(hurst)
@@ -158,6 +172,11 @@ def _coefficients(n: int, hurst: float, *, lambda_l: float, lambda_s: float, len
         raise ValueError(f"lambda_s must be < lambda_l, got lambda_s={lambda_s!r} >= lambda_l={lambda_l!r}")
     if lambda_l > length * (1 + _EDGE):
         raise ValueError(f"lambda_l must be <= length={length!r} (periodic box), got {lambda_l!r}")
+    if lambda_r is not None:
+        lambda_r = chk.positive(lambda_r, "lambda_r")
+        if not lambda_s < lambda_r <= lambda_l * (1 + _EDGE):
+            raise ValueError(f"lambda_r (roll-off) must lie in (lambda_s, lambda_l] = ({lambda_s!r}, {lambda_l!r}], "
+                             f"got {lambda_r!r}")
     given = {k: v for k, v in (("rms_slope", rms_slope), ("rms_height", rms_height), ("c0", c0)) if v is not None}
     if len(given) > 1:
         raise ValueError(f"give exactly one of rms_slope, rms_height, c0; got {sorted(given)}")
@@ -177,7 +196,7 @@ def _coefficients(n: int, hurst: float, *, lambda_l: float, lambda_s: float, len
             f"n > 2 length/lambda_s = {2 * length / lambda_s:g}, i.e. n >= {2 * kmax + 1}"
         )
 
-    kx, ky, shape = mode_set(hurst, lambda_l=lambda_l, lambda_s=lambda_s, length=length)
+    kx, ky, shape = mode_set(hurst, lambda_l=lambda_l, lambda_s=lambda_s, length=length, lambda_r=lambda_r)
     if kx.size == 0:
         raise ValueError("no wavevector lies in [q_l, q_s]: widen lambda_l/lambda_s")
     area = length * length
@@ -212,6 +231,7 @@ def self_affine_rows(
     amplitudes: Literal["fixed", "gaussian"] = "fixed",
     seed: int = 0,
     backend: Literal["numpy", "cupy"] = "numpy",
+    lambda_r: float | None = None,
 ) -> Any:
     """This rank's rows ``h[slab_rows(n, comm)]`` of :func:`self_affine` with the same arguments, made in place
     (docs/gfmd.md, "One solve over several processes"): no rank forms the whole surface. Collective.
@@ -228,7 +248,7 @@ def self_affine_rows(
 
     n, kx, ky, coeff = _coefficients(n, hurst, lambda_l=lambda_l, lambda_s=lambda_s, length=length,
                                      rms_slope=rms_slope, rms_height=rms_height, c0=c0, amplitudes=amplitudes,
-                                     seed=seed)
+                                     seed=seed, lambda_r=lambda_r)
     if backend not in ("numpy", "cupy"):
         raise ValueError(f"backend must be 'numpy' or 'cupy', got {backend!r}")
     fft = SlabFFT((n, n), comm, backend=backend)
@@ -318,12 +338,20 @@ def spectrum(heights: np.ndarray, length: float = 1.0) -> tuple[np.ndarray, np.n
 
 
 def continuum_rms_height(
-    hurst: float, *, lambda_l: float, lambda_s: float, rms_slope: float = 1.0
+    hurst: float, *, lambda_l: float, lambda_s: float, rms_slope: float = 1.0, lambda_r: float | None = None
 ) -> float:
     """Continuum ``h_rms`` of the M2 spectrum normalised to ``g_rms = rms_slope``:
-    ``h_rms^2 / g_rms^2 = int q^(-2H-1) dq / int q^(1-2H) dq`` over ``[q_l, q_s]``. Units of length."""
+    ``h_rms^2 / g_rms^2 = int C q dq / int C q^3 dq`` over ``[q_l, q_s]`` (``C ~ q^(-2H-2)``; with ``lambda_r``
+    constant below ``q_r``). Units of length."""
     ql, qs = 2 * np.pi / chk.positive(lambda_l, "lambda_l"), 2 * np.pi / chk.positive(lambda_s, "lambda_s")
     hurst = chk.hurst(hurst)
-    m0 = (ql ** (-2 * hurst) - qs ** (-2 * hurst)) / (2 * hurst)
-    m2 = (qs ** (2 - 2 * hurst) - ql ** (2 - 2 * hurst)) / (2 - 2 * hurst)
+    if lambda_r is None:
+        m0 = (ql ** (-2 * hurst) - qs ** (-2 * hurst)) / (2 * hurst)
+        m2 = (qs ** (2 - 2 * hurst) - ql ** (2 - 2 * hurst)) / (2 - 2 * hurst)
+        return float(rms_slope * math.sqrt(m0 / m2))
+    qr = 2 * np.pi / chk.positive(lambda_r, "lambda_r")
+    # C = (q/q_r)^(-2H-2) above q_r, 1 below: int C q dq and int C q^3 dq in closed form
+    m0 = qr ** (2 * hurst + 2) * (qr ** (-2 * hurst) - qs ** (-2 * hurst)) / (2 * hurst) + (qr**2 - ql**2) / 2
+    m2 = qr ** (2 * hurst + 2) * (qs ** (2 - 2 * hurst) - qr ** (2 - 2 * hurst)) / (2 - 2 * hurst) \
+        + (qr**4 - ql**4) / 4
     return float(rms_slope * math.sqrt(m0 / m2))

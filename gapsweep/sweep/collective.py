@@ -94,7 +94,7 @@ def run_collective(comm: Any, tasks: list[Task], units: list[Unit], work: list[i
                    write: Callable[[int, TaskResult], None], stop: Any) -> None:
     """Go through the units ``work`` in order on every rank (module docstring): a unit of distributed tasks on
     all ranks (``ctx.comm = comm``), any other on rank 0 alone; rank 0 writes each row (``write``). A stop
-    request (signal or stop file, seen by rank 0) ends the run after the current task, on every rank.
+    request (a signal to any rank, or the stop file) ends the run after the current task, on every rank.
     ``run_unit(tasks, unit, ctx, todo, limit, stop)`` is the runner's unit loop."""
     rank = comm.Get_rank()
     ctx.comm = comm
@@ -116,6 +116,13 @@ def run_collective(comm: Any, tasks: list[Task], units: list[Unit], work: list[i
 
 
 def _stopping(comm: Any, stop: Any) -> bool:
-    """Rank 0's view of a stop request, on every rank (one broadcast)."""
-    flag = bool(stop.requested()) if comm.Get_rank() == 0 else None
-    return bool(comm.bcast(flag, root=0))
+    """Whether any rank has a stop request (a signal to any rank -- a SIGTERM to rank 1 alone, as a batch system
+    or a user may send -- or the stop file), on every rank: one allgather of the ranks' signal numbers. A rank
+    that learns of another's request adopts its signal, so that every rank, rank 0 recording the run included,
+    ends the run as interrupted by it. (Before issue 40 rank 0's view was broadcast: a signal to any other rank
+    was ignored and the run went on to the end.)"""
+    mine = int(stop.signum) if stop.requested() else 0
+    sig = max(comm.allgather(mine))
+    if sig and stop.signum is None:
+        stop.signum = sig
+    return bool(sig)

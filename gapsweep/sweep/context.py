@@ -247,7 +247,7 @@ def moments(t: Task, ctx: Context) -> tuple[float, float]:
             return sp["rms_height"], math.nan
         g = sp["rms_slope"]
         return surface.continuum_rms_height(t.hurst, lambda_l=sp["lambda_l"], lambda_s=sp["lambda_s"],
-                                            rms_slope=g), g
+                                            rms_slope=g, lambda_r=sp.get("lambda_r")), g
     n = 2 * int(math.floor(sp["length"] / sp["lambda_s"] * (1 + 1e-9))) + 2
     return ctx.surface_rms(t, n)
 

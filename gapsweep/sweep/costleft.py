@@ -32,8 +32,9 @@ import numpy as np
 from gapsweep.sweep import lease, storecheck
 from gapsweep.sweep import methods as registry
 from gapsweep.sweep import spec as specmod
-from gapsweep.sweep.schema import STATUS, TIMEOUT_PREFIX
-from gapsweep.sweep.store import open_read
+from gapsweep.sweep.repair import own_spec
+from gapsweep.sweep.schema import STATUS, TIMEOUT_PREFIX, StoreError
+from gapsweep.sweep.store import open_read, while_written
 from gapsweep.sweep.tasks import expand
 
 __all__ = ["calibrate", "cost_left", "describe", "summary"]
@@ -107,6 +108,11 @@ def cost_left(path: str | Path, now: _dt.datetime | None = None) -> dict[str, An
     p = Path(path)
     with open_read(p, check=False) as f:
         rep = storecheck.check(f, p)
+        own = None if rep.spec_trusted else own_spec(f)  # issue 40 item 1: damaged spec attributes
+        if not rep.spec_trusted and own is None:
+            what = ", ".join(rep.spec_damaged) or "unverifiable"
+            raise StoreError(f"store {p}: its job spec attributes are damaged ({what}): the cost left needs the "
+                             "spec (`gapsweep repair` restores it)")
         rerun = set(storecheck.incomplete_rows(f, p, rep))
         ids = [x.decode("utf-8", "replace") for x in f["tasks"].fields("task_id")[...]] if rep.n_tasks else []
         status = f["results"].fields("status")[...] if rep.n_tasks else np.zeros(0, "i1")
@@ -114,8 +120,8 @@ def cost_left(path: str | Path, now: _dt.datetime | None = None) -> dict[str, An
         msg = f["results"].fields("message")[...] if rep.n_tasks else np.zeros(0, "S1")
         spec_text, spec_dir = f.attrs["spec_text"], f.attrs.get("spec_dir", "")
         runs = storecheck.run_records(f.attrs.get("runs", "[]"))
-    js = specmod.loads(spec_text.decode() if isinstance(spec_text, bytes) else spec_text,
-                       base=(spec_dir.decode() if isinstance(spec_dir, bytes) else spec_dir) or None)
+    js = own or specmod.loads(spec_text.decode() if isinstance(spec_text, bytes) else spec_text,
+                              base=(spec_dir.decode() if isinstance(spec_dir, bytes) else spec_dir) or None)
     by_id = {t.task_id: t for t in expand(js)}
     tasks = [by_id.get(i) for i in ids]
     model = np.array([registry.get(t.method).cost(t) if t else 0.0 for t in tasks], dtype=float)
@@ -175,23 +181,30 @@ def describe(c: dict[str, Any]) -> list[str]:
     return lines
 
 
+@while_written
 def summary(path: str | Path) -> dict[str, Any]:
     """``gapsweep status --json``: the job, the row counts per method and status, the lease, the last run and
     :func:`cost_left`."""
     from gapsweep.sweep.store import read, read_attrs
 
-    attrs = read_attrs(path)
-    df = read(path)
+    gone = lease.remove_leftovers(path)  # a killed creation's or merge's temporary file (issue 40 item 7)
+    # a damaged /tasks or attribute is reported (key "check"), as by `gapsweep status` (issue 40 item 9)
+    attrs = read_attrs(path, tolerate_tasks=True)
+    df = read(path, tolerate_tasks=True)
+    with open_read(path, check=False) as f:
+        report = storecheck.check(f, path, tolerate_tasks=True)
     counts = {str(m): {str(k): int(v) for k, v in g.status.value_counts().items()} for m, g in df.groupby("method")}
     runs = storecheck.run_records(attrs.get("runs", "[]"))
     held = lease.read(path)
     return {"job": attrs.get("job_name"), "shard": attrs.get("shard", ""),
             "counts": counts, "total": {str(k): int(v) for k, v in df.status.value_counts().items()},
-            "lease": held, "last_run": runs[-1] if runs else None, "cost_left": _cost_or_reason(path)}
+            "lease": held, "last_run": runs[-1] if runs else None, "cost_left": _cost_or_reason(path),
+            "check": report.lines(), "removed_leftovers": gone}
 
 
 def _cost_or_reason(path: str | Path) -> dict[str, Any]:
     try:
         return cost_left(path)
-    except (specmod.SpecError, OSError) as e:  # the spec's height map moved: the counts still come
+    except (specmod.SpecError, OSError, StoreError) as e:  # the spec's height map moved, a damaged /tasks or
+        # spec attribute: the counts still come
         return {"error": str(e)}

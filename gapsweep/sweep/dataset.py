@@ -188,7 +188,9 @@ def _collapse_seed(a: np.ndarray, name: str) -> np.ndarray:
     return np.where(have, lo, np.nan)
 
 
-def _provenance(path: str | Path) -> dict[str, Any]:
+def _provenance(path: str | Path, damaged: Sequence[str] = ()) -> dict[str, Any]:
+    """The store's attributes for the dataset; ``damaged`` (attributes that fail their checksum) are left out
+    and named in ``gapsweep_damaged_attributes``."""
     from gapsweep import __version__
     from gapsweep.sweep import store
 
@@ -197,7 +199,9 @@ def _provenance(path: str | Path) -> dict[str, Any]:
             "versions", "created", "finished", "runs", "merged_from", "spec_text")
     out = {f"gapsweep_{k}" if not k.startswith("gapsweep") else k: (v if isinstance(v, str) else
                                                                      (v.item() if hasattr(v, "item") else v))
-           for k, v in a.items() if k in keep}
+           for k, v in a.items() if k in keep and k not in damaged}
+    if damaged:
+        out["gapsweep_damaged_attributes"] = json.dumps(sorted(damaged))
     out.update({"title": f"gapsweep store of job {a.get('job_name', '?')}",
                 "source": f"gapsweep {a.get('gapsweep_version', '?')} (read by gapsweep {__version__})",
                 "history": f"opened from {Path(path).resolve()} by gapsweep.store.to_dataset",
@@ -219,24 +223,56 @@ def to_dataset(path: str | Path, *, n: int | None = None, c2: float | None = Non
     if damaged and not skip_damaged:
         raise store.StoreError(f"store {path}: {damaged} damaged row(s) (checksum mismatch; `gapsweep status` "
                                "names them): re-run them with --resume, or pass --skip-damaged to leave them out")
-    attrs = _provenance(path)
+    spec_text, units, bad = _trusted_spec(path)
+    attrs = _provenance(path, bad)
     if damaged:
         attrs["gapsweep_damaged_rows"] = damaged
     ds = from_frame(df, n=n, c2=c2, attrs=attrs)
-    meta = store.read_attrs(path)
-    ds = _drop_placeholders(ds, meta.get("spec_text", ""))
-    return apply_units(ds, json.loads(meta.get("units", "{}") or "{}"))
+    ds = _drop_placeholders(ds, spec_text)
+    return apply_units(ds, units)
 
 
-def _drop_placeholders(ds: Any, spec_text: str) -> Any:
+def _trusted_spec(path: str | Path) -> tuple[str | None, dict[str, Any], list[str]]:
+    """The store's spec text (None where it is damaged), its units and the attributes that fail their checksum
+    (issue 40 item 1: every row verifies on its own, so damaged attributes are worked around, not refused).
+    Units come from the attribute, or from the spec where the attribute is damaged; where both are, the export
+    is refused (no unit would be honest)."""
+    from gapsweep.sweep import repair, store, storecheck
+
+    with store.open_read(path, check=False) as f:
+        rep = storecheck.check(f, path)
+        meta = {k: (v.decode("utf-8", "replace") if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
+        own = None if rep.spec_trusted else repair.own_spec(f)
+    bad = [*rep.provenance_damaged, *rep.spec_damaged, *(["runs"] if rep.runs_damaged else [])]
+    if rep.spec_trusted:
+        return meta.get("spec_text", ""), json.loads(meta.get("units", "{}") or "{}"), bad
+    if own is not None:  # the spec text matches its hash and the task table: its units are the store's
+        units = own.units() if hasattr(own, "units") else {}
+        return own.text, (units if any(units.values()) else {}), [x for x in bad if x not in ("spec_text",
+                                                                                            "spec_sha256")]
+    if "units" in rep.spec_damaged or rep.integrity_damaged:
+        raise store.StoreError(f"store {path}: its attributes 'units' and 'spec_text' are both damaged (or "
+                               "unverifiable): the physical units are unknown; `gapsweep repair STORE --job JOB` "
+                               "restores them (the rows verify on their own checksums)")
+    return None, json.loads(meta.get("units", "{}") or "{}"), bad
+
+
+def _drop_placeholders(ds: Any, spec_text: str | None) -> Any:
     """Leave out the axes a job does not have: ``hurst`` for a measured map (it is 0 there), ``rho`` for the
     hard wall (0: no interaction range)."""
     import tomllib
 
-    try:
-        raw = tomllib.loads(spec_text)
-    except (tomllib.TOMLDecodeError, TypeError):
-        return ds
+    if spec_text is None:  # a damaged spec text: the data tell (H = 0 only for a map, rho = 0 only for the wall)
+        def zero(d: str) -> bool:
+            return d in ds.coords and ds.sizes.get(d) == 1 and float(ds[d][0]) == 0.0
+
+        raw = {"surface": {"kind": "file" if zero("hurst") else ""},
+               "interaction": {"kind": "hard_wall" if zero("rho") else ""}}
+    else:
+        try:
+            raw = tomllib.loads(spec_text)
+        except (tomllib.TOMLDecodeError, TypeError):
+            return ds
     drop = []
     if raw.get("surface", {}).get("kind") == "file":  # one map: no Hurst exponent, one "seed"
         drop += ["hurst", "seed"]
@@ -283,19 +319,29 @@ def export_netcdf(path: str | Path, out: str | Path, *, overwrite: bool = False,
     ds = to_dataset(path, **kw)
     require("h5netcdf", "the netCDF4 export")
     outp.parent.mkdir(parents=True, exist_ok=True)
-    tmp = outp.with_name(f".{outp.name}.tmp")
-    # room first (the data, 1.5x for HDF5's and netCDF's own structures, + 1 MiB): a write that fails inside
-    # h5netcdf crashed HDF5 2.0 (gapsweep.sweep.writefail.reserve)
-    err = writefail.reserve(tmp, int(1.5 * ds.nbytes) + (1 << 20))
-    if err is not None:
-        raise StoreWriteError(f"export --out {outp}: cannot be written ({err}); nothing was written, the store "
-                              "is untouched")
-    try:
-        _write_nc(ds, tmp, outp)
-        os.replace(tmp, outp)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    from gapsweep.sweep import lease
+
+    # issue 40 item 2: two exports to one --out shared one temporary name and took no lease, so the one that
+    # exited 0 could leave the other store's data in the file. Now the output's lease excludes a second export
+    # (refused, naming the holder) and the temporary name is this process's own.
+    with lease.acquire(outp, purpose="export"):
+        lease.remove_leftovers(outp, held=True)  # of a killed export (issue 40 item 7)
+        outputs.guard_output(outp, [path], "export --out", overwrite=overwrite,  # again: one may have finished
+                             own=lambda o: None if outputs.is_export(o) else "is not a netCDF file written by "
+                             "gapsweep export")
+        tmp = outp.with_name(f".{outp.name}.tmp-{os.getpid()}-{os.urandom(4).hex()}")
+        # room first (the data, 1.5x for HDF5's and netCDF's own structures, + 1 MiB): a write that fails inside
+        # h5netcdf crashed HDF5 2.0 (gapsweep.sweep.writefail.reserve)
+        err = writefail.reserve(tmp, int(1.5 * ds.nbytes) + (1 << 20))
+        if err is not None:
+            raise StoreWriteError(f"export --out {outp}: cannot be written ({err}); nothing was written, the "
+                                  "store is untouched")
+        try:
+            _write_nc(ds, tmp, outp)
+            os.replace(tmp, outp)
+        finally:
+            if tmp.exists():
+                tmp.unlink()
     return outp
 
 

@@ -21,7 +21,7 @@ from gapsweep.sweep import methods as registry
 from gapsweep.sweep.context import Context
 from gapsweep.sweep.farm import DeviceFault, device_fault
 from gapsweep.sweep.methods.base import non_finite
-from gapsweep.sweep.schema import StoreWriteError, Task, TaskResult
+from gapsweep.sweep.schema import MISSING_EXTRA_PREFIX, StoreWriteError, Task, TaskResult
 
 __all__ = ["run_task"]
 
@@ -66,8 +66,27 @@ def run_task(t: Task, ctx: Context, prev: Any = None) -> tuple[TaskResult, Any]:
             raise DeviceFault(why) from e
         # an error caused by a signal (issue 31: one inside JIT compilation) is an interruption, not the task's
         # result: the runner leaves such a row pending (or --resume runs it again)
-        msg = limits.interrupted_message(e) if limits.cut_by_signal(e, signals) else f"{type(e).__name__}: {e}"
+        if limits.cut_by_signal(e, signals):
+            msg = limits.interrupted_message(e)
+        elif _missing_extra(e):  # the installation's gap, not the task's: --resume runs it again
+            msg = f"{MISSING_EXTRA_PREFIX} {e} (run again by --resume once it is installed)"
+        else:
+            msg = f"{type(e).__name__}: {e}"
         res, state = TaskResult("failed", msg), None
     res.values["wall_time"] = time.perf_counter() - t0
     res.values["rank"] = ctx.rank
     return res, state
+
+
+def _missing_extra(e: BaseException) -> bool:
+    """Whether ``e`` (or an exception in its chain) is gapsweep.core.extras.MissingExtraError."""
+    from gapsweep.core.extras import MissingExtraError
+
+    seen: set[int] = set()
+    x: BaseException | None = e
+    while x is not None and id(x) not in seen:
+        seen.add(id(x))
+        if isinstance(x, MissingExtraError):
+            return True
+        x = x.__cause__ or x.__context__
+    return False

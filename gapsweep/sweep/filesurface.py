@@ -97,6 +97,14 @@ def file_surface(s: dict, base: str | Path | None) -> tuple[dict[str, Any], int]
         raise SpecError(f"surface.path: {path!r}: heights or box not finite after the unit conversion "
                         f"({out.get('unit')} -> {out.get('to_unit')}): allowed are maps whose values stay finite "
                         "floats (choose another to_unit)")
+    h = np.asarray(topo.heights, dtype=float)
+    rms = float(np.sqrt(np.mean((h - h.mean()) ** 2))) if h.size else 0.0
+    if not rms > 1e-12 * max(topo.length):  # (heights and box share a unit; a plane leaves round-off ~1e-16 L)
+        # a flat map (zero rms after detrending) has no contact problem: every task failed at run time (issue 40
+        # item 9), so plan and run refuse it here
+        raise SpecError(f"surface.path: {path!r}: the height map is flat after detrend = {out['detrend']!r} (rms "
+                        f"{rms:g}): allowed are maps with a non-zero rms roughness (a measured surface; check the "
+                        "file, its unit or the detrending)")
     out["sha256"] = digest
     # The box: one number for a square box (as before), [Lx, Ly] otherwise; a rectangular grid records its shape.
     if math.isclose(topo.length[0], topo.length[1], rel_tol=1e-12):

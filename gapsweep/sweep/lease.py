@@ -42,7 +42,7 @@ from typing import Any
 
 from gapsweep.sweep import limits, provenance
 
-__all__ = ["FileLock", "Lease", "LeaseError", "acquire", "identity_path", "lease_path", "read"]
+__all__ = ["FileLock", "Lease", "LeaseError", "acquire", "identity_path", "lease_path", "read", "remove_leftovers"]
 
 log = logging.getLogger("gapsweep.lease")
 
@@ -397,3 +397,48 @@ def acquire(store: str | Path, *, break_lease: bool = False, purpose: str = "run
             held.release()
             raise
     return held
+
+
+def remove_leftovers(store: str | Path, *, held: bool = False) -> list[str]:
+    """Remove the hidden temporary files of ``store`` (``.<name>.tmp-*``: a store's creation, a merge or an export
+    written under a temporary name and renamed into place) that a killed writer left behind (issue 40 item 7: up
+    to the store's size, for good, named by nothing). Every such writer holds the store's lease for the whole life
+    of its temporary file, so one is left over when no live lease holds the store: ``held`` (the caller holds it
+    now) or a lease file whose holder is gone (or none). A lease of another host cannot be checked: its files are
+    kept. Returns the names removed (each logged)."""
+    p = Path(store)
+    try:
+        d = p.resolve().parent
+        found = sorted(d.glob(f".{glob_escape(p.name)}.tmp-*"))  # listed before the lease is read (see below)
+    except OSError:
+        return []
+    if not found:
+        return []
+    if not held:
+        # a file listed before a live holder took the lease is not its own (the holder creates it under the lease,
+        # with a name of its own: pid, run id); a live or unknown holder now may own one listed: keep them all
+        info = read(p)
+        if info is not None and info["alive"] is not False:
+            return []
+    out = []
+    for f in found:
+        try:
+            size = f.stat().st_size
+            f.unlink()
+        except FileNotFoundError:
+            continue
+        except OSError as e:
+            log.warning("store %s: cannot remove the temporary file %s left by a killed writer (%s)", p, f.name,
+                        e.strerror)
+            continue
+        log.warning("store %s: removed %s (%d bytes), the temporary file of a store creation, merge or export "
+                    "that was killed", p, f.name, size)
+        out.append(f.name)
+    return out
+
+
+def glob_escape(name: str) -> str:
+    """``name`` with the glob metacharacters escaped (a store may be called ``a[1].h5``)."""
+    import glob
+
+    return glob.escape(name)

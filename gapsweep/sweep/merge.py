@@ -14,11 +14,19 @@ from typing import Any
 
 import numpy as np
 
-from gapsweep.sweep import lease, outputs, provenance, storecheck
+from gapsweep.sweep import budget, lease, outputs, provenance, storecheck, writefail
 from gapsweep.sweep import methods as registry
 from gapsweep.sweep import spec as specmod
 from gapsweep.sweep import tasks as tasksmod
-from gapsweep.sweep.schema import PRESSURE_HIST, STATUS, STATUS_NAMES, VOLATILE, StoreError, results_dtype
+from gapsweep.sweep.schema import (
+    PRESSURE_HIST,
+    STATUS,
+    STATUS_NAMES,
+    VOLATILE,
+    StoreError,
+    StoreWriteError,
+    results_dtype,
+)
 from gapsweep.sweep.store import Store, _same, empty_results, open_read, read, read_attrs, seal, upgrade_results
 
 __all__ = ["CONFLICT_CHOICES", "merge"]
@@ -119,13 +127,16 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
                          "another --out")
     _guard(outp, shards, overwrite, lambda o: None)  # exists, folder
     metas = [read_attrs(s, tolerate_tasks=skip_damaged) for s in shards]
-    shas = {m["spec_sha256"] for m in metas}
+    specs = _trusted_specs(shards, metas, skip_damaged)
+    shas = {m["spec_sha256"] for m, _ in specs}
     if len(shas) != 1:
         raise StoreError(f"merge: shards come from different job specs ({len(shas)} spec hashes)")
+    first, s0 = specs[0]
+    sha = first["spec_sha256"]
     try:
-        js = specmod.loads(metas[0]["spec_text"], base=metas[0].get("spec_dir") or None)
+        js = specmod.loads(first["spec_text"], base=first.get("spec_dir") or None)
     except specmod.SpecError as e:  # name the shard whose spec it is (issue 19)
-        raise StoreError(f"merge: shard {shards[0]}: its job spec is not valid: {e}") from None
+        raise StoreError(f"merge: shard {s0}: its job spec is not valid: {e}") from None
     tasks = tasksmod.expand(js)
     index = {t.task_id: i for i, t in enumerate(tasks)}
     runs = []
@@ -133,7 +144,7 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
         runs.extend(storecheck.run_records(m.get("runs", "[]")))  # a damaged list: those records are lost
     attrs = provenance.store_attrs(js, shard="", extra={"merged_from": json.dumps([str(s) for s in shards]),
                                                         "runs": json.dumps(runs)})
-    attrs["spec_sha256"] = metas[0]["spec_sha256"]
+    attrs["spec_sha256"] = sha
     bins = js.histogram["bins"]
     columns = registry.job_columns(js)  # the job's plug-in columns (docs/store.md "Plug-in columns")
     rdtype = results_dtype(columns)
@@ -201,8 +212,16 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
         log.warning("merge: %s (kept the %s)", c, on_conflict)
     done = {t.task_id for t, s in zip(tasks, results["status"], strict=True) if s == STATUS["done"]}
     with lease.acquire(outp, break_lease=break_lease, purpose="merge"):  # a live writer is named first
-        _guard(outp, shards, overwrite, lambda o: _not_own_merge(o, metas[0]["spec_sha256"], done))
+        lease.remove_leftovers(outp, held=True)  # of a killed creation or merge (issue 40 item 7)
+        _guard(outp, shards, overwrite, lambda o: _not_own_merge(o, sha, done))
         tmp = outp.with_name(f".{outp.name}.tmp-{os.getpid()}")
+        # room first (issue 40 item 3): a merge whose HDF5 writes failed on a full disk or under a file-size limit
+        # segfaulted (exit 139); the whole store is reserved before HDF5 writes a byte (writefail.reserve)
+        need = budget.store_bytes(len(tasks), bins, len(js.text) + len(attrs.get("runs", "")))
+        err = writefail.reserve(tmp, int(1.5 * need) + (1 << 20))
+        if err is not None:
+            raise StoreWriteError(f"merge --out {outp}: cannot be written ({err}); nothing was written, the "
+                                  "shards are untouched")
         try:
             _write(tmp, outp, tasks, attrs, bins, results, (edges, dens, pedges, pdens), columns)
             os.replace(tmp, outp)
@@ -213,6 +232,32 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
     counts["conflicts"] = len(conflicts)
     counts["damaged"] = damaged
     return counts
+
+
+def _trusted_specs(shards: Sequence[str | Path], metas: list[dict[str, Any]], skip_damaged: bool,
+                   ) -> list[tuple[dict[str, Any], str | Path]]:
+    """The attributes of the shards whose job spec can be trusted, with the shard (issue 40 item 1): its spec
+    attributes verify, or its spec text still matches its hash and its task table (repair.own_spec). A shard whose
+    spec attributes are damaged is merged under another shard's spec: its rows verify on their own checksums and
+    each of its task ids must be one of that job's (checked row by row below). Raises where no shard's spec is
+    trusted."""
+    from gapsweep.sweep.repair import own_spec
+
+    out, bad = [], []
+    for s, m in zip(shards, metas, strict=True):
+        with open_read(s, check=False) as f:
+            rep = storecheck.check(f, s, tolerate_tasks=skip_damaged)
+            if rep.spec_trusted or own_spec(f) is not None:
+                out.append((m, s))
+            else:
+                bad.append(f"{s} ({', '.join(rep.spec_damaged) or 'unverifiable'})")
+    for b in bad:
+        log.warning("merge: shard %s: its job spec attributes are damaged; merged under another shard's spec", b)
+    if not out:
+        raise StoreError(f"merge: the job spec attributes of every shard are damaged ({'; '.join(bad)}): "
+                         "`gapsweep repair SHARD --job JOB.toml` restores them from the job file (the rows verify "
+                         "on their own checksums); nothing was written")
+    return out
 
 
 def _guard(outp: Path, shards: Sequence[str | Path], overwrite: bool, own: Any) -> None:

@@ -13,7 +13,7 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-__all__ = ["git_commit", "now", "run_extras", "sde_engine", "store_attrs", "versions"]
+__all__ = ["git_commit", "now", "rebuilt", "run_extras", "sde_engine", "spec_attrs", "store_attrs", "versions"]
 
 log = logging.getLogger(__name__)
 
@@ -103,6 +103,28 @@ def store_attrs(spec: Any, *, shard: str = "", extra: dict[str, Any] | None = No
             a["surface_map"] = rec
     a.update(extra or {})
     return a
+
+
+def spec_attrs(spec: Any) -> dict[str, Any]:
+    """The attributes a store takes from its job spec (:func:`store_attrs`): ``job_name``, ``spec_text``,
+    ``spec_sha256``, ``units`` (where the job has physical units) and ``spec_dir`` (a file surface's folder)."""
+    a = store_attrs(spec)
+    return {k: a[k] for k in ("job_name", "spec_text", "spec_sha256", "units", "spec_dir") if k in a}
+
+
+def rebuilt(names: list[str] | tuple[str, ...]) -> dict[str, Any]:
+    """Values for provenance attributes that failed their checksum (issue 40 item 1): what they held is lost;
+    each says so, with the time of the repair, keeping its kind (JSON where it was JSON)."""
+    note = f"unknown: the attribute was damaged (failed its checksum) and rebuilt at {now()}"
+    out: dict[str, Any] = {}
+    for k in names:
+        if k == "versions":
+            out[k] = json.dumps({"lost": note}, sort_keys=True)
+        elif k == "merged_from":
+            out[k] = json.dumps([note])
+        else:
+            out[k] = note
+    return out
 
 
 def _cupy_version() -> str:

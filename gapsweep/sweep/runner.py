@@ -40,8 +40,9 @@ from gapsweep.sweep import spec as specmod
 from gapsweep.sweep.context import Context
 from gapsweep.sweep.execute import run_task
 from gapsweep.sweep.farm import DeviceFault, Farm, Worker, device_fault
-from gapsweep.sweep.fields import fields_dir, remove_fields, remove_partial
+from gapsweep.sweep.fields import field_selected, fields_dir, remove_fields, remove_partial
 from gapsweep.sweep.limits import Interrupted, TaskTimeout
+from gapsweep.sweep.repair import job_mismatch
 from gapsweep.sweep.schema import PRESSURE_HIST, STATUS, Task, TaskResult, Unit
 from gapsweep.sweep.spec import check_extra
 from gapsweep.sweep.store import Store, StoreError, StoreWriteError, open_read
@@ -272,6 +273,9 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
         with open_read(path, check=False) as f:
             report = storecheck.check(f, path, tolerate_tasks=resume)  # once: it reads and checksums every row
             sha, shard = f.attrs.get("spec_sha256"), f.attrs.get("shard")
+            # issue 40 item 1: spec attributes that fail their checksum are not compared; the job is this store's
+            # when every task row is the job's (the rows verify on their own checksums)
+            not_job = None if report.spec_trusted else job_mismatch(f, spec)
             todo = storecheck.incomplete_rows(f, path, report)
             moved, kept = _moved_rows(f, tasks, set(report.damaged), set(todo))
             runs_bad = report.runs_damaged is not None
@@ -285,14 +289,25 @@ def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: st
         raise RunError(f"{e}; pass --overwrite to replace it") from None
     if isinstance(sha, bytes):
         sha = sha.decode()
-    if (sha not in (spec.sha256, spec.text_sha256) and not reordered) or shard != shard_text or moved is None:
+    if not report.spec_trusted:
+        what = ", ".join(report.spec_damaged) or "the attribute checksums"
+        if not_job is not None or shard != shard_text:
+            raise RunError(f"store {path}: its job spec attributes are damaged ({what}) and this job is not the "
+                           f"store's ({not_job or 'another shard'}): resume it with the job file it was run from; "
+                           "its rows verify on their own checksums")
+        if not resume:
+            raise RunError(f"store {path}: its job spec attributes are damaged ({what}); its rows verify on their "
+                           "own checksums: pass --resume to restore them from this job file (checked against every "
+                           f"task row), or run `gapsweep repair {path} --job JOB`")
+    elif (sha not in (spec.sha256, spec.text_sha256) and not reordered) or shard != shard_text or moved is None:
         raise RunError(f"store {path} was written for another job spec or shard; pass --overwrite to replace "
                        "it or choose another --store")
     if kept:  # done rows whose results verify against the spec's task row: only their task row is restored
         log.warning("store %s: %d done row(s) with a damaged task row verify against the job spec's: kept, their "
                     "task rows are restored (rows %s)", path, len(kept), sorted(kept)[:5])
         todo = [i for i in todo if i not in kept]
-    if not todo and not moved and not (resume and runs_bad):  # --resume rebuilds damaged run records
+    if not todo and not moved and not (resume and (runs_bad or report.attrs_need_repair)):  # --resume rebuilds
+        # damaged run records, provenance and spec attributes
         return "noop", [], len(failed)
     if not resume and not todo:
         raise RunError(f"store {path}: {len(moved)} damaged task row(s) (rows {sorted(moved)[:5]}): pass --resume to "
@@ -511,7 +526,7 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
         shard: tuple[int, int] | None = None, writer: str = "auto", progress: str = "auto",
         coordinator_works: str = "auto", mpi: str = "auto", break_lease: bool = False,
         task_timeout: float | None = None, batch: str = "off", ranks_per_gpu: int | None = None,
-        lookahead: int = 4, reuse: Sequence[str | Path] = ()) -> dict[str, Any]:
+        lookahead: int = 4, reuse: Sequence[str | Path] = (), reuse_older: bool = False) -> dict[str, Any]:
     """Run a job into a store (serially or as an MPI task farm). Returns a summary dict on every rank.
 
     ``writer``: auto | mpio | rank0 (env ``GAPSWEEP_WRITER`` overrides auto); ``progress``: auto | bar | log |
@@ -523,7 +538,8 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     may); ``lookahead``: GPU units a GPU worker holds beyond the one it runs, their surfaces
     made on as many host threads while its GPU works (0: none; docs/architecture.md, "The farm"); ``reuse``:
     other stores whose verified ``done`` rows of the same tasks (task id) are copied instead of run
-    (:func:`reusable_rows`; the run record names the sources).
+    (:func:`reusable_rows`; the run record names the sources), only rows of the methods' current algorithm
+    version unless ``reuse_older``.
 
     Raises :class:`RunError` when the run cannot start or a write fails (rows finished before stay done),
     :class:`~gapsweep.limits.Interrupted` after a clean stop on SIGINT/SIGTERM or a ``<store>.stop`` file (the
@@ -561,12 +577,13 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
             _guard_store(path, _inputs(job, spec), overwrite)
             path.parent.mkdir(parents=True, exist_ok=True)
             held = lease.acquire(path, break_lease=break_lease)
+            lease.remove_leftovers(path, held=True)  # of a killed creation or merge (issue 40 item 7)
             order = _stored_order(path, spec, tasks, shard_text, overwrite)
             ordered = _store_order(tasks, [], order)[0]
             decision = (order, *_decide(path, spec, ordered, shard_text, resume, overwrite,
                                         reordered=order is not None), held.run_id)
             if reuse and decision[1] != "noop":
-                reused = reusable_rows(reuse, path, ordered, decision[2], spec.histogram["bins"])
+                reused = reusable_rows(reuse, path, ordered, decision[2], spec.histogram["bins"], reuse_older)
                 decision = (decision[0], decision[1], [i for i in decision[2] if i not in reused], *decision[3:])
             _stop_file(path).unlink(missing_ok=True)  # a stop request of an earlier run
         except Exception as e:  # every rank must learn about it, or the others wait in bcast forever
@@ -611,15 +628,32 @@ def _guard_store(path: Path, inputs: list[Path], overwrite: bool) -> None:
         raise RunError(str(e)) from None
 
 
+def _fields_file(store_path: str | Path, task_id: str) -> Path:
+    return fields_dir(store_path) / f"{task_id}.nc"
+
+
+def _wants_fields(t: Task) -> bool:
+    """Whether the task keeps fields (gapsweep.sweep.fields): a reused row must bring its fields file."""
+    opts = t.opt("keep_fields")
+    if not opts:
+        return False
+    return bool(field_selected(json.loads(opts), hurst=t.hurst, rho=t.rho, sigma0=t.sigma0, seed=t.seed, n=t.n))
+
+
 def reusable_rows(sources: Sequence[str | Path], path: Path, tasks: list[Task], todo: list[int], bins: int,
-                  ) -> dict[int, tuple[str, Any, tuple]]:
+                  older: bool = False) -> dict[int, tuple[str, Any, tuple]]:
     """Rows of ``todo`` that other stores hold ``done`` for the same task (task id: the content hash), as
     ``{index: (source, results row, (edges, density, pressure edges, pressure density))}``; the first source
     that has a task wins. Only rows whose checksum verifies are taken (a store of format 1 or 2 has none: it is
     skipped with a warning), from stores of the same histogram bins; the store being written is never a source.
-    """
+
+    Issue 40 item 5: only rows computed by the method's current algorithm (column ``algorithm_version`` equal to
+    the plug-in's ``ALGORITHM_VERSION``; a row without one -- format 4 and older -- counts as older) unless
+    ``older`` (``--reuse-older``: the rows are then named as such in the run record and by status); and a row of a
+    task that keeps fields only together with its fields file (copied by :func:`_copy_reused`)."""
     want = {tasks[i].task_id: i for i in todo}
     out: dict[int, tuple[str, Any, tuple]] = {}
+    current = {name: registry.get(name).algorithm_version for name in {tasks[i].method for i in todo}}
     for src in sources:
         sp = Path(src)
         if sp.resolve() == path.resolve():
@@ -644,23 +678,57 @@ def reusable_rows(sources: Sequence[str | Path], path: Path, tasks: list[Task], 
                 continue
             res = f["results"][...]
             h = [f[k][...] for k in ("histograms/edges", "histograms/density", *PRESSURE_HIST)]
+        vers = res["algorithm_version"] if "algorithm_version" in (res.dtype.names or ()) else None
+        stale = [j for j in take if (-1 if vers is None else int(vers[j])) != current[tasks[want[ids[j]]].method]]
+        if stale and not older:
+            log.warning("--reuse %s: %d row(s) computed by another (older or unknown) algorithm version of their "
+                        "method are run again (--reuse-older copies them)", sp, len(stale))
+            take = [j for j in take if j not in set(stale)]
+        nofields = [j for j in take if _wants_fields(tasks[want[ids[j]]])
+                    and not _fields_file(sp, ids[j]).is_file()]
+        if nofields:
+            log.warning("--reuse %s: %d row(s) keep fields that the source lacks: run again", sp, len(nofields))
+            take = [j for j in take if j not in set(nofields)]
         for j in take:
-            out[want[ids[j]]] = (str(sp.absolute()), res[j], tuple(a[j] for a in h))
+            older_row = j in set(stale)
+            out[want[ids[j]]] = (str(sp.absolute()), res[j], tuple(a[j] for a in h), older_row)
         log.info("--reuse %s: %d row(s) copied instead of run", sp, len(take))
     return out
 
 
-def _reused_record(reused: dict[int, tuple[str, Any, tuple]] | None) -> dict[str, Any]:
-    """The run record's ``reused`` entry: rows copied per source store (nothing when none was)."""
+def _reused_record(reused: dict[int, tuple] | None) -> dict[str, Any]:
+    """The run record's ``reused`` entry: rows copied per source store (nothing when none was), and
+    ``reused_older``: those of them computed by another algorithm version (``--reuse-older``)."""
     if not reused:
         return {}
     srcs = sorted({v[0] for v in reused.values()})
-    return {"reused": {s: sum(1 for v in reused.values() if v[0] == s) for s in srcs}}
+    out: dict[str, Any] = {"reused": {s: sum(1 for v in reused.values() if v[0] == s) for s in srcs}}
+    old = {s: sum(1 for v in reused.values() if v[0] == s and v[3]) for s in srcs}
+    if any(old.values()):
+        out["reused_older"] = {s: k for s, k in old.items() if k}
+    return out
 
 
-def _copy_reused(st: Store, reused: dict[int, tuple[str, Any, tuple]] | None) -> None:
-    """Write the rows taken from other stores (rank 0, which alone has them)."""
-    for i, (_src, row, hists) in sorted((reused or {}).items()):
+def _copy_reused(st: Store, reused: dict[int, tuple] | None, tasks: list[Task] | None = None) -> None:
+    """Write the rows taken from other stores (rank 0, which alone has them), each with its kept fields file
+    (issue 40 item 5: the store then equals one computed from scratch), copied under a temporary name first."""
+    import shutil
+
+    for i, (src, row, hists, _older) in sorted((reused or {}).items()):
+        if tasks is not None:
+            tid = tasks[i].task_id
+            f = _fields_file(src, tid)
+            if f.is_file():
+                d = fields_dir(st.path)
+                d.mkdir(parents=True, exist_ok=True)
+                tmp = d / f".{tid}.{os.getpid()}.tmp"
+                try:
+                    shutil.copyfile(f, tmp)
+                    os.replace(tmp, d / f"{tid}.nc")
+                except OSError as e:
+                    tmp.unlink(missing_ok=True)
+                    raise StoreWriteError(f"store {st.path}: copying the kept fields of task {tid} from {src} failed "
+                                          f"({e.strerror or e})") from None
         st.copy_row(i, row, hists)
 
 
@@ -773,9 +841,15 @@ class _Run:
         record.update(_reused_record(self.reused))
         if need_gpu:  # the layout of the GPUs (rank 0's node): ranks per GPU and what became of MPS
             record.update(ranks_per_gpu=self.per_gpu, mps=mps_note)
+        # A signal that arrived while the process started (adopted from the early handler) is in the record the
+        # store is born with: mpiexec SIGKILLs its ranks 1 s after forwarding it, maybe before anything else is
+        # written, and the store must then say interrupted, not "running or killed" (issue 40). Rank 0's view,
+        # broadcast, so that a collective creation writes the same record everywhere.
+        early = self.stop.signum if (rank == 0 and self.stop.requested()) else None
         if comm is not None:
-            attrs, record = comm.bcast((attrs, record), root=0)
+            attrs, record, early = comm.bcast((attrs, record, early), root=0)
         self.record = record
+        birth = {**record, **_interrupted(early, {})} if early is not None else record
         self.ctx = Context(rank=rank, gpu=self.gpu)
         if self.gpu is not None:
             self.ctx.ahead(self.lookahead)  # host threads for the surfaces of the units held ahead
@@ -783,8 +857,18 @@ class _Run:
         self.ctx.writer = self.wmode  # how a distributed task's kept fields are written (gapsweep.sweep.fields)
         self.todo = set(self.todo_list)
         self.work = [k for k, u in enumerate(self.units) if any(i in self.todo for i in u.tasks)]
+        if early is not None and self.held is not None and comm is not None:
+            # the lease says so before the store is made: a SIGKILL from here on leaves either no store or one
+            # born interrupted, and the next run takes the lease over without --break-lease
+            self.held.mark_interrupted()
         if self.wmode == "mpio" or rank == 0:
             with self.stop.critical():
+                # A new store is created with this run's record among its attributes (issue 40): it appears at
+                # its path (a rename) with the record, so no kill (mpiexec SIGKILLs its ranks 1 s after
+                # forwarding a SIGTERM) between its creation and a later attribute write leaves a store that
+                # names no run.
+                if self.mode == "create":
+                    attrs = {**attrs, "runs": json.dumps([birth])}
                 self.st = _open_store(self.path, self.mode, self.tasks, attrs, self.spec.histogram["bins"],
                                       comm if self.wmode == "mpio" else None, rank, self.run_id,
                                       registry.job_columns(self.spec))
@@ -792,12 +876,15 @@ class _Run:
                     self.held.bind(self.path)
                 if self.mode == "resume":  # every byte of a re-run row is written again, NaN histograms included
                     self.st.force_histograms(self.todo_list)
-                runs = _earlier_runs(self.st, self.path)
-                self.st.set_attrs({"runs": json.dumps([*runs, record])}, flush=True)  # survives a kill -9
-                _copy_reused(self.st, self.reused)
+                if self.mode != "create":
+                    runs = _earlier_runs(self.st, self.path)
+                    self.st.set_attrs({"runs": json.dumps([*runs, birth])}, flush=True)  # survives a kill -9
+                _copy_reused(self.st, self.reused, self.tasks)
         self.prog = Progress(len(self.todo), self.progress if rank == 0 else "none")
         if comm is not None and rank == 0 and self.wmode == "rank0":  # issue 19: mpiexec's 1-s grace, see below
             self.stop.on_request = lambda sig: _mark_interrupted(self.st, record, self.prog, self.held, sig)
+            if early is None and self.stop.requested():  # signalled during the creation: say so at once
+                _mark_interrupted(self.st, record, self.prog, self.held, self.stop.signum)
         if rank == 0:  # when the farm starts (wall clock): start-up = this minus the launch (benchmarks)
             record["farm_started_unix"] = round(time.time(), 3)
         if rank == 0 and comm is not None and need_gpu:
@@ -962,7 +1049,8 @@ def _open_store(path: Path, mode: str, tasks: list[Task], attrs: dict[str, Any],
             if rank == 0:
                 tmp.unlink(missing_ok=True)
             raise
-    st = Store.open(path, comm=comm, repair_tasks=mode == "resume")
+    restore = {k: v for k, v in attrs.items() if k in ("job_name", "spec_text", "spec_sha256", "units", "spec_dir")}
+    st = Store.open(path, comm=comm, repair_tasks=mode == "resume", restore=restore if mode == "resume" else None)
     if mode == "resume" and rank == 0 and (gone := remove_partial(fields_dir(path))):
         log.info("store %s: removed %d partial kept-field file(s) of an interrupted run", path, gone)
     if mode == "resume":  # task rows damaged since they were written come back from the spec (their rows re-run)

@@ -33,7 +33,9 @@ __all__ = [
     "INT_RESULTS",
     "LAYOUTS",
     "PLUGIN_COLUMNS",
+    "PROVENANCE_ATTRS",
     "RESULT_DTYPE",
+    "SPEC_ATTRS",
     "STATUS",
     "TASK_DTYPE",
     "Column",
@@ -46,6 +48,7 @@ __all__ = [
     "TaskResult",
     "Unit",
     "integrity_problem",
+    "integrity_problems",
     "integrity_record",
     "layout_of",
     "make_task",
@@ -81,7 +84,8 @@ class JobSpec:
 
     @property
     def law(self) -> str:
-        """The interaction law's name: "exponential" (default), "hard_wall" or "adhesive" (docs/gfmd.md)."""
+        """The interaction law's name: "exponential" (default), "hard_wall", "adhesive" or "hard_wall_adhesive"
+        (docs/gfmd.md)."""
         return self.interaction.get("kind", "exponential")
 
     @property
@@ -144,7 +148,9 @@ FLOAT_RESULTS = (
     # g_rms, which are those of the heights solved
     "h_rms_spectrum", "g_rms_spectrum",
 )
-INT_RESULTS = ("iterations", "count", "rank", "flags")
+# format 5 (issue 40 item 5): ``algorithm_version``, the ALGORITHM_VERSION of the method plug-in that computed the
+# row (-1: unknown -- a row of an older store, or one not computed); --reuse copies only rows of the same version
+INT_RESULTS = ("iterations", "count", "rank", "flags", "algorithm_version")
 # Columns a plug-in declares itself (a method's or an extension's ``own_columns``; docs/store.md "Plug-in
 # columns"): appended after the columns above in the stores of the jobs that use the plug-in, listed in the store's
 # attribute PLUGIN_COLUMNS. A job that uses no such plug-in writes exactly the table above.
@@ -176,7 +182,7 @@ class Column:
 FLAG_JUMP = 1
 FLAG_DETACHED = 2
 # Columns filled by the sweep itself for every row (not by a method).
-COMMON_RESULTS = ("wall_time", "rank")
+COMMON_RESULTS = ("wall_time", "rank", "algorithm_version")
 # The message prefix of a row that ran out of its time limit (--task-timeout): such failed rows are run again by
 # --resume (a slow node or a cold cache may have caused them).
 TIMEOUT_PREFIX = "timeout:"
@@ -187,6 +193,10 @@ INTERRUPTED_PREFIX = "interrupted:"
 # [material] keys of the body beyond E* (an elastic layer, the hard wall's pressure cap; docs/jobs.md "The body:
 # layer and hardness"), validated by gapsweep.sweep.spec, passed to gfmd.solve by the gfmd method.
 SUBSTRATE_KEYS = ("thickness", "poisson", "bottom", "hardness")
+# The message prefix of a row that failed because an optional package (an extra: gapsweep.core.extras) is not
+# installed: a fact of the installation, not of the task, so --resume (and the demo) runs such rows again once
+# it is (issue 40: the demo's SDE rows stuck after `pip install 'gapsweep[sde]'`, "nothing to do").
+MISSING_EXTRA_PREFIX = "missing extra:"
 # The kept fields of a GFMD task (docs/jobs.md "keep_fields", gapsweep.sweep.fields).
 FIELD_NAMES = ("gap", "pressure", "displacement", "height")
 
@@ -284,7 +294,7 @@ def make_task(method: str, hurst: float, rho: float, sigma0: float, seed: int, n
 
 FORMAT = "gapsweep-store"
 # One format version per layout (the table LAYOUTS below, docs/store.md "Formats"): 5: + h_rms_spectrum and
-# g_rms_spectrum (issue 36); 4: format 3's last table
+# g_rms_spectrum (issue 36) and algorithm_version (issue 40); 4: format 3's last table
 # with the attribute checksums (INTEGRITY); 3: per-row checksums (four layouts, written before the rule);
 # 2: the issue-12 columns and pressure histograms; 1: the first format
 FORMAT_VERSION = 5
@@ -305,7 +315,7 @@ RESULT_DTYPE = np.dtype(
 # column: a layout once written never changes (tests/test_store_formats.py holds their digests).
 NEW_IN_V2 = ("contact_area", "elastic_energy", "contact_atom", "pressure_atom", "mean_gap_persson", "flags")
 NEW_IN_V3 = ("error_estimate", "last_attached_load", "checksum")
-NEW_IN_V5 = ("h_rms_spectrum", "g_rms_spectrum")
+NEW_IN_V5 = ("h_rms_spectrum", "g_rms_spectrum", "algorithm_version")
 
 
 def _results_dtype(floats: Sequence[str], ints: Sequence[str], checksum: bool) -> np.dtype:
@@ -322,6 +332,7 @@ RESULT_DTYPE_V2 = _results_dtype(_F2, _I2, False)
 RESULT_DTYPE_V3B = _results_dtype((*_F2, "error_estimate"), _I2, False)
 RESULT_DTYPE_V3C = _results_dtype((*_F2, "error_estimate"), _I2, True)
 RESULT_DTYPE_V3D = _results_dtype((*_F2, "error_estimate", "last_attached_load"), _I2, True)
+RESULT_DTYPE_V4 = RESULT_DTYPE_V3D  # format 4 added the attribute checksums, no column
 # The attribute of format 4 that holds the checksums of every other attribute and of /tasks (docs/store.md).
 INTEGRITY = "integrity"
 
@@ -356,7 +367,7 @@ LAYOUTS = (
     Layout("3b", 3, RESULT_DTYPE_V3B, "dataset", False, "de98333"),
     Layout("3c", 3, RESULT_DTYPE_V3C, "column", False, "9093b41 .. 6bc25eb"),
     Layout("3d", 3, RESULT_DTYPE_V3D, "column", False, "be10c32 .. a6b475f"),
-    Layout("4", 4, RESULT_DTYPE_V3D, "column", True, "576c959 .. bb77f13"),
+    Layout("4", 4, RESULT_DTYPE_V4, "column", True, "576c959 .. bb77f13"),
     Layout("5", 5, RESULT_DTYPE, "column", True, "this version"),
 )
 CURRENT_LAYOUT = LAYOUTS[-1]
@@ -415,9 +426,11 @@ PRESSURE_HIST = ("histograms/pressure_edges", "histograms/pressure_density")
 # four histogram rows; written with the row, after its payload. A finished row whose bytes no longer match is
 # "damaged" (docs/store.md "Checksums").
 CHECKSUM = "checksum"
-# Columns that differ between two runs of the same job by nature (compare stores without them); the checksum
-# covers the wall time, so it differs with it.
-VOLATILE = ("wall_time", "rank", "checksum")
+# Columns that differ between two runs of the same job by nature, or say how a row was computed rather than what it
+# holds (compare stores without them: merge's conflicts, diff); the checksum covers the wall time, so it differs
+# with it; algorithm_version: rows equal in every value do not conflict because an older code computed one of
+# them (the kept row keeps its own version)
+VOLATILE = ("wall_time", "rank", "checksum", "algorithm_version")
 
 
 class StoreError(RuntimeError):
@@ -476,11 +489,19 @@ def integrity_record(attrs: dict[str, Any], tasks: np.ndarray) -> str:
     return json.dumps({**items, "self": _record_digest(items)}, sort_keys=True, separators=(",", ":"))
 
 
-def integrity_problem(record: Any, attrs: dict[str, Any], tasks: Any, skip: tuple[str, ...] = ()) -> str | None:
-    """The first item that fails its checksum, as the rest of a one-line message ("attribute 'units' fails its
-    checksum"), or None. ``attrs``: the file's other attributes (an unreadable one as an exception instance);
-    ``tasks``: a callable returning the ``/tasks`` table (read only when the attributes pass; None: none there,
-    which the structural check reports)."""
+# Attributes whose damage leaves every row usable (issue 40 item 1): the provenance (rebuilt, marked as lost,
+# by --resume and `gapsweep repair`) and the job spec's own (restored from the job file after checking every row).
+# Damage to any other attribute (format, format_version, shard) still refuses the store.
+PROVENANCE_ATTRS = ("created", "finished", "versions", "git_commit", "gapsweep_version", "merged_from", "job_name")
+SPEC_ATTRS = ("spec_text", "spec_sha256", "units", "spec_dir")
+
+
+def integrity_problems(record: Any, attrs: dict[str, Any], tasks: Any, skip: tuple[str, ...] = ()
+                       ) -> list[tuple[str, str]]:
+    """Every item that fails its checksum, as ``(key, rest of a one-line message)``: key ``"integrity"`` (the
+    record itself is damaged: nothing else can be checked, the list ends there), ``"attr:<name>"`` or
+    ``"table:/tasks"``. ``attrs``: the file's other attributes (an unreadable one as an exception instance);
+    ``tasks``: a callable returning the ``/tasks`` table (None: none there, which the structural check reports)."""
     try:
         rec = json.loads(record)
         items = {k: v for k, v in rec.items() if k != "self"}
@@ -488,16 +509,25 @@ def integrity_problem(record: Any, attrs: dict[str, Any], tasks: Any, skip: tupl
     except (TypeError, ValueError, AttributeError):
         ok = False
     if not ok or rec.get("self") != _record_digest(items):
-        return f"attribute {INTEGRITY!r} (the checksums of the others) is damaged"
+        return [(INTEGRITY, f"attribute {INTEGRITY!r} (the checksums of the others) is damaged")]
+    out = []
     for k, v in attrs.items():
         if f"attr:{k}" not in items:
-            return f"attribute {k!r} is not in the store's checksums (added or renamed after the store was written)"
-        if isinstance(v, Exception) or _digest(_value_bytes(v)) != items[f"attr:{k}"]:
-            return f"attribute {k!r} fails its checksum"
+            out.append((f"attr:{k}", f"attribute {k!r} is not in the store's checksums (added or renamed after the "
+                        "store was written)"))
+        elif isinstance(v, Exception) or _digest(_value_bytes(v)) != items[f"attr:{k}"]:
+            out.append((f"attr:{k}", f"attribute {k!r} fails its checksum"))
     for k in items:
         if k.startswith("attr:") and k[5:] not in attrs and k not in skip:
-            return f"attribute {k[5:]!r} is missing (it is in the store's checksums)"
+            out.append((k, f"attribute {k[5:]!r} is missing (it is in the store's checksums)"))
     table = tasks()
     if table is not None and _digest(np.ascontiguousarray(table).tobytes()) != items.get("table:/tasks"):
-        return "table '/tasks' (task ids and parameters) fails its checksum"
-    return None
+        out.append(("table:/tasks", "table '/tasks' (task ids and parameters) fails its checksum"))
+    return out
+
+
+def integrity_problem(record: Any, attrs: dict[str, Any], tasks: Any, skip: tuple[str, ...] = ()) -> str | None:
+    """The first of :func:`integrity_problems` as the rest of a one-line message ("attribute 'units' fails its
+    checksum"), or None."""
+    probs = integrity_problems(record, attrs, tasks, skip)
+    return probs[0][1] if probs else None

@@ -12,9 +12,19 @@
   finished no row (a progress file ``STORE.requeue`` beside the store keeps the count, keyed by the job id).
   A requeued job keeps its id and stays unfinished, so the merge's ``afterany`` waits for its last attempt
   (tests/test_slurm.py checks this on a real Slurm).
-* **Never twice**: every job carries ``--comment=gapsweep:<key>``, the key being a hash of the final store's
-  absolute path; a submission for a store with jobs still queued or running is refused, naming them, unless
-  ``force``.
+* **Never twice**: every job carries ``--comment=gapsweep:<key>[:<id>]``, the key being a hash of the final
+  store's resolved path (``os.path.realpath``: ``./x/../out`` and a symlinked folder are the same store) and,
+  when the store exists already, ``<id>`` a hash of its identity (device and inode: a hard link elsewhere is the
+  same store too); a submission for a store with jobs still queued or running is refused, naming them, unless
+  ``force``. When ``squeue`` cannot answer, nothing is submitted (unless ``force``): "0 queued" would be a guess.
+* **Logs per attempt**: every job's ``--output`` names its job id (``%A``/``%j``) and is opened with
+  ``--open-mode=append``, so a resubmission writes a new log and a requeued attempt (same id) appends to its
+  earlier attempts' log after a header line naming the attempt (``SLURM_RESTART_COUNT``); a ``%`` of the output
+  folder is escaped (``%%``) so that sbatch does not read it as a pattern.
+* **MPI launcher**: ``--mpi P`` runs the ``mpiexec`` beside the submitting interpreter (a venv's own launcher,
+  ``GAPSWEEP_MPIEXEC``) when there is one; otherwise the ``mpiexec`` on ``PATH`` must be of the MPI that mpi4py
+  was built with (Open MPI / MPICH / Intel MPI), else the submission is refused naming both
+  (``GAPSWEEP_LAUNCHER`` or ``--setup`` choose another).
 * **Site limits**: ``MaxArraySize`` (above), ``MaxJobCount`` and, where ``sacctmgr`` can read it, the
   association's ``MaxSubmitJobs`` (per user) are checked before anything is submitted.
 
@@ -36,7 +46,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["SiteOptions", "Submission", "existing_jobs", "requeue", "site_limits", "store_key", "submit"]
+__all__ = ["QueueUnknown", "SiteOptions", "Submission", "comment", "existing_jobs", "requeue", "sbatch_escape",
+           "site_limits", "store_identity", "store_key", "submit"]
 
 log = logging.getLogger("gapsweep.slurm")
 
@@ -121,8 +132,37 @@ def scripts_dir() -> Path:
 
 def store_key(store: str | Path) -> str:
     """The key of a final store in the jobs' ``--comment`` (``gapsweep:<key>``): 16 hex digits of the SHA-256
-    of its absolute path."""
-    return hashlib.sha256(str(Path(store).absolute()).encode()).hexdigest()[:16]
+    of its resolved path (``os.path.realpath``: ``..``, ``.`` and symlinks of the store or its folders
+    resolved, whether or not the store exists yet)."""
+    return hashlib.sha256(os.path.realpath(Path(store).absolute()).encode()).hexdigest()[:16]
+
+
+def store_identity(store: str | Path) -> str | None:
+    """16 hex digits of a hash of an existing store's identity (device and inode: the same file under any path,
+    a hard link included); None when the store does not exist (yet)."""
+    try:
+        st = os.stat(store)
+    except OSError:
+        return None
+    return hashlib.sha256(f"{st.st_dev}:{st.st_ino}".encode()).hexdigest()[:16]
+
+
+def comment(key: str, ident: str | None) -> str:
+    """The jobs' ``--comment``: ``gapsweep:<path key>`` and, for an existing store, ``:<identity>``."""
+    return f"gapsweep:{key}" + (f":{ident}" if ident else "")
+
+
+def _comment_keys(text: str) -> set[str]:
+    """The keys a job's comment names (``gapsweep:<key>[:<identity>]``); empty for other comments."""
+    text = text.strip()
+    if not text.startswith("gapsweep:"):
+        return set()
+    return {k for k in text[len("gapsweep:"):].split(":") if k}
+
+
+def sbatch_escape(path: str | Path) -> str:
+    """A literal path in sbatch's ``--output`` (where ``%`` starts a pattern: ``%j``, ``%A``): every ``%`` doubled."""
+    return str(path).replace("%", "%%")
 
 
 def _cmd(args: list[str], timeout: float = 30) -> subprocess.CompletedProcess | None:
@@ -168,15 +208,24 @@ def _whoami() -> str:
         return str(os.getuid())
 
 
-def existing_jobs(key: str) -> list[str]:
-    """Ids of the queued or running jobs whose comment is ``gapsweep:<key>`` (``squeue``; [] without Slurm)."""
+class QueueUnknown(SubmitError):
+    """``squeue`` is missing or failed: whether jobs of the store are queued cannot be told."""
+
+
+def existing_jobs(key: str, ident: str | None = None) -> list[str]:
+    """Ids of the queued or running jobs whose comment names the store's path key ``key`` or its identity
+    ``ident`` (:func:`comment`). Raises :class:`QueueUnknown` when ``squeue`` is missing, fails or times out."""
     p = _cmd(["squeue", "-h", "-o", "%i|%k|%T"])
     if p is None or p.returncode != 0:
-        return []
+        why = ("squeue is not installed here" if shutil.which("squeue") is None else
+               "squeue did not answer" if p is None else
+               f"squeue failed (exit {p.returncode}: {(p.stderr or p.stdout).strip()[:200]})")
+        raise QueueUnknown(why)
+    mine = {key} | ({ident} if ident else set())
     ids = []
     for line in p.stdout.splitlines():
         parts = line.strip().split("|")
-        if len(parts) >= 2 and parts[1].strip() == f"gapsweep:{key}":
+        if len(parts) >= 2 and _comment_keys(parts[1]) & mine:
             ids.append(parts[0])
     return ids
 
@@ -257,8 +306,17 @@ def submit(job: str | Path, out_dir: str | Path, *, shards: int | None = None, m
     name = job.name[:-5] if job.name.endswith(".toml") else job.stem
     final = out / f"{name}.h5"
     sub = Submission(final, store_key(final))
+    ident = store_identity(final)
     here = scripts_dir()
-    present = existing_jobs(sub.key)
+    try:
+        present = existing_jobs(sub.key, ident)
+    except QueueUnknown as e:
+        if not (force or dry_run):
+            raise SubmitError(f"{e}: cannot tell whether jobs of store {final} are queued or running already, "
+                              "so nothing was submitted (a second submission of one store is refused); run it "
+                              "where squeue works, or pass --force to submit anyway") from None
+        present = []
+        sub.notes.append(f"{e}: jobs of this store already queued not checked")
     if present and not force:
         raise SubmitError(f"store {final} has jobs queued or running already: {', '.join(present)} (their "
                           "comment gapsweep:" + sub.key + "); wait for them, cancel them (scancel), or pass "
@@ -274,18 +332,22 @@ def submit(job: str | Path, out_dir: str | Path, *, shards: int | None = None, m
                "GAPSWEEP_SIGNAL_LEAD": str(signal_lead)}
     if site.setup:
         sub.env["GAPSWEEP_SETUP"] = site.setup
-    common = ["--parsable", *site.args(), "--requeue", f"--signal=B:USR1@{signal_lead}",
-              f"--comment=gapsweep:{sub.key}"]
-    extra = list(run_args or [])
     if mpi:
-        sub.commands.append(["sbatch", *common, f"--ntasks={mpi}", f"--output={out / name}.mpi.out",
+        sub.notes.extend(_mpi_launcher(env, sub.env, site))
+    tag = comment(sub.key, ident)
+    common = ["--parsable", *site.args(), "--requeue", f"--signal=B:USR1@{signal_lead}", f"--comment={tag}",
+              "--open-mode=append"]
+    extra = list(run_args or [])
+    logs = sbatch_escape(out / name)  # the folder and name literal, then sbatch's patterns
+    if mpi:
+        sub.commands.append(["sbatch", *common, f"--ntasks={mpi}", f"--output={logs}.mpi-%j.out",
                              str(here / "mpi_job.sbatch"), str(job), str(final), *extra])
         sub.scripts["mpi_job.sbatch"] = (here / "mpi_job.sbatch").read_text()
     else:
         pattern = f"{out / name}.shard{{i}}.h5"
         for off, cnt in chunks:
             throttle = f"%{max_running}" if max_running else ""
-            log_name = f"{out / name}.shard%a.out" if off == 0 else f"{out / name}.shard{off}+%a.out"
+            log_name = f"{logs}.shard%a-%A.out" if off == 0 else f"{logs}.shard{off}+%a-%A.out"
             sub.commands.append(["env", f"GAPSWEEP_SHARDS={shards}", f"GAPSWEEP_SHARD_OFFSET={off}", "sbatch",
                                  *common, f"--array=0-{cnt - 1}{throttle}", f"--output={log_name}",
                                  str(here / "array_job.sbatch"), str(job), pattern, *extra])
@@ -293,7 +355,7 @@ def submit(job: str | Path, out_dir: str | Path, *, shards: int | None = None, m
         sub.scripts["merge_job.sbatch"] = (here / "merge_job.sbatch").read_text()
     if dry_run:
         if not mpi:
-            sub.commands.append(_merge_cmd(site, sub.key, ["ARRAY_ID"] * len(chunks), out, name, pattern, shards,
+            sub.commands.append(_merge_cmd(site, tag, ["ARRAY_ID"] * len(chunks), out, name, pattern, shards,
                                            here))
         return sub
     out.mkdir(parents=True, exist_ok=True)
@@ -310,7 +372,7 @@ def submit(job: str | Path, out_dir: str | Path, *, shards: int | None = None, m
             sub.mpi = ids[0]
             return sub
         sub.arrays = ids
-        mc = _merge_cmd(site, sub.key, ids, out, name, pattern, shards, here)
+        mc = _merge_cmd(site, tag, ids, out, name, pattern, shards, here)
         sub.commands.append(mc)
         sub.merge = _sbatch(mc, jenv)
     except SubmitError as e:
@@ -321,12 +383,72 @@ def submit(job: str | Path, out_dir: str | Path, *, shards: int | None = None, m
     return sub
 
 
-def _merge_cmd(site: SiteOptions, key: str, arrays: list[str], out: Path, name: str, pattern: str, shards: int,
+def _merge_cmd(site: SiteOptions, tag: str, arrays: list[str], out: Path, name: str, pattern: str, shards: int,
                here: Path) -> list[str]:
-    return ["sbatch", "--parsable", *site.args(merge=True), f"--comment=gapsweep:{key}",
-            f"--dependency=afterany:{':'.join(arrays)}", "--kill-on-invalid-dep=yes",
-            f"--output={out / name}.merge.out", str(here / "merge_job.sbatch"), pattern, str(shards),
-            str(out / f"{name}.h5")]
+    return ["sbatch", "--parsable", *site.args(merge=True), f"--comment={tag}",
+            f"--dependency=afterany:{':'.join(arrays)}", "--kill-on-invalid-dep=yes", "--open-mode=append",
+            f"--output={sbatch_escape(out / name)}.merge-%j.out", str(here / "merge_job.sbatch"), pattern,
+            str(shards), str(out / f"{name}.h5")]
+
+
+_VENDORS = (("Open MPI", ("open mpi", "openrte", "open-mpi")), ("Intel MPI", ("intel",)),
+            ("MPICH", ("mpich", "hydra")))
+
+
+def _vendor(text: str) -> str | None:
+    """The MPI implementation a version text names (``mpiexec --version``, ``MPI.Get_library_version()``)."""
+    low = text.lower()
+    for name, needles in _VENDORS:
+        if any(n in low for n in needles):
+            return name
+    return None
+
+
+def _mpi4py_library() -> str | None:
+    """mpi4py's MPI library version text, read in a child (MPI not initialised); None without mpi4py."""
+    code = ("import mpi4py; mpi4py.rc.initialize = False; mpi4py.rc.finalize = False\n"
+            "from mpi4py import MPI; print(MPI.Get_library_version())")
+    try:
+        p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    if p.returncode != 0:
+        return None
+    return p.stdout.strip() or None
+
+
+def _mpi_launcher(env: dict[str, str], jobs_env: dict[str, str], site: SiteOptions) -> list[str]:
+    """The MPI launcher of an ``--mpi`` job (``GAPSWEEP_MPIEXEC`` into ``jobs_env``): the one beside the
+    interpreter (a venv's own), else the one on ``PATH`` if it is of mpi4py's MPI; refused (SubmitError) when
+    they differ, naming both. ``GAPSWEEP_LAUNCHER`` or a ``--setup`` hook (which may load another MPI) take
+    the choice over. Returns notes."""
+    if env.get("GAPSWEEP_LAUNCHER"):
+        return [f"MPI launcher: GAPSWEEP_LAUNCHER = {env['GAPSWEEP_LAUNCHER']}"]
+    beside = Path(sys.executable).parent / "mpiexec"  # not resolved: a venv's bin/, where its MPI puts mpiexec
+    if beside.is_file() and os.access(beside, os.X_OK):
+        jobs_env["GAPSWEEP_MPIEXEC"] = str(beside)
+        return [f"MPI launcher: {beside} (beside {sys.executable})"]
+    on_path = shutil.which("mpiexec", path=env.get("PATH"))
+    if site.setup:
+        return [f"MPI launcher: mpiexec of the jobs' PATH after the setup hook (here: {on_path or 'none'})"]
+    lib = _mpi4py_library()
+    if lib is None:
+        return [f"MPI launcher: {on_path or 'mpiexec (none on PATH here)'}; mpi4py not importable here, its MPI "
+                "not compared"]
+    need = _vendor(lib) or lib.splitlines()[0][:60]
+    if on_path is None:
+        raise SubmitError(f"--mpi: no mpiexec beside {sys.executable} nor on PATH; mpi4py of this interpreter "
+                          f"needs the mpiexec of {need}: put its bin/ on PATH, load it with --setup, or set "
+                          "GAPSWEEP_LAUNCHER; nothing was submitted")
+    p = _cmd([on_path, "--version"])
+    have = _vendor((p.stdout + p.stderr) if p is not None else "")
+    if have is not None and _vendor(lib) is not None and have != _vendor(lib):
+        raise SubmitError(f"--mpi: the mpiexec on PATH ({on_path}) is {have}'s, but mpi4py of {sys.executable} "
+                          f"was built with {need}: the ranks would not start together. Put that MPI's bin/ "
+                          "on PATH (or activate the venv), load it with --setup, or set GAPSWEEP_LAUNCHER "
+                          "(e.g. \"srun --mpi=pmix\"); nothing was submitted")
+    jobs_env["GAPSWEEP_MPIEXEC"] = on_path
+    return [f"MPI launcher: {on_path} ({have or 'implementation unknown'}; mpi4py: {need})"]
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -68,18 +68,19 @@ LENGTH_UNITS = ("m", "mm", "um", "nm", "A", "pm")
 
 def _unit_label(key: str, v: Any, allowed: tuple[str, ...]) -> str:
     return rd.string(key, v, allowed)
-INTERACTION_KINDS = ("exponential", "hard_wall", "adhesive")
+INTERACTION_KINDS = ("exponential", "hard_wall", "adhesive", "hard_wall_adhesive")
+TENSILE_KINDS = ("adhesive", "hard_wall_adhesive")  # laws that take zero and tensile loads
 _TOP = ("job", "grid", "surface", "material", "histogram", "methods", "interaction")
 
 
 def _grid(key: str, t: dict, *, required: bool, law: str = "exponential", file: bool = False) -> dict[str, list]:
     """Grid axes of ``[grid]`` (``required``) or of a method override. A file surface has no Hurst exponent and
     the hard wall no range: those axes are then not given and hold the placeholder 0.0 (docs/jobs.md). The
-    adhesive law takes tensile (negative) pressures too."""
+    adhesive laws take tensile (negative) pressures too."""
     out: dict[str, list] = {}
 
     def _load(k, v):
-        if law == "adhesive":  # tensile loads allowed (docs/gfmd.md "Adhesion")
+        if law in TENSILE_KINDS:  # tensile loads allowed (docs/gfmd.md "Adhesion")
             return rd.number(k, v)
         return rd.positive(k, v)
 
@@ -191,10 +192,12 @@ def check_extra(spec: JobSpec) -> None:
 def _interaction(t: dict) -> dict[str, Any]:
     """``[interaction]``: ``kind`` ("exponential" default: its gamma0 is ``material.gamma0``, its range the grid's
     ``rho``), "hard_wall" (no parameter, no rho axis) or "adhesive" (``work`` > 0, the work of adhesion per area in
-    units of E* L; its range is the grid's ``rho``). Returns {} for the default law so older specs keep their
-    hash."""
+    units of E* L; its range is the grid's ``rho``) or "hard_wall_adhesive" (the contact-mechanics challenge's law:
+    non-overlap plus ``-work exp(-g/rho)``; ``work`` as for "adhesive", range the grid's ``rho``). Returns {} for
+    the default law so older specs keep their hash."""
     kind = rd.string("interaction.kind", t.get("kind", "exponential"), INTERACTION_KINDS)
-    keys = {"exponential": ("kind",), "hard_wall": ("kind",), "adhesive": ("kind", "work")}[kind]
+    keys = {"exponential": ("kind",), "hard_wall": ("kind",), "adhesive": ("kind", "work"),
+            "hard_wall_adhesive": ("kind", "work")}[kind]
     for k in t:
         if k not in keys:
             raise SpecError(f"interaction.{k}: unknown key for kind = {kind!r}; allowed keys: {', '.join(keys)}"
@@ -202,7 +205,7 @@ def _interaction(t: dict) -> dict[str, Any]:
     if kind == "exponential":
         return {}
     out: dict[str, Any] = {"kind": kind}
-    if kind == "adhesive":
+    if kind in ("adhesive", "hard_wall_adhesive"):
         if "work" not in t:
             raise SpecError("interaction.work: missing; the work of adhesion per area (> 0, units of E* L)")
         out["work"] = rd.number("interaction.work", t["work"], gt=0.0)
@@ -272,10 +275,13 @@ def loads(text: str, base: str | Path | None = None) -> JobSpec:
     file_n: int | None = None
     if kind == "file":
         surface, file_n = file_surface(s, base)
+        if law == "hard_wall_adhesive" and surface.get("periodic") is False:
+            raise SpecError("surface.periodic: interaction.kind = 'hard_wall_adhesive' runs on periodic surfaces "
+                            "only (free boundaries are not implemented for it); set surface.periodic = true")
         norm, nyquist = "file", 8
     else:
-        rd.known("surface", s, ("kind", "lambda_l", "lambda_s", "length", "rms_slope", "rms_height", "c0",
-                              "amplitudes", "unit"))
+        rd.known("surface", s, ("kind", "lambda_l", "lambda_s", "lambda_r", "length", "rms_slope", "rms_height",
+                              "c0", "amplitudes", "unit"))
         length = rd.number("surface.length", s.get("length", 1.0), ge=MIN_LENGTH, le=MAX_LENGTH)
         lambda_l = rd.number("surface.lambda_l", s.get("lambda_l", 0.25), gt=0.0, le=length)
         lambda_s = rd.number("surface.lambda_s", s.get("lambda_s", 2.5e-3), gt=0.0, lt=lambda_l)
@@ -289,6 +295,8 @@ def loads(text: str, base: str | Path | None = None) -> JobSpec:
             norm: rd.number(f"surface.{norm}", s.get(norm, 1.0), gt=0.0),
             "amplitudes": rd.string("surface.amplitudes", s.get("amplitudes", "fixed"), ("fixed", "gaussian")),
         }
+        if "lambda_r" in s:  # roll-off: constant spectrum between lambda_l and lambda_r (docs/jobs.md)
+            surface["lambda_r"] = rd.number("surface.lambda_r", s["lambda_r"], gt=lambda_s, le=lambda_l)
         if "unit" in s:  # a label: lengths (L, lambda_l, lambda_s, rho, heights) are in this unit
             surface["unit"] = _unit_label("surface.unit", s["unit"], LENGTH_UNITS)
         # M2 Nyquist condition as the surface module applies it: n > 2 floor(L / lambda_s).
@@ -340,9 +348,17 @@ def loads(text: str, base: str | Path | None = None) -> JobSpec:
             if not registry.get(k).takes_body:
                 raise SpecError(f"methods.{k}: not available with material.{body[0]} (no theory of a layer or of "
                                 f"a plastic cap is implemented for it); methods that take them: {', '.join(able)}")
+        if law == "hard_wall_adhesive" and "thickness" in material:
+            raise SpecError("material.thickness: interaction.kind 'hard_wall_adhesive' is not available on an "
+                            "elastic layer yet (the half-space only); remove material.thickness")
         if kind == "file" and surface.get("periodic") is False and "thickness" in material:
             raise SpecError("material.thickness: an elastic layer is solved with periodic boundaries only; this "
                             "file surface is non-periodic (free boundaries)")
+    refused = sorted(k for k in methods if not registry.get(k).rolloff)
+    if "lambda_r" in surface and refused:
+        raise SpecError(f"surface.lambda_r: a roll-off spectrum is not taken by {', '.join(refused)} (they assume "
+                        f"the spectrum of M2, zero below q_l); remove "
+                        f"{', '.join(f'[methods.{k}]' for k in refused)} or lambda_r")
     js = JobSpec(name=name, description=description, text=text, grid=grid, surface=surface,
                  material=material, histogram=histogram, methods=methods, interaction=interaction,
                  base_dir=str(base) if base is not None else "")

@@ -28,6 +28,9 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
+import sys
+import threading
 from collections.abc import Iterable, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -65,6 +68,8 @@ from gapsweep.sweep.schema import (  # noqa: F401 - the store's layout, re-expor
     row_checksum,
 )
 from gapsweep.sweep.writefail import KEEP_TYPES, io_failed, one_line, write_failed  # noqa: F401 - re-exported
+
+ALGO_COLUMN = "algorithm_version"  # format 5 (issue 40 item 5)
 
 log = logging.getLogger("gapsweep.store")
 
@@ -267,11 +272,13 @@ class Store:
         # format 3: each row carries its checksum (over its task row, itself and its histograms); which rows hold
         # histograms now, so that a row without one writes none (its NaN rows are already what is stored)
         self._ck = CHECKSUM in (self._rdtype.names or ())
+        self._versions = ALGO_COLUMN in (self._rdtype.names or ()) and self._ck
         n = self._res.shape[0]
         self._task_rows = f["tasks"][...] if self._ck and n else None
         self._has_hist = (np.isfinite(self._edges[:, 0]) if n else np.zeros(0, bool)) if self._ck else None
         self._has_phist = (np.isfinite(self._pedges[:, 0]) if n else np.zeros(0, bool)) \
             if self._ck and self._pedges is not None else None
+        self._deferred: dict[str, Any] = {}  # attribute fixes waiting for repair_tasks (Store.open)
         self._integrity = INTEGRITY in f.attrs  # format 4: attribute writes keep the checksums current
         # ... of the task table as this process knows it (the same on every rank: read once, or the job's)
         self._tasks_now = f["tasks"][...] if self._integrity else None
@@ -333,19 +340,48 @@ class Store:
         return cls(f, comm)
 
     @classmethod
-    def open(cls, path: str | Path, *, comm: Any = None, repair_tasks: bool = False) -> Store:
+    def open(cls, path: str | Path, *, comm: Any = None, repair_tasks: bool = False,
+             restore: dict[str, Any] | None = None) -> Store:
         """Open an existing store for writing (validated; ``repair_tasks``: a ``/tasks`` table that fails its
-        checksum is accepted, for :meth:`repair_tasks` to restore from the job)."""
+        checksum is accepted, for :meth:`repair_tasks` to restore from the job).
+
+        Attributes that fail their checksum while the rows verify (issue 40 item 1, storecheck.Report) are
+        mended first: damaged provenance is rebuilt, marked as lost (provenance.rebuilt); the job spec's
+        attributes (or all of them, when the checksum record itself is damaged) are set to ``restore`` -- the
+        caller's, checked against every row (``--resume`` with the job file, ``gapsweep repair``) -- and the
+        checksums written again. Without ``restore`` such a store is refused in one line naming the remedy."""
         try:
             f = _writer_file(path, "r+", comm)
         except OSError as e:
             raise StoreError(f"store {path}: cannot open for writing ({e})") from None
         try:
-            storecheck.check(f, path, tolerate_tasks=repair_tasks)
+            rep = storecheck.check(f, path, tolerate_tasks=repair_tasks)
+            fixes: dict[str, Any] = {}
+            if rep.attrs_need_repair:
+                if not rep.spec_trusted and restore is None:
+                    raise StoreError(f"store {path}: {rep.lines()[0]}")
+                from gapsweep.sweep.provenance import rebuilt
+
+                fixes = rebuilt(rep.provenance_damaged)
+                fixes.update({k: v for k, v in (restore or {}).items() if k in rep.provenance_damaged})
+                if not rep.spec_trusted:
+                    fixes.update(restore or {})
+                if comm is not None:  # every rank writes the same values (collective)
+                    fixes = comm.bcast(fixes, root=0)
         except BaseException:
             f.close()
             raise
-        return cls(f, comm)
+        st = cls(f, comm)
+        if fixes and rep.tasks_damaged:  # sealed now, the damaged /tasks would verify: after repair_tasks
+            st._deferred = fixes
+        elif fixes:
+            st._fix_attrs(fixes)
+        return st
+
+    def _fix_attrs(self, fixes: dict[str, Any]) -> None:
+        self.set_attrs(fixes, flush=True)
+        log.warning("store %s: attribute(s) %s rebuilt or restored, their checksums written again", self.path,
+                    ", ".join(sorted(fixes)))
 
     def repair_tasks(self, tasks: Sequence[Task], *, write: bool = True) -> list[int]:
         """Rewrite the ``/tasks`` rows that differ from the job's (rows found damaged by their checksums;
@@ -365,6 +401,9 @@ class Store:
             self._task_rows = want
         if self._integrity:
             self._tasks_now = want
+        if self._deferred:
+            fixes, self._deferred = self._deferred, {}
+            self._fix_attrs(fixes)
         return bad
 
     def force_histograms(self, rows: Iterable[int]) -> None:
@@ -418,6 +457,8 @@ class Store:
                 self.f.flush()
             self._inject()
             row = result_row(res, self._rdtype)[0]
+            if self._versions:  # format 5: the algorithm that computed the row (issue 40 item 5; every path)
+                row[ALGO_COLUMN] = self._algorithm_version(i)
             if ck:  # the checksum travels in the row's own write, after the payload
                 row[CHECKSUM] = row_checksum(self._task_rows[i], row, (*hist, *phist))
                 self._has_hist[i] = res.hist is not None
@@ -428,6 +469,12 @@ class Store:
                 self.f.flush()
         except (OSError, RuntimeError) as e:
             raise _failed(f"store {self.path}: writing row {i} failed ({e})") from None
+
+    def _algorithm_version(self, i: int) -> int:
+        """ALGORITHM_VERSION of the method plug-in of row ``i`` (docs/store.md "Algorithm versions")."""
+        from gapsweep.sweep import methods as registry
+
+        return int(registry.get(self._task_rows[i]["method"].decode()).algorithm_version)
 
     def _mark_pending(self, i: int, flush: bool) -> None:
         """A row that is not pending in the file (run again: timed out, damaged, incomplete) is first written back
@@ -496,6 +543,111 @@ class Store:
 # reading
 
 
+# Readers of a store that a live process is writing (issue 40 item 8: under mpio 78 of 4,241 polling reads were
+# told "truncated or damaged" while metadata was being written): the read is tried again after these pauses (s),
+# then reported as "being written" rather than damaged.
+RETRY_DELAYS = (0.02, 0.05, 0.1, 0.2, 0.4, 0.8)
+_retrying = threading.local()
+
+
+def _being_written(path: str | Path) -> dict[str, Any] | None:
+    """The lease of ``path`` where another live process (or one on another host, which cannot be checked) holds
+    it; a lease of this process (a merge reading its own output) does not count: its errors are its own."""
+    import socket
+
+    try:
+        held = lease.read(path)
+    except OSError:
+        return None
+    if held is None or held.get("alive") is False:
+        return None
+    if held.get("host") == socket.gethostname() and held.get("pid") == os.getpid():
+        return None
+    return held
+
+
+def while_written(fn: Any) -> Any:
+    """Decorate a reader ``fn(path, ...)``: a StoreError (or OSError other than a missing file) raised while a
+    live writer holds the store's lease is retried after :data:`RETRY_DELAYS`; if it persists, it is raised as
+    "being written by <holder>" with the reader's own message, not as damage. Nested readers retry once."""
+    import functools
+    import time
+
+    @functools.wraps(fn)
+    def wrapper(path: str | Path, *a: Any, **kw: Any) -> Any:
+        if getattr(_retrying, "on", False):
+            return fn(path, *a, **kw)
+        _retrying.on = True
+        try:
+            for delay in (*RETRY_DELAYS, None):
+                try:
+                    return fn(path, *a, **kw)
+                except FileNotFoundError:
+                    raise
+                except (StoreError, OSError) as e:
+                    held = _being_written(path)
+                    if held is None or isinstance(e, StoreWriteError):
+                        raise
+                    if delay is None:
+                        log.debug("store %s: the last read while being written: %s", path, e)
+                        raise StoreError(f"store {path}: being written by {lease.describe(held)}; the reads met "
+                                         "parts still being written: read again in a moment or when it finishes "
+                                         "(`gapsweep status` once the lease is gone tells whether it is damaged)"
+                                         ) from None
+                    log.debug("store %s: read while being written failed (%s); trying again", path, e)
+                    time.sleep(delay)
+        finally:
+            _retrying.on = False
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    return wrapper
+
+
+def crash_probe(path: str | Path) -> None:
+    """Read the store's metadata, attributes and tables (storecheck.check) in a forked child first, and raise a
+    one-line StoreError where that crashed the HDF5 library (issue 40 item 3: a flipped byte in an object header
+    or the global heap made HDF5 segfault, which no ``except`` catches). A Python error in the child is left to
+    the command itself, which meets it again and reports it. For the CLI's reading commands (not under MPI)."""
+    import signal
+
+    p = Path(path)
+    if not p.is_file() or not hasattr(os, "fork"):
+        return
+    sys.stdout.flush()
+    sys.stderr.flush()
+    pid = os.fork()
+    if pid == 0:  # the child: quiet, no exit handlers, only the exit status (or the signal) tells
+        try:
+            import faulthandler
+
+            faulthandler.disable()
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, 1)
+            os.dup2(devnull, 2)
+            logging.disable(logging.CRITICAL)
+            # the readers' own path (the check every command starts with), then every table: a crash of HDF5 on
+            # damaged metadata is undefined behaviour, most faithfully met by the same calls in the same (forked)
+            # memory as the command's; costs one more check of the store
+            with open_read(p, check=False) as f:
+                try:
+                    storecheck.check(f, p, tolerate_tasks=True)
+                except StoreError:
+                    pass
+                for k in ("tasks", "results", "histograms/edges", "histograms/density", *PRESSURE_HIST):
+                    if k in f:
+                        f[k][...]
+        except BaseException:
+            pass
+        finally:
+            os._exit(0)
+    _, st = os.waitpid(pid, 0)
+    if os.WIFSIGNALED(st):
+        sig = os.WTERMSIG(st)
+        name = signal.Signals(sig).name if sig in signal.Signals._value2member_map_ else str(sig)
+        raise StoreError(f"store {p}: its HDF5 metadata is damaged (reading it crashed the HDF5 library with "
+                         f"{name}): not readable; nothing was written")
+
+
 @contextmanager
 def open_read(path: str | Path, *, check: bool = True, tolerate_tasks: bool = False):
     """Open a store read-only without taking HDF5's file lock (it may be running). With ``check`` the
@@ -531,12 +683,14 @@ def open_read(path: str | Path, *, check: bool = True, tolerate_tasks: bool = Fa
             raise StoreError(f"store {p}: read error ({e}): damaged store") from None
 
 
+@while_written
 def read_attrs(path: str | Path, *, tolerate_tasks: bool = False) -> dict[str, Any]:
     """File attributes as Python values (strings decoded). ``tolerate_tasks``: see :func:`storecheck.check`."""
     with open_read(path, tolerate_tasks=tolerate_tasks) as f:
         return {k: (v.decode("utf-8", "replace") if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
 
 
+@while_written
 def read(path: str | Path, *, mark_damaged: bool = True, tolerate_tasks: bool = False):
     """One row per task: parameters, status (string), message and results (``docs/store.md``).
 
@@ -570,6 +724,7 @@ def read(path: str | Path, *, mark_damaged: bool = True, tolerate_tasks: bool = 
     return pd.DataFrame(cols)
 
 
+@while_written
 def read_pressure_histograms(path: str | Path, task_ids: Iterable[str] | None = None,
                              ) -> dict[str, tuple[np.ndarray, np.ndarray, float]]:
     """``{task_id: (edges, density, atom)}`` of the local pressure for GFMD rows that have one (format-2
@@ -589,6 +744,7 @@ def read_pressure_histograms(path: str | Path, task_ids: Iterable[str] | None = 
     return out
 
 
+@while_written
 def read_histograms(path: str | Path, task_ids: Iterable[str] | None = None,
                     ) -> dict[str, tuple[np.ndarray, np.ndarray, int]]:
     """``{task_id: (edges, density, count)}`` for tasks that have a histogram (density integrates to 1 over
@@ -609,8 +765,11 @@ def read_histograms(path: str | Path, task_ids: Iterable[str] | None = None,
     return out
 
 
+@while_written
 def status(path: str | Path) -> str:
-    """A short text summary of a running or finished store (counts per method and status, runs, failures)."""
+    """A short text summary of a running or finished store (counts per method and status, runs, failures).
+    Temporary files of a killed creation or merge of this store are removed first and named (issue 40 item 7)."""
+    gone = lease.remove_leftovers(path)
     attrs = read_attrs(path, tolerate_tasks=True)  # a damaged /tasks is a line of the summary, not its end
     df = read(path, tolerate_tasks=True)
     with open_read(path, check=False) as f:
@@ -620,6 +779,8 @@ def status(path: str | Path) -> str:
     held = lease.read(path)
     if held is not None:
         lines.append(f"lease: held by {lease.describe(held)}")
+    lines.extend(f"removed: {x}, the temporary file of a killed creation, merge or export of this store"
+                 for x in gone)
     lines.extend(f"check: {x}" for x in report.lines())
     if len(df):
         tab = df.groupby(["method", "status"]).size().unstack(fill_value=0)
@@ -643,6 +804,9 @@ def status(path: str | Path) -> str:
             end = f"{r.get('stopped_at')} (stopped: {r['stopped']})"
         lines.append(f"run: started {r.get('started')} finished {end} "
                      f"ranks {r.get('mpi_size')} writer {r.get('writer')} hosts {','.join(r.get('hosts', []))}")
+        if r.get("reused_older"):
+            lines.append(f"  --reuse-older: rows of another algorithm version copied from {r['reused_older']}")
+    lines.extend(_versions(df))
     bad = df[df.status.isin(["failed", "not_converged"])]
     for _, row in bad.head(10).iterrows():
         lines.append(f"  {row.status}: {row.task_id} {row.method} H={row.hurst:g} rho={row.rho:g} "
@@ -651,6 +815,30 @@ def status(path: str | Path) -> str:
         lines.append(f"  ... and {len(bad) - 10} more")
     lines.extend(_unfinished(path, df))
     return "\n".join(lines)
+
+
+def _versions(df: Any) -> list[str]:
+    """Status lines about finished rows not computed by the current algorithm version of their method (column
+    algorithm_version: another version, or -1 unknown -- a store written before format 5, or a row copied from one
+    by ``--reuse-older``); issue 40 item 5."""
+    from gapsweep.sweep import methods as registry
+
+    out = []
+    fin = df[df.status.isin(["done", "failed", "not_converged"])]
+    for m, g in fin.groupby("method"):
+        try:
+            cur = registry.get(str(m)).algorithm_version
+        except (KeyError, ValueError):
+            continue
+        v = g.algorithm_version.astype(int)
+        unknown, other = int((v < 0).sum()), g[(v >= 0) & (v != cur)]
+        if len(other):
+            out.append(f"algorithm: {len(other)} {m} row(s) computed by version(s) "
+                       f"{sorted(set(other.algorithm_version.astype(int)))} (current {cur})")
+        if unknown:
+            out.append(f"algorithm: {unknown} {m} row(s) of unknown algorithm version (written before format 5, "
+                       "or copied from such a store by --reuse-older)")
+    return out
 
 
 def _unfinished(path: str | Path, df: Any) -> list[str]:

@@ -26,14 +26,17 @@ from gapsweep.sweep.schema import (
     INTEGRITY,
     INTERRUPTED_PREFIX,
     LAYOUTS,
+    MISSING_EXTRA_PREFIX,
     PLUGIN_COLUMNS,
     PRESSURE_HIST,
+    PROVENANCE_ATTRS,
+    SPEC_ATTRS,
     STATUS,
     TASK_DTYPE,
     TIMEOUT_PREFIX,
     Layout,
     StoreError,
-    integrity_problem,
+    integrity_problems,
     layout_of,
     plugin_columns_of,
     row_checksum,
@@ -58,6 +61,20 @@ class Report:
     tasks_damaged: bool = False  # format 4, check(tolerate_tasks=True): /tasks failed its checksum
     path: str = ""
     runs_damaged: str | None = None  # why the run records (attribute runs) cannot be read; None: they can
+    # format 4, issue 40 item 1: damage that leaves every row usable (each row verifies on its own checksum)
+    provenance_damaged: list[str] = field(default_factory=list)  # PROVENANCE_ATTRS that fail their checksum
+    spec_damaged: list[str] = field(default_factory=list)  # SPEC_ATTRS that fail their checksum
+    integrity_damaged: bool = False  # the attribute checksums themselves: the attributes are unverified
+
+    @property
+    def spec_trusted(self) -> bool:
+        """Whether the spec attributes verify (no damage found and the checksums that would find it intact)."""
+        return not self.spec_damaged and not self.integrity_damaged
+
+    @property
+    def attrs_need_repair(self) -> bool:
+        """Whether ``--resume`` / ``gapsweep repair`` has attributes to rebuild or restore."""
+        return bool(self.provenance_damaged or self.spec_damaged or self.integrity_damaged)
 
     @property
     def rerun(self) -> list[int]:
@@ -73,6 +90,19 @@ class Report:
         if self.runs_damaged:
             out.append(f"the run records (attribute 'runs') are damaged ({self.runs_damaged}): their history is "
                        "lost; --resume starts a new list, the rows are not affected")
+        if self.integrity_damaged:
+            out.append(f"attribute {INTEGRITY!r} (the checksums of the others) is damaged: the attributes are "
+                       "unverified, the rows verify on their own checksums; `gapsweep repair STORE` rebuilds it "
+                       "(with --job JOB.toml where the spec text does not match its hash)")
+        if self.provenance_damaged:
+            names = ", ".join(repr(x) for x in self.provenance_damaged)
+            out.append(f"provenance attribute(s) {names} fail their checksum: not trusted (lost), the rows are not "
+                       "affected; `gapsweep repair STORE` or --resume rebuilds them (marked as lost)")
+        if self.spec_damaged:
+            names = ", ".join(repr(x) for x in self.spec_damaged)
+            out.append(f"job spec attribute(s) {names} fail their checksum: the rows verify on their own "
+                       "checksums; `gapsweep run JOB --store STORE --resume` or `gapsweep repair STORE --job JOB` "
+                       "restores them from the job file after checking every row against it")
         if not self.checksums:
             out.append(f"no row checksums this version verifies (format {name}, written before 3c): rows are "
                        "checked for completeness only, not for changed bytes")
@@ -138,9 +168,22 @@ def _attributes(f: Any) -> dict[str, Any]:
 _TASKS_PROBLEM = "table '/tasks'"
 
 
-def _integrity(f: Any, path: Any, tolerate_tasks: bool, f_runs_damaged: list[str]) -> bool:
-    """Format 4: every attribute and the ``/tasks`` table against their checksums (schema.integrity_record);
-    the first that fails is named in one line."""
+_warned: set[tuple[str, str]] = set()
+
+
+def _warn_once(path: Any, problem: str) -> None:
+    """A damaged attribute is logged once per store and process (status reads a store several times)."""
+    key = (str(path), problem)
+    if key not in _warned:
+        _warned.add(key)
+        log.warning("store %s: %s", path, problem)
+
+
+def _integrity(f: Any, path: Any, tolerate_tasks: bool, rep: Report) -> bool:
+    """Format 4: every attribute and the ``/tasks`` table against their checksums (schema.integrity_record).
+    Damage the rows survive is recorded in ``rep`` and logged (issue 40 item 1: run records, provenance, the
+    spec's attributes, the checksum record itself; ``/tasks`` with ``tolerate_tasks``); any other (format,
+    format_version, shard) is named in one line and refuses the store. Returns whether ``/tasks`` failed."""
     try:
         record = f.attrs[INTEGRITY]
     except Exception:
@@ -154,20 +197,23 @@ def _integrity(f: Any, path: Any, tolerate_tasks: bool, f_runs_damaged: list[str
         except (OSError, ValueError, KeyError, TypeError) as exc:
             _fail(path, f"cannot read /tasks ({exc}): damaged store")
 
-    problem = integrity_problem(record, _attributes(f), tasks)
-    if problem and problem.startswith("attribute 'runs' fails"):
-        # the rows do not depend on the run records (issue 31 item 5: a damaged one must block nothing): every
-        # reader names the damage and goes on, merge drops them, --resume rebuilds them (Report.runs_damaged)
-        log.warning("store %s: %s", path, problem)
-        f_runs_damaged.append(problem)
-        problem = integrity_problem(record, {k: v for k, v in _attributes(f).items() if k != "runs"}, tasks,
-                                    skip=("attr:runs",))
-    if problem and tolerate_tasks and problem.startswith(_TASKS_PROBLEM):
-        log.warning("store %s: %s", path, problem)
-        return True
-    if problem:
-        _fail(path, problem + " (changed after it was written: a damaged store)")
-    return False
+    tasks_bad = False
+    for key, problem in integrity_problems(record, _attributes(f), tasks):
+        name = key[5:] if key.startswith("attr:") else key
+        if key == INTEGRITY:
+            rep.integrity_damaged = True
+        elif name == "runs":  # the rows do not depend on the run records (issue 31 item 5): --resume rebuilds them
+            rep.runs_damaged = rep.runs_damaged or "fails its checksum: changed after it was written"
+        elif key.startswith("attr:") and name in PROVENANCE_ATTRS:
+            rep.provenance_damaged.append(name)
+        elif key.startswith("attr:") and name in SPEC_ATTRS:
+            rep.spec_damaged.append(name)
+        elif key == "table:/tasks" and tolerate_tasks:
+            tasks_bad = True
+        else:
+            _fail(path, problem + " (changed after it was written: a damaged store)")
+        _warn_once(path, problem)
+    return tasks_bad
 
 
 def _layout(f: Any, path: Any, r: Any, integrity: bool) -> Layout:
@@ -182,13 +228,27 @@ def _layout(f: Any, path: Any, r: Any, integrity: bool) -> Layout:
 
 
 def check(f: Any, path: str | Path, *, tolerate_tasks: bool = False) -> Report:
+    """:func:`_check`; an error of the HDF5 library while reading damaged metadata (a flipped byte in an object
+    header: KeyError "Unable to open object", OSError, ValueError, TypeError) is a one-line StoreError naming the
+    store (issue 40 item 3: such errors reached the user as tracebacks)."""
+    try:
+        return _check(f, path, tolerate_tasks=tolerate_tasks)
+    except StoreError:
+        raise
+    except (KeyError, OSError, ValueError, TypeError, IndexError, AttributeError, RuntimeError) as e:
+        msg = str(e.args[0]) if isinstance(e, KeyError) and e.args else str(e)
+        _fail(path, f"damaged HDF5 structure ({type(e).__name__}: {msg})")
+        raise  # pragma: no cover - _fail raises
+
+
+def _check(f: Any, path: str | Path, *, tolerate_tasks: bool = False) -> Report:
     """Validate an open store ``f`` (h5py.File); raise StoreError on a structural problem (a format-4 store's
     attributes and task table first: one that fails its checksum is named). ``tolerate_tasks`` (``--resume``,
     which restores task rows from the job; ``status``; ``merge --skip-damaged``): a ``/tasks`` table that
     fails its checksum is reported (``Report.tasks_damaged``) instead."""
     integrity = INTEGRITY in f.attrs
-    runs_bad: list[str] = []
-    tasks_damaged = _integrity(f, path, tolerate_tasks, runs_bad) if integrity else False
+    found = Report(0)
+    tasks_damaged = _integrity(f, path, tolerate_tasks, found) if integrity else False
     if f.attrs.get("format") != FORMAT:
         _fail(path, f"not a gapsweep store (format attribute {f.attrs.get('format')!r})")
     for name in ("spec_text", "spec_sha256"):
@@ -202,7 +262,7 @@ def check(f: Any, path: str | Path, *, tolerate_tasks: bool = False) -> Report:
     t, r, e, d = f["tasks"], f["results"], f["histograms/edges"], f["histograms/density"]
     if t.dtype != TASK_DTYPE:
         _fail(path, f"/tasks has dtype {t.dtype}, expected the gapsweep task table")
-    plugin = plugin_columns_of(r.dtype)  # [] for every layout ever written; plug-in columns after format 4's
+    plugin = plugin_columns_of(r.dtype)  # [] for every layout ever written; plug-in columns after format 5's
     if plugin is None:
         _fail(path, f"/results has dtype {r.dtype}, expected the gapsweep results table")
     if plugin:
@@ -232,10 +292,11 @@ def check(f: Any, path: str | Path, *, tolerate_tasks: bool = False) -> Report:
               + "): damaged or partial store")
     if e.shape[1] != d.shape[1] + 1:
         _fail(path, f"histogram edges ({e.shape[1]}) and density ({d.shape[1]}) columns do not match")
-    rep = Report(n, layout=_layout(f, path, r, integrity), tasks_damaged=tasks_damaged)
+    rep = Report(n, layout=_layout(f, path, r, integrity), tasks_damaged=tasks_damaged,
+                 provenance_damaged=found.provenance_damaged, spec_damaged=found.spec_damaged,
+                 integrity_damaged=found.integrity_damaged)
     rep.checksums = rep.layout.row_checksums == "column"
-    rep.runs_damaged = runs_problem(f.attrs.get("runs", "[]")) or (
-        "fails its checksum: changed after it was written" if runs_bad else None)
+    rep.runs_damaged = runs_problem(f.attrs.get("runs", "[]")) or found.runs_damaged
     if not n:
         return rep
     try:
@@ -312,9 +373,11 @@ def incomplete_rows(f: Any, path: str | Path, rep: Report | None = None) -> list
     status = f["results"].fields("status")[...]
     msg = f["results"].fields("message")[...]
     # a row that timed out (--task-timeout) is run again: the limit may have been a slow node's or a cold cache's
-    # ... and so is one cut by a signal (issue 31: inside JIT compilation)
+    # ... and so is one cut by a signal (issue 31: inside JIT compilation), or one whose method's optional package
+    # was missing (issue 40: installed since, or it fails again at once)
     timed_out = [i for i in np.flatnonzero(status == STATUS["failed"]).tolist()
-                 if msg[i].startswith((TIMEOUT_PREFIX.encode(), INTERRUPTED_PREFIX.encode()))]
+                 if msg[i].startswith((TIMEOUT_PREFIX.encode(), INTERRUPTED_PREFIX.encode(),
+                                       MISSING_EXTRA_PREFIX.encode(), b"MissingExtraError:"))]  # (its form before)
     if timed_out:
         log.info("store %s: %d timed-out row(s) are run again", path, len(timed_out))
     return sorted(set(np.flatnonzero(status == STATUS["pending"]).tolist()) | set(rep.rerun) | set(timed_out))

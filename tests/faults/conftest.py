@@ -141,8 +141,9 @@ HOOKS = Path(__file__).resolve().parent / "hooks"
 class Hold:
     """A barrier in a child run (tests/faults/hooks/sitecustomize.py): ``env()`` gives the environment that makes
     the process stop at ``k`` -- right after its ``k``-th store row write (a number), or at a point of its start
-    ("import", "lease", "create") -- until :meth:`release` or a SIGINT/SIGTERM (or, after a row write, the store's
-    stop file); :meth:`wait` returns once a process has got there. Nothing depends on how fast either side runs."""
+    ("import", "lease", "create", "opened") -- until :meth:`release` or a SIGINT/SIGTERM (or, after a row write,
+    the store's stop file); :meth:`wait` returns once a process has got there. Nothing depends on how fast either
+    side runs."""
 
     def __init__(self, folder: Path, k: int | str) -> None:
         self.folder, self.k = Path(folder), k

@@ -24,6 +24,7 @@ from .conftest import (
     env,
     finish,
     gs,
+    gs_cmd,
     gs_popen,
     mpi_cmd,
     needs_mpi,
@@ -334,4 +335,115 @@ def test_signal_to_mpiexec_at_startup(tmp_path, refs, offset):
         assert sorted(x.name for x in tmp_path.iterdir()) == []
         return
     _mpi_clean_end(path)
+    _resume_plain(path, refs["theory"])
+
+
+# --- issue 40 item 6: a collective run stops on a signal to any rank; the start-up record survives a kill -------
+
+COLLECTIVE_JOB = """
+[job]
+name = "dist-signal"
+[grid]
+hurst = [0.8]
+rho = [2e-2]
+sigma0 = [1e-3, 3e-3, 1e-2, 3e-2, 1e-1, 3e-1]
+seeds = [0]
+[surface]
+lambda_l = 0.25
+lambda_s = 0.125
+rms_slope = 1.0
+[material]
+gamma0 = 1e-3
+[histogram]
+bins = 8
+[methods.gfmd]
+n = 32
+tol = 1e-8
+backend = "numpy"
+distributed = true
+"""
+
+
+@needs_mpi
+@pytest.mark.parametrize("writer", WRITERS)
+def test_collective_run_stops_on_a_signal_to_rank1(tmp_path, writer):
+    """A collective run (distributed = true) on 2 ranks: rank 0 holds right after its 2nd row; SIGTERM to rank 1
+    alone, then the hold is released. Every rank stops after the task in flight (exit 143), the run is recorded
+    as interrupted by SIGTERM with rows pending, and a resume finishes them. The old code looked at rank 0's
+    flag only: the run went on to the end and exited 0."""
+    import os
+
+    job = tmp_path / "dist.toml"
+    job.write_text(COLLECTIVE_JOB)
+    path, pids, hold = tmp_path / "s.h5", tmp_path / "pids", Hold(tmp_path / "hold", 2)
+    pids.mkdir()
+    p = subprocess.Popen(mpi_cmd(2, "run", job, "--store", path, "--writer", writer, "--progress", "none"),
+                         env=env(**hold.env(GAPSWEEP_TEST_PIDDIR=str(pids))), stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True)
+    try:
+        hold.wait(p)
+        os.kill(int((pids / "rank1.pid").read_text()), signal.SIGTERM)
+        hold.release()
+        rc, _, err = finish(p, timeout=120)
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+    assert rc == 143, err
+    assert _last_run(path)["interrupted"] == "SIGTERM", _last_run(path)
+    status = store.read(path).status
+    assert set(status) == {"done", "pending"} and (status == "done").sum() >= 2, list(status)
+    p = subprocess.run(mpi_cmd(2, "run", job, "--store", path, "--resume", "--progress", "none"), env=env(),
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    assert (store.read(path).status == "done").all()
+
+
+@pytest.mark.parametrize("launch", ["serial", pytest.param("mpiexec", marks=needs_mpi)])
+def test_killed_right_after_the_store_appears_it_names_its_run(tmp_path, refs, launch):
+    """SIGKILL (what mpiexec sends its ranks 1 s after forwarding a SIGTERM) the moment a new store is at its
+    path and opened by the run, before any further write: the store already carries this run's record (it was
+    created with it), so it never reads as a store of no run; status reports it and a resume reaches the
+    uninterrupted result. The old code wrote the record after opening: such a store had no run record."""
+    import os
+
+    path, hold = tmp_path / "s.h5", Hold(tmp_path / "hold", "opened")
+    if launch == "serial":
+        cmd = gs_cmd("run", JOBS["theory"], "--store", path, "--mpi", "off", "--progress", "none")
+    else:
+        cmd = mpi_cmd(2, "run", JOBS["theory"], "--store", path, "--writer", "rank0", "--progress", "none")
+    p = subprocess.Popen(cmd, env=env(**hold.env()), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=os.setsid)
+    try:
+        hold.wait(p)
+        os.killpg(p.pid, signal.SIGKILL)
+        p.wait(timeout=60)
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+    runs = json.loads(store.read_attrs(path)["runs"])
+    assert len(runs) == 1 and runs[0]["run_id"] and runs[0]["finished"] is None, runs
+    assert runs[0]["mpi_size"] == (1 if launch == "serial" else 2)
+    st = gs("status", path)
+    assert st.returncode in (0, 4) and "Traceback" not in st.stderr, st.stderr
+    resume_to_ref(path, refs["theory"], JOBS["theory"])
+
+
+@needs_mpi
+def test_signal_at_startup_then_sigkill_leaves_the_store_interrupted(tmp_path, refs):
+    """Under mpiexec (rank-0 writer): a SIGTERM reaches rank 0 while it starts (its lease taken, no store yet) and
+    the SIGKILL that mpiexec sends 1 s later lands the moment the new store is opened (both injected by the
+    process itself: tests/faults/hooks, point startup-term-then-kill). The store was born with its run's record
+    already saying interrupted by SIGTERM, the lease says so too, so a plain resume (no --break-lease) reaches
+    the uninterrupted result. The old code left a store with no run record here; a record without the
+    interruption would read "running or killed"."""
+    path, hold = tmp_path / "s.h5", Hold(tmp_path / "hold", "startup-term-then-kill")
+    p = subprocess.run(mpi_cmd(2, "run", JOBS["theory"], "--store", path, "--writer", "rank0", "--progress",
+                               "none"), env=env(**hold.env()), capture_output=True, text=True, timeout=120)
+    assert p.returncode != 0
+    runs = json.loads(store.read_attrs(path)["runs"])
+    assert len(runs) == 1 and runs[0]["interrupted"] == "SIGTERM" and runs[0]["finished"] is None, runs
+    info = lease.read(path)
+    assert info is None or info.get("interrupted"), info
     _resume_plain(path, refs["theory"])

@@ -12,14 +12,18 @@ from gapsweep.gfmd.interactions.adhesive import Adhesive
 from gapsweep.gfmd.interactions.base import Interaction, SmoothInteraction
 from gapsweep.gfmd.interactions.exponential import Exponential
 from gapsweep.gfmd.interactions.hard_wall import HardWall
+from gapsweep.gfmd.interactions.hard_wall_adhesive import HardWallAdhesive
 
-__all__ = ["INTERACTIONS", "Adhesive", "Exponential", "HardWall", "Interaction", "SmoothInteraction", "resolve"]
+__all__ = ["INTERACTIONS", "Adhesive", "Exponential", "HardWall", "HardWallAdhesive", "Interaction",
+           "SmoothInteraction",
+           "resolve"]
 
 #: name -> (class, names of the keyword parameters solve() passes to it)
 INTERACTIONS: dict[str, tuple[type[Interaction], tuple[str, ...]]] = {
     "exponential": (Exponential, ("gamma0", "rho")),
     "hard_wall": (HardWall, ()),
     "adhesive": (Adhesive, ("work", "rho")),
+    "hard_wall_adhesive": (HardWallAdhesive, ("work", "rho")),
 }
 
 

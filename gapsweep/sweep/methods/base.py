@@ -103,6 +103,11 @@ class Method:
     # whether the method solves the body keys of [material] (schema.SUBSTRATE_KEYS: a layer, a pressure cap);
     # a job with them refuses every other method (docs/jobs.md "The body: layer and hardness")
     takes_body: bool = False
+    rolloff: bool = False  # takes a roll-off spectrum ([surface] lambda_r; docs/jobs.md "Roll-off spectrum")
+    # The version of the method's algorithm (the plug-in module's ALGORITHM_VERSION), stored in every row it
+    # computes (column algorithm_version, docs/store.md): bumped when its results change beyond the tolerance its
+    # docs state, so that --reuse never copies a row of the older code as current (issue 40 item 5)
+    algorithm_version: int = 1
 
     def job_own_columns(self, spec: JobSpec) -> dict[str, Column]:
         """The own columns this method's rows have in ``spec``'s store: ``own_columns`` (default). A method whose

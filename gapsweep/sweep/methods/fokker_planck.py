@@ -20,9 +20,14 @@ from gapsweep.sweep.methods.base import LENGTH, Env, Method, grid_tasks, registe
 from gapsweep.sweep.methods.sde import gapdist_options
 from gapsweep.sweep.schema import JobSpec, Task, TaskResult
 
+# The algorithm's version (Method.algorithm_version, stored per row): bump it when a change moves this
+# method's results beyond the tolerance its docs state (docs/store.md "Algorithm versions").
+ALGORITHM_VERSION = 1
+
 
 @register
 class FokkerPlanck(Method):
+    algorithm_version = ALGORITHM_VERSION
     name = "fokker_planck"
     order = 3
     keys = ("c1", "c2", "h_rms")

@@ -80,9 +80,16 @@ def _keep_fields_option(key: str, v: Any) -> str:
     return json.dumps(out, sort_keys=True)
 
 
+# The algorithm's version (Method.algorithm_version, stored per row): bump it when a change moves this
+# method's results beyond the tolerance its docs state (docs/store.md "Algorithm versions").
+ALGORITHM_VERSION = 1
+
+
 @register
 class GFMD(Method):
+    algorithm_version = ALGORITHM_VERSION
     name = "gfmd"
+    rolloff = True  # solves any surface; the theories assume M2's spectrum
     order = 1
     keys = ("n", "tol", "max_iter", "method", "backend", "warm_start", "order", "keep_fields", "distributed")
     columns = ("mean_gap", "h_rms", "g_rms", "residual", "load_error", "iterations", "gap_std", "gap_min",
@@ -194,6 +201,10 @@ class GFMD(Method):
             return 0.0
         from gapsweep.gfmd._cuda import solve_memory
 
+        if t.law == "hard_wall_adhesive":  # its own minimiser's count (gfmd._bounded.solve_memory)
+            from gapsweep.gfmd._bounded import solve_memory as bounded_memory
+
+            return float(bounded_memory((max(t.n, 2), max(t.n, 2))))
         law = "hard_wall" if t.law == "hard_wall" else "exponential"
         method = t.opt("method") if t.opt("method") != "auto" else "auto"
         try:
@@ -306,7 +317,11 @@ def _check_distributed(key: str, o: dict[str, Any], env: Env) -> None:
     from gapsweep.gfmd.distributed import METHODS
     from gapsweep.gfmd.interactions import INTERACTIONS
 
-    allowed = METHODS[INTERACTIONS[env.law][0].load_control]
+    control = INTERACTIONS[env.law][0].load_control
+    if control not in METHODS:
+        raise SpecError(f"{key}.distributed: interaction {env.law!r} has no distributed solver; remove "
+                        "distributed = true (it runs on one process)")
+    allowed = METHODS[control]
     if o["method"] not in ("auto", *allowed):
         raise SpecError(f"{key}.method: a distributed {env.law} solve runs {', '.join(map(repr, allowed))} or "
                         f"'auto'; got {o['method']!r}")
@@ -405,7 +420,7 @@ def gfmd_row(t: Task, ctx: Context, res: Any, prev: Any = None, stats: Any = Non
     msg = "" if ok else f"gfmd: {getattr(res, 'status', 'not converged')} (residual {v['residual']:.3g})"
     if not (math.isfinite(v["contact_area"]) and math.isfinite(v["elastic_energy"])):
         _fill_quantities(t, res, v, gap, xp)
-    hard = t.law == "hard_wall"
+    hard = t.law in ("hard_wall", "hard_wall_adhesive")
     if hard:  # the contact atom at g = 0 is stored apart; the histogram is that of the free points
         v["contact_atom"] = float(res.contact_atom())
     phist = None
@@ -419,7 +434,7 @@ def gfmd_row(t: Task, ctx: Context, res: Any, prev: Any = None, stats: Any = Non
     # moves by more than JUMP_FACTOR times what the secant dg0/dsigma0 of the two previous steps predicts (a
     # branch that ends: snap-off, snap-in). Steps must be fine enough for the secant to hold on a smooth branch;
     # the first two steps of a chain have no secant and are not judged (docs/store.md "flags").
-    if t.law == "adhesive" and prev is not None and hasattr(prev, "contact_area") and ok:
+    if t.law in ("adhesive", "hard_wall_adhesive") and prev is not None and hasattr(prev, "contact_area") and ok:
         before = getattr(prev, "_prev_step", None)
         dg = abs(v["mean_gap"] - float(prev.mean_gap))
         predicted = math.inf
@@ -435,7 +450,7 @@ def gfmd_row(t: Task, ctx: Context, res: Any, prev: Any = None, stats: Any = Non
         res._prev_step = (float(prev.sigma0), float(prev.mean_gap)) if hasattr(prev, "mean_gap") else None
     # warm start from the converged solution only. Exponential law: only its displacement is kept (the other
     # fields are dropped with the result once the row is made); the other laws start from the whole result
-    # (hard wall: its pressure; adhesive: displacement and mean gap) and it marks jumps.
+    # (hard wall: its pressure; adhesive: displacement and mean gap; hard_wall_adhesive: its gap) and it marks jumps.
     state = (res.displacement if t.law == "exponential" else res) if ok else None
     # the switched-on extensions' columns (e.g. the leak rate of gapsweep.sweep.methods.flow) from this result
     return extend_row(t, res, TaskResult(status, msg, v, stats.hist(t, gap, hard), phist)), state

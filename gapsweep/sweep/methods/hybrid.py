@@ -44,8 +44,14 @@ def surface_set(t: Task) -> str:
     return task_id({"hurst": t.hurst, "seed": t.seed, "n": t.n, "surface": t.surface_params()})
 
 
+# The algorithm's version (Method.algorithm_version, stored per row): bump it when a change moves this
+# method's results beyond the tolerance its docs state (docs/store.md "Algorithm versions").
+ALGORITHM_VERSION = 1
+
+
 @register
 class Hybrid(Method):
+    algorithm_version = ALGORITHM_VERSION
     name = "hybrid"
     order = 4
     keys = ("n", "rtol", "max_cost_fraction", "tol")

@@ -25,9 +25,14 @@ from gapsweep.sweep.methods.base import LENGTH, Env, Method, grid_tasks, registe
 from gapsweep.sweep.methods.hybrid import predictor_options, surface_set
 from gapsweep.sweep.schema import JobSpec, Task, TaskResult
 
+# The algorithm's version (Method.algorithm_version, stored per row): bump it when a change moves this
+# method's results beyond the tolerance its docs state (docs/store.md "Algorithm versions").
+ALGORITHM_VERSION = 1
+
 
 @register
 class Multiscale(Method):
+    algorithm_version = ALGORITHM_VERSION
     name = "multiscale"
     order = 5
     keys = ("n", "rtol", "max_cost_fraction", "tol", "samples")

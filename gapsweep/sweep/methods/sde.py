@@ -49,8 +49,14 @@ def sde_engine(scheme: str = "split") -> str:
     return "cuda" if _sde_cuda.enabled("cuda", scheme) else "warp"
 
 
+# The algorithm's version (Method.algorithm_version, stored per row): bump it when a change moves this
+# method's results beyond the tolerance its docs state (docs/store.md "Algorithm versions").
+ALGORITHM_VERSION = 1
+
+
 @register
 class SDE(Method):
+    algorithm_version = ALGORITHM_VERSION
     name = "sde"
     order = 2
     keys = ("samples", "dzeta", "zeta_end", "c1", "c2", "dtype", "device", "h_rms")

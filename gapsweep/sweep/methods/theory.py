@@ -27,8 +27,14 @@ FIELD_FORMS = ("paper", "continuum", "discrete")
 PERSSON_VARIANTS = ("persson2001", "yang_persson2008", "wang_muser2017")
 
 
+# The algorithm's version (Method.algorithm_version, stored per row): bump it when a change moves this
+# method's results beyond the tolerance its docs state (docs/store.md "Algorithm versions").
+ALGORITHM_VERSION = 1
+
+
 @register
 class Theory(Method):
+    algorithm_version = ALGORITHM_VERSION
     name = "theory"
     order = 0
     keys = ("forms", "n", "h_rms", "persson_variant", "persson_gamma")

@@ -6,7 +6,10 @@ until ``<dir>/release`` exists or a SIGINT/SIGTERM has arrived. Points: ``k`` (a
 process's ``k``-th store row write (the row complete and flushed; inside the write, so a signal is acted on when
 the write returns, as for any write; the store's stop file ``<store>.stop`` ends the wait too); ``import``: when
 the run command has loaded its runner (signal handlers installed, nothing opened); ``lease``: the lease taken,
-the store not yet opened or created; ``create``: a new store created, not yet opened by the run. A test then
+the store not yet opened or created; ``create``: a new store created, not yet opened by the run; ``opened``: the
+store at its path opened by the run (a new one renamed into place), before anything else is written;
+``startup-term-then-kill`` (no wait): the process sends itself SIGTERM once its lease is taken and SIGKILL once
+its store is opened -- mpiexec's forwarded signal during start-up and its SIGKILL 1 s later, at their worst. A test then
 knows where the run is (a barrier instead of a race between the run's speed and the test's): a second writer, a
 signal, a kill or a full disk meets a run that is certainly in the middle of its work, on a loaded machine too.
 
@@ -59,6 +62,21 @@ def _patch_store(mod) -> None:
 
         mod.Store.create = classmethod(created)
         return
+    if _POINT in ("opened", "startup-term-then-kill"):  # the store at its path (created and renamed into
+        open_ = mod.Store.open.__func__                    # place, or resumed), just opened
+
+        def opened(cls, *a, **kw):
+            st = open_(cls, *a, **kw)
+            if _POINT == "opened":
+                _hold()
+            else:  # what mpiexec does 1 s after forwarding a SIGTERM, at the worst moment
+                import signal
+
+                os.kill(os.getpid(), signal.SIGKILL)
+            return st
+
+        mod.Store.open = classmethod(opened)
+        return
     if not _POINT.isdigit():
         return
     k, orig, count = int(_POINT), mod.Store.write, [0]
@@ -73,13 +91,18 @@ def _patch_store(mod) -> None:
 
 
 def _patch_lease(mod) -> None:
-    if _POINT != "lease":
+    if _POINT not in ("lease", "startup-term-then-kill"):
         return
     acquire = mod.acquire
 
     def acquired(*a, **kw):
         held = acquire(*a, **kw)
-        _hold()
+        if _POINT == "lease":
+            _hold()
+        else:  # a SIGTERM while the run starts (the lease taken, the store not yet made): recorded, not acted on
+            import signal
+
+            os.kill(os.getpid(), signal.SIGTERM)
         return held
 
     mod.acquire = acquired

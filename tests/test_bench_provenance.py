@@ -1,0 +1,160 @@
+"""Numbers with provenance (issue 40 item 11): every benchmark script names the code it measures and stamps its
+result files (benchmarks/_record.py) with the commit of *this* repository, the command, the machine, the date and
+the library versions; scripts/check_docs.py fails a cited result that is stale (its code changed in a later
+commit), whose commit is unknown or lacks its code, or that has no record and is not on the legacy list.
+The staleness cases run in a throw-away git repository built here."""
+
+from __future__ import annotations
+
+import ast
+import importlib.util
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+pytestmark = pytest.mark.skipif(shutil.which("git") is None, reason="git not installed")
+
+
+def _load(path: Path, name: str):
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+record = _load(ROOT / "benchmarks" / "_record.py", "_bench_record_t")
+check_docs = _load(ROOT / "scripts" / "check_docs.py", "_check_docs_t")
+
+
+def _git(d: Path, *args: str) -> str:
+    p = subprocess.run(["git", "-C", str(d), "-c", "user.name=t", "-c", "user.email=t@t", "-c",
+                        "commit.gpgsign=false", *args], capture_output=True, text=True, timeout=60)
+    assert p.returncode == 0, p.stderr
+    return p.stdout.strip()
+
+
+def _repo(d: Path) -> Path:
+    d.mkdir(parents=True, exist_ok=True)
+    _git(d, "init", "-q")
+    return d
+
+
+def _commit(d: Path, msg: str) -> str:
+    _git(d, "add", "-A")
+    _git(d, "commit", "-q", "-m", msg)
+    return _git(d, "rev-parse", "HEAD")
+
+
+def test_commit_is_the_projects_not_an_enclosing_repositorys(tmp_path):
+    """A project folder inside another repository: without its own checkout it records no commit (the old
+    farm file took the enclosing repository's); with one, its own."""
+    outer = _repo(tmp_path / "outer")
+    (outer / "x").write_text("x")
+    outer_commit = _commit(outer, "outer")
+    proj = outer / "proj"
+    (proj / "code").mkdir(parents=True)
+    (proj / "code" / "a.py").write_text("a = 1\n")
+    assert record.project_commit(proj) is None
+    assert record.record(["code/a.py"], ["bench.py"], root=proj)["commit"] is None
+    _repo(proj)
+    mine = _commit(proj, "project")
+    assert mine != outer_commit and record.project_commit(proj) == mine
+    rec = record.record(["code/a.py"], ["bench.py", "--n", "3"], root=proj)
+    assert rec["commit"] == mine and rec["dirty"] is False and rec["code_paths"] == ["code/a.py"]
+    assert rec["command"].endswith("bench.py --n 3") and rec["date"].endswith("Z")
+    assert rec["machine"]["hostname"] and rec["versions"]["python"] and rec["versions"]["numpy"]
+    with pytest.raises(ValueError, match="no_such"):
+        record.record(["code/no_such.py"], [], root=proj)
+
+
+def _result(root: Path, name: str, rec: dict | None) -> Path:
+    f = root / "benchmarks" / "results" / name
+    f.parent.mkdir(parents=True, exist_ok=True)
+    f.write_text(json.dumps({"t_s": 1.0, **({"provenance": rec} if rec else {})}))
+    return f
+
+
+def test_check_docs_fails_stale_wrong_commit_and_unlisted_unversioned(tmp_path):
+    root = _repo(tmp_path / "proj")
+    (root / "benchmarks").mkdir()
+    shutil.copy(ROOT / "benchmarks" / "_record.py", root / "benchmarks" / "_record.py")
+    (root / "code").mkdir()
+    (root / "code" / "solver.py").write_text("x = 1\n")
+    (root / "code" / "other.py").write_text("y = 1\n")
+    c1 = _commit(root, "c1")
+    fresh = _result(root, "fresh.json", record.record(["code/solver.py"], ["b.py"], root=root))
+    other = _result(root, "other.json", record.record(["code/other.py"], ["b.py"], root=root))
+    text = root / "benchmarks" / "results" / "table.txt"
+    text.write_text("1.0 s\n")
+    record.stamp(text, record.record(["code/solver.py"], ["b.py"], root=root))  # a sidecar
+    assert (root / "benchmarks" / "results" / "table.txt.provenance.json").is_file()
+    _commit(root, "results")
+    files = [fresh, other, text]
+    assert check_docs.check_provenance(files, root) == []
+    (root / "code" / "solver.py").write_text("x = 2  # the solver changed\n")
+    _commit(root, "solver change")
+    probs = check_docs.check_provenance(files, root)
+    assert len(probs) == 2 and all("stale" in p for p in probs), probs
+    assert any("fresh.json" in p for p in probs) and any("table.txt" in p for p in probs)
+    (root / "code" / "solver.py").write_text("x = 1\n")  # the change reverted: the code measured is HEAD's again
+    _commit(root, "revert")
+    assert check_docs.check_provenance(files, root) == []
+    (root / "code" / "solver.py").write_text("x = 3\n")
+    _commit(root, "solver change again")
+    assert len(check_docs.check_provenance(files, root)) == 2
+    # a record naming a commit the repository lacks, or one at which its code did not exist
+    bad = _result(root, "bad.json", {"commit": "f" * 40, "code_paths": ["code/solver.py"]})
+    (root / "code" / "new.py").write_text("z = 1\n")
+    _commit(root, "new code")
+    early = _result(root, "early.json", {"commit": c1, "code_paths": ["code/new.py"]})
+    probs = check_docs.check_provenance([bad, early], root)
+    assert any("bad.json" in p and "does not have" in p for p in probs), probs
+    assert any("early.json" in p and "did not exist" in p for p in probs), probs
+    # unversioned: a failure unless on the legacy list, where it is a warning
+    legacy = _result(root, "legacy.json", None)
+    check_docs.WARNINGS.clear()
+    probs = check_docs.check_provenance([legacy], root)
+    assert len(probs) == 1 and "no provenance record" in probs[0]
+    (root / check_docs.UNVERSIONED_LIST).write_text("# legacy\nbenchmarks/results/legacy.json  # note\n")
+    assert check_docs.check_provenance([legacy], root) == []
+    assert any("legacy.json" in w for w in check_docs.WARNINGS)
+
+
+def test_the_repositorys_cited_results_pass():
+    """The real docs: every cited result is current or on the legacy list (the legacy list only shrinks)."""
+    assert check_docs.check() == []
+
+
+def test_every_benchmark_script_tracks_its_provenance():
+    """Each benchmarks/*.py script names existing CODE_PATHS and calls _record.track(CODE_PATHS...) first thing
+    under ``if __name__ == "__main__":``."""
+    scripts = [p for p in sorted((ROOT / "benchmarks").glob("*.py")) if p.name != "_record.py"]
+    assert len(scripts) > 20
+    for p in scripts:
+        tree = ast.parse(p.read_text(encoding="utf-8"))
+        paths = next((ast.literal_eval(n.value) for n in tree.body if isinstance(n, ast.Assign)
+                      and any(getattr(t, "id", "") == "CODE_PATHS" for t in n.targets)), None)
+        assert paths and all((ROOT / x).exists() for x in paths), (p.name, paths)
+        main = next(n for n in tree.body if isinstance(n, ast.If) and "__main__" in ast.unparse(n.test))
+        first = ast.unparse(main.body[0])
+        assert first.startswith("_record.track(CODE_PATHS"), (p.name, first)
+
+
+def test_a_benchmark_run_stamps_its_result(tmp_path):
+    """bench_theory.py run for real (tiny): its JSON records this checkout's commit, its code paths, the
+    command, the machine and the versions."""
+    out = tmp_path / "theory.json"
+    env = {"PYTHONPATH": str(ROOT), "PATH": os.environ["PATH"], "HOME": str(tmp_path)}
+    p = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_theory.py"), "--out", str(out), "--n",
+                        "50", "--repeat", "1"], capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    rec = json.loads(out.read_text())["provenance"]
+    assert rec["commit"] == record.project_commit(ROOT) and rec["commit"]
+    assert rec["code_paths"] == ["gapsweep/theory"] and "--n 50" in rec["command"]
+    assert rec["machine"]["cpus"] >= 1 and rec["versions"]["numpy"]
