@@ -1,10 +1,11 @@
 """The farm on 1, 2 and 4 GPUs of one node, in one call (docs/benchmarks.md, "Several GPUs: the farm").
 
 For each set of jobs and each GPU count k: one launch ``mpiexec -n R --bind-to none python3 -m gapsweep run J1 J2
-... --store S1 --store S2 ...`` with ``CUDA_VISIBLE_DEVICES=0..k-1`` -- rank 0 coordinates, ranks 1..k are the
-GPU workers (one per GPU, no MPS), the others CPU workers (docs/running.md, "Which layout"); R is the same for
-every k. Sets: ``figs`` = jobs/gpu/fig6, fig4_5, fig2, fig3; ``pub`` = jobs/pub/fig2, fig3, fig4_5 (``--pub-seeds
-S``: S seeds instead of 16, copies written under OUT/jobs); ``sde`` = jobs/bench_sde_gpus.toml.
+... --store S1 --store S2 ...`` with ``CUDA_VISIBLE_DEVICES=0..k-1`` -- rank 0 coordinates, the run's default layout
+makes GPU workers (up to 8 per GPU under CUDA MPS, started by the run; one per GPU without MPS) and CPU workers of
+the other ranks (docs/running.md, "Which layout"); R is the same for every k. Sets: ``figs`` = jobs/gpu/fig6,
+fig4_5, fig2, fig3; ``pub`` = jobs/pub/fig2, fig3, fig4_5 (``--pub-seeds S``: S seeds instead of 16, copies written
+under OUT/jobs); ``sde`` = jobs/bench_sde_gpus.toml.
 
 Per run: wall (launch to exit), start-up (launch to the farm's start, ``farm_started_unix`` of the first job's
 run record), sweep = wall - start-up, efficiency T1 / (k Tk) on both, GPU utilisation (nvidia-smi sampled every
@@ -26,6 +27,15 @@ of the budget are left (alone: ``--sets`` with no set).
 (the second writes OUT/fault_check.json and reuses the first's /tmp/farm/gpus1/fig2.h5 as its reference; the
 stores stay in --work, default --out).
 
+``--layouts [SET@]G:K[:R] ...`` (issue 38): these layouts in order instead -- G GPUs, K ranks per GPU (``auto``:
+the run's default, no flag), R ranks -- each traced (``GAPSWEEP_TRACE``: per-worker busy/idle timelines, the
+coordinator's latency, the longest units, the tail), with GPU utilisation over the sweep, the processes holding
+contexts on several GPUs (``nvidia-smi --query-compute-apps``), stores against the set's first run, and the table
+against T1_best (the best one-GPU wall time of the set, any layout); writes OUT/NAME.json, OUT/NAME.md and
+OUT/NAME_runs.log (``--name``; benchmarks/gpu_node_issue38.sh runs it).
+
+    python3 benchmarks/bench_multi_gpu.py --out OUT --work /tmp/l --sets pub --layouts 1:auto 1:16 2:auto 4:auto
+
 Writes OUT/results.json (every run, the node, the command) and OUT/table.md (OUT/fault_check.json for the fault
 check alone); logs in OUT/runs.log.
 """
@@ -36,6 +46,7 @@ import argparse
 import json
 import os
 import shutil
+import signal
 import statistics
 import subprocess
 import sys
@@ -75,10 +86,12 @@ def elapsed() -> float:
 
 
 class GpuSampler:
-    """nvidia-smi's utilisation of every GPU every 0.5 s while a run goes on; mean per GPU index."""
+    """nvidia-smi's utilisation of every GPU every 0.5 s while a run goes on; mean per GPU index (``stop``), or
+    over a window of wall-clock time (``window``: the sweep without start-up)."""
 
     def __init__(self) -> None:
         self.samples: dict[int, list[float]] = {}
+        self.timed: list[tuple[float, int, float]] = []  # (wall clock, GPU, utilisation [%])
         self.proc = None
         if shutil.which("nvidia-smi"):
             self.proc = subprocess.Popen(["nvidia-smi", "--query-gpu=index,utilization.gpu",
@@ -93,8 +106,18 @@ class GpuSampler:
             if len(parts) == 2 and parts[0].isdigit():
                 try:
                     self.samples.setdefault(int(parts[0]), []).append(float(parts[1]))
+                    self.timed.append((time.time(), int(parts[0]), float(parts[1])))
                 except ValueError:
                     pass
+
+    def window(self, k: int, t0: float, t1: float) -> dict:
+        """Mean utilisation per GPU over [t0, t1] and the share of its samples at >= 80 %."""
+        mean, high = [], []
+        for i in range(k):
+            xs = [u for t, g, u in self.timed if g == i and t0 <= t <= t1]
+            mean.append(round(statistics.fmean(xs), 1) if xs else None)
+            high.append(round(sum(x >= 80 for x in xs) / len(xs), 2) if xs else None)
+        return {"mean_pct": mean, "share_ge_80pct": high}
 
     def stop(self, k: int) -> list[float | None]:
         if self.proc is None:
@@ -106,7 +129,7 @@ class GpuSampler:
 
 
 def launch(jobs: list[Path], stores: list[Path], devices: str, ranks: int, log, extra: list[str], timeout: float,
-           ) -> tuple[int, float]:
+           env_extra: dict[str, str] | None = None) -> tuple[int, float]:
     """One mpiexec launch of ``jobs`` into ``stores`` (new stores, or ``--resume`` in ``extra``); (exit code,
     wall seconds)."""
     args = [sys.executable, "-m", "gapsweep", "-q", "run", *map(str, jobs)]
@@ -118,10 +141,20 @@ def launch(jobs: list[Path], stores: list[Path], devices: str, ranks: int, log, 
     log.write(f"$ CUDA_VISIBLE_DEVICES={devices} {' '.join(args)}\n")
     log.flush()
     t0 = time.perf_counter()
+    e = env(devices)
+    e.update(env_extra or {})
+    p = subprocess.Popen(args, env=e, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
     try:
-        rc = subprocess.run(args, env=env(devices), stdout=log, stderr=subprocess.STDOUT, timeout=timeout).returncode
-    except subprocess.TimeoutExpired:
+        rc = p.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:  # the whole group: mpiexec and its ranks
         rc = 124
+        for sig in (signal.SIGTERM, signal.SIGKILL):
+            try:
+                os.killpg(p.pid, sig)
+                p.wait(timeout=15)
+                break
+            except (ProcessLookupError, subprocess.TimeoutExpired):
+                continue
     return rc, time.perf_counter() - t0
 
 
@@ -268,6 +301,263 @@ def fault_check(out: Path, ranks: int, log) -> dict:
     return res
 
 
+# ---------------------------------------------------------------------------------------------- layouts (issue 38)
+def parse_layout(text: str) -> tuple[int, int | None, int | None]:
+    """``G:K[:R]``: G GPUs, K ranks per GPU (``auto``: gapsweep's default, no flag), R ranks (default --ranks)."""
+    parts = text.split(":")
+    if len(parts) not in (2, 3) or not parts[0].isdigit():
+        raise SystemExit(f"--layouts: expected G:K[:R] (K an integer or auto), got {text!r}")
+    k = None if parts[1] == "auto" else int(parts[1])
+    return int(parts[0]), k, (int(parts[2]) if len(parts) == 3 else None)
+
+
+def wait_no_mps(log, timeout: float = 20.0) -> float:
+    """Wait until no MPS daemon runs on the node (the one a run started stops once its ranks are gone); after
+    ``timeout`` s, quit every daemon of a gapsweep pipe folder left in the temporary folder (and say so)."""
+    import tempfile
+
+    from gapsweep.sweep import gpus
+
+    t0 = time.monotonic()
+    while gpus.mps_processes() and time.monotonic() - t0 < timeout:
+        time.sleep(0.1)
+    left = gpus.mps_processes()
+    ctl = shutil.which("nvidia-cuda-mps-control")
+    if left and ctl:
+        for pipe in Path(tempfile.gettempdir()).glob("gapsweep-mps-*/pipe"):
+            log.write(f"!! MPS daemon still running after {timeout:.0f} s ({left}): quit {pipe}\n")
+            subprocess.run([ctl], input="quit\n", text=True, capture_output=True, timeout=60,
+                           env=dict(os.environ, CUDA_MPS_PIPE_DIRECTORY=str(pipe),
+                                    CUDA_MPS_LOG_DIRECTORY=str(pipe.parent / "log")))
+        while gpus.mps_processes() and time.monotonic() - t0 < timeout + 30:
+            time.sleep(0.1)
+    return round(time.monotonic() - t0, 2)
+
+
+class AppSampler:
+    """Which processes hold a CUDA context on which GPU (``nvidia-smi --query-compute-apps`` every 0.5 s)."""
+
+    def __init__(self) -> None:
+        self.seen: dict[str, set[str]] = {}
+        self.mem: dict[tuple[str, str], float] = {}
+        self.proc = None
+        self.uuid: dict[str, str] = {}
+        if not shutil.which("nvidia-smi"):
+            return
+        try:
+            out = subprocess.run(["nvidia-smi", "--query-gpu=index,uuid", "--format=csv,noheader"],
+                                 capture_output=True, text=True, timeout=20).stdout
+            self.uuid = {u.strip(): i.strip() for i, u in (x.split(",") for x in out.splitlines() if "," in x)}
+        except (OSError, subprocess.SubprocessError, ValueError):
+            pass
+        self.proc = subprocess.Popen(["nvidia-smi", "--query-compute-apps=pid,gpu_uuid,used_memory",
+                                      "--format=csv,noheader,nounits", "-lms", "500"],
+                                     stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        self.thread = threading.Thread(target=self._read, daemon=True)
+        self.thread.start()
+
+    def _read(self) -> None:
+        for line in self.proc.stdout:
+            parts = [x.strip() for x in line.split(",")]
+            if len(parts) == 3 and parts[0].isdigit():
+                gpu = self.uuid.get(parts[1], parts[1])
+                self.seen.setdefault(parts[0], set()).add(gpu)
+                try:
+                    self.mem[(parts[0], gpu)] = max(self.mem.get((parts[0], gpu), 0.0), float(parts[2]))
+                except ValueError:
+                    pass
+
+    def stop(self) -> dict:
+        if self.proc is None:
+            return {}
+        self.proc.terminate()
+        self.proc.wait()
+        self.thread.join(timeout=5)
+        multi = {pid: sorted(g) for pid, g in self.seen.items() if len(g) > 1}
+        return {"processes": len(self.seen), "on_several_gpus": multi,
+                "mib_on_other_gpus": {pid: {g: self.mem.get((pid, g)) for g in gs} for pid, gs in multi.items()}}
+
+
+def _q(xs: list[float], q: float) -> float | None:
+    if not xs:
+        return None
+    xs = sorted(xs)
+    return round(xs[min(len(xs) - 1, int(q * (len(xs) - 1) + 0.5))], 4)
+
+
+def analyse_trace(d: Path, t_launch: float, t_end: float, farm_start: float | None) -> dict:
+    """The farm's timeline (gapsweep.sweep.trace files in ``d``): per worker busy/idle seconds and its units
+    (times from the launch), coordinator latency (handled - asked), the longest units (the critical path's
+    candidates) and the tail (the last unit's end to the exit)."""
+    recs = {}
+    for f in sorted(d.glob("rank*.json")):
+        try:
+            r = json.loads(f.read_text())
+            recs[r["rank"]] = r
+        except (OSError, ValueError, KeyError):
+            continue
+    if not recs:
+        return {"error": f"no trace files in {d}"}
+    t0 = farm_start or min(r["start"] for r in recs.values())
+    last = max((u[2] for r in recs.values() for u in r["units"]), default=t0)
+    window = max(last - t0, 1e-9)
+    workers, lat, units = [], [], []
+    coord = recs.get(0, {})
+    for rank, r in sorted(recs.items()):
+        if not r["units"] and rank == 0:
+            continue
+        busy = sum(u[2] - u[1] for u in r["units"])
+        first = min((u[1] for u in r["units"]), default=None)
+        end = max((u[2] for u in r["units"]), default=None)
+        handled = coord.get("handled", {}).get(str(rank), [])
+        la = [h - a for a, h in zip(r["asks"], handled)]
+        lat += la
+        units += [(u[2] - u[1], rank, r["gpu"], u[0], u[4] if len(u) > 4 else None) for u in r["units"]]
+        workers.append({
+            "rank": rank, "gpu": r["gpu"], "units": len(r["units"]),
+            "gpu_units": sum(bool(u[3]) for u in r["units"]), "busy_s": round(busy, 2),
+            "idle_s": round(window - busy, 2), "idle_pct": round(100 * (1 - busy / window), 1),
+            "first_unit_after_launch_s": round(first - t_launch, 2) if first else None,
+            "last_unit_end_after_farm_start_s": round(end - t0, 2) if end else None,
+            "latency_median_ms": None if not la else round(1e3 * statistics.median(la), 2),
+            "timeline": [[round(u[1] - t_launch, 3), round(u[2] - t_launch, 3), u[0], int(bool(u[3]))]
+                         for u in r["units"]]})
+    g = [w for w in workers if w["gpu"] is not None]
+    units.sort(reverse=True)
+    ms = [1e3 * x for x in lat]
+    return {
+        "farm_window_s": round(window, 2), "tail_s": round(t_end - last, 2),
+        "workers": workers,
+        "gpu_workers_idle_pct_mean": round(statistics.fmean(w["idle_pct"] for w in g), 1) if g else None,
+        "gpu_workers_busy_s_sum": round(sum(w["busy_s"] for w in g), 2),
+        "cpu_workers_busy_s_sum": round(sum(w["busy_s"] for w in workers if w["gpu"] is None), 2),
+        "coordinator": {"busy_s": coord.get("busy_s"), "rows": coord.get("rows"),
+                        "latency_ms": {"median": _q(ms, 0.5), "p95": _q(ms, 0.95), "max": _q(ms, 1.0),
+                                       "n": len(lat)}},
+        "longest_units": [{"s": round(du, 2), "rank": rk, "gpu": gp, "unit": k, "tasks": nt}
+                          for du, rk, gp, k, nt in units[:8]],
+        "first_unit_after_launch_s": min((w["first_unit_after_launch_s"] for w in workers
+                                          if w["first_unit_after_launch_s"] is not None), default=None),
+    }
+
+
+def layout_run(i: int, name: str, jobs: list[Path], g: int, per_gpu: int | None, ranks: int, work: Path,
+               extra: list[str], log, timeout: float, ref: list[Path] | None) -> dict:
+    """One launch of ``jobs`` on GPUs 0..g-1 with ``per_gpu`` ranks per GPU (None: gapsweep's default), traced."""
+    from gapsweep import store
+
+    d = work / f"run{i}_{name}_g{g}_k{per_gpu or 'auto'}"
+    shutil.rmtree(d, ignore_errors=True)
+    d.mkdir(parents=True)
+    stores = [d / f"{j.stem}.h5" for j in jobs]
+    waited = wait_no_mps(log)
+    args = [*extra, *([] if per_gpu is None else ["--ranks-per-gpu", str(per_gpu)])]
+    sampler, apps = GpuSampler(), AppSampler()
+    t_launch = time.time()
+    rc, wall = launch(jobs, stores, ",".join(map(str, range(g))), ranks, log, args, timeout,
+                      env_extra={"GAPSWEEP_TRACE": str(d / "trace")})
+    t_end = time.time()
+    sampler.stop(g)
+    rec = run_record(stores[0])
+    start = rec.get("farm_started_unix")
+    r = {"run": i, "set": name, "gpus": g, "ranks_per_gpu": per_gpu or "auto", "ranks": ranks, "rc": rc,
+         "wall_s": round(wall, 2), "startup_s": round(start - t_launch, 2) if start else None,
+         "mps_wait_before_s": waited, "layout": {x: rec.get(x) for x in ("ranks_per_gpu", "mps")},
+         "gpu_ranks": sum(x is not None for x in rec.get("gpus") or []),
+         "gpu_util_whole_run": sampler.window(g, t_launch, t_end),
+         "gpu_util_sweep": sampler.window(g, start or t_launch, t_end),
+         "cuda_contexts": apps.stop(), "stores": {}}
+    r["sweep_s"] = round(wall - r["startup_s"], 2) if r["startup_s"] is not None else None
+    for j, s_ in enumerate(stores):
+        st = store_stats(s_)
+        if ref is not None and s_.exists() and ref[j].exists():
+            diff = store.diff(s_, ref[j])
+            st["equal_to_reference"] = not diff
+            if diff:
+                st["diff"] = diff[:5]
+        r["stores"][s_.stem] = st
+    r["trace"] = analyse_trace(d / "trace", t_launch, t_end, start)
+    return r
+
+
+def layout_table(rows: list[dict]) -> tuple[str, dict]:
+    """The table against T1_best (the best one-GPU wall time of a set, any layout) and the summary."""
+    summary: dict = {}
+    for name in sorted({r["set"] for r in rows}):
+        one = [r for r in rows if r["set"] == name and r.get("gpus") == 1 and r.get("rc") == 0 and r.get("wall_s")]
+        best = min(one, key=lambda r: r["wall_s"]) if one else None
+        summary[name] = {"T1_best_s": best["wall_s"] if best else None,
+                         "T1_best_layout": f"{best['ranks_per_gpu']} ranks per GPU" if best else None}
+        default1 = [r["wall_s"] for r in one if r["ranks_per_gpu"] == "auto"]
+        summary[name]["default_over_best_on_1_gpu"] = round(min(default1) / best["wall_s"], 3) if best and default1 \
+            else None
+    lines = ["| set | GPUs | ranks per GPU (run) | ranks | wall [s] | start-up [s] | eff. T1_best/(k T_k) | "
+             "GPU util sweep [%] | GPU idle (trace) [%] | latency median/p95 [ms] | longest unit [s] | "
+             "stores = reference | rc |", "|" + " --- |" * 13]
+    for r in rows:
+        if r.get("skipped"):
+            lines.append(f"| {r['set']} | {r['gpus']} | {r['ranks_per_gpu']} | | skipped: {r['skipped']} |"
+                         + " |" * 8)
+            continue
+        t1 = summary[r["set"]]["T1_best_s"]
+        eff = round(t1 / (r["gpus"] * r["wall_s"]), 3) if t1 and r.get("wall_s") else None
+        r["efficiency_vs_T1_best"] = eff
+        tr = r.get("trace", {})
+        lat = tr.get("coordinator", {}).get("latency_ms", {})
+        eq = [s.get("equal_to_reference") for s in r["stores"].values()]
+        same = "ref" if all(e is None for e in eq) else ("yes" if all(eq) else f"no {eq}")
+        longest = (tr.get("longest_units") or [{}])[0].get("s")
+        lay = r.get("layout", {}).get("ranks_per_gpu")
+        lines.append(f"| {r['set']} | {r['gpus']} | {r['ranks_per_gpu']} ({lay}) | {r['ranks']} | {r['wall_s']} | "
+                     f"{r.get('startup_s')} | {'-' if eff is None else f'{100 * eff:.0f} %'} | "
+                     f"{r['gpu_util_sweep']['mean_pct']} | {tr.get('gpu_workers_idle_pct_mean')} | "
+                     f"{lat.get('median')}/{lat.get('p95')} | {longest} | {same} | {r['rc']} |")
+    return "\n".join(lines) + "\n", summary
+
+
+def set_jobs(name: str, work: Path, pub_seeds: int | None) -> tuple[str, list[Path]]:
+    name, _, files = name.partition("=")
+    return name, ([Path(f).resolve() for f in files.split(",")] if files else
+                  pub_jobs(work, pub_seeds) if name == "pub" else SETS[name])
+
+
+def run_layouts(a, out: Path, work: Path, extra: list[str], res: dict, log) -> list[dict]:
+    """``--layouts``: each ``[SET@]G:K[:R]`` in order (SET: the first of --sets when left out) while the budget
+    lasts; every store against the first run's store of its set; T1_best per set from its one-GPU runs."""
+    rows: list[dict] = []
+    res["layout_runs"] = rows
+    ref: dict[str, list[Path]] = {}
+    t1: dict[str, float] = {}
+    for i, item in enumerate(a.layouts):
+        sname, _, text = item.rpartition("@")
+        defs = {x.partition("=")[0]: x for x in a.sets}  # a set named in --sets with its files
+        name, jobs = set_jobs(defs.get(sname, sname) if sname else a.sets[0], work, a.pub_seeds)
+        g, k, ranks = parse_layout(text)
+        ranks = ranks or a.ranks
+        if g > a.max_gpus:
+            rows.append({"set": name, "gpus": g, "ranks_per_gpu": k or "auto", "skipped": "not on this node"})
+            continue
+        est = (t1[name] / g * 1.3 + 15) if name in t1 else PRIOR.get(name, 60.0)
+        if elapsed() + est > a.budget:
+            rows.append({"set": name, "gpus": g, "ranks_per_gpu": k or "auto",
+                         "skipped": f"budget ({elapsed():.0f} s + ~{est:.0f} s)"})
+            continue
+        log.write(f"== {name} on {g} GPU(s), ranks per GPU {k or 'auto'}, {ranks} ranks, {elapsed():.0f} s\n")
+        log.flush()
+        r = layout_run(i, name, jobs, g, k, ranks, work, extra, log,
+                       timeout=max(30.0, min(a.launch_timeout, a.budget + 60 - elapsed())), ref=ref.get(name))
+        rows.append(r)
+        if name not in ref and r["rc"] == 0:
+            ref[name] = [work / f"run{i}_{name}_g{g}_k{k or 'auto'}" / f"{j.stem}.h5" for j in jobs]
+        if g == 1 and r["rc"] == 0:
+            t1[name] = min(t1.get(name, r["wall_s"]), r["wall_s"])
+        print(json.dumps({x: r.get(x) for x in ("set", "gpus", "ranks_per_gpu", "gpu_ranks", "rc", "wall_s",
+                                               "startup_s", "layout")}), flush=True)
+        res["table"], res["summary"] = layout_table(rows)
+        (out / f"{a.name}.json").write_text(json.dumps(res, indent=1))
+    return rows
+
+
 def node() -> dict:
     out = {"cores": len(os.sched_getaffinity(0)), "host": os.uname().nodename,
            "date": time.strftime("%Y-%m-%d %H:%M:%S %Z")}
@@ -281,7 +571,8 @@ def node() -> dict:
         out["commit"] = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True,
                                        text=True, timeout=10).stdout.strip()
     except (OSError, subprocess.SubprocessError):
-        out["commit"] = "unknown"
+        out["commit"] = ""
+    out["commit"] = out["commit"] or os.environ.get("GAPSWEEP_COMMIT", "unknown")  # a copy without .git
     return out
 
 
@@ -318,6 +609,12 @@ def main() -> int:
     p.add_argument("--work", default=None, help="folder of the stores (default: --out); e.g. /tmp/farm, so that "
                                                  "only the JSON, the table and the log land in --out")
     p.add_argument("--run-args", default="", help="more `gapsweep run` options, e.g. '--lookahead 0'")
+    p.add_argument("--layouts", nargs="*", default=None, metavar="[SET@]G:K[:R]",
+                   help="issue 38: run these layouts in order (G GPUs, K ranks per GPU or auto, R ranks), traced "
+                        "(GAPSWEEP_TRACE); writes OUT/NAME.json, OUT/NAME.md, OUT/NAME_runs.log")
+    p.add_argument("--name", default="layouts", help="file names of --layouts (default: layouts)")
+    p.add_argument("--max-gpus", type=int, default=None, help="GPUs of this node (default: nvidia-smi's count)")
+    p.add_argument("--launch-timeout", type=float, default=300.0, help="seconds one launch may take")
     a = p.parse_args()
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -327,6 +624,22 @@ def main() -> int:
     extra = a.run_args.split()
     rows: list[dict] = []
     res: dict = {"command": " ".join(sys.argv), "node": node(), "runs": rows}
+    if a.layouts is not None:
+        if a.max_gpus is None:
+            from gapsweep.sweep import gpus
+
+            a.max_gpus = gpus.visible_count()
+        with open(out / f"{a.name}_runs.log", "a") as log:
+            res["compile_s"] = compile_kernels(log) if shutil.which("nvidia-smi") else None
+            lrows = run_layouts(a, out, work, extra, res, log)
+        res["table"], res["summary"] = layout_table(lrows)
+        res["total_s"] = round(elapsed(), 1)
+        (out / f"{a.name}.json").write_text(json.dumps(res, indent=1))
+        (out / f"{a.name}.md").write_text(res["table"] + "\n" + json.dumps(res["summary"], indent=1) + "\n")
+        print(res["table"])
+        print(json.dumps(res["summary"], indent=1))
+        print(f"total {res['total_s']} s")
+        return 0 if all(r.get("rc", 0) == 0 for r in lrows) else 1
     with open(out / "runs.log", "a") as log:
         res["compile_s"] = compile_kernels(log) if shutil.which("nvidia-smi") else None
         for name in a.sets:

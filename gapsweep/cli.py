@@ -92,8 +92,9 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--batch", choices=("auto", "off", "all"), default="off",
                    help="GFMD chains solved side by side: off (default: one solve at a time, measured faster in "
                         "the sweep, docs/benchmarks.md), auto (GPU chains with n <= 1024) or all (CPU backends too)")
-    s.add_argument("--ranks-per-gpu", type=int, default=1, metavar="K",
-                   help="ranks of a node that share one GPU (default 1: ranks beyond the GPU count work CPU units)")
+    s.add_argument("--ranks-per-gpu", type=int, default=None, metavar="K",
+                   help="ranks of a node that share one GPU, 1-48 (default: up to 8 under CUDA MPS, which the run "
+                        "starts and stops itself where it may, else 1; ranks beyond work CPU units)")
     s.add_argument("--lookahead", type=int, default=4, metavar="N",
                    help="GPU units a GPU worker holds beyond the one it runs; their surfaces are made on N host "
                         "threads while the GPU works (default 4; 0: none)")

@@ -41,6 +41,17 @@ class Context:
         self._ahead: dict[tuple, Any] = {}  # surface key -> its future
         self._delay = float(os.environ.get("GAPSWEEP_TEST_DELAY", "0") or 0)
         self._fail: set[float] = set()  # sigma0 values whose tasks fail: a fault-injection seam (tests/hooks)
+        self._selected = False  # this rank's GPU was made the current CUDA device (select_gpu)
+
+    def select_gpu(self) -> int:
+        """Make this rank's GPU (``gpu``, 0 where None) the current CUDA device before the first CUDA call of a
+        GPU method (gapsweep.sweep.gpus.select: no context on another GPU, issue 38), once; returns its index."""
+        dev = self.gpu or 0
+        if not self._selected:
+            from gapsweep.sweep import gpus
+
+            self._selected = not gpus.select(dev)
+        return dev
 
     def surface(self, t: Task, n: int) -> np.ndarray:
         """The surface of ``t`` on an ``n x n`` grid, generated once per rank (M2), or taken from
@@ -304,4 +315,4 @@ def use_gpu(t: Task, ctx: Context) -> None:
         from gapsweep.core.extras import require
 
         cupy = require("cupy", 'GFMD on the GPU (backend = "cupy")')
-        cupy.cuda.Device(ctx.gpu or 0).use()  # this rank's GPU (one GPU per rank on a node)
+        cupy.cuda.Device(ctx.select_gpu()).use()  # this rank's GPU, current before any other CUDA call

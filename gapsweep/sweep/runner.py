@@ -48,6 +48,7 @@ from gapsweep.sweep.spec import check_extra
 from gapsweep.sweep.store import Store, StoreError, StoreWriteError, open_read
 from gapsweep.sweep.store import io_failed as store_io_failed
 from gapsweep.sweep.tasks import estimate_cost, expand, make_units, shard_units
+from gapsweep.sweep.trace import Trace
 
 __all__ = ["Interrupted", "RunError", "parse_shard", "plan", "reusable_rows", "run"]
 
@@ -205,6 +206,9 @@ def _propose(units: list[Unit]) -> list[str]:
     out.append(f"  layout here: {lay.ranks} rank(s) -- {lay.gpu_workers} GPU worker(s) (one per GPU), "
                f"{lay.cpu_workers} CPU worker(s)" + ("" if lay.ranks == 1 else ", rank 0 coordinates")
                + f": {lay.args()} (docs/running.md, \"Which layout\")")
+    if lay.gpu_workers and lay.ranks > 1:
+        out.append(f"  by default the run puts up to {gpus.DEFAULT_PER_GPU} of these ranks on each GPU under CUDA MPS "
+                   "(started and stopped by the run where it may; else one per GPU): --ranks-per-gpu K to choose")
     return out
 
 
@@ -521,8 +525,8 @@ def warm_up(t: Task, ctx: Context) -> None:
 def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = False, overwrite: bool = False,
         shard: tuple[int, int] | None = None, writer: str = "auto", progress: str = "auto",
         coordinator_works: str = "auto", mpi: str = "auto", break_lease: bool = False,
-        task_timeout: float | None = None, batch: str = "off", ranks_per_gpu: int = 1, lookahead: int = 4,
-        reuse: Sequence[str | Path] = (), reuse_older: bool = False) -> dict[str, Any]:
+        task_timeout: float | None = None, batch: str = "off", ranks_per_gpu: int | None = None,
+        lookahead: int = 4, reuse: Sequence[str | Path] = (), reuse_older: bool = False) -> dict[str, Any]:
     """Run a job into a store (serially or as an MPI task farm). Returns a summary dict on every rank.
 
     ``writer``: auto | mpio | rank0 (env ``GAPSWEEP_WRITER`` overrides auto); ``progress``: auto | bar | log |
@@ -530,7 +534,8 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     ``break_lease``: take over the lease of a run that is gone; ``task_timeout``: per-task wall-time limit [s];
     ``batch``: off (default: one solve at a time, faster in the sweep) | auto (GFMD chains batched on GPU ranks,
     gapsweep.batching) | all (also CPU backends: for tests and comparisons); ``ranks_per_gpu``: ranks sharing
-    one GPU (gapsweep.gpus); ``lookahead``: GPU units a GPU worker holds beyond the one it runs, their surfaces
+    one GPU (None: the default of gapsweep.sweep.gpus -- several under CUDA MPS, started by the run where it
+    may); ``lookahead``: GPU units a GPU worker holds beyond the one it runs, their surfaces
     made on as many host threads while its GPU works (0: none; docs/architecture.md, "The farm"); ``reuse``:
     other stores whose verified ``done`` rows of the same tasks (task id) are copied instead of run
     (:func:`reusable_rows`; the run record names the sources), only rows of the methods' current algorithm
@@ -546,7 +551,8 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
         raise ValueError(f"--task-timeout: expected seconds > 0, got {task_timeout!r}")
     if batch not in batching.MODES:
         raise ValueError(f"--batch: expected one of {', '.join(batching.MODES)}, got {batch!r}")
-    gpus.assign(None, 0, ranks_per_gpu)  # validates ranks_per_gpu
+    if ranks_per_gpu is not None:
+        gpus.assign(None, 0, ranks_per_gpu)  # validates ranks_per_gpu
     if isinstance(lookahead, bool) or not isinstance(lookahead, int) or not 0 <= lookahead <= 64:
         raise ValueError(f"--lookahead: expected an integer in [0, 64], got {lookahead!r}")
     spec = _load(job)
@@ -566,7 +572,7 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     reused: dict[int, tuple[str, Any, tuple]] = {}
     if rank == 0:
         try:
-            _check_resources(tasks, ranks_per_gpu)  # the same refusal as `plan`, looked at once (rank 0)
+            _check_resources(tasks, ranks_per_gpu or 1)  # the same refusal as `plan`, looked at once (rank 0)
             _check_collective(tasks, size)  # every rank runs each distributed task together: its slabs fit?
             _guard_store(path, _inputs(job, spec), overwrite)
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -818,7 +824,14 @@ class _Run:
         hosts = sorted(set(comm.allgather(socket.gethostname()))) if comm is not None else [socket.gethostname()]
         attrs = provenance.store_attrs(self.spec, shard=self.shard_text) if rank == 0 else None
         need_gpu = any(u.gpu for u in self.units)
-        self.gpu = gpus.rank_gpu(comm, self.works, self.per_gpu) if need_gpu else None
+        if need_gpu:  # the default ranks per GPU: no more than the GPU memory holds (gapsweep.sweep.gpus.place)
+            gpu_tasks = [self.tasks[i] for u in self.units if u.gpu for i in u.tasks]
+            placed = gpus.place(comm, self.works, self.per_gpu, need=budget.gpu_memory(gpu_tasks, 1))
+            self.gpu, self.per_gpu, mps_note = placed.gpu, placed.per_gpu, placed.note
+            if placed.note and (comm is None or comm.rank == 0):
+                log.info("%s", placed.note)
+        else:
+            self.gpu, mps_note = None, ""
         self.gpu_of = comm.allgather(self.gpu) if comm is not None else [self.gpu]
         record = {"started": provenance.now(), "finished": None, "mpi_size": self.size, "hosts": hosts,
                   "writer": self.wmode, "mode": self.mode, "todo": len(self.todo_list), "run_id": self.run_id,
@@ -826,6 +839,8 @@ class _Run:
                                            batch_units=sum(u.kind == "batch" for u in self.units))
                      if rank == 0 else {})}
         record.update(_reused_record(self.reused))
+        if need_gpu:  # the layout of the GPUs (rank 0's node): ranks per GPU and what became of MPS
+            record.update(ranks_per_gpu=self.per_gpu, mps=mps_note)
         # A signal that arrived while the process started (adopted from the early handler) is in the record the
         # store is born with: mpiexec SIGKILLs its ranks 1 s after forwarding it, maybe before anything else is
         # written, and the store must then say interrupted, not "running or killed" (issue 40). Rank 0's view,
@@ -1242,12 +1257,18 @@ def _coordinate(r: _Run) -> None:
     farm = Farm([u.gpu for u in r.units], r.work, workers, ahead_ok=r.ahead_ok())
     local = _Local(r) if r.works else None
     status = MPI.Status()
+    tr = Trace(0, r.gpu)  # GAPSWEEP_TRACE: the farm's timeline (gapsweep.sweep.trace)
     while farm.busy():
         progressed = False
         _send(r, farm, local, _stop_check(r, farm))
         while comm.Iprobe(source=MPI.ANY_SOURCE, tag=MPI.ANY_TAG, status=status):
             src, tag = status.Get_source(), status.Get_tag()
+            t0 = time.perf_counter()
+            if tag == TAG_READY:
+                tr.handle(src)
+            tr.rows += tag == TAG_ROW
             _send(r, farm, local, _on_message(r, farm, src, tag, comm.recv(source=src, tag=tag)))
+            tr.busy_s += time.perf_counter() - t0
             progressed = True
         while local is not None:
             try:
@@ -1262,6 +1283,7 @@ def _coordinate(r: _Run) -> None:
             time.sleep(2e-4 if local is not None else 2e-3)
     if local is not None:
         local.thread.join()
+    tr.write()
     r.ended(farm)
 
 
@@ -1323,9 +1345,16 @@ def _work(r: _Run) -> None:
             return comm.recv(source=0, tag=TAG_WORK)
         return None
 
-    held = _Held(r, get, lambda k: comm.send(k, dest=0, tag=TAG_READY))
-    comm.send(None, dest=0, tag=TAG_READY)
+    tr = Trace(r.rank, r.gpu)  # GAPSWEEP_TRACE: the farm's timeline (gapsweep.sweep.trace)
+
+    def ready(k: int | None) -> None:
+        tr.ask()
+        comm.send(k, dest=0, tag=TAG_READY)
+
+    held = _Held(r, get, ready)
+    ready(None)
     while (msg := held.next()) is not None:
+        t0 = time.time()
         try:
             for i, res in r.units_of(*msg):
                 if r.wmode == "mpio":
@@ -1336,10 +1365,13 @@ def _work(r: _Run) -> None:
             held.fault()
             comm.send(_fault(r.rank, r.gpu, e), dest=0, tag=TAG_FAULT)
             continue
+        finally:
+            tr.unit(msg[0], t0, r.units[msg[0]].gpu, len(r.units[msg[0]].tasks))
         if r.stop.signum is not None and not told:
             comm.send(r.stop.signum, dest=0, tag=TAG_STOP)
             told = True
-        comm.send(msg[0], dest=0, tag=TAG_READY)
+        ready(msg[0])
+    tr.write()
 
 
 def _fields_dir(store: str | Path) -> Path:

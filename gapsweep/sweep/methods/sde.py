@@ -116,8 +116,8 @@ def run_sde(t: Task, ctx: Context) -> tuple[TaskResult, Any]:
     h_rms, g_rms = moments(t, ctx)
     sp = t.surface_params()
     device = t.opt("device")
-    if device == "cuda":
-        device = f"cuda:{ctx.gpu or 0}"
+    if device == "cuda":  # this rank's GPU, current before the engine's first CUDA call (issue 38)
+        device = f"cuda:{ctx.select_gpu()}"
     kw = dict(hurst=t.hurst, h_rms=h_rms, rho=t.rho, gamma0=t.opt("gamma0"), lambda_l=sp["lambda_l"],
               lambda_s=sp["lambda_s"], e_star=t.opt("e_star"), c2=t.opt("c2"), dzeta=t.opt("dzeta"),
               n=t.opt("samples"), seed=t.seed, device=device, dtype=t.opt("dtype"), **extra(t))

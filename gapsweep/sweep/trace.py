@@ -1,0 +1,61 @@
+"""The farm's timeline, for profiling (docs/benchmarks.md, issue 38): with ``GAPSWEEP_TRACE=DIR`` in the
+environment every MPI rank of a farm writes ``DIR/rank<R>.json`` when it leaves the farm; without it nothing is
+recorded (each hook is one attribute test).
+
+A worker records the units it ran (``[unit, start, end, gpu unit, tasks in it]``, wall clock [s since the epoch], so
+that the ranks of one node share a clock) and the times it asked the coordinator for work (``asks``: every ready
+message). The coordinator records when it handled each worker's ready messages (``handled[worker]``: the k-th entry
+answers that worker's k-th ask, MPI keeping the order of one sender's messages), the seconds it spent handling
+messages and writing rows (``busy_s``), and how many rows it wrote (``rows``). Coordinator latency = handled -
+asked; a worker's idle time = the gaps between its units.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+__all__ = ["Trace"]
+
+
+class Trace:
+    """One rank's record (see the module doc); ``on`` is False without ``GAPSWEEP_TRACE``."""
+
+    def __init__(self, rank: int, gpu: int | None) -> None:
+        self.dir = os.environ.get("GAPSWEEP_TRACE", "")
+        self.on = bool(self.dir)
+        self.rank, self.gpu = rank, gpu
+        self.t0 = time.time()
+        self.units: list[list[Any]] = []
+        self.asks: list[float] = []
+        self.handled: dict[int, list[float]] = {}
+        self.busy_s = 0.0
+        self.rows = 0
+
+    def ask(self) -> None:
+        if self.on:
+            self.asks.append(time.time())
+
+    def unit(self, k: int, start: float, gpu_unit: bool, tasks: int = 0) -> None:
+        if self.on:
+            self.units.append([k, start, time.time(), bool(gpu_unit), tasks])
+
+    def handle(self, wid: int) -> None:
+        if self.on:
+            self.handled.setdefault(wid, []).append(time.time())
+
+    def write(self) -> None:
+        """Write ``DIR/rank<R>.json`` (a failure to write is not the run's: it is ignored)."""
+        if not self.on:
+            return
+        rec = {"rank": self.rank, "gpu": self.gpu, "pid": os.getpid(), "start": self.t0, "end": time.time(),
+               "units": self.units, "asks": self.asks, "handled": {str(k): v for k, v in self.handled.items()},
+               "busy_s": round(self.busy_s, 4), "rows": self.rows}
+        try:
+            Path(self.dir).mkdir(parents=True, exist_ok=True)
+            Path(self.dir, f"rank{self.rank}.json").write_text(json.dumps(rec))
+        except OSError:
+            pass
