@@ -55,6 +55,15 @@ METHODS = ("lbfgs", "cg")
 # grid's spectra is most of an evaluation's memory traffic (about 40 grid arrays of the map's size per pair and
 # iteration; a periodic evaluation moves about 36): benchmarks/bench_gpu_floor.py times other values side by side.
 _MEMORY = 12
+# On the CPU the two-loop recursion's passes over the doubled grid's spectra were half of an evaluation (issue 39);
+# fewer pairs cost a few more evaluations and less time: on the crops of benchmarks/bench_free.py (exponential,
+# tol 1e-8, approach eliminated) 12 / 6 / 4 / 3 pairs took 105 / 120 / 116 / 121 evaluations and 1.38 / 1.09 /
+# 0.97 / 0.94 s (256 x 192), 142 / 147 / 169 / 158 and 4.93 / 3.76 / 3.78 / 3.49 s (320 x 448); 4 kept as the
+# margin for the adhesive laws' harder Hessians.
+_MEMORY_CPU = 4
+# The exponential law's approach in closed form (_FreeState; False: an unknown of the minimisers, as before issue 39;
+# tests/test_free_boundaries.py compares the two)
+ELIMINATE = True
 log = logging.getLogger("gapsweep.gfmd")
 
 
@@ -109,7 +118,20 @@ class _FreeState:
         self.U, self.delta = U, float(delta)
         self.g = self.map_field(U) + self.delta - h
         self.nfev = 0
+        # The exponential law at a compressive load: the approach in closed form (as the periodic softmax
+        # minimiser, docs/model.md M3), so that the minimisers move u~ alone (G_delta = 0 at every point)
+        self.eliminate = ELIMINATE and law.load_control == "softmax" and sigma0 > 0 and hasattr(law, "rho")
+        if self.eliminate:
+            self._c = math.log(law.gamma0 / (law.rho * sigma0))
         self._evaluate()
+
+    def _shift(self, g: Any) -> float:
+        """Exponential law: the change ``s`` of the approach that makes ``<p(g + s)>_map = sigma0``,
+        ``s = rho [ln(gamma0/(rho sigma0)) + ln <exp(-g/rho)>]`` (log-sum-exp, no overflow)."""
+        rho = self.law.rho
+        m = -float(self.xp.min(g)) / rho  # max of w = -g/rho
+        S = self.ops.mean(self.xp.exp(g * (-1.0 / rho) - m))
+        return rho * (self._c + m + math.log(S)) if S > 0 else math.nan
 
     def map_field(self, A: Any) -> Any:
         """The map block of the real field of the normalised doubled-grid coefficients ``A`` (only the map's
@@ -119,11 +141,15 @@ class _FreeState:
     def _evaluate(self) -> None:
         xp, ops = self.xp, self.ops
         self._energy: float | None = None
+        if self.eliminate:
+            sh = self._shift(self.g)
+            self.g += sh
+            self.delta += sh
         self.p = self.law.pressure(self.g, xp)
         self.e_law = ops.mean(self.law.energy(self.g, xp))
         # FFT of p zero-padded to the doubled grid, normalised (FreeGrid.pad_fwd never forms the padding)
         self.Gu = ops.grad(self.k, self.U, self.ratio / self.pad.size, self.free.pad_fwd(self.p))
-        self.Gd = self.sigma0 - ops.mean(self.p)
+        self.Gd = 0.0 if self.eliminate else self.sigma0 - ops.mean(self.p)
         self.nfev += 1
 
     @property
@@ -144,14 +170,24 @@ class _FreeState:
         """Real-space direction of the map's gap and the scalars of ``phi(alpha) = F(x + alpha D)``."""
         DU, dd = D
         d = self.map_field(DU) + dd
-        a = self.ops.kdot(DU, self.k, self.U)
-        b = self.ops.kdot(DU, self.k, DU)
+        if self.xp is np:  # k D~ once for both sums (one pass less)
+            kD = self.k * DU
+            a, b = self.ops.dot(kD, self.U), self.ops.dot(kD, DU)
+        else:
+            a = self.ops.kdot(DU, self.k, self.U)
+            b = self.ops.kdot(DU, self.k, DU)
         return d, a, b, dd
 
     def phi(self, alpha: float, d: Any, a: float, b: float, d0: float, e0: float) -> tuple[float, float]:
         """``(phi(alpha) - phi(0) + e_law(0), phi'(alpha))`` without FFT (``d0``: the step of ``delta``)."""
         xp, ops = self.xp, self.ops
         g = ops.trial(self.g, alpha, d)
+        if self.eliminate:  # the approach follows the step: <p> = sigma0 on the line too (d0 = 0 here)
+            sh = self._shift(g)
+            g += sh
+            # phi' = a + alpha b - <p d> (the terms of d delta / d alpha cancel, as <p> = sigma0)
+            f = alpha * a + 0.5 * alpha * alpha * b + ops.mean(self.law.energy(g, xp)) + self.sigma0 * sh
+            return f, a + alpha * b - ops.mean_product(self.law.pressure(g, xp), d)
         f = alpha * a + 0.5 * alpha * alpha * b + ops.mean(self.law.energy(g, xp)) + self.sigma0 * alpha * d0
         df = a + alpha * b - ops.mean_product(self.law.pressure(g, xp), d) + self.sigma0 * d0
         return f, df
@@ -360,7 +396,7 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
     if method not in METHODS:
         raise ValueError(f"method must be one of 'auto', {', '.join(map(repr, METHODS))}, got {method!r}")
     on_gpu = _is_cupy(heights)
-    memory = _MEMORY if memory is None else int(memory)
+    memory = (_MEMORY if on_gpu else _MEMORY_CPU) if memory is None else int(memory)
     free = FreeGrid(heights.shape, length, backend, threads, on_gpu)
     nx, ny = free.shape
     pad = Grid((2 * nx, 2 * ny), (2 * free.lx, 2 * free.ly), free.backend, threads, on_gpu)
