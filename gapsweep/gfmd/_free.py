@@ -67,15 +67,86 @@ ELIMINATE = True
 log = logging.getLogger("gapsweep.gfmd")
 
 
+_FUSED: Any = None
+
+
+def _fused() -> Any:
+    """numba kernels of the CPU's L-BFGS on the doubled grid's half spectrum (its width ``ny + 1`` with ``2ny``
+    even: the columns ``ky = 0`` and Nyquist weigh 1, the others 2; ``Grid.dot``): ``wdot(a, b)`` the Parseval
+    sum in one pass, ``axpy_dot(y, a, x, z)`` ``y += a x`` and then ``<z y>`` in the same pass (the two-loop
+    recursion's update and the next pair's dot: half its passes). None without numba."""
+    global _FUSED
+    if _FUSED is None:
+        from gapsweep.gfmd._ops import _have_numba
+
+        if not _have_numba():
+            _FUSED = False
+            return None
+        from gapsweep.core.numba_cache import njit
+
+        jit = njit(fastmath=False, nogil=True)
+
+        @jit
+        def wdot(a, b):  # pragma: no cover - compiled
+            n0, nh = a.shape
+            se = 0.0
+            sm = 0.0
+            for i in range(n0):
+                x, y = a[i, 0], b[i, 0]
+                se += x.real * y.real + x.imag * y.imag
+                x, y = a[i, nh - 1], b[i, nh - 1]
+                se += x.real * y.real + x.imag * y.imag
+                for j in range(1, nh - 1):
+                    x, y = a[i, j], b[i, j]
+                    sm += x.real * y.real + x.imag * y.imag
+            return se + 2.0 * sm
+
+        @jit
+        def axpy_dot(y, a, x, z):  # pragma: no cover - compiled
+            n0, nh = y.shape
+            se = 0.0
+            sm = 0.0
+            for i in range(n0):
+                for j in range(nh):
+                    v = y[i, j] + a * x[i, j]
+                    y[i, j] = v
+                    w = z[i, j]
+                    t = w.real * v.real + w.imag * v.imag
+                    if j == 0 or j == nh - 1:
+                        se += t
+                    else:
+                        sm += t
+            return se + 2.0 * sm
+
+        _FUSED = (wdot, axpy_dot)
+    return _FUSED or None
+
+
+def _fits(a: Any, shape: tuple[int, int]) -> bool:
+    return isinstance(a, np.ndarray) and a.dtype == np.complex128 and a.shape == shape and a.flags.c_contiguous
+
+
 class _HostOps:
-    """The passes of the free-boundary L-BFGS as numpy array expressions (the CPU; the GPU's fused variant is
-    ``gfmd._cuda._FreeCupyOps`` with the same methods)."""
+    """The passes of the free-boundary L-BFGS as numpy array expressions and, with numba, single-pass kernels
+    (the CPU; the GPU's fused variant is ``gfmd._cuda._FreeCupyOps`` with the same methods)."""
 
     def __init__(self, pad: Grid) -> None:
         self.pad = pad
+        self.spec = (pad.shape[0], pad.shape[1] // 2 + 1)
+        k = _fused() if pad.shape[1] % 2 == 0 else None
+        self._wdot, self._axpy_dot = k if k is not None else (None, None)
 
     def dot(self, a: Any, b: Any) -> float:
+        if self._wdot is not None and _fits(a, self.spec) and _fits(b, self.spec):
+            return float(self._wdot(a, b))
         return self.pad.dot(a, b)
+
+    def axpy_dot(self, y: Any, a: float, x: Any, z: Any) -> float:
+        """``y += a x`` in place, then ``<z y>`` (one pass with numba)."""
+        if self._axpy_dot is not None and _fits(y, self.spec) and _fits(x, self.spec) and _fits(z, self.spec):
+            return float(self._axpy_dot(y, float(a), x, z))
+        self.axpy(y, a, x)
+        return self.dot(z, y)
 
     def kdot(self, a: Any, k: Any, b: Any) -> float:
         """``<A k B>``, ``k`` real."""
@@ -267,6 +338,47 @@ def _cg(st: _FreeState, minv_u: Any, minv_d: float, ratio: float, p_ref: float, 
         st.move(alpha, D, d)
 
 
+def _two_loop_first(ops: Any, s_hist: list, y_hist: list, r_hist: list, q: tuple[Any, float]
+                    ) -> tuple[Any, float, list[float]]:
+    """The first loop of the L-BFGS two-loop recursion (newest pair first: ``al_i = r_i <s_i q>``,
+    ``q -= al_i y_i``) with each update and the next dot product in one pass; ``q[0]`` updated in place.
+    Returns ``(q0, q1, alphas newest first)``."""
+    q0, q1 = q
+    k = len(s_hist)
+    alphas: list[float] = []
+    if not k:
+        return q0, q1, alphas
+    i = k - 1
+    d = ops.dot(s_hist[i][0], q0) + s_hist[i][1] * q1
+    while True:
+        al = r_hist[i] * d
+        alphas.append(al)
+        q1 -= al * y_hist[i][1]
+        if i == 0:
+            ops.axpy(q0, -al, y_hist[i][0])
+            return q0, q1, alphas
+        d = ops.axpy_dot(q0, -al, y_hist[i][0], s_hist[i - 1][0]) + s_hist[i - 1][1] * q1
+        i -= 1
+
+
+def _two_loop_second(ops: Any, s_hist: list, y_hist: list, r_hist: list, alphas: list[float],
+                     q: tuple[Any, float]) -> tuple[Any, float]:
+    """The second loop (oldest pair first: ``q += (al_i - r_i <y_i q>) s_i``), fused as the first one."""
+    q0, q1 = q
+    k = len(s_hist)
+    if not k:
+        return q0, q1
+    d = ops.dot(y_hist[0][0], q0) + y_hist[0][1] * q1
+    for i in range(k):
+        c = alphas[k - 1 - i] - r_hist[i] * d
+        q1 += c * s_hist[i][1]
+        if i == k - 1:
+            ops.axpy(q0, c, s_hist[i][0])
+        else:
+            d = ops.axpy_dot(q0, c, s_hist[i][0], y_hist[i + 1][0]) + y_hist[i + 1][1] * q1
+    return q0, q1
+
+
 def _lbfgs(st: _FreeState, minv_u: Any, minv_d: float, ratio: float, p_ref: float, tol: float, max_iter: int,
            rng: float | None, memory: int, history: list[float]) -> str:
     """Method "lbfgs" (the default): L-BFGS with ``memory`` pairs, the preconditioner ``(minv_u, minv_d)`` as
@@ -294,11 +406,17 @@ def _lbfgs(st: _FreeState, minv_u: Any, minv_d: float, ratio: float, p_ref: floa
             status = stop
             break
         q = (st.Gu.copy(), st.Gd)
-        alphas = []
-        for s, y, r in zip(reversed(s_hist), reversed(y_hist), reversed(r_hist)):
-            al = r * st.dot(s, q)
-            alphas.append(al)
-            q = axpy_pair(-al, y, q)
+        fused = hasattr(ops, "axpy_dot")
+        if fused:  # the same recursion, each update fused with the next pair's dot product (_HostOps.axpy_dot)
+            q = _two_loop_first(ops, s_hist, y_hist, r_hist, q)
+            alphas = q[2]
+            q = (q[0], q[1])
+        else:
+            alphas = []
+            for s, y, r in zip(reversed(s_hist), reversed(y_hist), reversed(r_hist)):
+                al = r * st.dot(s, q)
+                alphas.append(al)
+                q = axpy_pair(-al, y, q)
         q0 = q[0]  # owned (a copy of the gradient): scaled in place
         q0 *= minv_u
         q = (q0, minv_d * q[1])
@@ -309,8 +427,11 @@ def _lbfgs(st: _FreeState, minv_u: Any, minv_d: float, ratio: float, p_ref: floa
                 sc = 1.0 / (r_hist[-1] * yhy)
                 q0 *= sc
                 q = (q0, q[1] * sc)
-        for s, y, r, al in zip(s_hist, y_hist, r_hist, reversed(alphas)):
-            q = axpy_pair(al - r * st.dot(y, q), s, q)
+        if fused:
+            q = _two_loop_second(ops, s_hist, y_hist, r_hist, alphas, q)
+        else:
+            for s, y, r, al in zip(s_hist, y_hist, r_hist, reversed(alphas)):
+                q = axpy_pair(al - r * st.dot(y, q), s, q)
         q0 = q[0]
         q0 *= -1.0
         D = (q0, -q[1])
