@@ -22,6 +22,13 @@ conjugate gradients with the same preconditioner and line search (``_cg``), one 
 pairs (less memory traffic per evaluation on the GPU, more evaluations). The same array code runs on numpy and
 cupy.
 
+Exponential law at ``sigma0 > 0`` (issue 39): the approach is eliminated in closed form, as in the periodic
+softmax minimiser (docs/model.md M3): at every point and trial step ``delta`` is the value at which
+``<p>_map = sigma0``, ``delta = rho [ln(gamma0/(rho sigma0)) + ln <exp(-(u - h)/rho)>_map]`` (log-sum-exp,
+``_FreeState._shift``), so ``G_delta = 0`` and the minimisers move ``u~`` alone. The CPU's L-BFGS keeps
+``_MEMORY_CPU`` pairs and runs its two-loop recursion with each update fused with the next dot product (numba,
+``_fused``).
+
 Tensile loads (adhesion): :class:`_FreeSolver` is the periodic minimiser's ``_smooth._Solver`` on the pair
 ``(u~, delta)``: without ``initial`` a tensile load is reached from the zero-load equilibrium by its quasi-static
 continuation (secant predictor, branch test, pull-off bracket ``diagnostics["last_attached_load"]``), and a warm
