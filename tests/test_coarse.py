@@ -116,3 +116,32 @@ def test_a_level_far_from_balance_starts_nothing(status, residual, used):
     Z, records = _coarse.chain(h, f, 1, lambda hl, init: _Level(hl.shape, status, residual), smooth=True)
     assert records[0]["used"] is used
     assert (Z is not None) is used
+
+
+@pytest.mark.parametrize("shape,length,law,kw", [
+    ((128, 192), (2.0 / 3.0, 1.0), "exponential", dict(gamma0=1e-3, rho=1 / 96)),  # rectangle: the smooth path
+    ((128, 128), 1.0, "adhesive", dict(work=2e-4, rho=1 / 64)),
+])
+def test_one_process_coarse_start_runs_the_plain_engine(shape, length, law, kw):
+    """Without ``comm`` on the CPU the coarse start runs the plain minimisers and FFT backend (issue 39 item 4):
+    its result is a plain ``GFMDResult`` of the plain solve's backend, and it agrees with the plain start and with
+    the former one-rank slab path (``distributed.solve`` on ``SelfComm``) to the solver tolerance."""
+    from gapsweep.gfmd import distributed
+    from gapsweep.gfmd._result import GFMDResult
+
+    n = max(shape)
+    h = self_affine(n, 0.6, lambda_l=0.5, lambda_s=4 / n, rms_slope=0.5, seed=17)[:shape[0], :shape[1]]
+    args = dict(sigma0=1e-2, interaction=law, tol=1e-9, length=length, **kw)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        a = gfmd.solve(h, **args)
+        b = gfmd.solve(h, start="coarse", levels=1, **args)
+        c = distributed.solve(h, comm=SELF, start="coarse", levels=1, **args)
+    assert a.converged and b.converged and c.converged
+    assert type(b) is GFMDResult and b.backend == a.backend
+    assert [lv["shape"] for lv in b.diagnostics["levels"]] == [[shape[0] // 2, shape[1] // 2]]
+    for ref in (a, c):
+        assert abs(b.mean_gap / ref.mean_gap - 1) <= 1e-7
+        assert abs(b.contact_area - ref.contact_area) <= 2 / h.size
+        np.testing.assert_allclose(b.gap, ref.gap, atol=1e-6 * np.abs(ref.gap).max())
+    assert 0 < a.contact_area < 1

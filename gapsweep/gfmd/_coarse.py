@@ -147,6 +147,24 @@ def restrict(h: Any, f_fine: SlabFFT, f_coarse: SlabFFT) -> Any:
     return f_coarse.irfft2(Hc)
 
 
+def _record(r: Any, shape: tuple[int, int]) -> dict:
+    """The record of a coarse level's result ``r`` (``diagnostics["levels"]``), ``used`` whether it starts the
+    next level: a level whose forces are off by more than the pressure scale (a stall, an overflow) starts
+    nothing; an unconverged level within it is still a better start than flat (measured at the challenge's
+    constants on 32768^2, 2 H200: the exponential 64^2 level at residual 0.46 started a chain that converged in 74
+    fine evaluations, dropping it left every level at max_iter: benchmarks/results/distributed/
+    h200x2_challenge_32768_before.json, h200x2_challenge_32768_strict.json)."""
+    rec = {"shape": [int(shape[0]), int(shape[1])], "evaluations": int(r.iterations), "status": r.status,
+           "residual": float(r.residual), "mean_gap": float(r.mean_gap), "contact_area": float(r.contact_area),
+           "wall_s": float(r.wall_time)}
+    log.info("coarse level %d x %d: %s after %d evaluations, residual %.3g, mean gap %.6g", shape[0], shape[1],
+             r.status, r.iterations, r.residual, r.mean_gap)
+    ok = math.isfinite(r.mean_gap) and (r.status == "converged" or (
+        r.status != "non_finite" and math.isfinite(r.residual) and r.residual <= LEVEL_RESIDUAL))
+    rec["used"] = bool(ok)
+    return rec
+
+
 def chain(h: Any, f_fine: SlabFFT, levels: int, solve_level: Any, smooth: bool) -> tuple[Any, list[dict]]:
     """Solve the coarse levels ``levels .. 1`` in turn (``solve_level(h_l, initial)`` returns the level's
     result, ``initial`` None or a :class:`Start`) and return the requested grid's start spectrum (this rank's
@@ -163,21 +181,9 @@ def chain(h: Any, f_fine: SlabFFT, levels: int, solve_level: Any, smooth: bool) 
         with warnings.catch_warnings():  # a coarse level may resolve the range worse: only a start
             warnings.simplefilter("ignore")
             r = solve_level(hl, init)
-        rec = {"shape": [nx >> lv, ny >> lv], "evaluations": int(r.iterations), "status": r.status,
-               "residual": float(r.residual), "mean_gap": float(r.mean_gap), "contact_area": float(r.contact_area),
-               "wall_s": float(r.wall_time)}
+        rec = _record(r, (nx >> lv, ny >> lv))
         records.append(rec)
-        log.info("coarse level %d x %d: %s after %d evaluations, residual %.3g, mean gap %.6g", nx >> lv, ny >> lv,
-                 r.status, r.iterations, r.residual, r.mean_gap)
-        ok = math.isfinite(r.mean_gap) and (r.status == "converged" or (
-            r.status != "non_finite" and math.isfinite(r.residual) and r.residual <= LEVEL_RESIDUAL))
-        # a level whose forces are off by more than the pressure scale (a stall, an overflow) starts nothing; an
-        # unconverged level within it is still a better start than flat (measured at the challenge's constants on
-        # 32768^2, 2 H200: the exponential 64^2 level at residual 0.46 started a chain that converged in 74 fine
-        # evaluations, dropping it left every level at max_iter: benchmarks/results/distributed/
-        # h200x2_challenge_32768_before.json, h200x2_challenge_32768_strict.json)
-        rec["used"] = bool(ok)
-        if ok:
+        if rec["used"]:
             z = r.gap + hl if smooth else r.displacement
             Z = f.rfft2(xp.ascontiguousarray(z))
             Z *= 1.0 / ((nx >> lv) * (ny >> lv))
@@ -186,3 +192,76 @@ def chain(h: Any, f_fine: SlabFFT, levels: int, solve_level: Any, smooth: bool) 
     if Z is None:
         return None, records
     return remap(Z, f_prev, f_fine), records
+
+
+# ---------------------------------------------------------------------------------------------- one process
+def transfer(A: Any, src: tuple[int, int], dst: tuple[int, int], xp: Any = np) -> Any:
+    """Normalised half-spectrum coefficients ``A`` of an ``src`` grid (layout ``[kx, ky]``, shape
+    ``(nx, ny//2 + 1)``, as :class:`gapsweep.gfmd._grid.Grid`) on the ``dst`` grid: the modes both grids carry
+    below their Nyquist wave numbers copied, every other mode 0 (the restriction and prolongation of the module
+    docstring; :func:`remap` on one process, without the slab layout). A new array."""
+    (nxs, nys), (nxd, nyd) = src, dst
+    mx, my = min(nxs, nxd) // 2, min(nys, nyd) // 2
+    out = xp.zeros((nxd, nyd // 2 + 1), dtype=xp.complex128)
+    out[:mx, :my] = A[:mx, :my]
+    if mx > 1:
+        out[nxd - mx + 1:, :my] = A[nxs - mx + 1:, :my]
+    return out
+
+
+def _start_field(grid: Any, Z: Any, h: Any, smooth: bool, sink: float) -> Any:
+    """The ``initial`` of the plain solve on ``grid`` from the prolonged state spectrum ``Z``: the displacement
+    field (exponential law on a square: the softmax minimiser), or for the smooth minimiser the pair
+    ``(zero-mean displacement, mean gap)`` of the body surface ``z``, first lifted so that it overlaps ``h`` by at
+    most ``sink`` (length units; ``gfmd._lean.lift_out_of_surface``'s safeguard)."""
+    z = grid.inv(Z)
+    if not smooth:
+        return z
+    lift = max(0.0, -float((z - h).min()) - sink)
+    zm = float(z.mean()) + lift
+    return z - float(z.mean()), zm - float(h.mean())
+
+
+def solve_local(h: np.ndarray, solve: Any, *, length: Any, backend: str, threads: int | None, levels: int,
+                smooth: bool, sink: float, level_kw: dict, fine_kw: dict) -> Any:
+    """``gfmd.solve(..., start="coarse")`` on one process on the CPU: the chain of :func:`chain` run on the plain
+    single-process minimisers and their FFT engine (pyFFTW where installed, the process's FFT backend:
+    :class:`gapsweep.gfmd._grid.Grid`) instead of the slab decomposition on numpy's FFT. ``solve(h, initial, kw)``
+    is the plain solve (start "flat"); ``level_kw`` its keywords on the coarse levels (``coarse_tol``),
+    ``fine_kw`` on the requested grid; ``smooth``: the law runs on the smooth minimiser (the state travels as the
+    body surface ``z = g + h``, else as the displacement ``u``); ``sink``: :data:`gfmd._lean.SINK_RANGES` times the
+    law's range. Returns the requested grid's result with ``diagnostics["levels"]`` and
+    ``diagnostics["coarse_cost"]`` (as the distributed solve's) and ``wall_time`` including the coarse levels.
+    Memory: the surface's spectrum and the levels' arrays (``4^-l`` of the grid's) while the levels run, freed
+    before the requested grid runs."""
+    import time
+
+    from gapsweep.gfmd._grid import Grid
+
+    t0 = time.perf_counter()
+    nx, ny = shape = (int(h.shape[0]), int(h.shape[1]))
+    fine = Grid(shape, length, backend, threads, False)
+    H = fine.fwd(fine.asarray(h))
+    Z, prev, records = None, None, []
+    for lv in range(levels, 0, -1):
+        sh = (nx >> lv, ny >> lv)
+        g = Grid(sh, length, backend, threads, False)
+        hl = g.inv(transfer(H, shape, sh))
+        init = None if Z is None else _start_field(g, transfer(Z, prev, sh), hl, smooth, sink)
+        with warnings.catch_warnings():  # a coarse level may resolve the range worse: only a start
+            warnings.simplefilter("ignore")
+            r = solve(hl, init, level_kw)
+        rec = _record(r, sh)
+        records.append(rec)
+        if rec["used"]:
+            z = r.gap + hl if smooth else r.displacement
+            Z, prev = g.fwd(np.ascontiguousarray(z)), sh
+        del r, hl
+    del H
+    init = None if Z is None else _start_field(fine, transfer(Z, prev, shape), np.asarray(h, dtype=float), smooth,
+                                               sink)
+    r = solve(h, init, fine_kw)
+    r.diagnostics = {**r.diagnostics, "levels": records, "coarse_cost": sum(
+        rec["evaluations"] * rec["shape"][0] * rec["shape"][1] / (nx * ny) for rec in records)}
+    r.wall_time = time.perf_counter() - t0
+    return r

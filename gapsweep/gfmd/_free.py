@@ -22,6 +22,13 @@ conjugate gradients with the same preconditioner and line search (``_cg``), one 
 pairs (less memory traffic per evaluation on the GPU, more evaluations). The same array code runs on numpy and
 cupy.
 
+Exponential law at ``sigma0 > 0`` (issue 39): the approach is eliminated in closed form, as in the periodic
+softmax minimiser (docs/model.md M3): at every point and trial step ``delta`` is the value at which
+``<p>_map = sigma0``, ``delta = rho [ln(gamma0/(rho sigma0)) + ln <exp(-(u - h)/rho)>_map]`` (log-sum-exp,
+``_FreeState._shift``), so ``G_delta = 0`` and the minimisers move ``u~`` alone. The CPU's L-BFGS keeps
+``_MEMORY_CPU`` pairs and runs its two-loop recursion with each update fused with the next dot product (numba,
+``_fused``).
+
 Tensile loads (adhesion): :class:`_FreeSolver` is the periodic minimiser's ``_smooth._Solver`` on the pair
 ``(u~, delta)``: without ``initial`` a tensile load is reached from the zero-load equilibrium by its quasi-static
 continuation (secant predictor, branch test, pull-off bracket ``diagnostics["last_attached_load"]``), and a warm
@@ -55,18 +62,98 @@ METHODS = ("lbfgs", "cg")
 # grid's spectra is most of an evaluation's memory traffic (about 40 grid arrays of the map's size per pair and
 # iteration; a periodic evaluation moves about 36): benchmarks/bench_gpu_floor.py times other values side by side.
 _MEMORY = 12
+# On the CPU the two-loop recursion's passes over the doubled grid's spectra were half of an evaluation (issue 39);
+# fewer pairs cost a few more evaluations and less time: on the crops of benchmarks/bench_free.py (exponential,
+# tol 1e-8, approach eliminated) 12 / 6 / 4 / 3 pairs took 105 / 120 / 116 / 121 evaluations and 1.38 / 1.09 /
+# 0.97 / 0.94 s (256 x 192), 142 / 147 / 169 / 158 and 4.93 / 3.76 / 3.78 / 3.49 s (320 x 448); 4 kept as the
+# margin for the adhesive laws' harder Hessians.
+_MEMORY_CPU = 4
+# The exponential law's approach in closed form (_FreeState; False: an unknown of the minimisers, as before issue 39;
+# tests/test_free_boundaries.py compares the two)
+ELIMINATE = True
 log = logging.getLogger("gapsweep.gfmd")
 
 
+_FUSED: Any = None
+
+
+def _fused() -> Any:
+    """numba kernels of the CPU's L-BFGS on the doubled grid's half spectrum (its width ``ny + 1`` with ``2ny``
+    even: the columns ``ky = 0`` and Nyquist weigh 1, the others 2; ``Grid.dot``): ``wdot(a, b)`` the Parseval
+    sum in one pass, ``axpy_dot(y, a, x, z)`` ``y += a x`` and then ``<z y>`` in the same pass (the two-loop
+    recursion's update and the next pair's dot: half its passes). None without numba."""
+    global _FUSED
+    if _FUSED is None:
+        from gapsweep.gfmd._ops import _have_numba
+
+        if not _have_numba():
+            _FUSED = False
+            return None
+        from gapsweep.core.numba_cache import njit
+
+        jit = njit(fastmath=False, nogil=True)
+
+        @jit
+        def wdot(a, b):  # pragma: no cover - compiled
+            n0, nh = a.shape
+            se = 0.0
+            sm = 0.0
+            for i in range(n0):
+                x, y = a[i, 0], b[i, 0]
+                se += x.real * y.real + x.imag * y.imag
+                x, y = a[i, nh - 1], b[i, nh - 1]
+                se += x.real * y.real + x.imag * y.imag
+                for j in range(1, nh - 1):
+                    x, y = a[i, j], b[i, j]
+                    sm += x.real * y.real + x.imag * y.imag
+            return se + 2.0 * sm
+
+        @jit
+        def axpy_dot(y, a, x, z):  # pragma: no cover - compiled
+            n0, nh = y.shape
+            se = 0.0
+            sm = 0.0
+            for i in range(n0):
+                for j in range(nh):
+                    v = y[i, j] + a * x[i, j]
+                    y[i, j] = v
+                    w = z[i, j]
+                    t = w.real * v.real + w.imag * v.imag
+                    if j == 0 or j == nh - 1:
+                        se += t
+                    else:
+                        sm += t
+            return se + 2.0 * sm
+
+        _FUSED = (wdot, axpy_dot)
+    return _FUSED or None
+
+
+def _fits(a: Any, shape: tuple[int, int]) -> bool:
+    return isinstance(a, np.ndarray) and a.dtype == np.complex128 and a.shape == shape and a.flags.c_contiguous
+
+
 class _HostOps:
-    """The passes of the free-boundary L-BFGS as numpy array expressions (the CPU; the GPU's fused variant is
-    ``gfmd._cuda._FreeCupyOps`` with the same methods)."""
+    """The passes of the free-boundary L-BFGS as numpy array expressions and, with numba, single-pass kernels
+    (the CPU; the GPU's fused variant is ``gfmd._cuda._FreeCupyOps`` with the same methods)."""
 
     def __init__(self, pad: Grid) -> None:
         self.pad = pad
+        self.spec = (pad.shape[0], pad.shape[1] // 2 + 1)
+        k = _fused() if pad.shape[1] % 2 == 0 else None
+        self._wdot, self._axpy_dot = k if k is not None else (None, None)
 
     def dot(self, a: Any, b: Any) -> float:
+        if self._wdot is not None and _fits(a, self.spec) and _fits(b, self.spec):
+            return float(self._wdot(a, b))
         return self.pad.dot(a, b)
+
+    def axpy_dot(self, y: Any, a: float, x: Any, z: Any) -> float:
+        """``y += a x`` in place, then ``<z y>`` (one pass with numba)."""
+        if self._axpy_dot is not None and _fits(y, self.spec) and _fits(x, self.spec) and _fits(z, self.spec):
+            return float(self._axpy_dot(y, float(a), x, z))
+        self.axpy(y, a, x)
+        return self.dot(z, y)
 
     def kdot(self, a: Any, k: Any, b: Any) -> float:
         """``<A k B>``, ``k`` real."""
@@ -109,7 +196,20 @@ class _FreeState:
         self.U, self.delta = U, float(delta)
         self.g = self.map_field(U) + self.delta - h
         self.nfev = 0
+        # The exponential law at a compressive load: the approach in closed form (as the periodic softmax
+        # minimiser, docs/model.md M3), so that the minimisers move u~ alone (G_delta = 0 at every point)
+        self.eliminate = ELIMINATE and law.load_control == "softmax" and sigma0 > 0 and hasattr(law, "rho")
+        if self.eliminate:
+            self._c = math.log(law.gamma0 / (law.rho * sigma0))
         self._evaluate()
+
+    def _shift(self, g: Any) -> float:
+        """Exponential law: the change ``s`` of the approach that makes ``<p(g + s)>_map = sigma0``,
+        ``s = rho [ln(gamma0/(rho sigma0)) + ln <exp(-g/rho)>]`` (log-sum-exp, no overflow)."""
+        rho = self.law.rho
+        m = -float(self.xp.min(g)) / rho  # max of w = -g/rho
+        S = self.ops.mean(self.xp.exp(g * (-1.0 / rho) - m))
+        return rho * (self._c + m + math.log(S)) if S > 0 else math.nan
 
     def map_field(self, A: Any) -> Any:
         """The map block of the real field of the normalised doubled-grid coefficients ``A`` (only the map's
@@ -119,11 +219,15 @@ class _FreeState:
     def _evaluate(self) -> None:
         xp, ops = self.xp, self.ops
         self._energy: float | None = None
+        if self.eliminate:
+            sh = self._shift(self.g)
+            self.g += sh
+            self.delta += sh
         self.p = self.law.pressure(self.g, xp)
         self.e_law = ops.mean(self.law.energy(self.g, xp))
         # FFT of p zero-padded to the doubled grid, normalised (FreeGrid.pad_fwd never forms the padding)
         self.Gu = ops.grad(self.k, self.U, self.ratio / self.pad.size, self.free.pad_fwd(self.p))
-        self.Gd = self.sigma0 - ops.mean(self.p)
+        self.Gd = 0.0 if self.eliminate else self.sigma0 - ops.mean(self.p)
         self.nfev += 1
 
     @property
@@ -144,14 +248,24 @@ class _FreeState:
         """Real-space direction of the map's gap and the scalars of ``phi(alpha) = F(x + alpha D)``."""
         DU, dd = D
         d = self.map_field(DU) + dd
-        a = self.ops.kdot(DU, self.k, self.U)
-        b = self.ops.kdot(DU, self.k, DU)
+        if self.xp is np:  # k D~ once for both sums (one pass less)
+            kD = self.k * DU
+            a, b = self.ops.dot(kD, self.U), self.ops.dot(kD, DU)
+        else:
+            a = self.ops.kdot(DU, self.k, self.U)
+            b = self.ops.kdot(DU, self.k, DU)
         return d, a, b, dd
 
     def phi(self, alpha: float, d: Any, a: float, b: float, d0: float, e0: float) -> tuple[float, float]:
         """``(phi(alpha) - phi(0) + e_law(0), phi'(alpha))`` without FFT (``d0``: the step of ``delta``)."""
         xp, ops = self.xp, self.ops
         g = ops.trial(self.g, alpha, d)
+        if self.eliminate:  # the approach follows the step: <p> = sigma0 on the line too (d0 = 0 here)
+            sh = self._shift(g)
+            g += sh
+            # phi' = a + alpha b - <p d> (the terms of d delta / d alpha cancel, as <p> = sigma0)
+            f = alpha * a + 0.5 * alpha * alpha * b + ops.mean(self.law.energy(g, xp)) + self.sigma0 * sh
+            return f, a + alpha * b - ops.mean_product(self.law.pressure(g, xp), d)
         f = alpha * a + 0.5 * alpha * alpha * b + ops.mean(self.law.energy(g, xp)) + self.sigma0 * alpha * d0
         df = a + alpha * b - ops.mean_product(self.law.pressure(g, xp), d) + self.sigma0 * d0
         return f, df
@@ -231,6 +345,47 @@ def _cg(st: _FreeState, minv_u: Any, minv_d: float, ratio: float, p_ref: float, 
         st.move(alpha, D, d)
 
 
+def _two_loop_first(ops: Any, s_hist: list, y_hist: list, r_hist: list, q: tuple[Any, float]
+                    ) -> tuple[Any, float, list[float]]:
+    """The first loop of the L-BFGS two-loop recursion (newest pair first: ``al_i = r_i <s_i q>``,
+    ``q -= al_i y_i``) with each update and the next dot product in one pass; ``q[0]`` updated in place.
+    Returns ``(q0, q1, alphas newest first)``."""
+    q0, q1 = q
+    k = len(s_hist)
+    alphas: list[float] = []
+    if not k:
+        return q0, q1, alphas
+    i = k - 1
+    d = ops.dot(s_hist[i][0], q0) + s_hist[i][1] * q1
+    while True:
+        al = r_hist[i] * d
+        alphas.append(al)
+        q1 -= al * y_hist[i][1]
+        if i == 0:
+            ops.axpy(q0, -al, y_hist[i][0])
+            return q0, q1, alphas
+        d = ops.axpy_dot(q0, -al, y_hist[i][0], s_hist[i - 1][0]) + s_hist[i - 1][1] * q1
+        i -= 1
+
+
+def _two_loop_second(ops: Any, s_hist: list, y_hist: list, r_hist: list, alphas: list[float],
+                     q: tuple[Any, float]) -> tuple[Any, float]:
+    """The second loop (oldest pair first: ``q += (al_i - r_i <y_i q>) s_i``), fused as the first one."""
+    q0, q1 = q
+    k = len(s_hist)
+    if not k:
+        return q0, q1
+    d = ops.dot(y_hist[0][0], q0) + y_hist[0][1] * q1
+    for i in range(k):
+        c = alphas[k - 1 - i] - r_hist[i] * d
+        q1 += c * s_hist[i][1]
+        if i == k - 1:
+            ops.axpy(q0, c, s_hist[i][0])
+        else:
+            d = ops.axpy_dot(q0, c, s_hist[i][0], y_hist[i + 1][0]) + y_hist[i + 1][1] * q1
+    return q0, q1
+
+
 def _lbfgs(st: _FreeState, minv_u: Any, minv_d: float, ratio: float, p_ref: float, tol: float, max_iter: int,
            rng: float | None, memory: int, history: list[float]) -> str:
     """Method "lbfgs" (the default): L-BFGS with ``memory`` pairs, the preconditioner ``(minv_u, minv_d)`` as
@@ -258,11 +413,17 @@ def _lbfgs(st: _FreeState, minv_u: Any, minv_d: float, ratio: float, p_ref: floa
             status = stop
             break
         q = (st.Gu.copy(), st.Gd)
-        alphas = []
-        for s, y, r in zip(reversed(s_hist), reversed(y_hist), reversed(r_hist)):
-            al = r * st.dot(s, q)
-            alphas.append(al)
-            q = axpy_pair(-al, y, q)
+        fused = hasattr(ops, "axpy_dot")
+        if fused:  # the same recursion, each update fused with the next pair's dot product (_HostOps.axpy_dot)
+            q = _two_loop_first(ops, s_hist, y_hist, r_hist, q)
+            alphas = q[2]
+            q = (q[0], q[1])
+        else:
+            alphas = []
+            for s, y, r in zip(reversed(s_hist), reversed(y_hist), reversed(r_hist)):
+                al = r * st.dot(s, q)
+                alphas.append(al)
+                q = axpy_pair(-al, y, q)
         q0 = q[0]  # owned (a copy of the gradient): scaled in place
         q0 *= minv_u
         q = (q0, minv_d * q[1])
@@ -273,8 +434,11 @@ def _lbfgs(st: _FreeState, minv_u: Any, minv_d: float, ratio: float, p_ref: floa
                 sc = 1.0 / (r_hist[-1] * yhy)
                 q0 *= sc
                 q = (q0, q[1] * sc)
-        for s, y, r, al in zip(s_hist, y_hist, r_hist, reversed(alphas)):
-            q = axpy_pair(al - r * st.dot(y, q), s, q)
+        if fused:
+            q = _two_loop_second(ops, s_hist, y_hist, r_hist, alphas, q)
+        else:
+            for s, y, r, al in zip(s_hist, y_hist, r_hist, reversed(alphas)):
+                q = axpy_pair(al - r * st.dot(y, q), s, q)
         q0 = q[0]
         q0 *= -1.0
         D = (q0, -q[1])
@@ -360,7 +524,7 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
     if method not in METHODS:
         raise ValueError(f"method must be one of 'auto', {', '.join(map(repr, METHODS))}, got {method!r}")
     on_gpu = _is_cupy(heights)
-    memory = _MEMORY if memory is None else int(memory)
+    memory = (_MEMORY if on_gpu else _MEMORY_CPU) if memory is None else int(memory)
     free = FreeGrid(heights.shape, length, backend, threads, on_gpu)
     nx, ny = free.shape
     pad = Grid((2 * nx, 2 * ny), (2 * free.lx, 2 * free.ly), free.backend, threads, on_gpu)

@@ -103,10 +103,11 @@ def solve(
     ``start``: "flat" (default; the starts above) or "coarse": the coarse-to-fine start (docs/gfmd.md,
     "Coarse-to-fine start"; exponential and adhesive laws, periodic, compressive loads): the problem solved first
     on ``levels`` grids coarser by 2, 4, ... (None: down to 64 pixels a side) to ``coarse_tol`` (None: 10
-    ``tol``), each started from the one before, the last one starting this grid. It runs on the distributed
-    solver's minimisers (:func:`gapsweep.gfmd.distributed.solve`; without ``comm`` on one process: the adhesive
-    law then keeps ``memory=2`` L-BFGS pairs) and returns a ``SlabResult`` whose ``diagnostics["levels"]`` lists
-    the coarse levels.
+    ``tol``), each started from the one before, the last one starting this grid. With ``comm`` (and on one GPU)
+    it runs on the distributed solver's minimisers (:func:`gapsweep.gfmd.distributed.solve`) and returns a
+    ``SlabResult``; without ``comm`` on the CPU on this function's own minimisers, methods and FFT backend
+    (:func:`gapsweep.gfmd._coarse.solve_local`: never the slower engine) and returns a ``GFMDResult``. Either
+    way ``diagnostics["levels"]`` lists the coarse levels and ``diagnostics["coarse_cost"]`` their cost.
 
     ``thickness``, ``poisson``, ``bottom``: the body is an elastic layer of thickness ``t`` (units of ``length``;
     None: the half-space) and Poisson ratio ``-1 < nu < 0.5`` on a rigid base, "bonded" (no slip; needs
@@ -131,9 +132,14 @@ def solve(
             raise ValueError(f"start must be 'flat' or 'coarse', got {start!r}")
         if periodic is False:
             raise ValueError("start='coarse' is for periodic surfaces (periodic=True)")
+        if not _is_cupy(heights):  # the CPU: the plain minimisers and their FFT engine (gfmd._coarse)
+            return _coarse_local(heights, sigma0=sigma0, interaction=interaction, gamma0=gamma0, rho=rho,
+                                 work=work, e_star=e_star, length=length, tol=tol, method=method, backend=backend,
+                                 max_iter=max_iter, initial=initial, threads=threads, host=host, levels=levels,
+                                 coarse_tol=coarse_tol)
         from gapsweep.gfmd._coarse import SelfComm
 
-        comm = SelfComm()
+        comm = SelfComm()  # one GPU: the distributed solver on one rank (its memory plan, docs/gfmd.md)
     if comm is not None:
         if periodic is False:
             raise ValueError("comm: a distributed solve is periodic (free boundaries run on one process)")
@@ -210,3 +216,46 @@ def solve(
                  periodic=False)
     r.periodic = False
     return r
+
+
+def _coarse_local(heights: Any, *, sigma0: float, interaction: Any, gamma0: Any, rho: Any, work: Any, e_star: float,
+                  length: Any, tol: float, method: str, backend: str, max_iter: int, initial: Any,
+                  threads: int | None, host: Any, levels: Any, coarse_tol: Any) -> GFMDResult:
+    """``start="coarse"`` on one CPU process (docs/gfmd.md, "Coarse-to-fine start"): checked as the distributed
+    start, then :func:`gapsweep.gfmd._coarse.solve_local` on this module's plain solve (the same minimisers,
+    methods and FFT backend as ``start="flat"``)."""
+    from gapsweep.gfmd import _coarse
+    from gapsweep.gfmd._lean import SINK_RANGES
+    from gapsweep.gfmd.distributed import _check_coarse
+    from gapsweep.surfaces.topography import Topography
+
+    if isinstance(heights, Topography):
+        if length != 1.0 and tuple(np.broadcast_to(length, 2)) != tuple(heights.length):
+            raise ValueError(f"length={length!r} contradicts the Topography's own length {heights.length}; "
+                             "leave length out when passing a Topography")
+        if not heights.periodic:
+            raise ValueError("start='coarse' is for periodic surfaces (periodic=True)")
+        length, heights = tuple(heights.length), heights.heights
+    h = np.asarray(heights)
+    if not (np.issubdtype(h.dtype, np.floating) or np.issubdtype(h.dtype, np.integer)):
+        raise TypeError(f"heights must be a real array, got dtype {h.dtype}")
+    if h.ndim != 2 or min(h.shape) < 2:
+        raise ValueError(f"heights must be a 2-D array of at least 2 x 2, got shape {h.shape}")
+    h = np.asarray(h, dtype=np.float64)
+    if not np.all(np.isfinite(h)):
+        raise ValueError("heights contain NaN or inf")
+    law = resolve(interaction, gamma0=gamma0, rho=rho, work=work)
+    sigma0 = law.check_load(sigma0)
+    tol = chk.positive(tol, "tol")
+    lx, ly = (chk.positive(v, "length") for v in np.broadcast_to(np.asarray(length, dtype=float), 2))
+    n_levels, ctol = _check_coarse(law, law.load_control, sigma0, initial, levels, coarse_tol, tol, h.shape, 1)
+    smooth = law.load_control != "softmax" or h.shape[0] != h.shape[1] or lx != ly
+    common = dict(sigma0=sigma0, interaction=law, e_star=e_star, length=length, method=method, backend=backend,
+                  max_iter=max_iter, threads=threads, periodic=True)
+
+    def plain(hl: Any, init: Any, kw: dict) -> GFMDResult:
+        return solve(hl, initial=init, **common, **kw)
+
+    return _coarse.solve_local(h, plain, length=(lx, ly), backend=backend, threads=threads, levels=n_levels,
+                               smooth=smooth, sink=SINK_RANGES * (law.range() or 0.0),
+                               level_kw=dict(tol=ctol, host=True), fine_kw=dict(tol=tol, host=host))
