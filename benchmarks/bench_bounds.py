@@ -22,7 +22,10 @@ the earlier centring (``center="sample"``): L1 against GFMD's histogram, the sta
 Sets: ``tuning`` = the tuning, held-out and fresh sets of ``analysis.predictors_heldout`` (23 surfaces, 162
 points, 84 distributions: every set earlier work had looked at); ``heldout`` = 12 new surfaces (other seeds,
 Hurst exponents, ``lambda_l``, ``zeta_s``, ``rho/h_rms``, ``gamma0``) at 6 new pressures (72 points, 36
-distributions at the lowest and the two highest), made and run once after the choices were fixed.
+distributions at the lowest and the two highest), made and run once after the choices were fixed; ``issue39`` and
+``issue39b`` = issue 39's kind (H 0.1-0.3, rho/h_rms 0.05-0.07, zeta_s 30-60, pressures up to 0.8 E* g_rms; 6
+surfaces x 5 pressures each, fresh seeds, mean gap only; their ladders are recorded and the earlier stopping rule
+is replayed on them).
 """
 
 from __future__ import annotations
@@ -62,10 +65,17 @@ ISSUE39 = [(0.2, 0.5, 50, 1.0, 1e-3, 0.05, 81), (0.2, 0.25, 50, 1.0, 1e-3, 0.05,
            (0.2, 0.5, 50, 0.3, 1e-2, 0.05, 83), (0.25, 0.5, 40, 1.0, 1e-4, 0.06, 84),
            (0.15, 0.25, 60, 0.3, 1e-3, 0.05, 85), (0.3, 0.5, 50, 1.0, 1e-3, 0.07, 86)]
 ISSUE39_P = (0.04, 0.1, 0.2, 0.4, 0.7)
+# a second set of the kind with fresh seeds and parameters, made after the nonlinearity term (whose form,
+# Delta (h_fine/rho)^1.5, was read off the first issue39 set) was fixed: the clean report for it
+ISSUE39B = [(0.2, 0.25, 40, 1.0, 1e-3, 0.05, 91), (0.15, 0.5, 50, 1.0, 1e-2, 0.05, 92),
+            (0.25, 0.25, 60, 0.3, 1e-3, 0.05, 93), (0.2, 0.5, 30, 1.0, 1e-4, 0.05, 94),
+            (0.3, 0.25, 50, 1.0, 1e-3, 0.05, 95), (0.1, 0.5, 50, 0.3, 1e-3, 0.06, 96)]
+ISSUE39B_P = (0.05, 0.15, 0.3, 0.5, 0.8)
 SETS = {
     "tuning": [(TUNING, TUNING_P, (0, 2, 4)), (HELDOUT, HELDOUT_P, (0, 4, 5)), (FRESH, FRESH_P, (0, 4, 5))],
     "heldout": [(NEW, NEW_P, (0, 4, 5))],
     "issue39": [(ISSUE39, ISSUE39_P, ())],
+    "issue39b": [(ISSUE39B, ISSUE39B_P, ())],
 }
 BINS = closure.L1_BINS
 
@@ -181,7 +191,7 @@ def choose(ladders: pd.DataFrame, rtol: float = 0.05) -> pd.DataFrame:
     groups = [g.reset_index(drop=True) for _, g in ladders.groupby("key", sort=False)]
     out = []
     for steps, *w in itertools.product((1, 2), (1.0, 1.5, 2.0), (0.0, 0.25, 0.35, 0.5),
-                                       (0.0, 5e-4, 1e-3, 2e-3, 4e-3)):
+                                       (0.0, 5e-4, 1e-3, 2e-3, 4e-3), (0.0, 0.05, 0.07, 0.1)):
         cov, cost, conv, ratio, rel = [], [], [], [], []
         for lad in groups:
             # rung i has seen i changes; stopping before the last rung needs ``steps`` of them (improved._auto)
@@ -195,7 +205,7 @@ def choose(ladders: pd.DataFrame, rtol: float = 0.05) -> pd.DataFrame:
             ratio.append(e / max(err, 1e-300))
             rel.append(e / r["scale"])
         out.append(dict(steps=steps, safety=w[0], shift_fraction=w[1], floor=w[2], coverage=float(np.mean(cov)),
-                        points=len(cov),
+                        nonlinearity=w[3], points=len(cov),
                         converged=int(np.sum(conv)), median_estimate_over_error=float(np.median(ratio)),
                         median_estimate_rel=float(np.median(rel)), median_cost=float(np.median(cost)),
                         max_cost=float(np.max(cost))))
@@ -203,12 +213,14 @@ def choose(ladders: pd.DataFrame, rtol: float = 0.05) -> pd.DataFrame:
 
 
 def _estimate(lad: pd.DataFrame, i: int, w, steps: int) -> float:
-    """``E`` of ``improved._auto`` at rung ``i`` of a recorded ladder: the largest of the last ``steps`` changes."""
+    """``E`` of ``improved._auto`` at rung ``i`` of a recorded ladder: the largest of the last ``steps`` changes;
+    ``w = (safety, shift_fraction, floor[, nonlinearity])``."""
     r = lad.loc[i]
     ch = lad.loc[max(1, i - steps + 1):i, "change"].dropna()
     change = float(ch.max()) if len(ch) else 0.0
     raw = 0.5 * r["bracket"] if r["k_c"] >= r["k_max"] else max(0.5 * r["bracket"], change)
-    return w[0] * raw + w[1] * r["shift"] + w[2] * r["scale"]
+    x = r["fine_over_rho"] if len(w) > 3 else 0.0
+    return w[0] * raw + max(w[1], (w[3] if len(w) > 3 else 0.0) * x**1.5) * r["shift"] + w[2] * r["scale"]
 
 
 def _commit() -> str:
@@ -225,11 +237,14 @@ def _commit() -> str:
 
 
 def replay_lines(ladders: pd.DataFrame) -> list[str]:
-    """Coverage and cost of the earlier stopping rule (one change, ``(1.5, 0.25, 2e-3)``) and of the current one
-    (two changes, ``(1.5, 0.35, 1e-3)``) replayed on a set's recorded ladders (``choose``'s replay)."""
+    """Coverage and cost of the earlier stopping rule (one change, ``(1.5, 0.25, 2e-3)``), of two changes alone
+    and of the current rule (two changes and the nonlinearity term) replayed on a set's recorded ladders
+    (``choose``'s replay)."""
     lines = []
     for label, steps, w in (("earlier rule (one change; 1.5, 0.25, 2e-3)", 1, (1.5, 0.25, 2e-3)),
-                            ("current rule (two changes; 1.5, 0.35, 1e-3)", 2, (1.5, 0.35, 1e-3))):
+                            ("two changes alone (1.5, 0.35, 1e-3)", 2, (1.5, 0.35, 1e-3)),
+                            ("current rule (two changes; 1.5, 0.35, 1e-3, nonlinearity 0.07)", 2,
+                             (1.5, 0.35, 1e-3, 0.07))):
         cov = []
         for _, lad in ladders.groupby("key", sort=False):
             lad = lad.reset_index(drop=True)

@@ -327,6 +327,7 @@ def hybrid(
     shift_fraction: float = 0.35,
     floor: float = 1e-3,
     steps: int = 2,
+    nonlinearity: float = 0.07,
     _shells: _Shells | None = None,
 ) -> HybridResult:
     """Multiscale hybrid mean gap [length]: GFMD on the modes ``|q| <= zeta_c q_l``, field theory for the rest.
@@ -388,6 +389,7 @@ def hybrid(
     safety = chk.positive(safety, "safety")
     shift_fraction = chk.nonnegative(shift_fraction, "shift_fraction")
     floor = chk.nonnegative(floor, "floor")
+    nonlinearity = chk.nonnegative(nonlinearity, "nonlinearity")
     kw = dict(rho=rho, e_star=e_star, length=length, tol=tol)
     if rho < length / n:
         # the input grid itself does not resolve rho (M7): the answer the hybrid approximates is under-resolved
@@ -421,8 +423,9 @@ def hybrid(
             raise ValueError("local=True needs a numeric zeta_c (zeta_c='auto' brackets the local shift instead)")
         return _auto(level, h, initial=initial, length=length, lambda_l=lambda_l, rtol=rtol,
                      max_cost_fraction=max_cost_fraction, finest=finest,
-                     weights=(safety, shift_fraction, floor), k_max=shells.k_max,
-                     steps=chk.count(steps, "steps"))
+                     weights=(safety, shift_fraction, floor, nonlinearity), k_max=shells.k_max,
+                     steps=chk.count(steps, "steps"),
+                     fine_over_rho=lambda k: math.sqrt(float(shells.fine(k)[1].sum())) / rho)
 
     zeta_c = chk.positive(zeta_c, "zeta_c")
     k_c = int(math.floor(zeta_c * length / lambda_l + 1e-9))
@@ -454,10 +457,12 @@ def hybrid(
 
 
 def _auto(level, h: np.ndarray, *, initial, length: float, lambda_l: float, rtol: float, max_cost_fraction: float,
-          finest: bool, weights: tuple[float, float, float], k_max: float, steps: int = 2) -> HybridResult:
+          finest: bool, weights: tuple[float, float, float, float], k_max: float, steps: int = 2,
+          fine_over_rho=lambda k: 0.0) -> HybridResult:
     """The ``zeta_c="auto"`` ladder of :func:`hybrid` (its docstring); ``level(k_c, n_c, start)`` solves one grid,
-    ``weights = (safety, shift_fraction, floor)`` of the error estimate, ``steps`` the changes it looks back on."""
-    safety, shift_fraction, floor = weights
+    ``weights = (safety, shift_fraction, floor, nonlinearity)`` of the error estimate, ``steps`` the changes it
+    looks back on, ``fine_over_rho(k_c)`` the rigid rms of the shells finer than ``k_c`` over ``rho``."""
+    safety, shift_fraction, floor, nonlinearity = weights
     n = h.shape[0]
     h_rms = float(np.sqrt(np.mean((h - h.mean()) ** 2)))
     n_cap = max(32, n * math.sqrt(max_cost_fraction / 1.6))
@@ -485,9 +490,11 @@ def _auto(level, h: np.ndarray, *, initial, length: float, lambda_l: float, rtol
         seen = max(c for c in changes[-steps:] if not math.isnan(c)) if prev is not None else math.nan
         raw = 0.5 * abs(err) if k_c >= k_max or prev is None else max(0.5 * abs(err), seen)
         goal = rtol * max(abs(g0), h_rms)
-        est = safety * raw + shift_fraction * delta + floor * max(abs(g0), h_rms)
+        x = fine_over_rho(k_c)
+        est = safety * raw + max(shift_fraction, nonlinearity * x**1.5) * delta + floor * max(abs(g0), h_rms)
         levels.append((n_c, g0, est))
-        ladder.append(dict(n_c=n_c, k_c=k_c, g0=g0, bracket=abs(err), shift=delta, change=change, cost=cost))
+        ladder.append(dict(n_c=n_c, k_c=k_c, g0=g0, bracket=abs(err), shift=delta, change=change, cost=cost,
+                           fine_over_rho=x))
         if res.status != "converged":
             status = res.status
             break
