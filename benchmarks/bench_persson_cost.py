@@ -29,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from gapsweep import gfmd, surface
 from gapsweep.theory import persson
 
-MAPS = ((640, 0.75, 0.5, 160, 201), (768, 0.45, 0.5, 192, 202), (1024, 0.3, 0.25, 128, 203))
+MAPS = ((640, 0.75, 0.5, 100, 201), (768, 0.45, 0.5, 150, 202), (1024, 0.3, 0.25, 100, 203))
 PRESSURES = (1e-3, 1e-2, 0.1)
 
 
