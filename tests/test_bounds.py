@@ -47,8 +47,8 @@ def _surface(p):
 def test_hybrid_error_estimate_bounds_the_error_on_held_out_points():
     """``hybrid(zeta_c="auto")`` at its defaults: |hybrid - GFMD| <= error_estimate at >= 95 % of the held-out
     points on grids up to 512 (42 points, 7 surfaces x 6 pressures); the estimate without its calibration
-    (``safety=1, shift_fraction=0, floor=0, nonlinearity=0, steps=1``: the rule before issue 30) covers fewer, under 90 %. The median
-    estimate is at most 3 % of ``max(|g0|, h_rms)``."""
+    (``safety=1, shift_fraction=0, floor=0, nonlinearity=0, steps=1``: the rule before issue 30) covers fewer,
+    under 90 %. The median estimate is at most 3 % of ``max(|g0|, h_rms)``."""
     cover, raw_cover, rel = [], [], []
     for p, ps, ref in _points(512, dist=False):
         h, h_rms, kw = _surface(p)
