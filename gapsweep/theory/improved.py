@@ -350,17 +350,21 @@ def hybrid(
     set of benchmarks/results/bounds/ by replaying its recorded ladders, where it covers the error at 162 of 162
     points, and reported on a held-out set and on issue 39's kind of case there)
 
-        E = safety max(e/2, |g0 - g0(previous grid)|, |previous change|) + shift_fraction Delta(sigma0)
-            + floor max(|g0|, h_rms)
+        E = safety max(e/2, |g0 - g0(previous grid)|, |previous change|)
+            + max(shift_fraction, nonlinearity x^1.5) Delta(sigma0) + floor max(|g0|, h_rms),
+        x = sqrt(sum_{|k| > k_c} |h~|^2) / rho
 
     (the changes catch the coarse grid's own error: the largest of the last ``steps`` changes, because one small
-    step after a coarse start is no proof that the next grid leaves the answer alone; ``Delta`` is the
+    step after a coarse start is no proof that the next grid leaves the answer alone, issue 39; ``Delta`` is the
     unresolved shells' linear-response shift, whose own error, largest at high pressure where both the bracket
-    and the change vanish, reached 0.26 Delta on the tuning set and about Delta at rho/h_rms = 0.05, H = 0.2; the
-    floor covers the coarse solves' tolerance). ``safety = 1.5``, ``shift_fraction = 0.35``, ``floor = 1e-3``,
-    ``steps = 2`` (``h_rms`` the surface's own). The ladder stops at the first grid that has seen ``steps``
-    changes (the third grid for ``steps = 2``) where ``E <= rtol max(|g0|, h_rms)``, or before the grid exceeds
-    ``max_cost_fraction``
+    and the change vanish, grows with ``x``, the rigid rms of those shells over ``rho``: up to 0.33 Delta at
+    x <= 3 on the tuning set, 1.4 Delta at x = 8.9 (rho/h_rms = 0.05, H = 0.15), below 0.068 x^1.5 Delta
+    throughout the tuning set; the floor covers the coarse solves' tolerance). ``safety = 1.5``,
+    ``shift_fraction = 0.35``, ``floor = 1e-3``, ``steps = 2``, ``nonlinearity = 0.07`` (``h_rms`` the
+    surface's own; docs/theory.md, "Two changes and a nonlinearity term"). The ladder stops at the first grid that
+    has seen ``steps`` changes (the third grid for ``steps = 2``) where ``E <= rtol max(|g0|, h_rms)``; at the
+    budget's last grid it stops whatever it has seen (status "converged" if ``E`` meets the goal), that is before
+    the next grid would exceed ``max_cost_fraction``
     of full GFMD's cost on the input grid (``n_c <= n sqrt(max_cost_fraction/1.6)``: the ladder costs about 4/3
     of its last grid, and coarse solves may take 1.2x the force evaluations of the full one): then status
     "rtol_not_met". ``rtol``
