@@ -22,7 +22,10 @@ the earlier centring (``center="sample"``): L1 against GFMD's histogram, the sta
 Sets: ``tuning`` = the tuning, held-out and fresh sets of ``analysis.predictors_heldout`` (23 surfaces, 162
 points, 84 distributions: every set earlier work had looked at); ``heldout`` = 12 new surfaces (other seeds,
 Hurst exponents, ``lambda_l``, ``zeta_s``, ``rho/h_rms``, ``gamma0``) at 6 new pressures (72 points, 36
-distributions at the lowest and the two highest), made and run once after the choices were fixed.
+distributions at the lowest and the two highest), made and run once after the choices were fixed; ``issue39`` and
+``issue39b`` = issue 39's kind (H 0.1-0.3, rho/h_rms 0.05-0.07, zeta_s 30-60, pressures up to 0.8 E* g_rms; 6
+surfaces x 5 pressures each, fresh seeds, mean gap only; their ladders are recorded and the earlier stopping rule
+is replayed on them).
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ import json
 import logging
 import math
 import platform
+import subprocess
 import sys
 import time
 import warnings
@@ -65,9 +69,23 @@ NEW = [(0.15, 0.5, 40, 1.0, 1e-3, 0.15, 51), (0.4, 0.25, 40, 0.3, 1e-2, 0.08, 52
        (0.5, 0.5, 120, 0.3, 3e-4, 0.1, 57), (0.75, 0.25, 48, 1.0, 1e-3, 0.2, 58), (0.2, 0.5, 24, 0.3, 3e-3, 0.05, 59),
        (0.55, 0.125, 16, 1.0, 1e-3, 0.5, 60), (0.35, 0.5, 60, 1.0, 1e-4, 0.12, 61), (0.7, 0.5, 30, 0.3, 1e-2, 0.08, 62)]
 NEW_P = (2e-4, 1.5e-3, 8e-3, 4e-2, 0.2, 0.7)
+# issue 39's kind (low H, rho/h_rms near the domain's edge 0.05, zeta_s ~ 50, high pressure, where a ladder stopped
+# on one small step), fresh seeds, made after the stopping rule was chosen on the tuning set: mean gap only
+ISSUE39 = [(0.2, 0.5, 50, 1.0, 1e-3, 0.05, 81), (0.2, 0.25, 50, 1.0, 1e-3, 0.05, 82),
+           (0.2, 0.5, 50, 0.3, 1e-2, 0.05, 83), (0.25, 0.5, 40, 1.0, 1e-4, 0.06, 84),
+           (0.15, 0.25, 60, 0.3, 1e-3, 0.05, 85), (0.3, 0.5, 50, 1.0, 1e-3, 0.07, 86)]
+ISSUE39_P = (0.04, 0.1, 0.2, 0.4, 0.7)
+# a second set of the kind with fresh seeds and parameters, made after the nonlinearity term (whose form,
+# Delta (h_fine/rho)^1.5, was read off the first issue39 set) was fixed: the clean report for it
+ISSUE39B = [(0.2, 0.25, 40, 1.0, 1e-3, 0.05, 91), (0.15, 0.5, 50, 1.0, 1e-2, 0.05, 92),
+            (0.25, 0.25, 60, 0.3, 1e-3, 0.05, 93), (0.2, 0.5, 30, 1.0, 1e-4, 0.05, 94),
+            (0.3, 0.25, 50, 1.0, 1e-3, 0.05, 95), (0.1, 0.5, 50, 0.3, 1e-3, 0.06, 96)]
+ISSUE39B_P = (0.05, 0.15, 0.3, 0.5, 0.8)
 SETS = {
     "tuning": [(TUNING, TUNING_P, (0, 2, 4)), (HELDOUT, HELDOUT_P, (0, 4, 5)), (FRESH, FRESH_P, (0, 4, 5))],
     "heldout": [(NEW, NEW_P, (0, 4, 5))],
+    "issue39": [(ISSUE39, ISSUE39_P, ())],
+    "issue39b": [(ISSUE39B, ISSUE39B_P, ())],
 }
 BINS = closure.L1_BINS
 
@@ -153,7 +171,8 @@ def evaluate(name: str, out: Path) -> tuple[pd.DataFrame, pd.DataFrame, list[dic
                 rows.append(dict(base, hybrid=hy.mean_gap, err=err, estimate=hy.error_estimate / scale,
                                  bound=abs(err) <= hy.error_estimate / scale, status=hy.status, n_c=hy.n_c,
                                  cost=hy.cost / (ref["iterations"] * n * n), cpu_hybrid=t_hy, cpu_gfmd=ref["cpu"]))
-                if name == "tuning":  # the whole ladder, for choosing the estimate's constants offline
+                if name != "heldout":  # the whole ladder: for choosing the estimate's constants offline (tuning)
+                    # and for replaying the earlier stopping rule on the issue-39 cases
                     lad, _ = _cpu(improved.hybrid, s0, h, zeta_c="auto", lambda_l=lam_l, finest=True, **kw)
                     for lv in lad.ladder:
                         ladders.append(dict(key=key, scale=scale, gfmd=ref["mean_gap"], full_cost=ref["iterations"]
@@ -181,38 +200,89 @@ def choose(ladders: pd.DataFrame, rtol: float = 0.05) -> pd.DataFrame:
     constants, replayed on the recorded ladders."""
     groups = [g.reset_index(drop=True) for _, g in ladders.groupby("key", sort=False)]
     out = []
-    for w in itertools.product((1.0, 1.5, 2.0), (0.0, 0.25, 0.35, 0.5), (0.0, 5e-4, 1e-3, 2e-3, 4e-3)):
+    for steps, *w in itertools.product((1, 2), (1.0, 1.5, 2.0), (0.0, 0.25, 0.35, 0.5),
+                                       (0.0, 5e-4, 1e-3, 2e-3, 4e-3), (0.0, 0.05, 0.07, 0.1)):
         cov, cost, conv, ratio, rel = [], [], [], [], []
         for lad in groups:
-            stop = next((i for i in range(1, len(lad)) if _estimate(lad.loc[i], w) <= rtol * lad.loc[i, "scale"]),
-                        len(lad) - 1)
+            # rung i has seen i changes; stopping before the last rung needs ``steps`` of them (improved._auto)
+            stop = next((i for i in range(steps, len(lad))
+                         if _estimate(lad, i, w, steps) <= rtol * lad.loc[i, "scale"]), len(lad) - 1)
             r = lad.loc[stop]
-            e, err = _estimate(r, w), abs(r["g0"] - r["gfmd"])
+            e, err = _estimate(lad, stop, w, steps), abs(r["g0"] - r["gfmd"])
             cov.append(err <= e)
             conv.append(e <= rtol * r["scale"])
             cost.append(r["cost"] / r["full_cost"])
             ratio.append(e / max(err, 1e-300))
             rel.append(e / r["scale"])
-        out.append(dict(safety=w[0], shift_fraction=w[1], floor=w[2], coverage=float(np.mean(cov)), points=len(cov),
+        out.append(dict(steps=steps, safety=w[0], shift_fraction=w[1], floor=w[2], coverage=float(np.mean(cov)),
+                        nonlinearity=w[3], points=len(cov),
                         converged=int(np.sum(conv)), median_estimate_over_error=float(np.median(ratio)),
                         median_estimate_rel=float(np.median(rel)), median_cost=float(np.median(cost)),
                         max_cost=float(np.max(cost))))
     return pd.DataFrame(out)
 
 
-def _estimate(r, w: tuple[float, float, float]) -> float:
-    change = 0.0 if math.isnan(r["change"]) else r["change"]
+def _estimate(lad: pd.DataFrame, i: int, w, steps: int) -> float:
+    """``E`` of ``improved._auto`` at rung ``i`` of a recorded ladder: the largest of the last ``steps`` changes;
+    ``w = (safety, shift_fraction, floor[, nonlinearity])``."""
+    r = lad.loc[i]
+    ch = lad.loc[max(1, i - steps + 1):i, "change"].dropna()
+    change = float(ch.max()) if len(ch) else 0.0
     raw = 0.5 * r["bracket"] if r["k_c"] >= r["k_max"] else max(0.5 * r["bracket"], change)
-    return w[0] * raw + w[1] * r["shift"] + w[2] * r["scale"]
+    x = r["fine_over_rho"] if len(w) > 3 else 0.0
+    return w[0] * raw + max(w[1], (w[3] if len(w) > 3 else 0.0) * x**1.5) * r["shift"] + w[2] * r["scale"]
 
 
-def write(df: pd.DataFrame, dd: pd.DataFrame, name: str, out: Path, wall: float) -> None:
+def _commit() -> str:
+    """The checkout's commit (``+dirty`` with uncommitted changes to tracked files)."""
+    root = Path(__file__).resolve().parents[1]
+    try:
+        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True,
+                             check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
+                               capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return rev + ("+dirty" if dirty else "")
+
+
+def replay_lines(ladders: pd.DataFrame) -> list[str]:
+    """Coverage and cost of the earlier stopping rule (one change, ``(1.5, 0.25, 2e-3)``), of two changes alone
+    and of the current rule (two changes and the nonlinearity term) replayed on a set's recorded ladders
+    (``choose``'s replay)."""
+    lines = []
+    for label, steps, w in (("earlier rule (one change; 1.5, 0.25, 2e-3)", 1, (1.5, 0.25, 2e-3)),
+                            ("two changes alone (1.5, 0.35, 1e-3)", 2, (1.5, 0.35, 1e-3)),
+                            ("current rule (two changes; 1.5, 0.35, 1e-3, nonlinearity 0.07)", 2,
+                             (1.5, 0.35, 1e-3, 0.07))):
+        cov = []
+        for _, lad in ladders.groupby("key", sort=False):
+            lad = lad.reset_index(drop=True)
+            stop = next((i for i in range(steps, len(lad))
+                         if _estimate(lad, i, w, steps) <= 0.05 * lad.loc[i, "scale"]), len(lad) - 1)
+            r = lad.loc[stop]
+            e, err = _estimate(lad, stop, w, steps), abs(r["g0"] - r["gfmd"])
+            cov.append(dict(bound=err <= e, conv=e <= 0.05 * r["scale"], err=err / r["scale"], est=e / r["scale"],
+                            cost=r["cost"] / r["full_cost"]))
+        c = pd.DataFrame(cov)
+        miss = c[~c.bound]
+        lines.append(f"- replayed on the recorded ladders, {label}: bound at {int(c.bound.sum())}/{len(c)}, "
+                     f"\"converged\" and not bounded at {int((~c.bound & c.conv).sum())} (worst error "
+                     f"{miss.err.max() if len(miss) else 0:.4f} with estimate "
+                     f"{miss.est[miss.err.idxmax()] if len(miss) else 0:.4f}); cost (force evaluations x grid points) "
+                     f"median {c.cost.median():.3f}, max {c.cost.max():.3f}")
+    return lines
+
+
+def write(df: pd.DataFrame, dd: pd.DataFrame, name: str, out: Path, wall: float, commit: str = "",
+          ladders: pd.DataFrame | None = None) -> None:
     df.to_csv(out / f"hybrid_{name}.csv", index=False)
     dd.to_csv(out / f"multiscale_{name}.csv", index=False)
     conv = df.status == "converged"
     exceed = df[~df.bound]
-    lines = [f"# Error estimates against GFMD: the {name} set (issue 30)\n",
-             f"`python benchmarks/bench_bounds.py --set {name} --out {out}` on {platform.node()} "
+    lines = [f"# Error estimates against GFMD: the {name} set (issues 30, 39)\n",
+             f"`python benchmarks/bench_bounds.py --set {name} --out {out}` (commit {commit or _commit()}) on "
+             f"{platform.node()} "
              f"({platform.processor() or platform.machine()}, Python {platform.python_version()}, one thread, "
              f"shared 2-core VM), {time.strftime('%Y-%m-%d')}; {wall / 60:.1f} min wall. GFMD references cached in "
              f"`gfmd_{name}.json`. Method: the script's docstring.\n",
@@ -231,7 +301,10 @@ def write(df: pd.DataFrame, dd: pd.DataFrame, name: str, out: Path, wall: float)
              f"GFMD (tol 1e-8) median {df.cpu_gfmd.median():.3f} s; ratio of sums "
              f"{df.cpu_hybrid.sum() / df.cpu_gfmd.sum():.3f}, median of per-point ratios "
              f"{(df.cpu_hybrid / df.cpu_gfmd).median():.3f}; cost (force evaluations x grid points) median "
-             f"{df.cost.median():.3f}, max {df.cost.max():.3f}\n"]
+             f"{df.cost.median():.3f}, max {df.cost.max():.3f}"]
+    if ladders is not None and name != "tuning":
+        lines += replay_lines(ladders)
+    lines.append("")
     if len(dd):
         bad = dd.l1 > 0.15
         lines += ["## Gap distribution: `closure.multiscale_gap_samples` at its defaults (2^17 samples)\n",
@@ -256,6 +329,14 @@ def write(df: pd.DataFrame, dd: pd.DataFrame, name: str, out: Path, wall: float)
     print((out / f"bounds_{name}.md").read_text())
 
 
+def _read(path: Path) -> pd.DataFrame:
+    """A result csv; an empty frame for a set without distributions (pandas cannot read a header-less file)."""
+    try:
+        return pd.read_csv(path)
+    except pd.errors.EmptyDataError:
+        return pd.DataFrame()
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--set", choices=tuple(SETS), default="heldout")
@@ -275,14 +356,15 @@ def main(argv: list[str] | None = None) -> int:
         print(tab.to_string(index=False))
         return 0
     if a.table:
-        write(pd.read_csv(a.out / f"hybrid_{a.set}.csv"), pd.read_csv(a.out / f"multiscale_{a.set}.csv"), a.set,
-              a.out, math.nan)
+        lad = a.out / f"ladders_{a.set}.csv"
+        write(pd.read_csv(a.out / f"hybrid_{a.set}.csv"), _read(a.out / f"multiscale_{a.set}.csv"), a.set,
+              a.out, math.nan, ladders=pd.read_csv(lad) if lad.exists() else None)
         return 0
-    t0 = time.perf_counter()
+    t0, commit = time.perf_counter(), _commit()
     df, dd, ladders = evaluate(a.set, a.out)
     if ladders:
         pd.DataFrame(ladders).to_csv(a.out / f"ladders_{a.set}.csv", index=False)
-    write(df, dd, a.set, a.out, time.perf_counter() - t0)
+    write(df, dd, a.set, a.out, time.perf_counter() - t0, commit, pd.DataFrame(ladders) if ladders else None)
     return 0
 
 

@@ -133,6 +133,12 @@ class MultiscaleGaps:
 L1_SAFETY = 1.5
 # Bins of the L1 distances (as the validation: equal bins over the reference's range, mass outside counted fully)
 L1_BINS = 80
+# The centring table of ``_mean_drift``: start gaps and antithetic paths per start gap. Against a 129 x 65536 table
+# on six held-out surfaces at three pressures (benchmarks/bench_multiscale_table.py, results/multiscale_table.json)
+# the largest error is 1.8 % of the fine shells' rigid spread at 65 x 1024 (1.5 % at the earlier 65 x 4096; 3.6 %
+# at 33 points, where interpolation dominates), at a quarter of the earlier table's cost.
+DRIFT_POINTS = 65
+DRIFT_PATHS = 1024
 
 
 def l1_distance(x: ArrayLike, ref: ArrayLike, bins: int = L1_BINS) -> float:
@@ -153,22 +159,36 @@ def _walk(g: np.ndarray, q: np.ndarray, pw: np.ndarray, rho: float, base: float,
           common: bool = False) -> np.ndarray:
     """The local-response process over the shell groups ``(q, pw)`` from the gaps ``g`` (docstring of
     :func:`multiscale_gap_samples`, step 2). ``common=True``: one antithetic set of normals per step, shared by
-    every row of ``g`` (shape ``(rows, paths)``; common random numbers for a smooth table in the start gap)."""
+    every row of ``g`` (shape ``(rows, paths)``; common random numbers for a smooth table in the start gap).
+
+    One step per group: ``r = expit(x)``, ``x = ln(eta_g zeta) = ln(rho |q| E*/2) - ln p(g)`` with
+    ``ln p(g) = ln(gamma0/rho) - g/rho`` (no exp: no overflow), then ``g += r (r pw/(2 rho) + sqrt(pw) Z)``, i.e.
+    the variance ``v = pw r^2`` and the drift ``v/(2 rho)``. In place on three work arrays (no temporaries), and
+    ``expit(x) = (1 + tanh(x/2))/2`` (the same function, a third of scipy's expit's time here)."""
+    g = np.array(g, dtype=float)  # a copy: the caller's start gaps stay
+    r = np.empty_like(g)
+    u = np.empty_like(g)
+    half = g.shape[-1] // 2
+    z = np.empty(half) if common else u
     for qj, pj in zip(q, pw, strict=True):
-        # ln(eta_g zeta) = ln(rho |q| E*/2) - ln p(g),  ln p(g) = ln(gamma0/rho) - g/rho  (no exp: no overflow)
-        r = expit(base + math.log(qj) + g / rho)
-        v = pj * r * r
+        np.multiply(g, 0.5 / rho, out=r)
+        r += 0.5 * (base + math.log(qj))
+        np.tanh(r, out=r)
+        r += 1.0
+        r *= 0.5
+        rng.standard_normal(out=z)  # into u itself unless common
         if common:
-            z = rng.standard_normal(g.shape[-1] // 2)
-            z = np.concatenate([z, -z])
-        else:
-            z = rng.standard_normal(g.shape)
-        g = g + v / (2.0 * rho) + np.sqrt(v) * z
+            u[..., :half] = z
+            np.negative(z, out=u[..., half:])
+        u *= math.sqrt(pj)
+        u += (pj / (2.0 * rho)) * r
+        u *= r
+        g += u
     return g
 
 
 def _mean_drift(g_start: np.ndarray, q: np.ndarray, pw: np.ndarray, rho: float, base: float,
-                rng: np.random.Generator, points: int = 65, paths: int = 4096) -> np.ndarray:
+                rng: np.random.Generator, points: int = DRIFT_POINTS, paths: int = DRIFT_PATHS) -> np.ndarray:
     """``E[g_end | g_start] - g_start`` [length] at every start gap: the process depends on the pixel only through
     its start gap, so a table over ``points`` start gaps (``paths`` antithetic common-random-number paths each;
     Monte-Carlo error about ``std(g_end - g_start)/sqrt(paths)``, smooth in the start gap), linearly
@@ -247,8 +267,9 @@ def multiscale_gap_samples(
        "pixel" (default) shifts each pixel's samples by one constant so that their *expected* mean is the
        pixel's coarse gap (the fine modes have zero mean, so a pixel's fine-averaged gap is its coarse gap) less
        half the hybrid's bracket ``shift_error/2`` (the overall mean is then the hybrid's mean gap). The expected
-       mean depends on the pixel only through its start gap, so it comes from a table over 65 start gaps (4096
-       antithetic common-random-number paths each), independent of how many samples a pixel gets: the fine
+       mean depends on the pixel only through its start gap, so it comes from a table over 65 start gaps (1024
+       antithetic common-random-number paths each; ``DRIFT_POINTS``, ``DRIFT_PATHS``), independent of how many
+       samples a pixel gets: the fine
        variance is kept in full at any grid size. "sample" is the earlier rule (each pixel's own sample mean,
        which removes the fraction ``1/m`` of the fine variance with ``m`` samples per pixel, all of it at one);
        "mean" shifts all samples by one constant onto the hybrid's mean gap; "none" keeps them (each pixel's
