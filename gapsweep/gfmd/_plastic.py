@@ -316,13 +316,7 @@ def minimise(heights: Any, law: Interaction, *, hardness: float, sigma0: float, 
     host_fields(host)
     xp = grid.xp
     H = float(hardness)
-    h = grid.asarray(heights)
-    if not grid.all_finite(h):
-        raise ValueError("heights contain NaN or inf")
-    h_shift = grid.mean(h)
-    h = h - h_shift
-    h_rms = math.sqrt(grid.mean(h * h))
-    g_ref = h_rms if h_rms > 0 else min(grid.lx / grid.shape[0], grid.ly / grid.shape[1])
+    h, h_rms, g_ref = grid.centred(heights)  # g_ref: h_rms, or the pixel size on a flat map
     if periodic:
         with np.errstate(divide="ignore", invalid="ignore"):
             kinv = 1.0 / ((0.5 * e_star) * grid.q)
