@@ -46,7 +46,7 @@ import numpy as np
 from gapsweep.core import deadline
 from gapsweep.gfmd._grid import Grid
 from gapsweep.gfmd._ops import _is_cupy
-from gapsweep.gfmd._result import GFMDResult, host_fields
+from gapsweep.gfmd._result import GFMDResult, final_status, host_fields
 
 METHODS = ("plbfgs",)
 log = logging.getLogger("gapsweep.gfmd")
@@ -355,11 +355,8 @@ def _result(sv: _Solver, st: _State, status: str, sigma0: float, e_star: float, 
         area = grid.count(contact) / grid.size
         g0 = grid.mean(g)
     fields_ok = math.isfinite(residual) and grid.all_finite(g) and grid.all_finite(p)
-    if not fields_ok:
-        status = "non_finite"
-    converged = fields_ok and status == "converged" and residual <= tol and load_error <= tol
-    if status == "converged" and not converged:
-        status = "stalled"
+    status, _ = final_status(status, fields_ok, residual, load_error, tol)
+    converged = status == "converged"
     dx = min(grid.lx / grid.shape[0], grid.ly / grid.shape[1])
     log.debug("%s: %s after %d iterations, residual %.3g", law.name, status, sv.nit, residual)
     fields = {"gap": g, "pressure": p, "displacement": u}

@@ -42,7 +42,7 @@ from gapsweep.core import deadline
 from gapsweep.gfmd._constrained_ops import make_ops
 from gapsweep.gfmd._grid import FreeGrid, Grid
 from gapsweep.gfmd._ops import _is_cupy
-from gapsweep.gfmd._result import GFMDResult, host_fields
+from gapsweep.gfmd._result import GFMDResult, final_status, host_fields
 from gapsweep.gfmd.interactions.base import Interaction
 
 METHODS = ("pk", "pcg", "mpcg")
@@ -391,11 +391,7 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
             elastic = 0.5 * grid.mean(p * u)
         gap = xp.where(S, 0.0, g)  # the contact atom exactly at g = 0
     fields_ok = math.isfinite(residual) and grid.all_finite(p) and grid.all_finite(u)
-    if not fields_ok:
-        status = "non_finite"
-    converged = fields_ok and residual <= tol and load_error <= tol
-    if status == "converged" and not converged:
-        status = "stalled"
+    status, converged = final_status(status, fields_ok, residual, load_error, tol)
     area = n_s / grid.size
     log.debug("hard wall: %s after %d iterations, residual %.3g, area %.4g", status, it, residual, area)
     fields = {"gap": gap, "pressure": p, "displacement": u}

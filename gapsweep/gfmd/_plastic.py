@@ -43,7 +43,7 @@ import numpy as np
 from gapsweep.core import deadline
 from gapsweep.gfmd._grid import FreeGrid, Grid
 from gapsweep.gfmd._ops import _is_cupy
-from gapsweep.gfmd._result import GFMDResult, host_fields
+from gapsweep.gfmd._result import GFMDResult, final_status, host_fields
 from gapsweep.gfmd.interactions.base import Interaction
 
 METHODS = ("pk", "pcg", "mpcg")
@@ -363,11 +363,7 @@ def minimise(heights: Any, law: Interaction, *, hardness: float, sigma0: float, 
         u_pl = xp.where(plastic, xp.maximum(-g, 0.0), 0.0)
         elastic = 0.5 * float(xp.mean(p * u))
     fields_ok = math.isfinite(residual) and grid.all_finite(p) and grid.all_finite(u)
-    if not fields_ok:
-        status = "non_finite"
-    converged = fields_ok and residual <= tol and load_error <= tol
-    if status == "converged" and not converged:
-        status = "stalled"
+    status, converged = final_status(status, fields_ok, residual, load_error, tol)
     area = int(xp.count_nonzero(p > 0)) / grid.size
     plastic_area = int(xp.count_nonzero(plastic)) / grid.size
     log.debug("plastic hard wall: %s after %d iterations, residual %.3g, area %.4g, plastic %.4g", status, it,

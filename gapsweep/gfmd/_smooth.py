@@ -28,7 +28,7 @@ import numpy as np
 from gapsweep.core import deadline
 from gapsweep.gfmd._grid import Grid
 from gapsweep.gfmd._ops import _is_cupy, remember_pair
-from gapsweep.gfmd._result import GFMDResult, host_fields
+from gapsweep.gfmd._result import GFMDResult, final_status, host_fields
 from gapsweep.gfmd.interactions.base import SmoothInteraction
 
 METHODS = ("lbfgs",)
@@ -420,11 +420,8 @@ def _result(sv: _Solver, st: _State, status: str, sigma0: float, e_star: float, 
         g0 = grid.mean(gap)
         e_int = grid.mean(law.energy(gap, xp))
     fields_ok = math.isfinite(residual) and grid.all_finite(gap) and grid.all_finite(p)
-    if not fields_ok:
-        status = "non_finite"
-    converged = fields_ok and status == "converged" and residual <= tol and load_error <= tol
-    if status == "converged" and not converged:
-        status = "stalled"
+    status, _ = final_status(status, fields_ok, residual, load_error, tol)
+    converged = status == "converged"
     log.debug("%s: %s after %d evaluations, residual %.3g", law.name, status, sv.nfev, residual)
     fields = {"gap": gap, "pressure": p, "displacement": u}
     fields.update(grid.to_host_many({k: fields[k] for k in host_fields(host)}))  # only those asked for
