@@ -46,7 +46,7 @@ import numpy as np
 from gapsweep.core import deadline
 from gapsweep.gfmd._grid import Grid
 from gapsweep.gfmd._ops import _is_cupy
-from gapsweep.gfmd._result import GFMDResult, final_status, host_fields
+from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status
 
 METHODS = ("plbfgs",)
 log = logging.getLogger("gapsweep.gfmd")
@@ -359,9 +359,7 @@ def _result(sv: _Solver, st: _State, status: str, sigma0: float, e_star: float, 
     converged = status == "converged"
     dx = min(grid.lx / grid.shape[0], grid.ly / grid.shape[1])
     log.debug("%s: %s after %d iterations, residual %.3g", law.name, status, sv.nit, residual)
-    fields = {"gap": g, "pressure": p, "displacement": u}
-    fields.update(grid.to_host_many({k: fields[k] for k in host_fields(host)}))
-    gap, p, u = fields["gap"], fields["pressure"], fields["displacement"]
+    gap, p, u = fields_to_host(grid, host, g, p, u)
     grid.synchronize()
     return GFMDResult(
         mean_gap=g0, gap=gap, pressure=p, displacement=u, iterations=sv.nit, converged=converged,

@@ -42,7 +42,7 @@ from gapsweep.core import deadline
 from gapsweep.gfmd._constrained_ops import make_ops
 from gapsweep.gfmd._grid import FreeGrid, Grid
 from gapsweep.gfmd._ops import _is_cupy
-from gapsweep.gfmd._result import GFMDResult, final_status, host_fields
+from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status
 from gapsweep.gfmd.interactions.base import Interaction
 
 METHODS = ("pk", "pcg", "mpcg")
@@ -394,9 +394,7 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
     status, converged = final_status(status, fields_ok, residual, load_error, tol)
     area = n_s / grid.size
     log.debug("hard wall: %s after %d iterations, residual %.3g, area %.4g", status, it, residual, area)
-    fields = {"gap": gap, "pressure": p, "displacement": u}
-    fields.update(grid.to_host_many({k: fields[k] for k in host_fields(host)}))  # only those asked for
-    gap, p, u = fields["gap"], fields["pressure"], fields["displacement"]
+    gap, p, u = fields_to_host(grid, host, gap, p, u)  # only those asked for
     grid.synchronize()
     return GFMDResult(
         mean_gap=grid.mean(gap),

@@ -43,7 +43,7 @@ import numpy as np
 from gapsweep.core import deadline
 from gapsweep.gfmd._grid import FreeGrid, Grid
 from gapsweep.gfmd._ops import _is_cupy
-from gapsweep.gfmd._result import GFMDResult, final_status, host_fields
+from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status, host_fields
 from gapsweep.gfmd.interactions.base import Interaction
 
 METHODS = ("pk", "pcg", "mpcg")
@@ -368,13 +368,12 @@ def minimise(heights: Any, law: Interaction, *, hardness: float, sigma0: float, 
     plastic_area = int(xp.count_nonzero(plastic)) / grid.size
     log.debug("plastic hard wall: %s after %d iterations, residual %.3g, area %.4g, plastic %.4g", status, it,
               residual, area, plastic_area)
-    fields = {"gap": gap, "pressure": p, "displacement": u}
-    fields.update(grid.to_host_many({k: fields[k] for k in host_fields(host)}))
+    gap_h, p_h, u_h = fields_to_host(grid, host, gap, p, u)
     if host is not False:
         u_pl = grid.to_host(u_pl)
     return GFMDResult(
-        mean_gap=float(xp.mean(gap)), gap=fields["gap"], pressure=fields["pressure"],
-        displacement=fields["displacement"], iterations=it, converged=converged, residual=residual,
+        mean_gap=float(xp.mean(gap)), gap=gap_h, pressure=p_h,
+        displacement=u_h, iterations=it, converged=converged, residual=residual,
         load_error=load_error, wall_time=time.perf_counter() - t_start, method=method, backend=grid.backend,
         status=status, sigma0=sigma0, e_star=e_star, length=length, tol=tol, history=history,
         interaction=law.name, params={**law.params(), "hardness": H}, contact_area=area,

@@ -27,6 +27,14 @@ def final_status(status: str, fields_ok: bool, residual: float, load_error: floa
     return status, within
 
 
+def fields_to_host(mover: Any, host: Any, gap: Any, pressure: Any, displacement: Any) -> tuple[Any, Any, Any]:
+    """``(gap, pressure, displacement)`` with the fields ``host`` asks for (:func:`host_fields`) copied to the
+    host by ``mover.to_host_many`` (a grid or FFT pair) in one transfer; the others returned as they are."""
+    fields = dict(zip(FIELDS, (gap, pressure, displacement)))
+    fields.update(mover.to_host_many({k: fields[k] for k in host_fields(host)}))
+    return fields["gap"], fields["pressure"], fields["displacement"]
+
+
 def host_fields(host: Any) -> tuple[str, ...]:
     """The result fields a caller wants on the host: ``True`` all of :data:`FIELDS`, ``False`` none (a cupy
     run keeps them on the GPU), or an iterable of names from :data:`FIELDS` (only those are copied; the others

@@ -28,7 +28,7 @@ import numpy as np
 from gapsweep.core import deadline
 from gapsweep.gfmd._grid import Grid
 from gapsweep.gfmd._ops import _is_cupy, remember_pair
-from gapsweep.gfmd._result import GFMDResult, final_status, host_fields
+from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status
 from gapsweep.gfmd.interactions.base import SmoothInteraction
 
 METHODS = ("lbfgs",)
@@ -423,9 +423,7 @@ def _result(sv: _Solver, st: _State, status: str, sigma0: float, e_star: float, 
     status, _ = final_status(status, fields_ok, residual, load_error, tol)
     converged = status == "converged"
     log.debug("%s: %s after %d evaluations, residual %.3g", law.name, status, sv.nfev, residual)
-    fields = {"gap": gap, "pressure": p, "displacement": u}
-    fields.update(grid.to_host_many({k: fields[k] for k in host_fields(host)}))  # only those asked for
-    gap, p, u = fields["gap"], fields["pressure"], fields["displacement"]
+    gap, p, u = fields_to_host(grid, host, gap, p, u)  # only those asked for
     grid.synchronize()
     return GFMDResult(
         mean_gap=g0, gap=gap, pressure=p, displacement=u, iterations=sv.nfev, converged=converged,
