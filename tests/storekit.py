@@ -62,9 +62,10 @@ def flip_attr(path: Path, name: str) -> None:
             f.attrs.modify(name, v ^ 1)
 
 
-def small_job(name: str, methods: str, *, sigma0: str = "[1e-2, 5e-2]", seeds: str = "[0]", bins: int = 8) -> str:
-    """The TOML text of a small job: ``H = 0.8``, ``rho = 2e-2``, the surface ``lambda_l = 0.25``, ``lambda_s =
-    0.0625``, rms slope 1, ``gamma0 = 1e-3``, ``bins`` histogram bins; ``sigma0`` and ``seeds`` TOML arrays,
+def small_job(name: str, methods: str, *, sigma0: str = "[1e-2, 5e-2]", seeds: str = "[0]", bins: int = 8,
+              lambda_s: float = 0.0625) -> str:
+    """The TOML text of a small job: ``H = 0.8``, ``rho = 2e-2``, the surface ``lambda_l = 0.25``, ``lambda_s``
+    (default 0.0625), rms slope 1, ``gamma0 = 1e-3``, ``bins`` histogram bins; ``sigma0`` and ``seeds`` TOML arrays,
     ``methods`` the ``[methods.*]`` tables."""
     return f"""
 [job]
@@ -76,7 +77,7 @@ sigma0 = {sigma0}
 seeds = {seeds}
 [surface]
 lambda_l = 0.25
-lambda_s = 0.0625
+lambda_s = {lambda_s}
 rms_slope = 1.0
 [material]
 gamma0 = 1e-3

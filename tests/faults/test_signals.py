@@ -13,6 +13,7 @@ import pytest
 
 from gapsweep import store
 from gapsweep.sweep import lease
+from tests.storekit import small_job
 
 from .conftest import (
     JOBS,
@@ -329,28 +330,13 @@ def test_signal_to_mpiexec_at_startup(tmp_path, refs, offset):
 
 # --- issue 40 item 6: a collective run stops on a signal to any rank; the start-up record survives a kill -------
 
-COLLECTIVE_JOB = """
-[job]
-name = "dist-signal"
-[grid]
-hurst = [0.8]
-rho = [2e-2]
-sigma0 = [1e-3, 3e-3, 1e-2, 3e-2, 1e-1, 3e-1]
-seeds = [0]
-[surface]
-lambda_l = 0.25
-lambda_s = 0.125
-rms_slope = 1.0
-[material]
-gamma0 = 1e-3
-[histogram]
-bins = 8
+COLLECTIVE_JOB = small_job("dist-signal", sigma0="[1e-3, 3e-3, 1e-2, 3e-2, 1e-1, 3e-1]", lambda_s=0.125, methods="""
 [methods.gfmd]
 n = 32
 tol = 1e-8
 backend = "numpy"
 distributed = true
-"""
+""")
 
 
 @needs_mpi
