@@ -47,9 +47,11 @@ PACKAGES = ("gapsweep", "numpy", "scipy", "h5py", "pandas", "numba", "pyFFTW", "
             "SurfaceTopography", "ContactMechanics", "tamaas")
 
 
-def _git(root: Path, *args: str) -> str | None:
+def _git(root: Path, *args: str, timeout: float = 30) -> str | None:
+    """``git -C root ARGS``'s stripped output, or None when it fails, is missing or outlasts ``timeout`` s
+    (also scripts/check_docs.py's provenance check)."""
     try:
-        p = subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, timeout=30)
+        p = subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, timeout=timeout)
     except (OSError, subprocess.SubprocessError):
         return None
     return p.stdout.strip() if p.returncode == 0 else None

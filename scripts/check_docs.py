@@ -46,6 +46,7 @@ The convention (docs/benchmarks.md, "How numbers are checked"):
 from __future__ import annotations
 
 import csv
+import functools
 import json
 import math
 import re
@@ -293,8 +294,10 @@ def _names_result(md: Path, body: str) -> bool:
 # --- provenance of the cited result files (issue 40) --------------------------------------------------------------
 
 
+@functools.cache
 def _record_module() -> Any:
-    """benchmarks/_record.py of this checkout (its functions take the repository root as an argument)."""
+    """benchmarks/_record.py of this checkout (its functions take the repository root as an argument), loaded
+    once."""
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("_bench_record", RECORD)
@@ -304,13 +307,8 @@ def _record_module() -> Any:
 
 
 def _git_ok(root: Path, *args: str) -> str | None:
-    import subprocess
-
-    try:
-        p = subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, timeout=60)
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return p.stdout.strip() if p.returncode == 0 else None
+    """``git -C root ARGS``'s output or None: the provenance reader's own (benchmarks/_record.py), 60 s at most."""
+    return _record_module()._git(root, *args, timeout=60)
 
 
 def allowed_unversioned(root: Path = ROOT) -> set[str]:

@@ -188,3 +188,17 @@ def install(monkeypatch: Any) -> types.ModuleType:
         monkeypatch.setitem(sys.modules, k, v)
     COUNTS.clear()
     return mods["cupy"]
+
+
+def install_fresh(monkeypatch: Any, generic_kernels: bool = True) -> types.ModuleType:
+    """:func:`install` after emptying gapsweep's FFT plan cache and compiled CUDA kernels (the shim's backends
+    never reach other tests); ``generic_kernels``: the hard wall's passes as array expressions
+    (``GAPSWEEP_GENERIC_KERNELS=1``; the fused kernels need a real GPU)."""
+    from gapsweep.core import fft
+    from gapsweep.gfmd import _cuda
+
+    monkeypatch.setattr(fft, "_PLANS", {})
+    monkeypatch.setattr(_cuda, "_CUPY_KERNELS", None)
+    if generic_kernels:
+        monkeypatch.setenv("GAPSWEEP_GENERIC_KERNELS", "1")
+    return install(monkeypatch)

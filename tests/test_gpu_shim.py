@@ -17,10 +17,7 @@ from tests import cupy_shim
 
 @pytest.fixture
 def cp(monkeypatch):
-    monkeypatch.setattr(fft, "_PLANS", {})  # the shim's backends never reach other tests
-    monkeypatch.setattr(_cuda, "_CUPY_KERNELS", None)
-    monkeypatch.setenv("GAPSWEEP_GENERIC_KERNELS", "1")  # the hard wall's passes as array expressions
-    return cupy_shim.install(monkeypatch)
+    return cupy_shim.install_fresh(monkeypatch)
 
 
 def _map(shape: tuple[int, int]) -> np.ndarray:

@@ -162,13 +162,9 @@ def test_gpu_branch_through_the_cupy_shim(monkeypatch, shape: tuple[int, int]) -
     stand-ins whose module reads "cupy"; square grids through the cuFFT backend, rectangles through cupy.fft) runs
     the cupy branch, continuation to a tensile load included, and returns the numpy answer with the fields left on
     the device. No GPU needed; the real device is not checked here."""
-    from gapsweep.core import fft
-    from gapsweep.gfmd import _cuda
     from tests import cupy_shim
 
-    monkeypatch.setattr(fft, "_PLANS", {})
-    monkeypatch.setattr(_cuda, "_CUPY_KERNELS", None)
-    cp = cupy_shim.install(monkeypatch)
+    cp = cupy_shim.install_fresh(monkeypatch, generic_kernels=False)
     h = rough(*shape, 3)
     kw = dict(sigma0=-3e-5, interaction=LAW, work=4e-4 / 64, rho=1 / 64, length=(1.0, shape[1] / shape[0]),
               tol=1e-10)

@@ -11,41 +11,36 @@ import sys
 import pytest
 
 from gapsweep.sweep import api as store
-from gapsweep.sweep import runner
 from gapsweep.sweep.schema import MISSING_EXTRA_PREFIX
+from tests.storekit import run_job, small_job
 
-JOB = """
-[job]
-name = "extra-retry"
-[grid]
-hurst = [0.8]
-rho = [2e-2]
-sigma0 = [1e-3, 1e-1]
-seeds = [0]
-[surface]
-lambda_l = 0.25
-lambda_s = 0.0625
-rms_slope = 1.0
-[material]
-gamma0 = 1e-3
-[histogram]
-bins = 8
+JOB = small_job("extra-retry", sigma0="[1e-3, 1e-1]", methods="""
 [methods.theory]
 forms = ["paper"]
 [methods.sde]
 samples = 200
 dzeta = 0.05
-"""
+""")
 
 
-def test_rows_failed_for_a_missing_extra_run_again_once_it_is_installed(tmp_path, monkeypatch):
-    pytest.importorskip("warp")
+
+def _run_without_warp(tmp_path, monkeypatch, old_message=None):
+    """Run :data:`JOB` into ``tmp_path/s.h5`` with warp uninstalled (``old_message(m)``: a further patch, the old
+    code's message form); returns ``(job file, store, summary)``."""
     job = tmp_path / "job.toml"
     job.write_text(JOB)
     path = tmp_path / "s.h5"
     with monkeypatch.context() as m:
         m.setitem(sys.modules, "warp", None)  # not installed
-        s = runner.run(job, path, mpi="off", progress="none")
+        if old_message is not None:
+            old_message(m)  # the message as the old code wrote it
+        s = run_job(job, path)
+    return job, path, s
+
+
+def test_rows_failed_for_a_missing_extra_run_again_once_it_is_installed(tmp_path, monkeypatch):
+    pytest.importorskip("warp")
+    job, path, s = _run_without_warp(tmp_path, monkeypatch)
     df = store.read(path)
     sde = df[df.method == "sde"]
     assert len(sde) == 2 and (sde.status == "failed").all()
@@ -54,13 +49,13 @@ def test_rows_failed_for_a_missing_extra_run_again_once_it_is_installed(tmp_path
     assert (df[df.method == "theory"].status == "done").all()
     assert s["failed"] == 2
     theory_before = df[df.method == "theory"].mean_gap.to_numpy()
-    s = runner.run(job, path, resume=True, mpi="off", progress="none")  # the extra is there now
+    s = run_job(job, path, resume=True)  # the extra is there now
     assert s["mode"] == "resume" and s["todo"] == 2 and s["done"] == 2, s
     df = store.read(path)
     assert (df.status == "done").all()
     assert (df[df.method == "theory"].mean_gap.to_numpy() == theory_before).all()  # the done rows kept
     ref = tmp_path / "ref.h5"
-    runner.run(job, ref, mpi="off", progress="none")
+    run_job(job, ref)
     assert store.diff(path, ref) == []
 
 
@@ -69,16 +64,11 @@ def test_rows_of_a_store_written_before_the_prefix_are_retried_too(tmp_path, mon
     pytest.importorskip("warp")
     from gapsweep.sweep import execute
 
-    job = tmp_path / "job.toml"
-    job.write_text(JOB)
-    path = tmp_path / "s.h5"
-    with monkeypatch.context() as m:
-        m.setitem(sys.modules, "warp", None)
-        m.setattr(execute, "_missing_extra", lambda e: False)  # the message as the old code wrote it
-        runner.run(job, path, mpi="off", progress="none")
+    job, path, _ = _run_without_warp(tmp_path, monkeypatch,
+                                     old_message=lambda m: m.setattr(execute, "_missing_extra", lambda e: False))
     sde = store.read(path).query("method == 'sde'")
     assert (sde.status == "failed").all() and all(x.startswith("MissingExtraError:") for x in sde.message)
-    s = runner.run(job, path, resume=True, mpi="off", progress="none")
+    s = run_job(job, path, resume=True)
     assert s["todo"] == 2 and s["done"] == 2, s
     assert (store.read(path).status == "done").all()
 
@@ -92,8 +82,8 @@ def test_other_failures_are_not_retried(tmp_path, monkeypatch):
     path = tmp_path / "s.h5"
     monkeypatch.setattr(execute.registry.get("theory"), "run",
                         lambda *a, **k: (_ for _ in ()).throw(ValueError("the task's own error")))
-    runner.run(job, path, mpi="off", progress="none")
+    run_job(job, path)
     df = store.read(path)
     assert (df.status == "failed").all() and all(m.startswith("ValueError") for m in df.message)
-    s = runner.run(job, path, resume=True, mpi="off", progress="none")
+    s = run_job(job, path, resume=True)
     assert s["mode"] == "noop", s

@@ -9,56 +9,23 @@ message offers ``--overwrite``. All in-process (the CLI through ``cli.main``).""
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import h5py
 import pytest
 
-from gapsweep import cli, store
+from gapsweep import store
 from gapsweep.sweep import costleft, merge, repair, runner, storecheck
+from tests.storekit import UNITS_JOB, cli_run, copy_store, flip_attr, run_job, units_store
 
-ROOT = Path(__file__).resolve().parents[1]
-JOB = ROOT / "tests" / "faults" / "jobs" / "units.toml"
+JOB = UNITS_JOB
 PROVENANCE = ("created", "versions", "git_commit", "gapsweep_version", "finished", "job_name")
 SPEC = ("spec_text", "units", "spec_sha256")
 
 
 @pytest.fixture(scope="module")
 def ref(tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("damage") / "u.h5"
-    s = runner.run(JOB, path, mpi="off", progress="none")
-    assert s["done"] == s["tasks"] == 2
-    return path
-
-
-def _copy(ref: Path, tmp_path: Path, name: str = "s.h5") -> Path:
-    p = tmp_path / name
-    shutil.copy(ref, p)
-    return p
-
-
-def flip(path: Path, name: str) -> None:
-    """One bit of the attribute ``name`` (an ASCII character of a string, the lowest bit of a number)."""
-    with h5py.File(path, "r+") as f:
-        v = f.attrs[name]
-        if isinstance(v, bytes):
-            v = v.decode()
-        if isinstance(v, str):
-            b = bytearray(v.encode())
-            i = len(b) // 2
-            while b[i] >= 0x80:
-                i += 1
-            b[i] ^= 1
-            f.attrs.modify(name, b.decode())
-        else:
-            f.attrs.modify(name, v ^ 1)
-
-
-def _cli(capsys, *args) -> tuple[int, str, str]:
-    rc = cli.main([str(a) for a in args])
-    out = capsys.readouterr()
-    return rc, out.out, out.err
+    return units_store(tmp_path_factory, "damage")
 
 
 def _verified(path: Path) -> storecheck.Report:
@@ -69,8 +36,8 @@ def _verified(path: Path) -> storecheck.Report:
 @pytest.mark.parametrize("name", [*PROVENANCE, *SPEC, "integrity"])
 def test_readers_report_and_go_on(ref, tmp_path, capsys, name):
     """status, status --json and store.read report the damage and go on; the store is not changed."""
-    path = _copy(ref, tmp_path)
-    flip(path, name)
+    path = copy_store(ref, tmp_path)
+    flip_attr(path, name)
     before = path.read_bytes()
     rep = _verified(path)
     assert rep.damaged == [] and rep.attrs_need_repair
@@ -80,10 +47,10 @@ def test_readers_report_and_go_on(ref, tmp_path, capsys, name):
         assert rep.spec_damaged == [name]
     else:
         assert rep.integrity_damaged
-    rc, out, err = _cli(capsys, "status", path)
+    rc, out, err = cli_run(capsys, "status", path)
     assert rc == 0 and "--overwrite" not in out + err, out + err
     assert (f"{name!r}" in out) and "2 tasks" in out, out
-    rc, out, _ = _cli(capsys, "status", "--json", path)
+    rc, out, _ = cli_run(capsys, "status", "--json", path)
     js = json.loads(out)
     assert rc == 0 and js["total"] == {"done": 2} and any(name in x for x in js["check"]), js
     assert (store.read(path).status == "done").all()
@@ -97,9 +64,9 @@ def test_export_and_merge_go_on(ref, tmp_path, capsys, name):
     damaged attribute is not copied into the export."""
     pytest.importorskip("xarray")
     pytest.importorskip("h5netcdf")
-    path = _copy(ref, tmp_path)
-    flip(path, name)
-    rc, _, err = _cli(capsys, "export", path, "--out", tmp_path / "x.nc")
+    path = copy_store(ref, tmp_path)
+    flip_attr(path, name)
+    rc, _, err = cli_run(capsys, "export", path, "--out", tmp_path / "x.nc")
     assert rc == 0, err
     import xarray as xr
 
@@ -108,10 +75,10 @@ def test_export_and_merge_go_on(ref, tmp_path, capsys, name):
         if name in PROVENANCE:
             assert f"gapsweep_{name}" not in ds.attrs or name == "gapsweep_version"
             assert name in json.loads(ds.attrs["gapsweep_damaged_attributes"])
-    other = _copy(ref, tmp_path, "o.h5")
+    other = copy_store(ref, tmp_path, "o.h5")
     for extra in ([], ["--skip-damaged"]):
         out_p = tmp_path / f"m{len(extra)}.h5"
-        rc, _, err = _cli(capsys, "merge", path, other, "--out", out_p, *extra)
+        rc, _, err = cli_run(capsys, "merge", path, other, "--out", out_p, *extra)
         assert rc == 0, err
         assert store.diff(out_p, ref) == [] and _verified(out_p).attrs_need_repair is False
 
@@ -119,24 +86,24 @@ def test_export_and_merge_go_on(ref, tmp_path, capsys, name):
 def test_merge_of_only_shards_with_damaged_spec_names_repair(ref, tmp_path, capsys):
     """With no shard whose spec verifies, merge cannot know the job: it says `gapsweep repair --job`, never
     --overwrite; after the repair the merge works."""
-    path = _copy(ref, tmp_path)
-    flip(path, "spec_text")
-    rc, out, err = _cli(capsys, "merge", path, "--out", tmp_path / "m.h5")
+    path = copy_store(ref, tmp_path)
+    flip_attr(path, "spec_text")
+    rc, out, err = cli_run(capsys, "merge", path, "--out", tmp_path / "m.h5")
     assert rc == 1 and "gapsweep repair" in err and "--overwrite" not in err, err
     assert not (tmp_path / "m.h5").exists()
-    rc, out, err = _cli(capsys, "repair", path, "--job", JOB)
+    rc, out, err = cli_run(capsys, "repair", path, "--job", JOB)
     assert rc == 0 and "restored" in out, out + err
     assert not _verified(path).attrs_need_repair
-    rc, out, err = _cli(capsys, "merge", path, "--out", tmp_path / "m.h5")
+    rc, out, err = cli_run(capsys, "merge", path, "--out", tmp_path / "m.h5")
     assert rc == 0, err
 
 
 @pytest.mark.parametrize("name", [*PROVENANCE, *SPEC, "integrity"])
 def test_resume_restores(ref, tmp_path, name):
     """--resume with the job file mends every attribute and keeps every row; provenance is marked as lost."""
-    path = _copy(ref, tmp_path)
-    flip(path, name)
-    s = runner.run(JOB, path, resume=True, mpi="off", progress="none")
+    path = copy_store(ref, tmp_path)
+    flip_attr(path, name)
+    s = run_job(JOB, path, resume=True)
     assert s["todo"] == 0
     rep = _verified(path)
     assert not rep.attrs_need_repair and rep.runs_damaged is None
@@ -150,22 +117,22 @@ def test_resume_restores(ref, tmp_path, name):
 
 
 def test_without_resume_no_overwrite_offered(ref, tmp_path):
-    path = _copy(ref, tmp_path)
-    flip(path, "spec_text")
+    path = copy_store(ref, tmp_path)
+    flip_attr(path, "spec_text")
     with pytest.raises(runner.RunError) as e:
-        runner.run(JOB, path, mpi="off", progress="none")
+        run_job(JOB, path)
     assert "--resume" in str(e.value) and "--overwrite" not in str(e.value)
 
 
 def test_resume_with_another_job_is_refused(ref, tmp_path):
     """The spec attributes are restored only from the store's own job: another job's task rows differ."""
-    path = _copy(ref, tmp_path)
-    flip(path, "spec_text")
+    path = copy_store(ref, tmp_path)
+    flip_attr(path, "spec_text")
     other = tmp_path / "other.toml"
     other.write_text(JOB.read_text().replace("sigma0 = [1e-2, 1e-1]", "sigma0 = [1e-2, 2e-1]"))
     before = path.read_bytes()
     with pytest.raises(runner.RunError, match="not the store's"):
-        runner.run(other, path, resume=True, mpi="off", progress="none")
+        run_job(other, path, resume=True)
     with pytest.raises(store.StoreError, match="not this store's"):
         repair.repair(path, other)
     assert path.read_bytes() == before
@@ -175,8 +142,8 @@ def test_resume_with_another_job_is_refused(ref, tmp_path):
 def test_repair_without_job(ref, tmp_path, name):
     """Provenance is rebuilt; units and the checksum record come back from the store's own spec text (which
     still matches its hash and the task table) without a job file."""
-    path = _copy(ref, tmp_path)
-    flip(path, name)
+    path = copy_store(ref, tmp_path)
+    flip_attr(path, name)
     lines = repair.repair(path)
     assert any("rebuilt" in x or "restored" in x for x in lines), lines
     assert not _verified(path).attrs_need_repair
@@ -184,16 +151,16 @@ def test_repair_without_job(ref, tmp_path, name):
 
 
 def test_repair_restores_the_job_name_from_the_spec(ref, tmp_path, capsys):
-    path = _copy(ref, tmp_path)
-    flip(path, "job_name")
-    rc, out, err = _cli(capsys, "repair", path)
+    path = copy_store(ref, tmp_path)
+    flip_attr(path, "job_name")
+    rc, out, err = cli_run(capsys, "repair", path)
     assert rc == 0 and "restored from the spec: job_name" in out, out + err
     assert store.read_attrs(path)["job_name"] == "faults-units" and not _verified(path).attrs_need_repair
 
 
 def test_repair_of_spec_text_needs_the_job(ref, tmp_path):
-    path = _copy(ref, tmp_path)
-    flip(path, "spec_text")
+    path = copy_store(ref, tmp_path)
+    flip_attr(path, "spec_text")
     with pytest.raises(store.StoreError, match="pass --job"):
         repair.repair(path)
     with pytest.raises(store.StoreError, match="damaged"):
@@ -203,15 +170,15 @@ def test_repair_of_spec_text_needs_the_job(ref, tmp_path):
 
 def test_format_damage_still_refuses(ref, tmp_path):
     """Damage to what the rows cannot survive (the format version names the layout) still refuses."""
-    path = _copy(ref, tmp_path)
-    flip(path, "format_version")
+    path = copy_store(ref, tmp_path)
+    flip_attr(path, "format_version")
     with pytest.raises(store.StoreError, match="format_version"):
         store.read(path)
 
 
 def test_merge_skip_damaged_with_a_damaged_shard_spec(ref, tmp_path, capsys):
     """merge.merge in-process: a shard with damaged spec text merged beside an intact one."""
-    a = _copy(ref, tmp_path, "a.h5")
-    flip(a, "spec_text")
-    counts = merge.merge([a, _copy(ref, tmp_path, "b.h5")], tmp_path / "m.h5", skip_damaged=True)
+    a = copy_store(ref, tmp_path, "a.h5")
+    flip_attr(a, "spec_text")
+    counts = merge.merge([a, copy_store(ref, tmp_path, "b.h5")], tmp_path / "m.h5", skip_damaged=True)
     assert counts["done"] == 2 and counts["damaged"] == 0

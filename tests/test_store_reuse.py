@@ -21,42 +21,27 @@ import pytest
 
 from gapsweep import store
 from gapsweep.sweep import methods as registry
-from gapsweep.sweep import runner
 from gapsweep.sweep.fields import fields_dir
+from tests.storekit import run_job, small_job
 
 ROOT = Path(__file__).resolve().parents[1]
 THEORY = ROOT / "tests" / "data" / "stores" / "fixture.toml"  # two theory and two Fokker-Planck rows
-GFMD = """
-[job]
-name = "reuse-fields"
-[grid]
-hurst = [0.8]
-rho = [2e-2]
-sigma0 = [1e-2, 5e-2]
-seeds = {seeds}
-[surface]
-lambda_l = 0.25
-lambda_s = 0.0625
-rms_slope = 1.0
-[material]
-gamma0 = 1e-3
-[histogram]
-bins = 8
+
+
+def _gfmd_job(seeds: str) -> str:
+    """Two loads of GFMD keeping the gap and pressure at sigma0 = 1e-2, on the seeds ``seeds`` (a TOML array)."""
+    return small_job("reuse-fields", seeds=seeds, methods="""
 [methods.gfmd]
 n = 64
 backend = "numpy"
-keep_fields = {{ fields = ["gap", "pressure"], sigma0 = [1e-2] }}
-"""
-
-
-def _run(job, path, **kw):
-    return runner.run(job, path, progress="none", mpi="off", **kw)
+keep_fields = { fields = ["gap", "pressure"], sigma0 = [1e-2] }
+""")
 
 
 @pytest.fixture(scope="module")
 def theory(tmp_path_factory):
     d = tmp_path_factory.mktemp("reuse-version")
-    _run(THEORY, d / "src.h5")
+    run_job(THEORY, d / "src.h5")
     return d
 
 
@@ -76,14 +61,14 @@ def test_rows_of_another_version_are_run_again(theory, tmp_path, monkeypatch, ca
     --reuse-older they are copied, named in the run record and by status."""
     monkeypatch.setattr(registry.get("theory"), "algorithm_version", 2)
     out = tmp_path / "a.h5"
-    s = _run(THEORY, out, reuse=[theory / "src.h5"])
+    s = run_job(THEORY, out, reuse=[theory / "src.h5"])
     assert s["todo"] == 2  # the two theory rows ran; the Fokker-Planck rows (same version) were copied
     df = store.read(out)
     assert (df[df.method == "theory"].algorithm_version == 2).all()
     run = json.loads(store.read_attrs(out)["runs"])[-1]
     assert list(run["reused"].values()) == [2] and "reused_older" not in run
     out2 = tmp_path / "b.h5"
-    s = _run(THEORY, out2, reuse=[theory / "src.h5"], reuse_older=True)
+    s = run_job(THEORY, out2, reuse=[theory / "src.h5"], reuse_older=True)
     assert s["todo"] == 0
     run = json.loads(store.read_attrs(out2)["runs"])[-1]
     assert list(run["reused"].values()) == [4] and list(run["reused_older"].values()) == [2]
@@ -95,9 +80,9 @@ def test_rows_of_another_version_are_run_again(theory, tmp_path, monkeypatch, ca
 def test_rows_without_a_version_count_as_older(theory, tmp_path):
     """A format-4 store (before the column) lends no row unless --reuse-older; status calls them unknown."""
     old = ROOT / "tests" / "data" / "stores" / "format4.h5"
-    s = _run(THEORY, tmp_path / "a.h5", reuse=[old])
+    s = run_job(THEORY, tmp_path / "a.h5", reuse=[old])
     assert s["todo"] == 4
-    s = _run(THEORY, tmp_path / "b.h5", reuse=[old], reuse_older=True)
+    s = run_job(THEORY, tmp_path / "b.h5", reuse=[old], reuse_older=True)
     assert s["todo"] == 0
     text = store.status(tmp_path / "b.h5")
     assert "row(s) of unknown algorithm version" in text and "--reuse-older" in text
@@ -113,12 +98,12 @@ def _fields(path: Path) -> dict[str, dict[str, np.ndarray]]:
 
 def test_reuse_carries_kept_fields(tmp_path):
     small, big = tmp_path / "small.toml", tmp_path / "big.toml"
-    small.write_text(GFMD.format(seeds="[0]"))
-    big.write_text(GFMD.format(seeds="[0, 1]"))
-    _run(small, tmp_path / "small.h5")
-    _run(big, tmp_path / "fresh.h5")
+    small.write_text(_gfmd_job("[0]"))
+    big.write_text(_gfmd_job("[0, 1]"))
+    run_job(small, tmp_path / "small.h5")
+    run_job(big, tmp_path / "fresh.h5")
     assert len(_fields(tmp_path / "small.h5")) == 1 and len(_fields(tmp_path / "fresh.h5")) == 2
-    s = _run(big, tmp_path / "reused.h5", reuse=[tmp_path / "small.h5"])
+    s = run_job(big, tmp_path / "reused.h5", reuse=[tmp_path / "small.h5"])
     assert s["todo"] == 2  # seed 1 ran, seed 0 was copied with its fields file
     assert store.diff(tmp_path / "reused.h5", tmp_path / "fresh.h5") == []
     a, b = _fields(tmp_path / "reused.h5"), _fields(tmp_path / "fresh.h5")
@@ -129,5 +114,5 @@ def test_reuse_carries_kept_fields(tmp_path):
     # a source without the fields file of a row that keeps fields does not lend that row
     src = tmp_path / "nofields.h5"
     shutil.copy(tmp_path / "small.h5", src)
-    s = _run(big, tmp_path / "again.h5", reuse=[src])
+    s = run_job(big, tmp_path / "again.h5", reuse=[src])
     assert s["todo"] == 3 and len(_fields(tmp_path / "again.h5")) == 2

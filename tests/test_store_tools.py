@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 from pathlib import Path
 
@@ -32,50 +31,34 @@ import h5py
 import numpy as np
 import pytest
 
-from gapsweep import cli, spec
-from gapsweep.sweep import runner
+from gapsweep import spec
+from tests.storekit import ROOT, UNITS_JOB, cli_run, copy_store, run_job, units_store
 
-ROOT = Path(__file__).resolve().parents[1]
-JOB = ROOT / "tests" / "faults" / "jobs" / "units.toml"
+JOB = UNITS_JOB
 
 
 @pytest.fixture(scope="module")
 def ref(tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("tools") / "u.h5"
-    s = runner.run(JOB, path, mpi="off", progress="none")
-    assert s["done"] == s["tasks"] == 2
-    return path
-
-
-def _copy(ref: Path, tmp_path: Path, name: str = "s.h5") -> Path:
-    p = tmp_path / name
-    shutil.copy(ref, p)
-    return p
-
-
-def _cli(capsys, *args) -> tuple[int, str, str]:
-    rc = cli.main([str(a) for a in args])
-    out = capsys.readouterr()
-    return rc, out.out, out.err
+    return units_store(tmp_path_factory, "tools")
 
 
 # ---- item 9 --------------------------------------------------------------------------------------------------
 
 
 def test_status_json_reports_a_damaged_task_table(ref, tmp_path, capsys):
-    path = _copy(ref, tmp_path)
+    path = copy_store(ref, tmp_path)
     with h5py.File(path, "r+") as f:
         t = f["tasks"][...]
         tid = bytearray(t["task_id"][1])
         tid[3] ^= 1
         t["task_id"][1] = bytes(tid)
         f["tasks"][...] = t
-    rc, out, err = _cli(capsys, "status", "--json", path)
+    rc, out, err = cli_run(capsys, "status", "--json", path)
     assert rc == 0, err
     js = json.loads(out)
     assert any("table '/tasks'" in x for x in js["check"]), js["check"]
     assert sum(js["total"].values()) == 2 and js["total"].get("damaged") == 1, js["total"]
-    rc, out, _ = _cli(capsys, "status", path)
+    rc, out, _ = cli_run(capsys, "status", path)
     assert rc == 0 and "table '/tasks'" in out
 
 
@@ -89,7 +72,7 @@ def test_flat_map_fails_plan(tmp_path, capsys, detrend, heights):
     job = tmp_path / "flat.toml"
     job.write_text('[job]\nname = "flat"\n[grid]\nsigma0 = [1e-2]\n[surface]\nkind = "file"\npath = "flat.npy"\n'
                    f'pixel_size = 1.0\ndetrend = "{detrend}"\n[interaction]\nkind = "hard_wall"\n[methods.gfmd]\n')
-    rc, _, err = _cli(capsys, "plan", job)
+    rc, _, err = cli_run(capsys, "plan", job)
     assert rc == 2 and "surface.path" in err and "flat" in err and "Traceback" not in err, err
     assert len([x for x in err.splitlines() if "invalid job spec" in x]) == 1
     # a rough map of the same shape passes (the check is not a blanket refusal)
@@ -127,7 +110,7 @@ def test_concurrent_exports_to_one_out(ref, tmp_path, monkeypatch):
     other_job = tmp_path / "other.toml"
     other_job.write_text(JOB.read_text().replace('name = "faults-units"', 'name = "faults-other"'))
     other = tmp_path / "o.h5"
-    runner.run(other_job, other, mpi="off", progress="none")
+    run_job(other_job, other)
     out = tmp_path / "x.nc"
     second: list[subprocess.CompletedProcess] = []
     real = dataset._write_nc
@@ -173,27 +156,27 @@ def _stale_lease(store_path: Path) -> None:
 
 @pytest.mark.parametrize("holder", ["none", "dead"])
 def test_status_removes_a_killed_writers_temporary_file(ref, tmp_path, capsys, holder):
-    path = _copy(ref, tmp_path)
+    path = copy_store(ref, tmp_path)
     left = tmp_path / f".s.h5.tmp-{_dead_pid()}"
     left.write_bytes(b"\0" * 4096)
     if holder == "dead":
         _stale_lease(path)
-    rc, out, err = _cli(capsys, "status", path)
+    rc, out, err = cli_run(capsys, "status", path)
     assert rc == 0 and not left.exists(), out + err
     assert f"removed: {left.name}" in out and left.name in err, out + err
     left.write_bytes(b"x")
-    rc, out, _ = _cli(capsys, "status", "--json", path)
+    rc, out, _ = cli_run(capsys, "status", "--json", path)
     assert json.loads(out)["removed_leftovers"] == [left.name] and not left.exists()
 
 
 def test_a_live_lease_keeps_its_temporary_file(ref, tmp_path, capsys):
     from gapsweep.sweep import lease
 
-    path = _copy(ref, tmp_path)
+    path = copy_store(ref, tmp_path)
     mine = tmp_path / ".s.h5.tmp-0123456789ab"
     mine.write_bytes(b"x")
     with lease.acquire(path, purpose="test"):
-        rc, out, _ = _cli(capsys, "status", path)
+        rc, out, _ = cli_run(capsys, "status", path)
         assert rc == 0 and mine.exists() and "removed" not in out
 
 
@@ -207,10 +190,10 @@ def test_merge_export_and_run_remove_leftovers(ref, tmp_path):
     left.write_bytes(b"x" * 100)
     merge.merge([ref], m)
     assert not left.exists() and m.exists()
-    path = _copy(ref, tmp_path)
+    path = copy_store(ref, tmp_path)
     left = tmp_path / ".s.h5.tmp-abcdef012345"
     left.write_bytes(b"x")
-    runner.run(JOB, path, resume=True, mpi="off", progress="none")
+    run_job(JOB, path, resume=True)
     assert not left.exists()
     import importlib.util
 
@@ -255,7 +238,7 @@ def test_reader_of_a_store_being_written_retries(ref, tmp_path, monkeypatch, wri
     from gapsweep.sweep import lease, storecheck
     from gapsweep.sweep import store as st
 
-    path = _copy(ref, tmp_path)
+    path = copy_store(ref, tmp_path)
     monkeypatch.setattr(st, "RETRY_DELAYS", (0.0, 0.0, 0.0))
     real, calls = storecheck.check, []
 
@@ -284,7 +267,7 @@ def test_persistent_failure_while_written_says_being_written(ref, tmp_path, monk
     from gapsweep.sweep import lease
     from gapsweep.sweep import store as st
 
-    path = _copy(ref, tmp_path)
+    path = copy_store(ref, tmp_path)
     data = path.read_bytes()
     path.write_bytes(data[: len(data) // 3])  # what a reader may meet: a file whose metadata is not all there
     monkeypatch.setattr(st, "RETRY_DELAYS", (0.0,))
@@ -366,7 +349,7 @@ def test_byte_flips_in_hdf5_metadata_never_crash(ref, tmp_path, capsys):
         path = tmp_path / f"f{k}.h5"
         path.write_bytes(bytes(b))
         for cmd in (["status", "--json", path], ["merge", path, "--out", tmp_path / f"m{k}.h5"]):
-            rc, _, err = _cli(capsys, *cmd)
+            rc, _, err = cli_run(capsys, *cmd)
             lines = [x for x in err.splitlines() if x.strip() and "warning" not in x.lower()]
             assert rc in (0, 1) and "Traceback" not in err, (k, off, cmd, rc, err)
             if rc:

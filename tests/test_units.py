@@ -143,13 +143,9 @@ def test_reentry_stiffness_is_a_pressure_per_length() -> None:
 
 @pytest.fixture
 def shim(monkeypatch):
-    from gapsweep.gfmd import _cuda
     from tests import cupy_shim
 
-    monkeypatch.setattr(fft, "_PLANS", {})  # the shim's backends never reach other tests
-    monkeypatch.setattr(_cuda, "_CUPY_KERNELS", None)
-    monkeypatch.setenv("GAPSWEEP_GENERIC_KERNELS", "1")  # the hard wall's passes as array expressions
-    return cupy_shim.install(monkeypatch)
+    return cupy_shim.install_fresh(monkeypatch)
 
 
 _GPU_CASES = [("hard_wall", "pk", True), ("hard_wall", "pcg", True), ("hard_wall", "pk", False),

@@ -211,6 +211,20 @@ def tabor_table(loads: pd.DataFrame, ref: pd.DataFrame, infos: Mapping[str, Mapp
     return pd.DataFrame(rows)
 
 
+def _dress(ax: Any, xlabel: str, ylabel: str, title: str) -> None:
+    """Axis labels, panel title and a small legend: the same dress on every panel of the challenge figures."""
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.legend(fontsize=7)
+
+
+def _footnote(fig: Any, note: str | None) -> None:
+    """The provenance line at the bottom left, when there is one."""
+    if note:
+        fig.text(0.01, 0.01, note, fontsize=7)
+
+
 def fig_loads(loads: pd.DataFrame, *, job: str, note: str | None = None):
     """(a) contact area, (b) mean gap and (c) contact stiffness against the load, one curve per range rho."""
     import matplotlib
@@ -228,13 +242,9 @@ def fig_loads(loads: pd.DataFrame, *, job: str, note: str | None = None):
             x = t["sigma0"].to_numpy(float)
             if len(x) and np.all(x > 0):
                 ax.set_xscale("log")
-            ax.set_xlabel(r"load $\sigma_0$")
-            ax.set_ylabel(ylab)
-            ax.set_title(title)
-            ax.legend(fontsize=7)
+            _dress(ax, r"load $\sigma_0$", ylab, title)
         axes[0].set_yscale("log")
-        if note:
-            fig.text(0.01, 0.01, note, fontsize=7)
+        _footnote(fig, note)
     return fig
 
 
@@ -262,12 +272,8 @@ def fig_reference(data: Mapping[tuple, tuple], *, job: str, note: str | None = N
         for ax, xl, yl, title in ((axes[0], "patch area $A$", "number density $n(A)$", "(a) contact patches"),
                                   (axes[1], "pressure in contact $p$", "$P(p)$", "(b) pressure in contact"),
                                   (axes[2], "gap off contact $g$", "$P(g)$", "(c) gap off contact")):
-            ax.set_xlabel(xl)
-            ax.set_ylabel(yl)
-            ax.set_title(title)
-            ax.legend(fontsize=7)
-        if note:
-            fig.text(0.01, 0.01, note, fontsize=7)
+            _dress(ax, xl, yl, title)
+        _footnote(fig, note)
     return fig
 
 
@@ -283,12 +289,8 @@ def fig_tabor(tab: pd.DataFrame, *, job: str, note: str | None = None):
             ax.plot(t["rho"].to_numpy(float), t[col].to_numpy(float), marker="o", ms=5, mfc="none",
                     label=f"sigma0 = {float(t['sigma0'].iloc[0]):g}" if len(t) else None)
             ax.set_xscale("log")
-            ax.set_xlabel(r"range $\rho$ (Tabor $\mu_T$ in the table)")
-            ax.set_ylabel(yl)
-            ax.set_title(title)
-            ax.legend(fontsize=7)
-        if note:
-            fig.text(0.01, 0.01, note, fontsize=7)
+            _dress(ax, r"range $\rho$ (Tabor $\mu_T$ in the table)", yl, title)
+        _footnote(fig, note)
     return fig
 
 

@@ -44,9 +44,10 @@ from typing import Any
 import numpy as np
 
 from gapsweep.core import deadline
+from gapsweep.gfmd._continuation import next_load, record
 from gapsweep.gfmd._grid import Grid
 from gapsweep.gfmd._ops import _is_cupy
-from gapsweep.gfmd._result import GFMDResult, host_fields
+from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status
 
 METHODS = ("plbfgs",)
 log = logging.getLogger("gapsweep.gfmd")
@@ -260,10 +261,7 @@ class _Solver:
         status = "max_iter"
         while s_k > target and self.nit < self.max_iter:
             attempts += 1
-            step = max(ds, target - s_k)
-            final = s_k + step <= target + 1e-12 * pscale
-            s_new = target if final else s_k + step
-            step = s_new - s_k
+            s_new, step, final = next_load(s_k, ds, target, pscale)
             g_p = g_k if g_prev is None else xp.maximum(g_k + (g_k - g_prev) * (step / ds_prev), 0.0)
             st, status = self.at(s_new, g_p, tol if final else max(tol, _STEP_TOL))
             if status == "converged":
@@ -283,9 +281,8 @@ class _Solver:
                     status = "detached"
                 break
             ds = 0.5 * step
-        self.info.update({"continuation_from": s_from, "continuation_steps": accepted, "min_step": ds_min,
-                          "continuation_attempts": attempts, "jumps": jumps,
-                          "last_attached_load": target if status == "converged" else s_k})
+        record(self.info, s_from=s_from, accepted=accepted, ds_min=ds_min, attempts=attempts, jumps=jumps,
+               status=status, target=target, s_k=s_k)
         return st, status
 
 
@@ -355,16 +352,11 @@ def _result(sv: _Solver, st: _State, status: str, sigma0: float, e_star: float, 
         area = grid.count(contact) / grid.size
         g0 = grid.mean(g)
     fields_ok = math.isfinite(residual) and grid.all_finite(g) and grid.all_finite(p)
-    if not fields_ok:
-        status = "non_finite"
-    converged = fields_ok and status == "converged" and residual <= tol and load_error <= tol
-    if status == "converged" and not converged:
-        status = "stalled"
+    status, _ = final_status(status, fields_ok, residual, load_error, tol)
+    converged = status == "converged"
     dx = min(grid.lx / grid.shape[0], grid.ly / grid.shape[1])
     log.debug("%s: %s after %d iterations, residual %.3g", law.name, status, sv.nit, residual)
-    fields = {"gap": g, "pressure": p, "displacement": u}
-    fields.update(grid.to_host_many({k: fields[k] for k in host_fields(host)}))
-    gap, p, u = fields["gap"], fields["pressure"], fields["displacement"]
+    gap, p, u = fields_to_host(grid, host, g, p, u)
     grid.synchronize()
     return GFMDResult(
         mean_gap=g0, gap=gap, pressure=p, displacement=u, iterations=sv.nit, converged=converged,

@@ -42,7 +42,7 @@ from gapsweep.core import deadline
 from gapsweep.gfmd._constrained_ops import make_ops
 from gapsweep.gfmd._grid import FreeGrid, Grid
 from gapsweep.gfmd._ops import _is_cupy
-from gapsweep.gfmd._result import GFMDResult, host_fields
+from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status
 from gapsweep.gfmd.interactions.base import Interaction
 
 METHODS = ("pk", "pcg", "mpcg")
@@ -55,7 +55,6 @@ _COARSE_TOL = 1e-2  # "mpcg": tolerance of the coarse levels (a start only; the 
 _REFRESH = 25  # iterations between fresh K p when the update was unclipped (bounds the drift of u)
 _LAG = False  # lag the projection's K-correction up to _RESYNC iterations (measured: breaks convergence; issue 30)
 _RESYNC = 8  # used only with _LAG
-_FLAT = 1e3 * np.finfo(np.float64).eps  # rms / |mean| below which a map is flat (round-off of its mean)
 # CG restarts (delta = 0) only when more than this fraction of |S| re-entered. Polonsky & Keer restart at every
 # re-entry; near convergence a few boundary pixels re-enter almost every iteration, so the preconditioned CG was
 # steepest descent there. Measured (tuning: N = 1024, seed 2, H 0.3/0.8; held-out seeds 3-5, H 0.3/0.5/0.8,
@@ -329,16 +328,7 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
     if method == "auto":
         method = DEFAULT_METHOD_GPU if grid.backend == "cupy" else DEFAULT_METHOD
     xp = grid.xp
-    h = grid.asarray(heights)
-    if not grid.all_finite(h):
-        raise ValueError("heights contain NaN or inf")
-    h_shift = grid.mean(h)
-    h = h - h_shift
-    h_rms = math.sqrt(grid.mean(h * h))
-    # A flat map (its rms no more than the round-off of removing its mean) measures gaps in pixels: a round-off
-    # rms depends on the units' digits (a constant free map converged at one length unit, not at another)
-    flat = not h_rms > _FLAT * abs(h_shift)
-    g_ref = min(grid.lx / grid.shape[0], grid.ly / grid.shape[1]) if flat else h_rms
+    h, h_rms, g_ref = grid.centred(heights)  # g_ref: h_rms, or the pixel size on a flat map
     with np.errstate(divide="ignore"):
         kinv = 1.0 / ((0.5 * e_star) * grid.q)
     grid.set_mode0(kinv, 0.0)
@@ -401,16 +391,10 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
             elastic = 0.5 * grid.mean(p * u)
         gap = xp.where(S, 0.0, g)  # the contact atom exactly at g = 0
     fields_ok = math.isfinite(residual) and grid.all_finite(p) and grid.all_finite(u)
-    if not fields_ok:
-        status = "non_finite"
-    converged = fields_ok and residual <= tol and load_error <= tol
-    if status == "converged" and not converged:
-        status = "stalled"
+    status, converged = final_status(status, fields_ok, residual, load_error, tol)
     area = n_s / grid.size
     log.debug("hard wall: %s after %d iterations, residual %.3g, area %.4g", status, it, residual, area)
-    fields = {"gap": gap, "pressure": p, "displacement": u}
-    fields.update(grid.to_host_many({k: fields[k] for k in host_fields(host)}))  # only those asked for
-    gap, p, u = fields["gap"], fields["pressure"], fields["displacement"]
+    gap, p, u = fields_to_host(grid, host, gap, p, u)  # only those asked for
     grid.synchronize()
     return GFMDResult(
         mean_gap=grid.mean(gap),

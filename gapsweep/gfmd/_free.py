@@ -53,7 +53,7 @@ from gapsweep.core import deadline
 from gapsweep.core.vec import axpy
 from gapsweep.gfmd._grid import FreeGrid, Grid
 from gapsweep.gfmd._ops import _is_cupy, remember_pair
-from gapsweep.gfmd._result import GFMDResult, host_fields
+from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status
 from gapsweep.gfmd._smooth import _DETACHED, _STEP_TOL, _Solver, _stalled, _wolfe
 from gapsweep.gfmd.interactions.base import SmoothInteraction
 
@@ -591,15 +591,10 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
         e_int = float(xp.mean(law.energy(gap, xp)))
         u = xp.ascontiguousarray(u)
     fields_ok = math.isfinite(residual) and bool(xp.all(xp.isfinite(gap))) and bool(xp.all(xp.isfinite(p)))
-    if not fields_ok:
-        status = "non_finite"
-    converged = fields_ok and status == "converged" and residual <= tol and load_error <= tol
-    if status == "converged" and not converged:
-        status = "stalled"
+    status, _ = final_status(status, fields_ok, residual, load_error, tol)
+    converged = status == "converged"
     log.debug("%s (free boundaries): %s after %d evaluations, residual %.3g", law.name, status, sv.nfev, residual)
-    fields = {"gap": gap, "pressure": p, "displacement": u}
-    fields.update(pad.to_host_many({k_: fields[k_] for k_ in host_fields(host)}))
-    gap, p, u = fields["gap"], fields["pressure"], fields["displacement"]
+    gap, p, u = fields_to_host(pad, host, gap, p, u)
     pad.synchronize()
     return GFMDResult(
         mean_gap=g0, gap=gap, pressure=p, displacement=u, iterations=sv.nfev, converged=converged,

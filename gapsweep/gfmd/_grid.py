@@ -17,6 +17,8 @@ import numpy as np
 from gapsweep.core.fft import available_backends, get_backend
 from gapsweep.core.vec import rdot
 
+_FLAT = 1e3 * np.finfo(np.float64).eps  # rms / |mean| below which a map is flat (round-off of its mean)
+
 
 def lengths(length: Any) -> tuple[float, float]:
     """``(Lx, Ly)`` from a number or a pair of numbers (validated by the caller)."""
@@ -147,6 +149,21 @@ class Grid:
 
     def all_finite(self, a: Any) -> bool:
         return self.agree(bool(self.xp.all(self.xp.isfinite(a))))
+
+    def centred(self, heights: Any) -> tuple[Any, float, float]:
+        """``(h - <h>, h_rms, g_ref)`` of a height map on this grid, refusing NaN/inf: ``g_ref``, the length
+        the hard-wall solvers measure their gap residual in, is ``h_rms``, or the pixel size for a flat map (its rms
+        no more than the round-off of removing its mean, which depends on the units' digits: a constant free map
+        would converge at one length unit, not at another). Units: those of ``heights``."""
+        h = self.asarray(heights)
+        if not self.all_finite(h):
+            raise ValueError("heights contain NaN or inf")
+        h_shift = self.mean(h)
+        h = h - h_shift
+        h_rms = math.sqrt(self.mean(h * h))
+        flat = not h_rms > _FLAT * abs(h_shift)
+        g_ref = min(self.lx / self.shape[0], self.ly / self.shape[1]) if flat else h_rms
+        return h, h_rms, g_ref
 
     def mode0(self, a: Any) -> complex:
         """The ``q = 0`` coefficient of the half spectrum ``a``."""

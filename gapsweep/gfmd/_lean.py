@@ -34,7 +34,7 @@ import numpy as np
 
 from gapsweep.core import deadline
 from gapsweep.gfmd._coarse import Start
-from gapsweep.gfmd._result import GFMDResult
+from gapsweep.gfmd._result import GFMDResult, final_status
 from gapsweep.gfmd._smooth import _STEP_TOL, _Solver, _stop, _wolfe, touching_gap
 
 log = logging.getLogger("gapsweep.gfmd")
@@ -380,11 +380,8 @@ def _lean_result(sv: LeanSolver, st: Any, status: str, sigma0: float, e_star: fl
         n2 = grid.size
         load_error = abs(p_sum / n2 - sigma0) / p_ref
     fields_ok = math.isfinite(residual) and grid.all_finite(gap) and grid.all_finite(p)
-    if not fields_ok:
-        status = "non_finite"
-    converged = fields_ok and status == "converged" and residual <= tol and load_error <= tol
-    if status == "converged" and not converged:
-        status = "stalled"
+    status, _ = final_status(status, fields_ok, residual, load_error, tol)
+    converged = status == "converged"
     log.debug("%s: %s after %d evaluations, residual %.3g", law.name, status, sv.nfev, residual)
     return GFMDResult(
         mean_gap=g_sum / n2, gap=gap, pressure=p, displacement=u, iterations=sv.nfev, converged=converged,

@@ -43,7 +43,7 @@ import numpy as np
 from gapsweep.core import deadline
 from gapsweep.gfmd._grid import FreeGrid, Grid
 from gapsweep.gfmd._ops import _is_cupy
-from gapsweep.gfmd._result import GFMDResult, host_fields
+from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status, host_fields
 from gapsweep.gfmd.interactions.base import Interaction
 
 METHODS = ("pk", "pcg", "mpcg")
@@ -316,13 +316,7 @@ def minimise(heights: Any, law: Interaction, *, hardness: float, sigma0: float, 
     host_fields(host)
     xp = grid.xp
     H = float(hardness)
-    h = grid.asarray(heights)
-    if not grid.all_finite(h):
-        raise ValueError("heights contain NaN or inf")
-    h_shift = grid.mean(h)
-    h = h - h_shift
-    h_rms = math.sqrt(grid.mean(h * h))
-    g_ref = h_rms if h_rms > 0 else min(grid.lx / grid.shape[0], grid.ly / grid.shape[1])
+    h, h_rms, g_ref = grid.centred(heights)  # g_ref: h_rms, or the pixel size on a flat map
     if periodic:
         with np.errstate(divide="ignore", invalid="ignore"):
             kinv = 1.0 / ((0.5 * e_star) * grid.q)
@@ -369,22 +363,17 @@ def minimise(heights: Any, law: Interaction, *, hardness: float, sigma0: float, 
         u_pl = xp.where(plastic, xp.maximum(-g, 0.0), 0.0)
         elastic = 0.5 * float(xp.mean(p * u))
     fields_ok = math.isfinite(residual) and grid.all_finite(p) and grid.all_finite(u)
-    if not fields_ok:
-        status = "non_finite"
-    converged = fields_ok and residual <= tol and load_error <= tol
-    if status == "converged" and not converged:
-        status = "stalled"
+    status, converged = final_status(status, fields_ok, residual, load_error, tol)
     area = int(xp.count_nonzero(p > 0)) / grid.size
     plastic_area = int(xp.count_nonzero(plastic)) / grid.size
     log.debug("plastic hard wall: %s after %d iterations, residual %.3g, area %.4g, plastic %.4g", status, it,
               residual, area, plastic_area)
-    fields = {"gap": gap, "pressure": p, "displacement": u}
-    fields.update(grid.to_host_many({k: fields[k] for k in host_fields(host)}))
+    gap_h, p_h, u_h = fields_to_host(grid, host, gap, p, u)
     if host is not False:
         u_pl = grid.to_host(u_pl)
     return GFMDResult(
-        mean_gap=float(xp.mean(gap)), gap=fields["gap"], pressure=fields["pressure"],
-        displacement=fields["displacement"], iterations=it, converged=converged, residual=residual,
+        mean_gap=float(xp.mean(gap)), gap=gap_h, pressure=p_h,
+        displacement=u_h, iterations=it, converged=converged, residual=residual,
         load_error=load_error, wall_time=time.perf_counter() - t_start, method=method, backend=grid.backend,
         status=status, sigma0=sigma0, e_star=e_star, length=length, tol=tol, history=history,
         interaction=law.name, params={**law.params(), "hardness": H}, contact_area=area,

@@ -13,6 +13,28 @@ from gapsweep.gfmd._ops import _is_cupy
 FIELDS = ("gap", "pressure", "displacement")
 
 
+def final_status(status: str, fields_ok: bool, residual: float, load_error: float, tol: float) -> tuple[str, bool]:
+    """The status a solver reports for its returned fields: "non_finite" when they (or the residual) are not
+    finite, "stalled" when the iteration said "converged" but the fields miss ``tol`` (residual or load error);
+    else the iteration's own. Returns ``(status, within)``, ``within``: the fields are finite and meet ``tol``
+    (the solver's ``converged`` is ``status == "converged"``, or ``within`` where the hard wall judges its fields
+    alone). One rule for every GFMD solver: a numerical failure is never stored as success."""
+    if not fields_ok:
+        status = "non_finite"
+    within = fields_ok and residual <= tol and load_error <= tol
+    if status == "converged" and not within:
+        status = "stalled"
+    return status, within
+
+
+def fields_to_host(mover: Any, host: Any, gap: Any, pressure: Any, displacement: Any) -> tuple[Any, Any, Any]:
+    """``(gap, pressure, displacement)`` with the fields ``host`` asks for (:func:`host_fields`) copied to the
+    host by ``mover.to_host_many`` (a grid or FFT pair) in one transfer; the others returned as they are."""
+    fields = dict(zip(FIELDS, (gap, pressure, displacement)))
+    fields.update(mover.to_host_many({k: fields[k] for k in host_fields(host)}))
+    return fields["gap"], fields["pressure"], fields["displacement"]
+
+
 def host_fields(host: Any) -> tuple[str, ...]:
     """The result fields a caller wants on the host: ``True`` all of :data:`FIELDS`, ``False`` none (a cupy
     run keeps them on the GPU), or an iterable of names from :data:`FIELDS` (only those are copied; the others

@@ -26,9 +26,10 @@ from typing import Any
 import numpy as np
 
 from gapsweep.core import deadline
+from gapsweep.gfmd._continuation import next_load, record
 from gapsweep.gfmd._grid import Grid
 from gapsweep.gfmd._ops import _is_cupy, remember_pair
-from gapsweep.gfmd._result import GFMDResult, host_fields
+from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status
 from gapsweep.gfmd.interactions.base import SmoothInteraction
 
 METHODS = ("lbfgs",)
@@ -277,10 +278,7 @@ class _Solver:
         status = "max_iter"
         while s_k > target and self.nfev < self.max_iter:
             attempts += 1
-            step = max(ds, target - s_k)
-            final = s_k + step <= target + 1e-12 * scale
-            s_new = target if final else s_k + step
-            step = s_new - s_k
+            s_new, step, final = next_load(s_k, ds, target, scale)
             Zp = Z_k if Z_prev is None else self._lin(Z_k, Z_prev, step / ds_prev)
             # A step on the branch converges in about as many evaluations as the steps before it; one that
             # takes many more is leaving it (a body peeling off slowly), and is cut short and halved.
@@ -320,9 +318,8 @@ class _Solver:
         else:
             if s_k > target:
                 status = "max_iter"
-        self.info.update({"continuation_from": s_from, "continuation_steps": accepted, "min_step": ds_min,
-                          "continuation_attempts": attempts, "jumps": jumps,
-                          "last_attached_load": target if status == "converged" else s_k})
+        record(self.info, s_from=s_from, accepted=accepted, ds_min=ds_min, attempts=attempts, jumps=jumps,
+               status=status, target=target, s_k=s_k)
         return st, status
 
 
@@ -420,15 +417,10 @@ def _result(sv: _Solver, st: _State, status: str, sigma0: float, e_star: float, 
         g0 = grid.mean(gap)
         e_int = grid.mean(law.energy(gap, xp))
     fields_ok = math.isfinite(residual) and grid.all_finite(gap) and grid.all_finite(p)
-    if not fields_ok:
-        status = "non_finite"
-    converged = fields_ok and status == "converged" and residual <= tol and load_error <= tol
-    if status == "converged" and not converged:
-        status = "stalled"
+    status, _ = final_status(status, fields_ok, residual, load_error, tol)
+    converged = status == "converged"
     log.debug("%s: %s after %d evaluations, residual %.3g", law.name, status, sv.nfev, residual)
-    fields = {"gap": gap, "pressure": p, "displacement": u}
-    fields.update(grid.to_host_many({k: fields[k] for k in host_fields(host)}))  # only those asked for
-    gap, p, u = fields["gap"], fields["pressure"], fields["displacement"]
+    gap, p, u = fields_to_host(grid, host, gap, p, u)  # only those asked for
     grid.synchronize()
     return GFMDResult(
         mean_gap=g0, gap=gap, pressure=p, displacement=u, iterations=sv.nfev, converged=converged,

@@ -11,7 +11,7 @@ import numpy as np
 
 from gapsweep.core.fft import available_backends, get_backend
 from gapsweep.gfmd._ops import _is_cupy
-from gapsweep.gfmd._result import FIELDS, GFMDResult, host_fields
+from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status, host_fields
 from gapsweep.gfmd._solvers import _RUNNERS, _half_q, _Problem
 from gapsweep.gfmd.interactions.exponential import Exponential
 
@@ -115,14 +115,9 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
         area = float(xp.count_nonzero(law.contact(gap, p))) / (n * n)
     load_error = abs(float(p.mean()) / sigma0 - 1.0)
     fields_ok = math.isfinite(g0) and bool(xp.all(xp.isfinite(gap))) and bool(xp.all(xp.isfinite(p)))
-    if not fields_ok:
-        status = "non_finite"
-    converged = status == "converged" and residual <= tol and load_error <= tol and fields_ok
-    if status == "converged" and not converged:
-        status = "stalled"
-    fields = dict(zip(FIELDS, (gap, p, u)))
-    fields.update(fft.to_host_many({k: fields[k] for k in host_fields(host)}))
-    gap, p, u = (fields[k] for k in FIELDS)
+    status, _ = final_status(status, fields_ok, residual, load_error, tol)
+    converged = status == "converged"
+    gap, p, u = fields_to_host(fft, host, gap, p, u)
     fft.synchronize()
     return GFMDResult(
         mean_gap=g0,
@@ -222,14 +217,9 @@ def _solve_lean(h: Any, h_mean: float, law: Exponential, fft: Any, ops: Any, *, 
         del U, pb
     load_error = abs(p_sum / (n * n) / sigma0 - 1.0)
     fields_ok = math.isfinite(g0) and n_bad == 0
-    if not fields_ok:
-        status = "non_finite"
-    converged = status == "converged" and residual <= tol and load_error <= tol and fields_ok
-    if status == "converged" and not converged:
-        status = "stalled"
-    fields = dict(zip(FIELDS, (gap, p, u)))
-    fields.update(fft.to_host_many({k: fields[k] for k in host_fields(host)}))
-    gap, p, u = (fields[k] for k in FIELDS)
+    status, _ = final_status(status, fields_ok, residual, load_error, tol)
+    converged = status == "converged"
+    gap, p, u = fields_to_host(fft, host, gap, p, u)
     fft.synchronize()
     return GFMDResult(
         mean_gap=g0, gap=gap, pressure=p, displacement=u, iterations=nfev, converged=converged,

@@ -34,7 +34,7 @@ from gapsweep.core.vec import rdot
 from gapsweep.gfmd._coarse import Start
 from gapsweep.gfmd._grid import Grid
 from gapsweep.gfmd._ops import _is_cupy
-from gapsweep.gfmd._result import FIELDS, GFMDResult, host_fields
+from gapsweep.gfmd._result import FIELDS, GFMDResult, final_status, host_fields
 from gapsweep.gfmd._solvers import _RUNNERS, _Problem
 from gapsweep.gfmd.interactions import Interaction, resolve
 
@@ -348,11 +348,8 @@ def _softmax(h, law: Any, grid: SlabGrid, *, sigma0: float, e_star: float, tol: 
         area = grid.count(law.contact(gap, p)) / n2
         load_error = abs(grid.mean(p) / sigma0 - 1.0)
     fields_ok = math.isfinite(g0) and grid.all_finite(gap) and grid.all_finite(p)
-    if not fields_ok:
-        status = "non_finite"
-    converged = status == "converged" and residual <= tol and load_error <= tol and fields_ok
-    if status == "converged" and not converged:
-        status = "stalled"
+    status, _ = final_status(status, fields_ok, residual, load_error, tol)
+    converged = status == "converged"
     scalars = dict(mean_gap=g0, iterations=nfev, converged=converged, residual=residual,
                    load_error=load_error, method=method, status=status, history=history, contact_area=area,
                    elastic_energy=elastic, diagnostics={"running_residual": history[-1] if history else math.inf})

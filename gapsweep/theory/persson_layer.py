@@ -45,6 +45,20 @@ def full_contact_variance(sp, e_star: float, thickness: float, poisson: float, b
     return float(e_star**2 / 4.0 * np.sum(sp.q**2 * sp.v * f**2))
 
 
+def _layer_inputs(sigma0: ArrayLike, thickness: float, poisson: float | None, bottom: str,
+                  e_star: float) -> tuple[tuple[float, float, str], np.ndarray, float]:
+    """The checked layer ``(thickness, poisson, bottom)`` (``poisson`` 0 by default with "slip"), ``sigma0`` and
+    ``e_star`` shared by :func:`contact_area` and :func:`mean_separation`; a clear error naming the field."""
+    if bottom == "slip" and poisson is None:
+        poisson = 0.0
+    if poisson is None:
+        raise ValueError("poisson is needed with bottom='bonded' (-1 < poisson < 0.5)")
+    layer = check_layer(thickness, poisson, bottom)
+    if layer is None:
+        raise ValueError(f"thickness must be a positive, finite number (a length), got {thickness!r}")
+    return layer, chk.positive_array(sigma0, "sigma0"), chk.positive(e_star, "e_star")
+
+
 def contact_area(sigma0: ArrayLike, *, thickness: float, poisson: float | None = None, bottom: str = "bonded",
                  hurst: float | None = None, lambda_l: float | None = None, lambda_s: float | None = None,
                  e_star: float = 1.0, rms_slope: float | None = None, rms_height: float | None = None,
@@ -54,15 +68,7 @@ def contact_area(sigma0: ArrayLike, *, thickness: float, poisson: float | None =
     """Relative contact area ``A/A0`` at mean pressure ``sigma0`` (units of ``e_star``) of a layer of thickness
     ``thickness`` (units of length), Poisson ratio ``poisson`` (needed for "bonded"), ``bottom`` "bonded" or
     "slip"; the spectrum's keywords and ``variant`` as :func:`gapsweep.theory.persson.contact_area`."""
-    if bottom == "slip" and poisson is None:
-        poisson = 0.0
-    if poisson is None:
-        raise ValueError("poisson is needed with bottom='bonded' (-1 < poisson < 0.5)")
-    layer = check_layer(thickness, poisson, bottom)
-    if layer is None:
-        raise ValueError(f"thickness must be a positive, finite number (a length), got {thickness!r}")
-    s = chk.positive_array(sigma0, "sigma0")
-    e_star = chk.positive(e_star, "e_star")
+    layer, s, e_star = _layer_inputs(sigma0, thickness, poisson, bottom, e_star)
     gam = persson._gamma(variant, gamma)
     sp = persson._spectrum(hurst, lambda_l, lambda_s, rms_slope, rms_height, c0, length, heights, periodic)
     v_c = full_contact_variance(sp, e_star, *layer)
@@ -82,15 +88,7 @@ def mean_separation(sigma0: ArrayLike, *, thickness: float, poisson: float | Non
     "slip" (module docstring; docs/theory.md "Persson's theory"): ``sigma0`` in units of ``e_star``, ``gamma`` the
     elastic-energy factor (0.42, Yang & Persson), the spectrum's keywords as
     :func:`gapsweep.theory.persson.mean_separation`. Vectorised over ``sigma0``."""
-    if bottom == "slip" and poisson is None:
-        poisson = 0.0
-    if poisson is None:
-        raise ValueError("poisson is needed with bottom='bonded' (-1 < poisson < 0.5)")
-    layer = check_layer(thickness, poisson, bottom)
-    if layer is None:
-        raise ValueError(f"thickness must be a positive, finite number (a length), got {thickness!r}")
-    s = chk.positive_array(sigma0, "sigma0")
-    e_star = chk.positive(e_star, "e_star")
+    layer, s, e_star = _layer_inputs(sigma0, thickness, poisson, bottom, e_star)
     gam = chk.real(gamma, "gamma")
     if not 0.0 < gam <= 1.5:
         raise ValueError(f"gamma must be in (0, 1.5], got {gamma!r}")

@@ -3,12 +3,14 @@ full disks. Every case asserts that nothing done was lost and that a resume reac
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -187,6 +189,18 @@ def kill(proc: subprocess.Popen, sig: int = signal.SIGKILL) -> None:
         os.kill(proc.pid, sig)
     except ProcessLookupError:
         pass
+
+
+@contextlib.contextmanager
+def reaped(proc: subprocess.Popen) -> Iterator[subprocess.Popen]:
+    """``with reaped(p): ...``: ``p`` is killed and waited for on the way out if it still runs (a failing assert
+    leaves no process behind)."""
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
 
 
 def finish(proc: subprocess.Popen, timeout: float = 60) -> tuple[int, str, str]:

@@ -9,12 +9,11 @@ Older formats carry no attribute checksums: ``status`` says they are not verifie
 
 from __future__ import annotations
 
-import shutil
-
 import h5py
 import pytest
 
 from gapsweep import store
+from tests.storekit import copy_store, flip_attr
 
 from .conftest import ROOT, gs, one_line_error
 
@@ -34,28 +33,6 @@ def ref(tmp_path_factory):
     return path
 
 
-def _copy(ref, tmp_path):
-    p = tmp_path / "s.h5"
-    shutil.copy(ref, p)
-    return p
-
-
-def flip_attr(path, name: str) -> None:
-    """Flip one bit of the attribute ``name`` (the lowest bit of its middle character, or of an integer; an empty
-    string gets one character), keeping its type."""
-    with h5py.File(path, "r+") as f:
-        v = f.attrs[name]
-        if isinstance(v, str):
-            b = bytearray(v.encode()) or bytearray(b"@")
-            i = len(b) // 2
-            while b[i] >= 0x80:  # an ASCII character: the flipped text stays valid UTF-8 (h5py can write it)
-                i += 1
-            b[i] ^= 1
-            f.attrs.modify(name, b.decode())
-        else:
-            f.attrs.modify(name, v ^ 1)
-
-
 def flip_task_id(path, row: int) -> None:
     """Flip one bit of the task id of ``row`` in /tasks (hex digits stay ASCII)."""
     with h5py.File(path, "r+") as f:
@@ -73,7 +50,7 @@ def test_every_attribute_is_listed(ref):
 
 @pytest.mark.parametrize("name", ATTRS)
 def test_flipped_attribute_is_named_by_status(ref, tmp_path, name):
-    path = _copy(ref, tmp_path)
+    path = copy_store(ref, tmp_path)
     flip_attr(path, name)
     before = path.read_bytes()
     p = gs("status", path, timeout=60)
@@ -99,7 +76,7 @@ def test_flipped_attribute_refused_by_every_command(ref, tmp_path, name):
     item 1: tests/test_store_damage.py): every command names the damage and goes on, the store untouched
     (--resume rebuilds them: test_resume_rebuilds_damaged_run_records)."""
     pytest.importorskip("xarray")
-    path = _copy(ref, tmp_path)
+    path = copy_store(ref, tmp_path)
     flip_attr(path, name)
     before = path.read_bytes()
     need = f"attribute {name!r} fails its checksum"
@@ -119,7 +96,7 @@ def test_flipped_attribute_refused_by_every_command(ref, tmp_path, name):
 
 def test_flipped_integrity_record_is_named(ref, tmp_path):
     """Named by status, which goes on (issue 40 item 1: the rows verify on their own checksums)."""
-    path = _copy(ref, tmp_path)
+    path = copy_store(ref, tmp_path)
     flip_attr(path, "integrity")
     p = gs("status", path, timeout=60)
     assert p.returncode == 0 and "attribute 'integrity'" in p.stdout and "damaged" in p.stdout, p.stdout + p.stderr
@@ -127,7 +104,7 @@ def test_flipped_integrity_record_is_named(ref, tmp_path):
 
 def test_removed_attribute_is_named(ref, tmp_path):
     """An attribute gone (e.g. `units`: the store would read as model units) is named, not taken as absent."""
-    path = _copy(ref, tmp_path)
+    path = copy_store(ref, tmp_path)
     with h5py.File(path, "r+") as f:
         del f.attrs["units"]
     p = gs("status", path, timeout=60)  # named, and status goes on (a spec attribute: issue 40 item 1)
@@ -141,7 +118,7 @@ def test_flipped_task_id(ref, tmp_path, status):
     out; --resume restores the id from the job and re-runs that row (the store then reads and merges). The old
     code refused a pending row's flip everywhere as "written for another job spec", --resume included."""
     pytest.importorskip("xarray")
-    path = _copy(ref, tmp_path)
+    path = copy_store(ref, tmp_path)
     if status == "pending":
         with h5py.File(path, "r+") as f:
             r = f["results"][...]
@@ -168,7 +145,7 @@ def test_flipped_task_id(ref, tmp_path, status):
 def test_resume_rebuilds_damaged_run_records(ref, tmp_path):
     """A flipped bit in `runs`: status names it, --resume starts a new list of run records (the rows are not
     affected) and the store verifies again."""
-    path = _copy(ref, tmp_path)
+    path = copy_store(ref, tmp_path)
     flip_attr(path, "runs")
     p = gs("status", path, timeout=60)
     assert "attribute 'runs' fails its checksum" in p.stdout + p.stderr

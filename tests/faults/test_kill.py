@@ -27,6 +27,7 @@ from .conftest import (
     kill,
     mpi_cmd,
     needs_mpi,
+    reaped,
     resume_to_ref,
 )
 
@@ -87,7 +88,7 @@ def test_kill9_mpi(tmp_path, refs, writer, victim):
     p = subprocess.Popen(mpi_cmd(2, "run", JOBS["theory"], "--store", path, "--writer", writer, "--progress",
                                  "none"), env=env(**hold.env(GAPSWEEP_TEST_PIDDIR=str(pids))),
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
+    with reaped(p):
         hold.wait(p)  # a rank holds after its 6th row: the kill meets a run that has not finished
         seen = done_rows(path)
         if victim == "mpiexec":
@@ -98,10 +99,6 @@ def test_kill9_mpi(tmp_path, refs, writer, victim):
             os.kill(int((pids / f"{victim}.pid").read_text()), signal.SIGKILL)
         hold.release()  # a surviving rank goes on (and is stopped by mpiexec)
         rc, _, _ = finish(p, timeout=60)  # never a hang
-    finally:
-        if p.poll() is None:
-            p.kill()
-            p.wait()
     assert rc != 0
     # Killing mpiexec -9 can orphan the ranks, which go on: while rank 0 lives its lease refuses every other
     # run; wait until it has finished or died.

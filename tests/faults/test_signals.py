@@ -13,6 +13,7 @@ import pytest
 
 from gapsweep import store
 from gapsweep.sweep import lease
+from tests.storekit import small_job
 
 from .conftest import (
     JOBS,
@@ -28,6 +29,7 @@ from .conftest import (
     gs_popen,
     mpi_cmd,
     needs_mpi,
+    reaped,
     resume_to_ref,
     wait_gone,
 )
@@ -70,7 +72,7 @@ def test_stop_mpi(tmp_path, refs, writer, how):
     p = subprocess.Popen(mpi_cmd(2, "run", JOBS["theory"], "--store", path, "--writer", writer, "--progress",
                                  "none"), env=env(**hold.env(GAPSWEEP_TEST_PIDDIR=str(pids))),
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
+    with reaped(p):
         hold.wait(p)
         seen = done_rows(path)
         if how == "stop-file":
@@ -85,10 +87,6 @@ def test_stop_mpi(tmp_path, refs, writer, how):
         t0 = time.monotonic()
         rc, _, err = finish(p, timeout=60)
         assert time.monotonic() - t0 < 30
-    finally:
-        if p.poll() is None:
-            p.kill()
-            p.wait()
     assert rc == 143, err
     assert_only_done_pending(path)
     assert_done_kept(seen, path)
@@ -297,16 +295,12 @@ def test_signal_to_mpiexec(tmp_path, refs, sig, target, task):
     it SIGKILLs the ranks: the interruption is recorded the moment the farm starts stopping."""
     path, hold = tmp_path / "s.h5", Hold(tmp_path / "hold", 4 if task == "short" else 2)
     p = _mpi_popen(path, delay="0.3" if task == "short" else "2", hold=hold)
-    try:
+    with reaped(p):
         hold.wait(p)
         seen = done_rows(path)
         _signal_mpi(p, sig, target)
         hold.release()
         rc, _, err = finish(p, timeout=60)
-    finally:
-        if p.poll() is None:
-            p.kill()
-            p.wait()
     assert rc != 0 and "Traceback" not in err, err
     if task == "short":
         assert "recorded as interrupted" in err
@@ -322,14 +316,10 @@ def test_signal_to_mpiexec_at_startup(tmp_path, refs, offset):
     the same clean end. The old code left a stale lease, a probe file and no record here (offset 0.8 s)."""
     path = tmp_path / "s.h5"
     p = _mpi_popen(path)
-    try:
+    with reaped(p):
         time.sleep(offset)
         _signal_mpi(p, signal.SIGTERM, "group")
         rc, _, err = finish(p, timeout=60)
-    finally:
-        if p.poll() is None:
-            p.kill()
-            p.wait()
     assert rc != 0 and "Traceback" not in err, err
     if not path.exists():  # the signal came before any rank ran gapsweep code: nothing started, nothing left
         assert sorted(x.name for x in tmp_path.iterdir()) == []
@@ -340,28 +330,13 @@ def test_signal_to_mpiexec_at_startup(tmp_path, refs, offset):
 
 # --- issue 40 item 6: a collective run stops on a signal to any rank; the start-up record survives a kill -------
 
-COLLECTIVE_JOB = """
-[job]
-name = "dist-signal"
-[grid]
-hurst = [0.8]
-rho = [2e-2]
-sigma0 = [1e-3, 3e-3, 1e-2, 3e-2, 1e-1, 3e-1]
-seeds = [0]
-[surface]
-lambda_l = 0.25
-lambda_s = 0.125
-rms_slope = 1.0
-[material]
-gamma0 = 1e-3
-[histogram]
-bins = 8
+COLLECTIVE_JOB = small_job("dist-signal", sigma0="[1e-3, 3e-3, 1e-2, 3e-2, 1e-1, 3e-1]", lambda_s=0.125, methods="""
 [methods.gfmd]
 n = 32
 tol = 1e-8
 backend = "numpy"
 distributed = true
-"""
+""")
 
 
 @needs_mpi
@@ -380,15 +355,11 @@ def test_collective_run_stops_on_a_signal_to_rank1(tmp_path, writer):
     p = subprocess.Popen(mpi_cmd(2, "run", job, "--store", path, "--writer", writer, "--progress", "none"),
                          env=env(**hold.env(GAPSWEEP_TEST_PIDDIR=str(pids))), stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, text=True)
-    try:
+    with reaped(p):
         hold.wait(p)
         os.kill(int((pids / "rank1.pid").read_text()), signal.SIGTERM)
         hold.release()
         rc, _, err = finish(p, timeout=120)
-    finally:
-        if p.poll() is None:
-            p.kill()
-            p.wait()
     assert rc == 143, err
     assert _last_run(path)["interrupted"] == "SIGTERM", _last_run(path)
     status = store.read(path).status
@@ -414,14 +385,10 @@ def test_killed_right_after_the_store_appears_it_names_its_run(tmp_path, refs, l
         cmd = mpi_cmd(2, "run", JOBS["theory"], "--store", path, "--writer", "rank0", "--progress", "none")
     p = subprocess.Popen(cmd, env=env(**hold.env()), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                          preexec_fn=os.setsid)
-    try:
+    with reaped(p):
         hold.wait(p)
         os.killpg(p.pid, signal.SIGKILL)
         p.wait(timeout=60)
-    finally:
-        if p.poll() is None:
-            p.kill()
-            p.wait()
     runs = json.loads(store.read_attrs(path)["runs"])
     assert len(runs) == 1 and runs[0]["run_id"] and runs[0]["finished"] is None, runs
     assert runs[0]["mpi_size"] == (1 if launch == "serial" else 2)

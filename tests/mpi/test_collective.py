@@ -22,35 +22,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.storekit import small_job
+
 pytestmark = [pytest.mark.skipif(shutil.which("mpiexec") is None, reason="mpiexec not installed"), pytest.mark.slow]
 
 ENV = {"OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
        "OMPI_MCA_rmaps_base_oversubscribe": "1", "PYTHONUNBUFFERED": "1"}
 ROOT = Path(__file__).resolve().parents[2]
 
-EXPONENTIAL = """
-[job]
-name = "dist-exp"
-[grid]
-hurst = [0.8]
-rho = [2e-2]
-sigma0 = [1e-3, 1e-2, 1e-1]
-seeds = [0]
-[surface]
-lambda_l = 0.25
-lambda_s = 0.0625
-rms_slope = 1.0
-[material]
-gamma0 = 1e-3
-[histogram]
-bins = 16
+EXPONENTIAL = small_job("dist-exp", sigma0="[1e-3, 1e-2, 1e-1]", bins=16, methods="""
 [methods.theory]
 forms = ["paper"]
 [methods.gfmd]
 n = 64
 tol = 1e-11
 backend = "numpy"
-"""
+""")
 
 ADHESIVE = """
 [job]

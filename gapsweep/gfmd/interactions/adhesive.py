@@ -15,29 +15,18 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from gapsweep.core import checks as chk
-from gapsweep.gfmd.interactions.base import SmoothInteraction
+from gapsweep.gfmd.interactions.base import AdhesionParams, SmoothInteraction
 
 __all__ = ["Adhesive"]
 
 
-class Adhesive(SmoothInteraction):
+class Adhesive(AdhesionParams, SmoothInteraction):
     """Exponential cohesive law (module docstring), on the generic smooth minimiser."""
 
     name: ClassVar[str] = "adhesive"
     contact_criterion: ClassVar[str] = "gap < rho (closer than the distance of the largest tensile stress)"
     allows_tensile: ClassVar[bool] = True
     convex: ClassVar[bool] = False  # phi'' < 0 beyond g = rho: branches end (pull-off, snap-in)
-
-    def __init__(self, work: float, rho: float) -> None:
-        self.work = chk.positive(work, "work")
-        self.rho = chk.positive(rho, "rho")
-
-    def params(self) -> dict[str, float]:
-        return {"work": self.work, "rho": self.rho}
-
-    def range(self) -> float:
-        return self.rho
 
     @property
     def max_tension(self) -> float:
@@ -60,8 +49,6 @@ class Adhesive(SmoothInteraction):
         # phi''(0) = w/rho^2: the stiffness of the bonded contact, the largest the law has at moderate load.
         return self.work / self.rho**2
 
-    def pressure_scale(self, sigma0: float) -> float:
-        return max(abs(sigma0), self.max_tension)
 
     def contact(self, gap: Any, pressure: Any) -> Any:
         return gap < self.rho

@@ -32,7 +32,7 @@ import numpy as np
 
 from gapsweep.core import checks as chk
 
-__all__ = ["Interaction", "SmoothInteraction"]
+__all__ = ["AdhesionParams", "Interaction", "SmoothInteraction"]
 
 
 class Interaction(abc.ABC):
@@ -101,3 +101,28 @@ class SmoothInteraction(Interaction):
     @abc.abstractmethod
     def stiffness(self, g: Any, xp: Any = np) -> Any:
         """``phi''(g) = -p'(g)`` (pressure per length); may be negative (non-convex laws)."""
+
+
+class AdhesionParams:
+    """The parameters an adhesive law shares, mixed in before its :class:`Interaction` base: the work of adhesion
+    ``w`` (``work``, energy per area) and the range ``rho`` (a length), both > 0. The subclass gives
+    ``max_tension`` (its largest tensile stress, pressure units); residuals are measured in
+    ``max(|sigma0|, max_tension)`` (tensile and zero loads allowed; docs/model.md "Adhesive", "Hard wall with
+    exponential adhesion"). The energy, pressure, curvature and contact criterion are the law's own."""
+
+    work: float
+    rho: float
+    max_tension: float
+
+    def __init__(self, work: float, rho: float) -> None:
+        self.work = chk.positive(work, "work")
+        self.rho = chk.positive(rho, "rho")
+
+    def params(self) -> dict[str, float]:
+        return {"work": self.work, "rho": self.rho}
+
+    def range(self) -> float:
+        return self.rho
+
+    def pressure_scale(self, sigma0: float) -> float:
+        return max(abs(sigma0), self.max_tension)

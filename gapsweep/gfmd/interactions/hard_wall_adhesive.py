@@ -17,13 +17,12 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from gapsweep.core import checks as chk
-from gapsweep.gfmd.interactions.base import Interaction
+from gapsweep.gfmd.interactions.base import AdhesionParams, Interaction
 
 __all__ = ["HardWallAdhesive"]
 
 
-class HardWallAdhesive(Interaction):
+class HardWallAdhesive(AdhesionParams, Interaction):
     """Non-overlap plus ``V(g) = -w exp(-g/rho)`` (module docstring)."""
 
     name: ClassVar[str] = "hard_wall_adhesive"
@@ -31,16 +30,6 @@ class HardWallAdhesive(Interaction):
     contact_criterion: ClassVar[str] = "g = 0 (the non-overlap bound is active)"
     allows_tensile: ClassVar[bool] = True
     convex: ClassVar[bool] = False  # V'' < 0 everywhere: branches end (pull-off, snap-in)
-
-    def __init__(self, work: float, rho: float) -> None:
-        self.work = chk.positive(work, "work")
-        self.rho = chk.positive(rho, "rho")
-
-    def params(self) -> dict[str, float]:
-        return {"work": self.work, "rho": self.rho}
-
-    def range(self) -> float:
-        return self.rho
 
     @property
     def max_tension(self) -> float:
@@ -63,8 +52,6 @@ class HardWallAdhesive(Interaction):
         # |V''(0)| = w/rho^2, the largest local (de)stiffening; the preconditioner uses the elastic part only.
         return self.work / self.rho**2
 
-    def pressure_scale(self, sigma0: float) -> float:
-        return max(abs(sigma0), self.max_tension)
 
     def mu_rho(self, dx: float, e_star: float) -> float:
         """Resolution measure of Wang, Zhou & Muser (Lubricants 9, 17, 2021): ``sqrt(max|V''| dx / E*)``;
