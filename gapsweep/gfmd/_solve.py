@@ -245,6 +245,9 @@ def _coarse_local(heights: Any, *, sigma0: float, interaction: Any, gamma0: Any,
     if not np.all(np.isfinite(h)):
         raise ValueError("heights contain NaN or inf")
     law = resolve(interaction, gamma0=gamma0, rho=rho, work=work)
+    if law.load_control == "bounded":  # as distributed.solve refuses it: no coarse levels for this law yet
+        raise ValueError(f"interaction {law.name!r}: start='coarse' (like comm=, the distributed solve) is not "
+                         "available for this law yet; use start='flat'")
     sigma0 = law.check_load(sigma0)
     tol = chk.positive(tol, "tol")
     lx, ly = (chk.positive(v, "length") for v in np.broadcast_to(np.asarray(length, dtype=float), 2))
