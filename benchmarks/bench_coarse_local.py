@@ -36,6 +36,13 @@ from gapsweep.gfmd import distributed  # noqa: E402
 from gapsweep.gfmd._coarse import SelfComm  # noqa: E402
 from gapsweep.surfaces.synthetic import self_affine  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _record  # noqa: E402
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/gfmd', 'gapsweep/surfaces']
+
 DX = 100.0 / 65536  # um: the challenge's pixel (bench_challenge_proxy.py)
 
 
@@ -114,4 +121,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS)
     main()

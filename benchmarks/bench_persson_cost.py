@@ -29,6 +29,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from gapsweep import gfmd, surface
 from gapsweep.theory import persson
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _record
+
+# the code this benchmark measures: a result measured before a later change to it is stale
+# (scripts/check_docs.py)
+CODE_PATHS = ['gapsweep/theory', 'gapsweep/gfmd', 'gapsweep/surfaces']
+
 MAPS = ((640, 0.75, 0.5, 100, 201), (768, 0.45, 0.5, 150, 202), (1024, 0.3, 0.25, 100, 203))
 PRESSURES = (1e-3, 1e-2, 0.1)
 
@@ -85,4 +92,5 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS)
     raise SystemExit(main())
