@@ -291,8 +291,9 @@ def available_backends() -> list[str]:
 
 
 def _current_device() -> int:
-    """The id of cupy's current CUDA device (the key of every per-device cache)."""
-    import cupy
+    """The id of cupy's current CUDA device (the key of every per-device cache); without cupy, the missing-extra
+    error that names the gpu extra."""
+    cupy = require("cupy", 'the GPU FFT backend (backend="cupy")')
 
     return int(cupy.cuda.Device().id)
 
