@@ -85,17 +85,15 @@ def elapsed() -> float:
     return time.monotonic() - T_START
 
 
-class GpuSampler:
-    """nvidia-smi's utilisation of every GPU every 0.5 s while a run goes on; mean per GPU index (``stop``), or
-    over a window of wall-clock time (``window``: the sweep without start-up)."""
+class _SmiPoller:
+    """One ``nvidia-smi --query-... -lms 500`` process read line by line on a thread (the two samplers below):
+    each line with ``fields`` comma-separated values and a numeric first one goes to :meth:`_take`."""
 
-    def __init__(self) -> None:
-        self.samples: dict[int, list[float]] = {}
-        self.timed: list[tuple[float, int, float]] = []  # (wall clock, GPU, utilisation [%])
+    def __init__(self, query: str, fields: int) -> None:
         self.proc = None
+        self._fields = fields
         if shutil.which("nvidia-smi"):
-            self.proc = subprocess.Popen(["nvidia-smi", "--query-gpu=index,utilization.gpu",
-                                          "--format=csv,noheader,nounits", "-lms", "500"],
+            self.proc = subprocess.Popen(["nvidia-smi", query, "--format=csv,noheader,nounits", "-lms", "500"],
                                          stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
             self.thread = threading.Thread(target=self._read, daemon=True)
             self.thread.start()
@@ -103,12 +101,38 @@ class GpuSampler:
     def _read(self) -> None:
         for line in self.proc.stdout:
             parts = [x.strip() for x in line.split(",")]
-            if len(parts) == 2 and parts[0].isdigit():
+            if len(parts) == self._fields and parts[0].isdigit():
                 try:
-                    self.samples.setdefault(int(parts[0]), []).append(float(parts[1]))
-                    self.timed.append((time.time(), int(parts[0]), float(parts[1])))
+                    self._take(parts)
                 except ValueError:
                     pass
+
+    def _take(self, parts: list[str]) -> None:
+        raise NotImplementedError
+
+    def _halt(self) -> bool:
+        """Stop the poller; False if none ran (no nvidia-smi)."""
+        if self.proc is None:
+            return False
+        self.proc.terminate()
+        self.proc.wait()
+        self.thread.join(timeout=5)
+        return True
+
+
+class GpuSampler(_SmiPoller):
+    """nvidia-smi's utilisation of every GPU every 0.5 s while a run goes on; mean per GPU index (``stop``), or
+    over a window of wall-clock time (``window``: the sweep without start-up)."""
+
+    def __init__(self) -> None:
+        self.samples: dict[int, list[float]] = {}
+        self.timed: list[tuple[float, int, float]] = []  # (wall clock, GPU, utilisation [%])
+        super().__init__("--query-gpu=index,utilization.gpu", 2)
+
+    def _take(self, parts: list[str]) -> None:
+        gpu, util = int(parts[0]), float(parts[1])
+        self.samples.setdefault(gpu, []).append(util)
+        self.timed.append((time.time(), gpu, util))
 
     def window(self, k: int, t0: float, t1: float) -> dict:
         """Mean utilisation per GPU over [t0, t1] and the share of its samples at >= 80 %."""
@@ -120,11 +144,8 @@ class GpuSampler:
         return {"mean_pct": mean, "share_ge_80pct": high}
 
     def stop(self, k: int) -> list[float | None]:
-        if self.proc is None:
+        if not self._halt():
             return []
-        self.proc.terminate()
-        self.proc.wait()
-        self.thread.join(timeout=5)
         return [round(statistics.fmean(self.samples[i]), 1) if self.samples.get(i) else None for i in range(k)]
 
 
@@ -334,45 +355,30 @@ def wait_no_mps(log, timeout: float = 20.0) -> float:
     return round(time.monotonic() - t0, 2)
 
 
-class AppSampler:
+class AppSampler(_SmiPoller):
     """Which processes hold a CUDA context on which GPU (``nvidia-smi --query-compute-apps`` every 0.5 s)."""
 
     def __init__(self) -> None:
         self.seen: dict[str, set[str]] = {}
         self.mem: dict[tuple[str, str], float] = {}
-        self.proc = None
         self.uuid: dict[str, str] = {}
-        if not shutil.which("nvidia-smi"):
-            return
-        try:
-            out = subprocess.run(["nvidia-smi", "--query-gpu=index,uuid", "--format=csv,noheader"],
-                                 capture_output=True, text=True, timeout=20).stdout
-            self.uuid = {u.strip(): i.strip() for i, u in (x.split(",") for x in out.splitlines() if "," in x)}
-        except (OSError, subprocess.SubprocessError, ValueError):
-            pass
-        self.proc = subprocess.Popen(["nvidia-smi", "--query-compute-apps=pid,gpu_uuid,used_memory",
-                                      "--format=csv,noheader,nounits", "-lms", "500"],
-                                     stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-        self.thread = threading.Thread(target=self._read, daemon=True)
-        self.thread.start()
+        if shutil.which("nvidia-smi"):
+            try:
+                out = subprocess.run(["nvidia-smi", "--query-gpu=index,uuid", "--format=csv,noheader"],
+                                     capture_output=True, text=True, timeout=20).stdout
+                self.uuid = {u.strip(): i.strip() for i, u in (x.split(",") for x in out.splitlines() if "," in x)}
+            except (OSError, subprocess.SubprocessError, ValueError):
+                pass
+        super().__init__("--query-compute-apps=pid,gpu_uuid,used_memory", 3)
 
-    def _read(self) -> None:
-        for line in self.proc.stdout:
-            parts = [x.strip() for x in line.split(",")]
-            if len(parts) == 3 and parts[0].isdigit():
-                gpu = self.uuid.get(parts[1], parts[1])
-                self.seen.setdefault(parts[0], set()).add(gpu)
-                try:
-                    self.mem[(parts[0], gpu)] = max(self.mem.get((parts[0], gpu), 0.0), float(parts[2]))
-                except ValueError:
-                    pass
+    def _take(self, parts: list[str]) -> None:
+        gpu = self.uuid.get(parts[1], parts[1])
+        self.seen.setdefault(parts[0], set()).add(gpu)
+        self.mem[(parts[0], gpu)] = max(self.mem.get((parts[0], gpu), 0.0), float(parts[2]))
 
     def stop(self) -> dict:
-        if self.proc is None:
+        if not self._halt():
             return {}
-        self.proc.terminate()
-        self.proc.wait()
-        self.thread.join(timeout=5)
         multi = {pid: sorted(g) for pid, g in self.seen.items() if len(g) > 1}
         return {"processes": len(self.seen), "on_several_gpus": multi,
                 "mib_on_other_gpus": {pid: {g: self.mem.get((pid, g)) for g in gs} for pid, gs in multi.items()}}
