@@ -54,7 +54,7 @@ if [ "${LONG:-0}" = 1 ]; then
   step peer env PYTHONPATH="$PWD" "$PEERS_PY" benchmarks/bench_gfmd.py peer --out "$SCRATCH/peer" &&
     keep "$SCRATCH/peer/peer.json" benchmarks/results/gfmd/peer.json
   # README "an error estimate that bounded the error at 72 of 72 new held-out points", the multiscale gap
-  # distribution's 34/36; docs/benchmarks*.md (~6 min with the GFMD references, which are re-solved here too:
+  # distribution's 34/36; docs/benchmarks*.md (~7 min: 5.7 min with cached GFMD references, which are re-solved here too:
   # their CPU seconds are the denominators of the cost ratios)
   step bounds_heldout $PY benchmarks/bench_bounds.py --set heldout --out "$SCRATCH/bounds" &&
     { keep "$SCRATCH/bounds/bounds_heldout.md" benchmarks/results/bounds/bounds_heldout.md
