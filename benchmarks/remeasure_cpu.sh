@@ -2,10 +2,11 @@
 # Re-measure, at the current code, the CPU figures that README.md and docs/benchmarks*.md cite from result files
 # measured before provenance records existed (issue 40 item 11). Run after the code freeze, on the project's
 # 2-core VM, from the repository root, with the code measured committed (the records name HEAD):
-#   bash benchmarks/remeasure_cpu.sh              # about 4 minutes: targets, cost, checksums
-#   LONG=1 bash benchmarks/remeasure_cpu.sh       # + the ContactMechanics comparison and the held-out bounds
-#                                                 #   (about 20 minutes more; PEERS_PY: a python with
-#                                                 #   ContactMechanics + Adhesion, default /work/peers/bin/python)
+#   bash benchmarks/remeasure_cpu.sh              # about 7 minutes: targets, cost, checksums, theory, vec, memory
+#   LONG=1 bash benchmarks/remeasure_cpu.sh       # + the ContactMechanics comparison, the held-out bounds and
+#                                                 #   the cost-left estimate (about 22 minutes more; PEERS_PY: a
+#                                                 #   python with ContactMechanics + Adhesion, default
+#                                                 #   /work/peers/bin/python; MPIEXEC: default mpiexec)
 # Each step writes into a scratch folder and copies its result over the cited file (with its provenance record:
 # the JSON's "provenance" key or the sidecar FILE.provenance.json). Then:
 #   python scripts/check_docs.py --debts
@@ -18,6 +19,8 @@ export OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THRE
 export PYTHONUNBUFFERED=1 PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"
 PY=${PYTHON:-python}
 PEERS_PY=${PEERS_PY:-/work/peers/bin/python}
+MPIEXEC=${MPIEXEC:-mpiexec}  # Open MPI: 3 and 4 ranks on 2 cores need oversubscription (set below)
+export OMPI_MCA_rmaps_base_oversubscribe=1 OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
 SCRATCH=$(mktemp -d /tmp/gapsweep_remeasure_cpu.XXXXXX)
 failed=0
 
@@ -49,7 +52,28 @@ step cost_cpu $PY benchmarks/bench_gfmd.py cost --out "$SCRATCH/cost" --n 1024 2
 step checksum sh -c "$PY benchmarks/bench_checksum.py --pairs 12 > '$SCRATCH/bench_checksum.txt'" &&
   keep "$SCRATCH/bench_checksum.txt" benchmarks/results/round3/bench_checksum.txt
 
+# docs/theory.md "field theory on one core" (~30 s)
+step theory $PY benchmarks/bench_theory.py --out "$SCRATCH/speed_vm.json" &&
+  keep "$SCRATCH/speed_vm.json" benchmarks/results/theory/speed_vm.json
+
+# docs/gfmd.md "CPU threads": BLAS against the single-threaded passes, idle and beside 2 busy processes (~1 min)
+step vec $PY benchmarks/bench_vec.py --load 0 2 --reps 10 --out "$SCRATCH/vec_2core.json" &&
+  keep "$SCRATCH/vec_2core.json" benchmarks/results/vec/vec_2core.json
+
+# docs/gfmd.md "One solve over several processes": memory per rank on 2 CPU ranks, and the in-place surface on
+# 1-4 ranks (~1.5 min together)
+step cpu_memory $MPIEXEC -n 2 $PY benchmarks/mem_distributed_cpu.py --out "$SCRATCH/cpu_memory.json" &&
+  keep "$SCRATCH/cpu_memory.json" benchmarks/results/distributed/cpu_memory.json
+step slab_surface sh -c "for P in 1 2 3 4; do $MPIEXEC -n \$P $PY benchmarks/mem_slab_surface.py --n 1024 --out '$SCRATCH/slab_surface_memory.json' || exit 1; done" &&
+  keep "$SCRATCH/slab_surface_memory.json" benchmarks/results/distributed/slab_surface_memory.json
+
 if [ "${LONG:-0}" = 1 ]; then
+  # docs/running.md "what a run still costs": the estimate after 45 s and after 15 s of jobs/demo.toml, each run
+  # then to its end (~2 min each)
+  step cost_left_45 $PY benchmarks/bench_cost_left.py --job jobs/demo.toml --stop-after 45 --out "$SCRATCH/demo_45s.json" &&
+    keep "$SCRATCH/demo_45s.json" benchmarks/results/cost_left/demo_45s.json
+  step cost_left_15 $PY benchmarks/bench_cost_left.py --job jobs/demo.toml --stop-after 15 --out "$SCRATCH/demo.json" &&
+    keep "$SCRATCH/demo.json" benchmarks/results/cost_left/demo.json
   # README "17-1735x faster than ContactMechanics + Adhesion at N = 1024" (~11 min: the peer's L-BFGS-B)
   step peer env PYTHONPATH="$PWD" "$PEERS_PY" benchmarks/bench_gfmd.py peer --out "$SCRATCH/peer" &&
     keep "$SCRATCH/peer/peer.json" benchmarks/results/gfmd/peer.json

@@ -2,6 +2,8 @@
 the result files they name (issue 29 item 5). Run by tests/test_docs.py (so by scripts/test.sh and CI):
 
     python scripts/check_docs.py            # exit 0, or 1 with one line per problem
+    python scripts/check_docs.py --debts    # also the unsourced sections and the results awaiting re-measurement
+    python scripts/check_docs.py --all-docs # also every other page of docs/ (not yet clean: a report)
 
 The convention (docs/benchmarks.md, "How numbers are checked"):
 
@@ -280,10 +282,11 @@ def check_file(md: Path, strict_sections: tuple[str, ...] = (), sourced: bool = 
     text = md.read_text(encoding="utf-8")
     problems: list[str] = []
     for head, line0, body in _sections(text):
-        errs, rest = check_links(md, body, line0 + 1, history)
+        first = line0 + 1 if head else line0  # the line number of the body's first line
+        errs, rest = check_links(md, body, first, history)
         if not history:
             for m in REMEASURE.finditer(CODE.sub("", body)):
-                MARKERS.append((f"{md.relative_to(ROOT)}:{line0 + 1 + CODE.sub('', body)[: m.start()].count(chr(10))}",
+                MARKERS.append((f"{md.relative_to(ROOT)}:{first + CODE.sub('', body)[: m.start()].count(chr(10))}",
                                 m[1]))
         problems += errs
         plain = CODE.sub("", rest)
@@ -294,7 +297,7 @@ def check_file(md: Path, strict_sections: tuple[str, ...] = (), sourced: bool = 
         if strict:
             for i, line in enumerate(plain.splitlines()):
                 for m in NUMBER.finditer(line):
-                    problems.append(f"{md.relative_to(ROOT)}:{line0 + 1 + i}: the number {m[2]!r} names no "
+                    problems.append(f"{md.relative_to(ROOT)}:{first + i}: the number {m[2]!r} names no "
                                     f"result file (a checked link, or a parameter in code)")
         elif UNSOURCED.search(bare):
             DEBTS.append(f"{md.relative_to(ROOT)}:{line0}: {head}: {UNSOURCED.search(bare)[1].strip()}")
@@ -310,7 +313,7 @@ def check_file(md: Path, strict_sections: tuple[str, ...] = (), sourced: bool = 
                 problems.append(f"{md.relative_to(ROOT)}:{line0}: names {p}, which does not exist")
             for base in (md.parent, ROOT):
                 if (base / p.rstrip(".,;:")).is_file():
-                    _cite(base / p.rstrip(".,;:"), md, body_lines, body[: pm.start()].count("\n"), line0 + 1,
+                    _cite(base / p.rstrip(".,;:"), md, body_lines, body[: pm.start()].count("\n"), first,
                           history)
                     break
     return problems
@@ -433,7 +436,10 @@ def check_provenance(files: dict[Path, list[tuple[str, frozenset[str], bool]]] |
     return problems
 
 
-def check(root: Path = ROOT) -> list[str]:
+def check(root: Path = ROOT, all_docs: bool = False) -> list[str]:
+    """Every problem of the checked docs (module docstring); ``all_docs``: also the other pages of docs/ (their
+    checked numbers and the provenance of the results they cite; not yet part of the default check, whose pages
+    are README.md, docs/benchmarks*.md and docs/history.md)."""
     DEBTS.clear()
     CITED.clear()
     WARNINGS.clear()
@@ -443,6 +449,10 @@ def check(root: Path = ROOT) -> list[str]:
         problems += check_file(md, sourced=True)
     if (root / HISTORY).is_file():
         problems += check_file(root / HISTORY, sourced=True, history=True)
+    if all_docs:
+        for md in sorted((root / "docs").glob("*.md")):
+            if not md.name.startswith("benchmarks") and md.resolve() != (root / HISTORY).resolve():
+                problems += check_file(md)
     if len(DEBTS) > KNOWN_DEBTS:
         problems.append(f"{len(DEBTS)} unsourced sections, more than the {KNOWN_DEBTS} known: source the new one")
     problems += check_provenance(CITED, root, MARKERS)
@@ -451,7 +461,7 @@ def check(root: Path = ROOT) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    problems = check()
+    problems = check(all_docs="--all-docs" in argv)
     for p in problems:
         print(p)
     if "--debts" in argv:
