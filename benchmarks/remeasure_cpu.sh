@@ -4,7 +4,7 @@
 # 2-core VM, from the repository root, with the code measured committed (the records name HEAD):
 #   bash benchmarks/remeasure_cpu.sh              # about 7 minutes: targets, cost, checksums, theory, vec, memory
 #   LONG=1 bash benchmarks/remeasure_cpu.sh       # + the ContactMechanics comparison, the held-out bounds and
-#                                                 #   the cost-left estimate (about 22 minutes more; PEERS_PY: a
+#                                                 #   the cost-left estimate and the tuning set (about 32 minutes more; PEERS_PY: a
 #                                                 #   python with ContactMechanics + Adhesion, default
 #                                                 #   /work/peers/bin/python; MPIEXEC: default mpiexec)
 # Each step writes into a scratch folder and copies its result over the cited file (with its provenance record:
@@ -25,7 +25,7 @@ SCRATCH=$(mktemp -d /tmp/gapsweep_remeasure_cpu.XXXXXX)
 failed=0
 
 keep() {  # keep SRC DST: the result and its sidecar record (a stale sidecar of DST removed)
-  [ -f "$1" ] || { echo "missing $1"; failed=1; return 1; }
+  [ -s "$1" ] || { echo "missing or empty: $1"; failed=1; return 1; }
   cp "$1" "$2"
   if [ -f "$1.provenance.json" ]; then cp "$1.provenance.json" "$2.provenance.json"; else rm -f "$2.provenance.json"; fi
 }
@@ -85,6 +85,13 @@ if [ "${LONG:-0}" = 1 ]; then
       keep "$SCRATCH/bounds/hybrid_heldout.csv" benchmarks/results/bounds/hybrid_heldout.csv
       keep "$SCRATCH/bounds/multiscale_heldout.csv" benchmarks/results/bounds/multiscale_heldout.csv
       keep "$SCRATCH/bounds/gfmd_heldout.json" benchmarks/results/bounds/gfmd_heldout.json; }
+  # docs/theory.md "Issue 30 re-measurement" (the tuning set) and the constants chosen on its ladders
+  # (~10 min: the tuning set's GFMD references re-solved, its ladders recorded, the choice replayed)
+  step bounds_tuning sh -c "$PY benchmarks/bench_bounds.py --set tuning --out '$SCRATCH/tuning' &&
+      $PY benchmarks/bench_bounds.py --set tuning --ladders --out '$SCRATCH/tuning' &&
+      $PY benchmarks/bench_bounds.py --choose --out '$SCRATCH/tuning'" &&
+    { keep "$SCRATCH/tuning/bounds_tuning.md" benchmarks/results/bounds/bounds_tuning.md
+      keep "$SCRATCH/tuning/choose_tuning.csv" benchmarks/results/bounds/choose_tuning.csv; }
 fi
 
 rm -rf "$SCRATCH"

@@ -30,7 +30,7 @@ fi
 if [ -n "${OUT:-}" ]; then mkdir -p "$OUT"; exec > >(tee "$OUT/remeasure_gpu.log") 2>&1; fi
 
 keep() {  # keep SRC DST: the result and its sidecar record (a stale sidecar of DST removed)
-  [ -f "$1" ] || { echo "missing $1"; failed=1; return 1; }
+  [ -s "$1" ] || { echo "missing or empty: $1"; failed=1; return 1; }
   cp "$1" "$2"
   KEPT+=("$2")
   if [ -f "$1.provenance.json" ]; then cp "$1.provenance.json" "$2.provenance.json"; KEPT+=("$2.provenance.json")
