@@ -2,7 +2,7 @@
 # Re-measure, at the current code, the GPU figures that README.md and docs/benchmarks*.md cite from result files
 # measured before provenance records existed (issue 40 item 11). Run after the code freeze on a lent node of one
 # NVIDIA H200 (the single-GPU steps) or four (all steps), from the repository root, with the code measured
-# committed; about 6 minutes on 4 H200 (estimates per step below, from the legacy runs' own timings):
+# committed; about 7 minutes on 4 H200 (estimates per step below, from the legacy runs' own timings):
 #   bash benchmarks/remeasure_gpu.sh
 # Needs python3 with numpy, scipy, h5py, cupy (CUDA 13; the image's cupy-cuda13x), numba optional, and for the
 # steps over several GPUs mpi4py with cupy's NCCL and Open MPI's mpiexec; no warp (the SDE step times the
@@ -53,8 +53,9 @@ git diff --quiet HEAD -- gapsweep 2>/dev/null || echo "warning: gapsweep/ differ
 # README "On one H200: N = 4096 in 0.008-0.061 s (fields left on the GPU)", all 15+15 cases (~1 min)
 step gpu4096 $PY benchmarks/bench_gfmd.py gpu --out "$SCRATCH/g" --n 4096 --all-cases &&
   keep "$SCRATCH/g/gpu.json" benchmarks/results/gfmd_limit/gpu4096_allcases_h200.json
-# README "N = 16384 in 0.27 s (32 GB), N = 32768 in 1.25 s (129 GB)": the memory part only (~1 min)
-step memory $PY benchmarks/bench_gfmd_limit.py --out "$SCRATCH/l" --tag new --parts memory &&
+# README "N = 16384 in 0.27 s (32 GB), N = 32768 in 1.25 s (129 GB)" (the memory part); docs/benchmarks.md
+# "a force evaluation <= 1.5 FFT pairs" (the pairs per evaluation of whole solves); the legacy run's parts (~1.5 min)
+step limit $PY benchmarks/bench_gfmd_limit.py --out "$SCRATCH/l" --tag new --parts surface pairs phases memory &&
   keep "$SCRATCH/l/new.json" benchmarks/results/gfmd_limit/new_h200.json
 # README "hard wall 0.12-1.2 s at N = 4096 on an H200" (~20 s: 44 + 85 + 418 iterations, 4 solves each)
 step hardwall $PY benchmarks/bench_contact.py gpu --out "$SCRATCH/cn" --n 4096 --sigma0 1e-3 1e-2 1e-1 --repeat 3 &&

@@ -34,13 +34,13 @@ The convention (docs/benchmarks.md, "How numbers are checked"):
   ``<!-- check: unsourced REASON -->``: it is listed as a debt (``--debts``), not a failure, and
   :data:`KNOWN_DEBTS` caps their number, so a new one fails the check until it is sourced or the cap is raised
   in review.
-* **Provenance** (issue 40): every result file the checked docs cite (a checked number's file, or a path they
-  name) records the commit of this repository it was measured at and the code paths it measures
-  (benchmarks/_record.py: a ``"provenance"`` key, a sidecar ``FILE.provenance.json`` or a ``# provenance:``
-  line). It fails the check when that commit is unknown to the repository, a code path did not exist at it, or
-  the code paths differ between that commit and HEAD (``git diff COMMIT HEAD -- PATHS``): the number is stale,
-  re-measure it or stop citing it. A cited file with no record is *unversioned* (measured before records
-  existed). It may be cited
+* **Provenance** (issue 40): every result file the checked docs cite (a checked number's file, a path they
+  name, or every file a stem they name starts with) records the commit of this repository it was measured at
+  and the code paths it measures (benchmarks/_record.py: a ``"provenance"`` key, a sidecar
+  ``FILE.provenance.json`` or a ``# provenance:`` line). It fails the check when that commit is unknown to the
+  repository, a code path did not exist at it, or the code paths differ between that commit and HEAD
+  (``git diff COMMIT HEAD -- PATHS``): the number is stale, re-measure it or stop citing it. A cited file with
+  no record is *unversioned* (measured before records existed). It may be cited
 
   - from ``docs/history.md`` (the dated record of figures not re-measured at the current code; also checked
     here, numbers against their files, but never judged stale), or
@@ -312,9 +312,14 @@ def check_file(md: Path, strict_sections: tuple[str, ...] = (), sourced: bool = 
             if not _exists(md, p.rstrip(".,;:")):
                 problems.append(f"{md.relative_to(ROOT)}:{line0}: names {p}, which does not exist")
             for base in (md.parent, ROOT):
-                if (base / p.rstrip(".,;:")).is_file():
-                    _cite(base / p.rstrip(".,;:"), md, body_lines, body[: pm.start()].count("\n"), first,
-                          history)
+                f = base / p.rstrip(".,;:")
+                # a file, or a stem naming a family of files (``contact_cpu_{a,b}``, ``hardwall_*``): each cited
+                family = [f] if f.is_file() else [x for x in f.parent.glob(glob_escape(f.name) + "*") if x.is_file()
+                                                  and not x.name.endswith(".provenance.json")] \
+                    if f.parent.is_dir() and not f.is_dir() else []
+                for x in family:
+                    _cite(x, md, body_lines, body[: pm.start()].count("\n"), first, history)
+                if family:
                     break
     return problems
 
