@@ -3,10 +3,13 @@
 # measured before provenance records existed (issue 40 item 11). Run after the code freeze, on the project's
 # 2-core VM, from the repository root, with the code measured committed (the records name HEAD):
 #   bash benchmarks/remeasure_cpu.sh              # about 7 minutes: targets, cost, checksums, theory, vec, memory
-#   LONG=1 bash benchmarks/remeasure_cpu.sh       # + the ContactMechanics comparison, the held-out bounds and
-#                                                 #   the cost-left estimate and the tuning set (about 32 minutes more; PEERS_PY: a
-#                                                 #   python with ContactMechanics + Adhesion, default
+#   LONG=1 bash benchmarks/remeasure_cpu.sh       # + about 37 minutes: the ContactMechanics comparison, the
+#                                                 #   held-out bounds, the cost-left estimate, the tuning set and
+#                                                 #   the issue-39 hard wall against tamaas (PEERS_PY: a python
+#                                                 #   with ContactMechanics, Adhesion and tamaas, default
 #                                                 #   /work/peers/bin/python; MPIEXEC: default mpiexec)
+# Results cited with a provenance record that a code change made stale are listed by check_docs with the command
+# that measured them (re-run those too; the issue-39 hard-wall step here is one of them).
 # Each step writes into a scratch folder and copies its result over the cited file (with its provenance record:
 # the JSON's "provenance" key or the sidecar FILE.provenance.json). Then:
 #   python scripts/check_docs.py --debts
@@ -77,6 +80,14 @@ if [ "${LONG:-0}" = 1 ]; then
   # README "17-1735x faster than ContactMechanics + Adhesion at N = 1024" (~11 min: the peer's L-BFGS-B)
   step peer env PYTHONPATH="$PWD" "$PEERS_PY" benchmarks/bench_gfmd.py peer --out "$SCRATCH/peer" &&
     keep "$SCRATCH/peer/peer.json" benchmarks/results/gfmd/peer.json
+  # README "Hard wall: agrees with tamaas to < 1e-9 ... 8.0-19.0x less CPU time than tamaas on one core at
+  # N = 1024 on 12 held-out cases" (~5 min, mostly tamaas; recorded at 56b6ea2: re-run when gapsweep/gfmd or
+  # gapsweep/surfaces changed since, which check_docs reports as stale)
+  step contact_issue39 env PYTHONPATH="$PWD" "$PEERS_PY" benchmarks/bench_contact.py cpu --out "$SCRATCH/contact" \
+      --n 1024 --hurst 0.4 0.8 --seeds 2 3 --sigma0 5e-3 1e-2 3e-2 --methods mpcg mpcg:restart --peers tamaas \
+      --name issue39_contact_cpu_1024 &&
+    { keep "$SCRATCH/contact/issue39_contact_cpu_1024.json" benchmarks/results/contact/issue39_contact_cpu_1024.json
+      keep "$SCRATCH/contact/issue39_contact_cpu_1024.md" benchmarks/results/contact/issue39_contact_cpu_1024.md; }
   # README "an error estimate that bounded the error at 72 of 72 new held-out points", the multiscale gap
   # distribution's 34/36; docs/benchmarks*.md (~7 min: 5.7 min with cached GFMD references, which are re-solved here too:
   # their CPU seconds are the denominators of the cost ratios)

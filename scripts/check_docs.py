@@ -437,7 +437,8 @@ def check_provenance(files: dict[Path, list[tuple[str, frozenset[str], bool]]] |
         if _git_ok(root, "diff", "--quiet", commit, "HEAD", "--", *paths) is None:
             last = _git_ok(root, "log", "-1", "--format=%h %cs", "HEAD", "--", *paths) or "?"
             problems.append(f"{rel}: stale: measured at {commit[:12]}, and {', '.join(paths)} changed since (last "
-                            f"change {last}): re-measure it or stop citing it")
+                            f"change {last}): re-measure it or stop citing it (its command: `{rec.get('command')}`, "
+                            f"from {rec.get('cwd', '?')})")
     return problems
 
 
