@@ -168,6 +168,8 @@ def test_unversioned_results_only_in_history_or_beside_a_remeasure_marker(tmp_pa
 
     out = run(f"- solve in {link}")
     assert len(out) == 1 and out[0].startswith("README.md:5: cites benchmarks/results/legacy.json"), out
+    out = run("- raw: `benchmarks/results/leg`")  # a stem cites every file it starts with
+    assert len(out) == 1 and "cites benchmarks/results/legacy.json" in out[0], out
     out = run(f"- solve in {link} {mark}")  # marked, but no remeasure script writes it
     assert len(out) == 1 and "which benchmarks/remeasure_cpu.sh or benchmarks/remeasure_gpu.sh does not write" in out[0]
     script.write_text("python b.py > benchmarks/results/legacy.json\n")
