@@ -2,10 +2,13 @@
 # Re-measure, at the current code, the CPU figures that README.md and docs/benchmarks*.md cite from result files
 # measured before provenance records existed (issue 40 item 11). Run after the code freeze, on the project's
 # 2-core VM, from the repository root, with the code measured committed (the records name HEAD):
-#   bash benchmarks/remeasure_cpu.sh              # about 7 minutes: targets, cost, checksums, theory, vec, memory
-#   LONG=1 bash benchmarks/remeasure_cpu.sh       # + about 37 minutes: the ContactMechanics comparison, the
-#                                                 #   held-out bounds, the cost-left estimate, the tuning set and
-#                                                 #   the issue-39 hard wall against tamaas (PEERS_PY: a python
+#   bash benchmarks/remeasure_cpu.sh              # about 9 minutes: targets, cost, checksums, theory, vec,
+#                                                 #   memory, Persson against converged GFMD
+#   LONG=1 bash benchmarks/remeasure_cpu.sh       # + about an hour: the ContactMechanics comparison, the
+#                                                 #   held-out bounds, the cost-left estimate, the tuning set,
+#                                                 #   the issue-39 hard wall against tamaas, the predictor
+#                                                 #   studies of docs/theory.md, the challenge proxy and the
+#                                                 #   leak-rate study (PEERS_PY: a python
 #                                                 #   with ContactMechanics, Adhesion and tamaas, default
 #                                                 #   /work/peers/bin/python; MPIEXEC: default mpiexec)
 # Results cited with a provenance record that a code change made stale are listed by check_docs with the command
@@ -70,7 +73,42 @@ step cpu_memory $MPIEXEC -n 2 $PY benchmarks/mem_distributed_cpu.py --out "$SCRA
 step slab_surface sh -c "for P in 1 2 3 4; do $MPIEXEC -n \$P $PY benchmarks/mem_slab_surface.py --n 1024 --out '$SCRATCH/slab_surface_memory.json' || exit 1; done" &&
   keep "$SCRATCH/slab_surface_memory.json" benchmarks/results/distributed/slab_surface_memory.json
 
+# docs/theory.md "Against converged hard-wall GFMD": Persson's area and gap against GFMD extrapolated in N (~1.3 min)
+step persson_converged $PY -m studies.persson_converged --out "$SCRATCH/pc" &&
+  { keep "$SCRATCH/pc/persson_converged.md" docs/results/persson_converged.md
+    keep "$SCRATCH/pc/persson_converged.csv" docs/results/persson_converged.csv; }
+
 if [ "${LONG:-0}" = 1 ]; then
+  # docs/theory.md: the predictors against fresh GFMD on the held-out, fresh, large and tuning sets and the wider
+  # grid (~3.1, 4.8, 3.0, 2.7 min and ~2 min)
+  for set in heldout fresh large tuning; do
+    step "predictors_$set" $PY -m studies.predictors_heldout --set $set --out "$SCRATCH/pred" &&
+      { keep "$SCRATCH/pred/predictors_$set.md" "docs/results/predictors_$set.md"
+        keep "$SCRATCH/pred/predictors_${set}_points.csv" "docs/results/predictors_${set}_points.csv"
+        keep "$SCRATCH/pred/gap_distribution_$set.csv" "docs/results/gap_distribution_$set.csv"; }
+  done
+  # (the files above, spelt out for scripts/check_docs.py: docs/results/predictors_heldout.md,
+  # docs/results/predictors_fresh.md, docs/results/predictors_large.md, docs/results/predictors_tuning.md)
+  step predictors_wide $PY -m studies.predictors_wide --seeds 2 --out "$SCRATCH/pred" &&
+    { keep "$SCRATCH/pred/predictors_wide.md" docs/results/predictors_wide.md
+      keep "$SCRATCH/pred/predictors_wide.csv" docs/results/predictors_wide.csv; }
+  # docs/gfmd.md "Coarse-to-fine start": force evaluations of the plain and the coarse start on a CPU proxy of the
+  # challenge, one core and 2 ranks (counts, not times; not timed before: the plain 4096^2 exponential solve on
+  # one core takes longest, likely several minutes)
+  step challenge_proxy $PY benchmarks/bench_challenge_proxy.py --case exp-1024 adh-1024 exp-2048-s2 adh-512-s2 \
+      exp-4096 --out "$SCRATCH/challenge_proxy.json" &&
+    keep "$SCRATCH/challenge_proxy.json" benchmarks/results/distributed/challenge_proxy.json
+  step challenge_proxy_mpi2 $MPIEXEC -n 2 $PY benchmarks/bench_challenge_proxy.py --case exp-1024 adh-512-s2 \
+      --out "$SCRATCH/challenge_proxy_mpi2.json" &&
+    keep "$SCRATCH/challenge_proxy_mpi2.json" benchmarks/results/distributed/challenge_proxy_mpi2.json
+  # docs/model.md "Leak rate against load": the shipped jobs leakage and leakage_measured, then the study
+  # (a few minutes; not timed before)
+  step leakage sh -c "$PY -m gapsweep run leakage --store '$SCRATCH/leak.h5' &&
+      $PY -m gapsweep run leakage_measured --store '$SCRATCH/leak_measured.h5' &&
+      $PY -m studies.leakage '$SCRATCH/leak.h5' '$SCRATCH/leak_measured.h5' --out '$SCRATCH/flow'" &&
+    { keep "$SCRATCH/flow/leakage.csv" docs/results/flow/leakage.csv
+      keep "$SCRATCH/flow/leakage.json" docs/results/flow/leakage.json
+      keep "$SCRATCH/flow/leakage.png" docs/results/flow/leakage.png; }
   # docs/running.md "what a run still costs": the estimate after 45 s and after 15 s of jobs/demo.toml, each run
   # then to its end (~2 min each)
   step cost_left_45 $PY benchmarks/bench_cost_left.py --job jobs/demo.toml --stop-after 45 --out "$SCRATCH/demo_45s.json" &&

@@ -1,9 +1,10 @@
-"""Docs that cannot drift: check the numbers quoted in README.md ("At a glance") and docs/benchmarks*.md against
-the result files they name (issue 29 item 5). Run by tests/test_docs.py (so by scripts/test.sh and CI):
+"""Docs that cannot drift: check the numbers quoted in README.md and the pages of docs/ (docs/benchmarks*.md,
+docs/history.md and every other page; not docs/results/, which holds results) against the result files they name
+(issue 29 item 5), and the provenance of those files (issue 40). Run by tests/test_docs.py (so by scripts/test.sh
+and CI):
 
     python scripts/check_docs.py            # exit 0, or 1 with one line per problem
     python scripts/check_docs.py --debts    # also the unsourced sections and the results awaiting re-measurement
-    python scripts/check_docs.py --all-docs # also every other page of docs/ (not yet clean: a report)
 
 The convention (docs/benchmarks.md, "How numbers are checked"):
 
@@ -442,10 +443,9 @@ def check_provenance(files: dict[Path, list[tuple[str, frozenset[str], bool]]] |
     return problems
 
 
-def check(root: Path = ROOT, all_docs: bool = False) -> list[str]:
-    """Every problem of the checked docs (module docstring); ``all_docs``: also the other pages of docs/ (their
-    checked numbers and the provenance of the results they cite; not yet part of the default check, whose pages
-    are README.md, docs/benchmarks*.md and docs/history.md)."""
+def check(root: Path = ROOT) -> list[str]:
+    """Every problem of the checked docs (module docstring): README.md and every page of docs/ (not docs/results/,
+    the results themselves, nor the generated API reference)."""
     DEBTS.clear()
     CITED.clear()
     WARNINGS.clear()
@@ -455,10 +455,9 @@ def check(root: Path = ROOT, all_docs: bool = False) -> list[str]:
         problems += check_file(md, sourced=True)
     if (root / HISTORY).is_file():
         problems += check_file(root / HISTORY, sourced=True, history=True)
-    if all_docs:
-        for md in sorted((root / "docs").glob("*.md")):
-            if not md.name.startswith("benchmarks") and md.resolve() != (root / HISTORY).resolve():
-                problems += check_file(md)
+    for md in sorted((root / "docs").glob("*.md")):  # the other pages: their checked numbers and citations
+        if not md.name.startswith("benchmarks") and md.resolve() != (root / HISTORY).resolve():
+            problems += check_file(md)
     if len(DEBTS) > KNOWN_DEBTS:
         problems.append(f"{len(DEBTS)} unsourced sections, more than the {KNOWN_DEBTS} known: source the new one")
     problems += check_provenance(CITED, root, MARKERS)
@@ -467,7 +466,7 @@ def check(root: Path = ROOT, all_docs: bool = False) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    problems = check(all_docs="--all-docs" in argv)
+    problems = check()
     for p in problems:
         print(p)
     if "--debts" in argv:

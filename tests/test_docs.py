@@ -74,14 +74,11 @@ def test_sourced_sections_of_the_benchmark_pages(fake):
     assert any("gone.json, which does not exist" in p for p in out)
 
 
-def test_other_pages_are_checked_on_request(fake, tmp_path):
-    """--all-docs: the other pages of docs/ too (their checked numbers); by default they are not checked yet."""
+def test_other_pages_are_checked(fake, tmp_path):
+    """The other pages of docs/ too: their checked numbers (and the provenance of what they cite)."""
     (tmp_path / "docs" / "theory.md").write_text(
         "# T\n\nfast: [0.25 s](../benchmarks/results/r.json#rows[n=1024].t_s)\n")
-    assert fake("- none") == []
-    cd = _checker()
-    cd.ROOT = tmp_path
-    out = cd.check(tmp_path, all_docs=True)
+    out = fake("- none")
     assert len(out) == 1 and out[0].startswith("docs/theory.md:3: quoted '0.25 s'"), out
 
 
