@@ -2,8 +2,8 @@
 # Re-measure, at the current code, the CPU figures that README.md and docs/benchmarks*.md cite from result files
 # measured before provenance records existed (issue 40 item 11). Run after the code freeze, on the project's
 # 2-core VM, from the repository root, with the code measured committed (the records name HEAD):
-#   bash benchmarks/remeasure_cpu.sh              # about 9 minutes: targets, cost, checksums, theory, vec,
-#                                                 #   memory, Persson against converged GFMD
+#   bash benchmarks/remeasure_cpu.sh              # about 11 minutes: targets, cost, checksums, sweep
+#                                                 #   overhead, theory, vec, memory, Persson against converged GFMD
 #   LONG=1 bash benchmarks/remeasure_cpu.sh       # + about an hour: the ContactMechanics comparison, the
 #                                                 #   held-out bounds, the cost-left estimate, the tuning set,
 #                                                 #   the issue-39 hard wall against tamaas, the predictor
@@ -57,6 +57,13 @@ step cost_cpu $PY benchmarks/bench_gfmd.py cost --out "$SCRATCH/cost" --n 1024 2
 # of ~2 s); the result is the script's output, its record the first line
 step checksum sh -c "$PY benchmarks/bench_checksum.py --pairs 12 > '$SCRATCH/bench_checksum.txt'" &&
   keep "$SCRATCH/bench_checksum.txt" benchmarks/results/round3/bench_checksum.txt
+
+# docs/benchmarks.md "Sweep overhead" (an unsourced section until now: its raw output was not kept): 10^4
+# theory tasks on 1 rank, then 2 and 4 MPI ranks (~1.5 min); it writes benchmarks/results/sweep/overhead.json
+# and overhead.md (new files: then cite them there and drop that section's unsourced comment)
+step overhead $PY benchmarks/bench_sweep_overhead.py --out "$SCRATCH/overhead" --mpi 2 4 &&
+  { keep "$SCRATCH/overhead/overhead.json" benchmarks/results/sweep/overhead.json
+    keep "$SCRATCH/overhead/overhead.md" benchmarks/results/sweep/overhead.md; }
 
 # docs/theory.md "field theory on one core" (~30 s)
 step theory $PY benchmarks/bench_theory.py --out "$SCRATCH/speed_vm.json" &&
