@@ -36,8 +36,10 @@ keep() {  # keep SRC DST: the result and its sidecar record (a stale sidecar of 
   if [ -f "$1.provenance.json" ]; then cp "$1.provenance.json" "$2.provenance.json"; else rm -f "$2.provenance.json"; fi
 }
 
-step() {  # step NAME COMMAND...: run, timed, logged; a failure is reported and the rest goes on
+step() {  # step NAME COMMAND...: run, timed, logged; a failure is reported and the rest goes on;
+          # ONLY="NAME ..." runs the steps named there alone
   local name=$1; shift
+  if [ -n "${ONLY:-}" ] && [[ " $ONLY " != *" $name "* ]]; then echo "== $name: not in ONLY, skipped"; return 1; fi
   echo "== $name: $*"
   local t0=$SECONDS
   if "$@"; then echo "== $name: done in $((SECONDS - t0)) s"; else echo "== $name: FAILED"; failed=1; return 1; fi

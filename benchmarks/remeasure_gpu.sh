@@ -11,6 +11,8 @@
 # comes back: the results go to their paths and into one archive $OUT/remeasure_gpu.tgz (with the log
 # $OUT/remeasure_gpu.log), unpacked here from the repository root with `tar xzf DIR/remeasure_gpu.tgz`:
 #   GAPSWEEP_COMMIT=$(git rev-parse HEAD) OUT=/some/dir bash benchmarks/remeasure_gpu.sh
+# Steps (ONLY="..." picks some): gpu4096 limit hardwall sde cost_gpu (one GPU, ~4.5 min), challenge_x2
+# (2 GPUs, ~1 min), challenge_x4 (4 GPUs, ~1.5 min).
 # Then `python scripts/check_docs.py --debts` lists the numbers to update and the markers to drop (as for
 # benchmarks/remeasure_cpu.sh).
 set -uo pipefail
@@ -37,8 +39,10 @@ keep() {  # keep SRC DST: the result and its sidecar record (a stale sidecar of 
   else rm -f "$2.provenance.json"; fi
 }
 
-step() {  # step NAME COMMAND...: run, timed, logged; a failure is reported and the rest goes on
+step() {  # step NAME COMMAND...: run, timed, logged; a failure is reported and the rest goes on;
+          # ONLY="NAME ..." runs the steps named there alone
   local name=$1; shift
+  if [ -n "${ONLY:-}" ] && [[ " $ONLY " != *" $name "* ]]; then echo "== $name: not in ONLY, skipped"; return 1; fi
   echo "== $name: $*"
   local t0=$SECONDS
   if "$@"; then echo "== $name: done in $((SECONDS - t0)) s"; else echo "== $name: FAILED"; failed=1; return 1; fi
