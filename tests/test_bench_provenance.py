@@ -11,6 +11,7 @@ import ast
 import importlib.util
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -220,6 +221,22 @@ def test_every_benchmark_script_tracks_its_provenance():
         main = next(n for n in tree.body if isinstance(n, ast.If) and "__main__" in ast.unparse(n.test))
         first = ast.unparse(main.body[0])
         assert first.startswith("_record.track(CODE_PATHS"), (p.name, first)
+
+
+def test_studies_behind_cited_results_track_their_provenance():
+    """The studies whose docs/results files the docs cite (and benchmarks/remeasure_cpu.sh re-runs) name existing
+    CODE_PATHS and call studies.track(CODE_PATHS) first thing under ``if __name__ == "__main__":``."""
+    script = (ROOT / "benchmarks" / "remeasure_cpu.sh").read_text(encoding="utf-8")
+    names = sorted(set(re.findall(r"-m studies\.(\w+)", script)))
+    assert {"persson_converged", "predictors_heldout", "predictors_wide", "leakage"} <= set(names), names
+    for name in names:
+        tree = ast.parse((ROOT / "studies" / f"{name}.py").read_text(encoding="utf-8"))
+        paths = next((ast.literal_eval(n.value) for n in tree.body if isinstance(n, ast.Assign)
+                      and any(getattr(t, "id", "") == "CODE_PATHS" for t in n.targets)), None)
+        assert paths and all((ROOT / x).exists() for x in paths), (name, paths)
+        main = next(n for n in tree.body if isinstance(n, ast.If) and "__main__" in ast.unparse(n.test))
+        calls = [ast.unparse(x) for x in main.body if not isinstance(x, ast.Import)]
+        assert calls[0] == "studies.track(CODE_PATHS)", (name, calls[0])
 
 
 def test_a_benchmark_run_stamps_its_result(tmp_path):
