@@ -45,8 +45,8 @@ The convention (docs/benchmarks.md, "How numbers are checked"):
 
   - from ``docs/history.md`` (the dated record of figures not re-measured at the current code; also checked
     here, numbers against their files, but never judged stale), or
-  - where a comment ``<!-- remeasure: PATH -->`` names it in the citing *scope* -- the table row, or the
-    paragraph / list (lines between blank lines) -- and ``benchmarks/remeasure_cpu.sh`` or
+  - where a comment ``<!-- remeasure: PATH -->`` names it in the citing *scope* -- the table row, the list
+    item, or the paragraph (lines between blank lines) -- and ``benchmarks/remeasure_cpu.sh`` or
     ``benchmarks/remeasure_gpu.sh`` writes PATH: a debt (listed by ``--debts``) until that script has run and
     PATH carries a record; a marker whose PATH then carries one fails (check the numbers, drop the marker), as
     does a marker naming a file that no remeasure script writes.
@@ -233,17 +233,26 @@ def _target(md: Path, dest: str) -> tuple[Path, str] | None:
     return (md.parent / path).resolve(), key
 
 
+ITEM = re.compile(r"\s*(?:[-*+]|\d+[.)])\s")  # a line that starts a list item
+
+
 def _scope_marks(lines: list[str], i: int) -> frozenset[str]:
-    """The files named by ``<!-- remeasure: PATH -->`` comments in the scope of line ``i``: its table row, or
-    its paragraph / list (the lines between blank lines, table rows excluded)."""
+    """The files named by ``<!-- remeasure: PATH -->`` comments in the scope of line ``i``: its table row, its
+    list item (the bullet's line and its continuation lines), or its paragraph (the lines between blank lines)."""
+    def marks(line: str) -> list[str]:
+        return REMEASURE.findall(CODE.sub("", line))
+
+    def edge(line: str) -> bool:  # a line no scope crosses
+        return not line.strip() or line.lstrip().startswith(("|", "#"))
+
     if lines[i].lstrip().startswith("|"):
-        return frozenset(REMEASURE.findall(CODE.sub("", lines[i])))
+        return frozenset(marks(lines[i]))
     lo = hi = i
-    while lo > 0 and lines[lo - 1].strip() and not lines[lo - 1].lstrip().startswith(("|", "#")):
+    while lo > 0 and not ITEM.match(lines[lo]) and not edge(lines[lo - 1]):
         lo -= 1
-    while hi + 1 < len(lines) and lines[hi + 1].strip() and not lines[hi + 1].lstrip().startswith(("|", "#")):
+    while hi + 1 < len(lines) and not edge(lines[hi + 1]) and not ITEM.match(lines[hi + 1]):
         hi += 1
-    return frozenset(x for line in lines[lo:hi + 1] for x in REMEASURE.findall(CODE.sub("", line)))
+    return frozenset(x for line in lines[lo:hi + 1] for x in marks(line))
 
 
 def _cite(path: Path, md: Path, lines: list[str], i: int, line0: int, history: bool) -> None:

@@ -176,6 +176,8 @@ def test_unversioned_results_only_in_history_or_beside_a_remeasure_marker(tmp_pa
     script.write_text("python b.py > benchmarks/results/legacy.json\n")
     assert run(f"- solve in {link}\n  (`N = 8`) {mark}") == []  # same list: in scope
     assert any("awaiting re-measurement" in w and "legacy.json" in w for w in check_docs.WARNINGS)
+    out = run(f"- solve in {link}\n- another item {mark}")  # another list item: out of scope
+    assert len(out) == 1 and "README.md:5: cites" in out[0], out
     out = run(f"- solve in {link}\n\n{mark} another paragraph")  # another paragraph: out of scope
     assert len(out) == 1 and "README.md:5: cites" in out[0], out
     out = run(f"| a | b |\n| --- | --- |\n| x | {link} |\n| y | `z` {mark} |")  # another table row
