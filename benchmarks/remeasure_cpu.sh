@@ -4,7 +4,7 @@
 # 2-core VM, from the repository root, with the code measured committed (the records name HEAD):
 #   bash benchmarks/remeasure_cpu.sh              # about 11 minutes: targets, cost, checksums, sweep
 #                                                 #   overhead, theory, vec, memory, Persson against converged GFMD
-#   LONG=1 bash benchmarks/remeasure_cpu.sh       # + about an hour: the ContactMechanics comparison, the
+#   LONG=1 bash benchmarks/remeasure_cpu.sh       # + about 80 minutes: the ContactMechanics comparison, the
 #                                                 #   held-out bounds, the cost-left estimate, the tuning set,
 #                                                 #   the issue-39 hard wall against tamaas, the predictor
 #                                                 #   studies of docs/theory.md, the challenge proxy and the
@@ -101,6 +101,16 @@ if [ "${LONG:-0}" = 1 ]; then
   step predictors_wide $PY -m studies.predictors_wide --seeds 2 --out "$SCRATCH/pred" &&
     { keep "$SCRATCH/pred/predictors_wide.md" docs/results/predictors_wide.md
       keep "$SCRATCH/pred/predictors_wide.csv" docs/results/predictors_wide.csv; }
+  # docs/gfmd.md, docs/gap_distribution.md, docs/benchmarks_gfmd.md, docs/benchmarks_sde.md: the solver error against
+  # tol (CG, L-BFGS, FIRE) and the SDE's error against steps, cited by folder as benchmarks/results/claims_cpu/
+  # (~3.6 min)
+  step claims $PY benchmarks/bench_claims.py --out "$SCRATCH/claims" &&
+    { keep "$SCRATCH/claims/bench_claims.json" benchmarks/results/claims_cpu/bench_claims.json
+      keep "$SCRATCH/claims/bench_claims.md" benchmarks/results/claims_cpu/bench_claims.md; }
+  # docs/benchmarks_gfmd.md "Speed against error": CG, L-BFGS and FIRE at tol 1e-3 .. 1e-8, n = 1024 and 2048
+  # (~6 min: 4.9 min of solves in the legacy run, plus the references)
+  step speed $PY benchmarks/bench_gfmd.py speed --out "$SCRATCH/speed" &&
+    keep "$SCRATCH/speed/speed.json" benchmarks/results/gfmd/speed.json
   # docs/gfmd.md "Coarse-to-fine start": force evaluations of the plain and the coarse start on a CPU proxy of the
   # challenge, one core and 2 ranks (counts, not times; not timed before: the plain 4096^2 exponential solve on
   # one core takes longest, likely several minutes)
