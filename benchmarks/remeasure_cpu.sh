@@ -23,7 +23,7 @@
 set -uo pipefail
 export OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1 GAPSWEEP_FFT_THREADS=1
 export PYTHONUNBUFFERED=1 PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"
-PY=${PYTHON:-python}
+PY=${PYTHON:-python}  # the project's venv python, e.g. PYTHON=.venv/bin/python
 PEERS_PY=${PEERS_PY:-/work/peers/bin/python}
 MPIEXEC=${MPIEXEC:-mpiexec}  # Open MPI: 3 and 4 ranks on 2 cores need oversubscription (set below)
 export OMPI_MCA_rmaps_base_oversubscribe=1 OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1
@@ -49,7 +49,8 @@ git diff --quiet HEAD -- gapsweep || echo "warning: gapsweep/ has uncommitted ch
 
 # README "GFMD: the fig2/fig3 cases at N = 2048 in 5-66 force evaluations"; docs/benchmarks_gfmd.md (~2 min)
 step targets $PY benchmarks/bench_gfmd.py targets --out "$SCRATCH/targets" &&
-  keep "$SCRATCH/targets/targets.json" benchmarks/results/gfmd/targets.json
+  { keep "$SCRATCH/targets/targets.json" benchmarks/results/gfmd/targets.json
+    keep "$SCRATCH/targets/targets.md" benchmarks/results/gfmd/targets.md; }
 
 # docs/benchmarks_gfmd.md "Cost of a force evaluation vs a bare FFT pair", CPU rows (~1 min)
 step cost_cpu $PY benchmarks/bench_gfmd.py cost --out "$SCRATCH/cost" --n 1024 2048 --backend pyfftw numpy &&
@@ -136,7 +137,8 @@ if [ "${LONG:-0}" = 1 ]; then
     keep "$SCRATCH/demo.json" benchmarks/results/cost_left/demo.json
   # README "17-1735x faster than ContactMechanics + Adhesion at N = 1024" (~11 min: the peer's L-BFGS-B)
   step peer env PYTHONPATH="$PWD" "$PEERS_PY" benchmarks/bench_gfmd.py peer --out "$SCRATCH/peer" &&
-    keep "$SCRATCH/peer/peer.json" benchmarks/results/gfmd/peer.json
+    { keep "$SCRATCH/peer/peer.json" benchmarks/results/gfmd/peer.json
+      keep "$SCRATCH/peer/peer.md" benchmarks/results/gfmd/peer.md; }
   # README "Hard wall: agrees with tamaas to < 1e-9 ... 8.0-19.0x less CPU time than tamaas on one core at
   # N = 1024 on 12 held-out cases" (~5 min, mostly tamaas; recorded at 56b6ea2: re-run when gapsweep/gfmd or
   # gapsweep/surfaces changed since, which check_docs reports as stale)

@@ -68,6 +68,7 @@ step hardwall $PY benchmarks/bench_contact.py gpu --out "$SCRATCH/cn" --n 4096 -
 # "SDE on the GPU" (the user-call cases; the paper's Euler-Maruyama row needs warp and is left out) (~1 min)
 step sde $PY benchmarks/bench_sde_gpu.py --out "$SCRATCH/sde" --limit &&
   { keep "$SCRATCH/sde/bench_sde_gpu.json" benchmarks/results/sde/bench_sde_gpu.json
+    keep "$SCRATCH/sde/bench_sde_gpu.md" benchmarks/results/sde/bench_sde_gpu.md
     keep "$SCRATCH/sde/sde_kernel_limit.json" benchmarks/results/gfmd_limit/sde_kernel_limit.json
     keep "$SCRATCH/sde/sde_kernel_limit.md" benchmarks/results/gfmd_limit/sde_kernel_limit.md; }
 # docs/benchmarks_gfmd.md "Cost of a force evaluation vs a bare FFT pair", GPU rows (~30 s)
