@@ -350,6 +350,12 @@ def _take(p: Path, info: dict[str, Any], store: str | Path, break_lease: bool, m
             elif old["alive"] is False and old.get("interrupted"):
                 log.info("taking over the lease of %s: %s recorded its interruption in the store", store,
                          describe(old))
+            elif main is None and old["alive"] is False and not os.path.lexists(store):
+                # a holder seen dead on this host that never created the store (killed at start-up: mpiexec
+                # SIGKILLs its ranks 1 s after forwarding a signal) had nothing to protect; its temporary files,
+                # if any, are removed as leftovers by the taker (remove_leftovers)
+                log.info("taking over the lease of %s: %s is gone and never created the store", store,
+                         describe(old))
             elif not break_lease:
                 raise LeaseError(f"store {store} is leased by {describe(old)}{via}: if that run is really gone, "
                                  f"pass --break-lease (lease file {p})") from None

@@ -187,3 +187,39 @@ def test_stale_lease_with_any_content_breakable(tmp_path, refs, partial, kind):
     assert p.returncode == 0, p.stderr
     assert store.diff(path, refs["theory"]) == []
     assert not lease.lease_path(path).exists()
+
+
+def _dead_holder_lease(path) -> None:
+    """A lease of ``path`` whose holder (a child process that exited without releasing it, as one SIGKILLed does)
+    is gone: waited for with ``wait()``, no timing involved."""
+    code = "import os, sys; from gapsweep import lease; lease.acquire(sys.argv[1]); os._exit(0)"
+    subprocess.run([sys.executable, "-c", code, str(path)], env=env(), check=True)
+    assert lease.read(path)["alive"] is False
+
+
+def test_dead_holder_that_never_created_the_store_is_taken_over(tmp_path, caplog):
+    """A run killed at start-up (mpiexec SIGKILLs its ranks 1 s after forwarding a signal; a loaded machine
+    outlasts that) between taking the lease and creating the store leaves a lease with nothing behind it: the
+    next run takes it over by itself and says so (it asked for --break-lease before: seen in a loaded suite run)."""
+    import logging
+
+    path = tmp_path / "s.h5"
+    _dead_holder_lease(path)
+    with caplog.at_level(logging.INFO, "gapsweep"):
+        held = lease.acquire(path)
+    try:
+        assert "is gone and never created the store" in caplog.text
+    finally:
+        held.release()
+    assert lease.read(path) is None
+
+
+def test_dead_holder_of_an_existing_store_still_needs_break_lease(tmp_path, refs):
+    """... but a store that exists is what a lease protects: a dead holder that did not record its interruption
+    in it is still broken only with --break-lease (one line naming the holder)."""
+    path = tmp_path / "s.h5"
+    shutil.copy(refs["theory"], path)
+    _dead_holder_lease(path)
+    with pytest.raises(lease.LeaseError, match="--break-lease"):
+        lease.acquire(path)
+    lease.acquire(path, break_lease=True).release()

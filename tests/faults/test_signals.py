@@ -321,8 +321,21 @@ def test_signal_to_mpiexec_at_startup(tmp_path, refs, offset):
         _signal_mpi(p, signal.SIGTERM, "group")
         rc, _, err = finish(p, timeout=60)
     assert rc != 0 and "Traceback" not in err, err
-    if not path.exists():  # the signal came before any rank ran gapsweep code: nothing started, nothing left
-        assert sorted(x.name for x in tmp_path.iterdir()) == []
+    if not path.exists():  # the signal came before the store was created: nothing started, nothing left but ...
+        left = sorted(x.name for x in tmp_path.iterdir())
+        if left == [f"{path.name}.lease"]:
+            # ... where mpiexec SIGKILLed rank 0 after its 1-s grace between taking the lease and creating the store
+            # (a loaded machine outlasts the grace: seen once in a loaded suite run) the lease of a dead holder,
+            # which the next run takes over without --break-lease (as _mpi_clean_end allows for a created store)
+            info = lease.read(path)
+            if info is not None and info["alive"] is True:
+                wait_gone(int(info["pid"]))
+                info = lease.read(path)
+            assert info is not None and info["alive"] is False, info
+            _resume_plain(path, refs["theory"])
+            assert lease.read(path) is None
+            return
+        assert left == []
         return
     _mpi_clean_end(path)
     _resume_plain(path, refs["theory"])
