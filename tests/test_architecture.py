@@ -26,13 +26,27 @@ def _module_name(path: Path) -> str:
     return ".".join(parts)
 
 
+COMPAT = PKG / "_compat"  # the 0.1 names' alias files (on gapsweep.__path__): not modules under their own path
+
+
 def _modules() -> dict[str, Path]:
-    return {_module_name(p): p for p in PKG.rglob("*.py")}
+    return {_module_name(p): p for p in PKG.rglob("*.py") if p.parent != COMPAT or p.name == "__init__.py"}
 
 
-def _imports(path: Path, name: str, known: set[str]) -> set[str]:
-    """Every gapsweep module imported anywhere in the file (module level, functions, classes)."""
+def _type_only(tree: ast.AST) -> set[int]:
+    """ids of the import statements under ``if TYPE_CHECKING:`` (read by type checkers, never executed)."""
+    out: set[int] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            out |= {id(n) for b in node.body for n in ast.walk(b)}
+    return out
+
+
+def _imports(path: Path, name: str, known: set[str], *, runtime: bool = False) -> set[str]:
+    """Every gapsweep module imported anywhere in the file (module level, functions, classes); ``runtime``: only
+    the imports that execute (not those under ``if TYPE_CHECKING:``)."""
     tree = ast.parse(path.read_text(encoding="utf-8"))
+    skip = _type_only(tree) if runtime else set()
     is_pkg = path.name == "__init__.py"
     out: set[str] = set()
 
@@ -42,6 +56,8 @@ def _imports(path: Path, name: str, known: set[str]) -> set[str]:
             out.add(mod)
 
     for node in ast.walk(tree):
+        if id(node) in skip:
+            continue
         if isinstance(node, ast.Import):
             for a in node.names:
                 if a.name.startswith("gapsweep"):
@@ -64,10 +80,18 @@ def _imports(path: Path, name: str, known: set[str]) -> set[str]:
     return out
 
 
-def _graph() -> dict[str, set[str]]:
+def _graph(*, runtime: bool = False) -> dict[str, set[str]]:
     mods = _modules()
     known = set(mods)
-    return {m: _imports(p, m, known) for m, p in mods.items()}
+    return {m: _imports(p, m, known, runtime=runtime) for m, p in mods.items()}
+
+
+def _third_party(path: Path) -> set[str]:
+    """Top-level names of the packages other than gapsweep that the file imports anywhere."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    names = {a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    names |= {(n.module or "").split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and not n.level}
+    return names - {"gapsweep", ""}
 
 
 def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
@@ -117,7 +141,9 @@ def test_graph_sees_lazy_imports():
 
 
 def test_no_import_cycle():
-    g = _graph()
+    """Rule 1, on the imports that execute: the package's ``if TYPE_CHECKING:`` names (the 0.1 names for type
+    checkers) never run, and every module imports the package ``gapsweep`` first anyway."""
+    g = _graph(runtime=True)
     assert len(g) > 50
     assert _cycles(g) == []
 
@@ -128,12 +154,8 @@ def test_physics_never_imports_the_sweep_or_drivers():
            for d in deps if d.startswith(("gapsweep.sweep", "gapsweep.cli", "gapsweep.demo"))]
     assert bad == []
     # nor I/O or MPI packages (h5py, mpi4py): those belong to the sweep
-    for m, p in _modules().items():
-        if m.startswith(PHYSICS):
-            tree = ast.parse(p.read_text(encoding="utf-8"))
-            names = {a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
-            names |= {(n.module or "").split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
-            assert not names & {"h5py", "mpi4py"}, m
+    bad = sorted(m for m, p in _modules().items() if m.startswith(PHYSICS) and _third_party(p) & {"h5py", "mpi4py"})
+    assert bad == []
 
 
 SWEEP_CORE = ("spec", "tasks", "execute", "runner", "store", "storecheck", "merge", "dataset", "budget",
@@ -171,12 +193,13 @@ ALIASES = sorted(gapsweep.STABLE_NAMES)
 
 @pytest.mark.parametrize("old", ALIASES)
 def test_stable_names_import_the_same_module(old):
-    """Each 0.1 name is a real file (so type checkers and IDEs see it) whose import gives the module it now lives
-    in, the same object; a deprecated one warns, naming the release it goes in; a stable one is silent."""
+    """Each 0.1 name is an alias file in gapsweep/_compat/ whose import gives the module it now lives in, the
+    same object; a deprecated one warns, naming the release it goes in, attributed to the importing line; a
+    stable one is silent."""
     import sys
     import warnings
 
-    assert (PKG / f"{old.rpartition('.')[2]}.py").is_file()
+    assert (COMPAT / f"{old.rpartition('.')[2]}.py").is_file()
     sys.modules.pop(old, None)
     with warnings.catch_warnings(record=True) as w:
         warnings.simplefilter("always")
@@ -191,6 +214,31 @@ def test_stable_names_import_the_same_module(old):
         assert w[0].filename == __file__  # attributed to the importer, not to the import machinery
     else:
         assert dep == []
+    # `from gapsweep import <name>` (the README's form) gives the same module
+    sys.modules.pop(old, None)
+    delattr(importlib.import_module(parent), child)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        ns: dict = {}
+        exec(f"from {parent} import {child}", ns)
+    assert ns[child] is mod
+
+
+def test_the_package_face_is_its_layout():
+    """The top of gapsweep holds the real layout (the package, its drivers, the public reference solutions and
+    the subpackages); the 0.1 names live in gapsweep/_compat/, one alias file per entry of STABLE_NAMES and no
+    other; the deprecated names are a subset of them; an alias file imported under its own path says so."""
+    tops = {p.name for p in PKG.iterdir() if p.suffix == ".py"}
+    assert tops == {"__init__.py", "__main__.py", "cli.py", "demo.py", "reference.py"}, tops
+    subs = {p.name for p in PKG.iterdir() if p.is_dir() and (p / "__init__.py").is_file()}
+    assert subs == {"_compat", "analysis", "core", "flow", "gapdist", "gfmd", "jobs", "surfaces", "sweep", "theory"}
+    files = {p.stem for p in COMPAT.glob("*.py")} - {"__init__"}
+    assert files == {n.rpartition(".")[2] for n in gapsweep.STABLE_NAMES}
+    assert all(n.count(".") == 1 for n in gapsweep.STABLE_NAMES)
+    assert gapsweep.DEPRECATED_NAMES <= set(gapsweep.STABLE_NAMES) and len(gapsweep.DEPRECATED_NAMES) == 13
+    assert str(COMPAT) in gapsweep.__path__ and gapsweep.__path__[0] == str(PKG)  # the real modules come first
+    with pytest.raises(ImportError, match=r"gapsweep\._compat\.tasks is not a 0\.1 name"):
+        importlib.import_module("gapsweep._compat.tasks")
 
 
 def test_reload_of_the_real_module_after_the_alias(monkeypatch):
@@ -228,9 +276,8 @@ def test_the_package_uses_no_deprecated_name():
     import subprocess
     import sys
 
-    aliases = {n.rpartition(".")[2] for n in gapsweep.STABLE_NAMES}
-    mods = [m for m in sorted(_modules()) if not (m.count(".") == 1 and m.split(".")[1] in aliases)
-            and m.rpartition(".")[2] not in ("__main__", "_sde_cuda", "_sde_kernels", "_cuda", "_warp_kernels")]
+    gpu_only = ("__main__", "_sde_cuda", "_sde_kernels", "_cuda", "_warp_kernels")
+    mods = [m for m in sorted(_modules()) if m.rpartition(".")[2] not in gpu_only]
     code = "import importlib, sys\nfor m in sys.argv[1:]:\n    importlib.import_module(m)\nprint('ok')"
     r = subprocess.run([sys.executable, "-W", "error::DeprecationWarning", "-c", code, *mods], capture_output=True,
                        text=True, timeout=300, env=_env())
