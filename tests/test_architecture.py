@@ -1,6 +1,9 @@
-"""The package's layout as a contract (docs/architecture.md): no import circle anywhere in gapsweep (imports inside
-functions count), physics never imports the sweep, I/O or MPI, the sweep's core modules name no method, the
-stable public names of version 0.1 still import, and a new sweep method is one file."""
+"""The package's layout as a contract (docs/architecture.md, whose rooms table, rules and sweep order this file
+reads): no import circle anywhere in gapsweep (imports inside functions count), every room imports only what its
+row of the rooms table names, physics never imports the sweep, I/O or MPI, the sweep's core modules name no
+method, the sweep reaches the physics through the doors rule 6 names, the farm is pure logic, analysis reads
+stores only through gapsweep.store, library code prints nothing, the 0.1 names still import from
+gapsweep/_compat/, and a new sweep method is one file."""
 
 from __future__ import annotations
 
@@ -309,6 +312,161 @@ def test_rooms(room):
     bad = [(m, d) for m, deps in g.items() if m.startswith(mine) for d in deps if d.startswith(forbidden)]
     assert bad == []
     assert any(m.startswith(mine) for m in g)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# the rooms table of docs/architecture.md, read from the doc and checked against every import
+
+ARCH = (PKG.parent / "docs" / "architecture.md").read_text(encoding="utf-8")
+OUTSIDE_ROOMS = {"gapsweep", "gapsweep._compat"}  # the package's __init__ and the 0.1 names' alias files
+
+
+def _strip_notes(text: str) -> str:
+    import re
+
+    return re.sub(r"\([^()]*(\([^()]*\)[^()]*)*\)", "", text)
+
+
+def _token_prefixes(token: str) -> tuple[str, ...]:
+    """Module prefixes a backticked word of the "may import" column stands for (the doc's vocabulary)."""
+    if token == "physics":
+        return PHYSICS
+    if token == "gapsweep":
+        return ("gapsweep",)  # the package itself (its version), not all of it
+    if "/" in token:  # a path: sweep/filesurface.py
+        return ("gapsweep." + token.removesuffix(".py").rstrip("/").replace("/", "."),)
+    if token.startswith("gapsweep."):  # a 0.1 name: gapsweep.store
+        return (gapsweep.STABLE_NAMES[token],)
+    assert (PKG / token).is_dir() or (PKG / f"{token}.py").is_file(), f"unknown room {token!r} in the table"
+    return (f"gapsweep.{token}",)
+
+
+def _rooms_table() -> dict[tuple[str, ...], tuple[str, ...]]:
+    """{module prefixes of a row: module prefixes it may import} from the table "The rooms and what each may
+    import" (studies/ aside: it is not part of the package)."""
+    import re
+
+    head = ARCH.index("| room | what lives there | may import |")
+    rows = ARCH[head:].split("\n\n")[0].splitlines()[2:]
+    out = {}
+    for row in rows:
+        room, _, may = (c.strip() for c in row.strip().strip("|").split("|"))
+        mods = tuple("gapsweep." + p.removesuffix(".py").rstrip("/").split("/", 1)[1].replace("/", ".")
+                     for p in re.findall(r"`([^`]+)`", room) if p.startswith("gapsweep/"))
+        if not mods:
+            assert "studies/" in room, row
+            continue
+        out[mods] = tuple(x for t in re.findall(r"`([^`]+)`", _strip_notes(may)) for x in _token_prefixes(t))
+    return out
+
+
+def _under(mod: str, prefixes: tuple[str, ...]) -> bool:
+    return any(mod == p or (p != "gapsweep" and mod.startswith(p + ".")) for p in prefixes)
+
+
+def test_rooms_table_of_the_docs():
+    """Rule 4 as the table says it: every module of gapsweep sits in one row of the rooms table (or is the
+    package's __init__ or a 0.1 alias), and imports (anywhere, TYPE_CHECKING too) only its own room and the rooms
+    named in its row's "may import" column (issue 41: gfmd and theory imported surfaces, the drivers analysis,
+    unlisted)."""
+    table = _rooms_table()
+    assert len(table) == 11 and ("gapsweep.core",) in table and table[("gapsweep.core",)] == ()
+    g = _graph()
+    bad, homeless = [], []
+    for m, deps in sorted(g.items()):
+        rows = [(mods, may) for mods, may in table.items() if _under(m, mods)]
+        if m in OUTSIDE_ROOMS:
+            assert rows == [], m
+            continue
+        if len(rows) != 1:
+            homeless.append(m)
+            continue
+        mods, may = rows[0]
+        bad += [(m, d) for d in sorted(deps) if not _under(d, mods) and not _under(d, may)]
+    assert homeless == [] and bad == [], (homeless, bad)
+    # and the check can fail: a physics module importing the sweep breaks the table
+    assert not _under("gapsweep.sweep.api", table[("gapsweep.gfmd",)])
+
+
+def _rule(number: int) -> str:
+    start = ARCH.index(f"\n{number}. **")
+    return ARCH[start:].split(f"\n{number + 1}. **")[0].split("\n\n")[0]
+
+
+def test_the_sweep_reaches_physics_through_its_doors():
+    """Rule 6: the modules of the sweep that import physics beyond core are exactly the doors the rule names
+    (each door does, no other module does)."""
+    import re
+
+    text = _strip_notes(_rule(6).split("**:", 1)[1].split("; any module", 1)[0])
+    doors = {t.rstrip("/") for t in re.findall(r"`([^`]+)`", text)}
+    assert {"methods", "context", "spec"} <= doors, doors
+    core = ("gapsweep.core",)
+    beyond = tuple(p for p in PHYSICS if p not in core)
+    users = {m.split(".")[2] for m, deps in _graph().items() if m.startswith("gapsweep.sweep.")
+             and any(_under(d, beyond) for d in deps)}
+    assert users == doors, (sorted(users - doors), sorted(doors - users))
+
+
+def test_the_farm_is_pure_logic():
+    """Rule 7: sweep/farm.py imports only the standard library (no MPI, no GPU, no I/O packages, no gapsweep)."""
+    import sys
+
+    path = PKG / "sweep" / "farm.py"
+    assert _third_party(path) <= set(sys.stdlib_module_names), _third_party(path)
+    assert _graph()["gapsweep.sweep.farm"] == set()
+    assert "sweep/farm.py` imports nothing but the standard library" in _rule(7)
+
+
+def test_analysis_reads_stores_only_through_the_store_module():
+    """Rule 4: analysis opens no HDF5 file itself (no h5py, no mpi4py) and reaches the sweep only through
+    gapsweep.store / gapsweep.dataset and filesurface (the rooms table)."""
+    bad = sorted(m for m, p in _modules().items() if m.startswith("gapsweep.analysis")
+                 and _third_party(p) & {"h5py", "mpi4py"})
+    assert bad == []
+    sweep = {d for m, deps in _graph().items() if m.startswith("gapsweep.analysis") for d in deps
+             if d.startswith("gapsweep.sweep")}
+    assert sweep <= {"gapsweep.sweep.api", "gapsweep.sweep.dataset", "gapsweep.sweep.filesurface"}, sweep
+
+
+def test_library_code_prints_nothing_and_logs_under_gapsweep():
+    """Rule 8: no ``print`` call outside the drivers (cli, demo), and every logger the package creates is
+    ``__name__`` or a "gapsweep..." name (the CLI's one handler sees them); no root logger."""
+    prints, loggers = [], []
+    for m, p in sorted(_modules().items()):
+        tree = ast.parse(p.read_text(encoding="utf-8"))
+        for n in ast.walk(tree):
+            if not isinstance(n, ast.Call):
+                continue
+            if isinstance(n.func, ast.Name) and n.func.id == "print" and m not in ("gapsweep.cli", "gapsweep.demo"):
+                prints.append(f"{m}:{n.lineno}")
+            if isinstance(n.func, ast.Attribute) and n.func.attr == "getLogger":
+                arg = n.args[0] if n.args else None
+                ok = (isinstance(arg, ast.Name) and arg.id == "__name__") or (
+                    isinstance(arg, ast.Constant) and isinstance(arg.value, str)
+                    and (arg.value == "gapsweep" or arg.value.startswith("gapsweep.")))
+                if not ok:
+                    loggers.append(f"{m}:{n.lineno}")
+    assert prints == [] and loggers == [], (prints, loggers)
+    assert "print` call outside the drivers" in _rule(8)
+
+
+def test_studies_use_current_names_and_nothing_imports_them():
+    """The studies/ row: research scripts import gapsweep by its current names (no deprecated 0.1 name), and no
+    module of gapsweep imports studies (it is not installed)."""
+    root = PKG.parent / "studies"
+    files = sorted(root.glob("*.py"))
+    assert len(files) > 3
+    used = set()
+    for p in files:
+        tree = ast.parse(p.read_text(encoding="utf-8"))
+        for n in ast.walk(tree):
+            if isinstance(n, ast.Import):
+                used |= {a.name for a in n.names}
+            elif isinstance(n, ast.ImportFrom) and (n.module or "").startswith("gapsweep"):
+                used |= {n.module} | {f"{n.module}.{a.name}" for a in n.names}
+    assert used & gapsweep.DEPRECATED_NAMES == set()
+    assert [m for m, p in _modules().items() if "studies" in _third_party(p)] == []
 
 
 def test_no_top_level_analysis_package():

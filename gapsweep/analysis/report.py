@@ -52,25 +52,23 @@ INCONCLUSIVE = "inconclusive"  # the data exist but cannot decide: e.g. a fitted
 
 
 def provenance(path: str | Path) -> dict[str, Any]:
-    """File attributes of one store, read with h5py directly (docs/store.md): strings decoded, JSON values
-    (``runs``, ``versions``, ...) parsed. The spec text is kept under ``spec`` when present."""
-    import h5py
+    """File attributes of one store (docs/store.md), read through :func:`gapsweep.store.read_attrs` (the store is
+    validated on open): strings decoded, numpy values as Python values, JSON values (``runs``, ``versions``,
+    ...) parsed. The spec text is kept under ``spec`` when present."""
+    from gapsweep import store
 
     out: dict[str, Any] = {"path": str(path)}
-    with h5py.File(path, "r", locking=False) as f:
-        for k, v in f.attrs.items():
-            if isinstance(v, bytes):
-                v = v.decode("utf-8", "replace")
-            elif isinstance(v, np.generic):
-                v = v.item()
-            elif isinstance(v, np.ndarray):
-                v = v.tolist()
-            if isinstance(v, str) and v[:1] in "[{":
-                try:
-                    v = json.loads(v)
-                except ValueError:
-                    pass
-            out[k] = v
+    for k, v in store.read_attrs(path).items():
+        if isinstance(v, np.generic):
+            v = v.item()
+        elif isinstance(v, np.ndarray):
+            v = v.tolist()
+        if isinstance(v, str) and v[:1] in "[{":
+            try:
+                v = json.loads(v)
+            except ValueError:
+                pass
+        out[k] = v
     return out
 
 
