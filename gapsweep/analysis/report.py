@@ -681,7 +681,7 @@ def _job_figures(agg: pd.DataFrame, covered_p: set, covered_h: set, note: Any) -
                        f"(job {job or '-'})")
                 generic.append((f"gap_vs_pressure_{tag}_H{_slug(float(hurst))}", cap,
                                 lambda a=a, h=hurst, r=rhos, job=job: figures.fig_mean_gap_pressure(
-                                    a, hurst=h, rhos=r, note=note(a[_near(a["hurst"], h)], job, f"job {job}"))))
+                                    a, hurst=h, rhos=r, note=note(a[_near(a["hurst"], h)], job))))
         generic += _hurst_figures(job, a, src, tag, covered_h, note)
     return generic
 
@@ -703,7 +703,7 @@ def _hurst_figures(job: str, a: pd.DataFrame, src: pd.DataFrame, tag: str, cover
             out.append((f"gap_vs_hurst_{tag}_rho{_slug(float(rho))}", cap,
                         lambda a=a, r=rho, lv=levels, job=job: figures.fig_mean_gap_hurst(
                             a, sigma0_reduced=lv, rho=r, rtol=1e-4,
-                            note=note(a[_near(a["rho"], r)], job, f"job {job}"))))
+                            note=note(a[_near(a["rho"], r)], job))))
     return out
 
 
