@@ -469,6 +469,22 @@ def test_studies_use_current_names_and_nothing_imports_them():
     assert [m for m, p in _modules().items() if "studies" in _third_party(p)] == []
 
 
+def test_every_file_the_architecture_names_exists():
+    """The structural statements of docs/architecture.md name files and folders (`sweep/farm.py`, `core/slab.py`,
+    `gfmd/_lean.py`, `tests/test_farm.py`, the data-path drawing's modules, ...): each exists, relative to the
+    repository, the package, the sweep or gfmd (a file moved or deleted takes its docs along)."""
+    import re
+
+    root = PKG.parent
+    drawing = ARCH[ARCH.index("```\njob spec"):].split("```", 2)[1]
+    names = set(re.findall(r"`([A-Za-z0-9_./-]+(?:\.py|\.md|\.toml|/))`", ARCH))
+    names |= {n for n in re.findall(r"[A-Za-z0-9_/]+\.py", drawing)}
+    assert {"sweep/farm.py", "core/slab.py", "sweep/api.py", "sweep/execute.py"} <= names, sorted(names)
+    bases = (root, PKG, PKG / "sweep", PKG / "gfmd")
+    missing = sorted(n for n in names if not any((b / n).exists() for b in bases))
+    assert missing == [], missing
+
+
 def test_no_top_level_analysis_package():
     """Reports and aggregation are gapsweep.analysis; nothing but gapsweep is installed (pyproject.toml)."""
     import tomllib
