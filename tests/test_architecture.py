@@ -485,6 +485,49 @@ def test_every_file_the_architecture_names_exists():
     assert missing == [], missing
 
 
+def _sweep_definitions() -> set[str]:
+    """Names the sweep defines: module-level functions, classes and constants, and ``Class.member`` for methods,
+    class fields and attributes set on ``self``."""
+    out: set[str] = set()
+    for p in (PKG / "sweep").rglob("*.py"):
+        for node in ast.parse(p.read_text(encoding="utf-8")).body:
+            if isinstance(node, (ast.FunctionDef, ast.ClassDef)):
+                out.add(node.name)
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target] if isinstance(
+                node, ast.AnnAssign) else []
+            for t in targets:
+                out |= {n.id for n in ast.walk(t) if isinstance(n, ast.Name)}
+            if isinstance(node, ast.ClassDef):
+                for n in ast.walk(node):
+                    if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                        out.add(f"{node.name}.{n.name}")
+                    elif isinstance(n, ast.AnnAssign) and isinstance(n.target, ast.Name):
+                        out.add(f"{node.name}.{n.target.id}")
+                    elif isinstance(n, ast.Attribute) and isinstance(n.value, ast.Name) and n.value.id == "self" \
+                            and isinstance(n.ctx, ast.Store):
+                        out.add(f"{node.name}.{n.attr}")
+    return out
+
+
+# the code names of docs/architecture.md's farm section: (as the doc writes it, as the code defines it)
+FARM_NAMES = (("_coordinate", "_coordinate"), ("_work", "_work"), ("_serial", "_serial"), ("_Local", "_Local"),
+              ("READY", "TAG_READY"), ("WORK", "TAG_WORK"), ("ROW", "TAG_ROW"), ("FAULT", "TAG_FAULT"),
+              ("STOP", "TAG_STOP"), ("farm.Worker.state", "Worker.state"), ("Farm.dispatch", "Farm.dispatch"),
+              ("Farm.left", "Farm.left"), ("Farm.no_gpu", "Farm.no_gpu"), ("Farm.stop", "Farm.stop"),
+              ("Context.prefetch", "Context.prefetch"), ("gpus.rank_gpu", "rank_gpu"))
+
+
+def test_the_farm_section_names_code_that_exists():
+    """docs/architecture.md's farm section names the runner's and the farm's functions, tags and fields; each is
+    written there and defined in the sweep (a renamed function takes its docs along)."""
+    section = ARCH[ARCH.index("## The farm"):].split("\n## ", 1)[0]
+    defined = _sweep_definitions()
+    assert "Farm.dispatch" in defined and "Farm.nonexistent" not in defined
+    missing_doc = [d for d, _ in FARM_NAMES if f"`{d}`" not in section]
+    missing_code = [c for _, c in FARM_NAMES if c not in defined]
+    assert missing_doc == [] and missing_code == [], (missing_doc, missing_code)
+
+
 def test_no_top_level_analysis_package():
     """Reports and aggregation are gapsweep.analysis; nothing but gapsweep is installed (pyproject.toml)."""
     import tomllib
