@@ -23,13 +23,13 @@ gapsweep's own kernels only, :mod:`gapsweep.core.numba_cache`).
 
 from __future__ import annotations
 
-import os
+import os as _os
 from typing import TYPE_CHECKING
 
 __version__ = "0.2.0"
 
 # the 0.1 names' alias files: found by the ordinary path finder after the package's own modules
-__path__.append(os.path.join(os.path.dirname(__file__), "_compat"))
+__path__.append(_os.path.join(_os.path.dirname(__file__), "_compat"))
 
 if TYPE_CHECKING:  # type checkers do not follow __path__: `from gapsweep import store` names the real modules
     from gapsweep.gapdist import calibrate, fokker_planck, sde  # noqa: F401
