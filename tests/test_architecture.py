@@ -244,6 +244,33 @@ def test_the_package_face_is_its_layout():
         importlib.import_module("gapsweep._compat.tasks")
 
 
+def test_the_docs_table_of_the_0_1_names_is_the_package_table():
+    """docs/architecture.md's table "The 0.1 names" lists every name of STABLE_NAMES once, with its module, and
+    says "deprecated" exactly for DEPRECATED_NAMES."""
+    import re
+
+    head = ARCH.index("| 0.1 name | module | status |")
+    rows = ARCH[head:].split("\n\n")[0].splitlines()[2:]
+    table: dict[str, str] = {}
+    deprecated: set[str] = set()
+    for row in rows:
+        names_c, mods_c, status = (c.strip() for c in row.strip().strip("|").split("|"))
+        names = [n if n.startswith("gapsweep.") else f"gapsweep.{n}" for n in re.findall(r"`([^`]+)`", names_c)]
+        mods = re.findall(r"`([^`]+)`", mods_c)
+        if len(mods) == 1 and mods[0].endswith(".*"):
+            targets = [mods[0][:-1] + n.rpartition(".")[2] for n in names]
+        else:
+            base = mods[0].rpartition(".")[0]
+            targets = [m if m.startswith("gapsweep.") else base + m for m in mods]
+        assert len(targets) == len(names), row
+        assert not set(names) & set(table), row
+        table.update(zip(names, targets))
+        if "deprecated" in status:
+            deprecated |= set(names)
+    assert table == gapsweep.STABLE_NAMES
+    assert deprecated == gapsweep.DEPRECATED_NAMES
+
+
 def test_reload_of_the_real_module_after_the_alias(monkeypatch):
     """``importlib.reload`` of the real module (or of the alias, the same object) executes it again."""
     import gapsweep.store
