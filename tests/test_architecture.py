@@ -555,6 +555,40 @@ def test_the_farm_section_names_code_that_exists():
     assert missing_doc == [] and missing_code == [], (missing_doc, missing_code)
 
 
+def test_one_law_per_file_and_one_method_per_file():
+    """"Where a new thing goes": each file of gfmd/interactions/ (base aside) defines one Interaction subclass,
+    listed in INTERACTIONS, and every law of INTERACTIONS has a file of its own; each file of sweep/methods/ (base
+    aside) defines one registered Method or Extension plug-in, and every registered built-in has its own file."""
+    from gapsweep.gfmd import interactions
+    from gapsweep.sweep import methods
+    from gapsweep.sweep.methods import base
+
+    def own(mod, kind):
+        return [c for c in vars(mod).values() if isinstance(c, type) and issubclass(c, kind) and c is not kind
+                and c.__module__ == mod.__name__]
+
+    laws = {}
+    for p in sorted((PKG / "gfmd" / "interactions").glob("*.py")):
+        if p.stem not in ("__init__", "base"):
+            mod = importlib.import_module(f"gapsweep.gfmd.interactions.{p.stem}")
+            found = own(mod, interactions.Interaction)
+            assert len(found) == 1, (p.stem, found)
+            laws[p.stem] = found[0]
+    listed = {cls for cls, _ in interactions.INTERACTIONS.values()}
+    assert set(laws.values()) == listed and len(laws) >= 4
+    plugins = {}
+    for p in sorted((PKG / "sweep" / "methods").glob("*.py")):
+        if p.stem not in ("__init__", "base"):
+            mod = importlib.import_module(f"gapsweep.sweep.methods.{p.stem}")
+            found = own(mod, base.Method) + own(mod, base.Extension)
+            assert len(found) == 1, (p.stem, found)
+            plugins[p.stem] = found[0]
+    registered = {type(m) for m in base._REGISTRY.values()} | {type(e) for e in base._EXTENSIONS.values()}
+    registered = {c for c in registered if c.__module__.startswith("gapsweep.")}  # built-ins, not a test's toy
+    assert set(plugins.values()) == registered, (set(plugins.values()) ^ registered)
+    assert set(methods.names()) <= {c.name for c in plugins.values()}
+
+
 def test_no_top_level_analysis_package():
     """Reports and aggregation are gapsweep.analysis; nothing but gapsweep is installed (pyproject.toml)."""
     import tomllib
