@@ -40,7 +40,7 @@ def _type_only(tree: ast.AST) -> set[int]:
     """ids of the import statements under ``if TYPE_CHECKING:`` (read by type checkers, never executed)."""
     out: set[int] = set()
     for node in ast.walk(tree):
-        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+        if isinstance(node, ast.If) and ast.unparse(node.test) in ("TYPE_CHECKING", "typing.TYPE_CHECKING"):
             out |= {id(n) for b in node.body for n in ast.walk(b)}
     return out
 
