@@ -1,6 +1,9 @@
-"""The package's layout as a contract (docs/architecture.md): no import circle anywhere in gapsweep (imports inside
-functions count), physics never imports the sweep, I/O or MPI, the sweep's core modules name no method, the
-stable public names of version 0.1 still import, and a new sweep method is one file."""
+"""The package's layout as a contract (docs/architecture.md, whose rooms table, rules and sweep order this file
+reads): no import circle anywhere in gapsweep (imports inside functions count), every room imports only what its
+row of the rooms table names, physics never imports the sweep, I/O or MPI, the sweep's core modules name no
+method, the sweep reaches the physics through the doors rule 6 names, the farm is pure logic, analysis reads
+stores only through gapsweep.store, library code prints nothing, the 0.1 names still import from
+gapsweep/_compat/, and a new sweep method is one file."""
 
 from __future__ import annotations
 
@@ -26,13 +29,27 @@ def _module_name(path: Path) -> str:
     return ".".join(parts)
 
 
+COMPAT = PKG / "_compat"  # the 0.1 names' alias files (on gapsweep.__path__): not modules under their own path
+
+
 def _modules() -> dict[str, Path]:
-    return {_module_name(p): p for p in PKG.rglob("*.py")}
+    return {_module_name(p): p for p in PKG.rglob("*.py") if p.parent != COMPAT or p.name == "__init__.py"}
 
 
-def _imports(path: Path, name: str, known: set[str]) -> set[str]:
-    """Every gapsweep module imported anywhere in the file (module level, functions, classes)."""
+def _type_only(tree: ast.AST) -> set[int]:
+    """ids of the import statements under ``if TYPE_CHECKING:`` (read by type checkers, never executed)."""
+    out: set[int] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and ast.unparse(node.test) in ("TYPE_CHECKING", "typing.TYPE_CHECKING"):
+            out |= {id(n) for b in node.body for n in ast.walk(b)}
+    return out
+
+
+def _imports(path: Path, name: str, known: set[str], *, runtime: bool = False) -> set[str]:
+    """Every gapsweep module imported anywhere in the file (module level, functions, classes); ``runtime``: only
+    the imports that execute (not those under ``if TYPE_CHECKING:``)."""
     tree = ast.parse(path.read_text(encoding="utf-8"))
+    skip = _type_only(tree) if runtime else set()
     is_pkg = path.name == "__init__.py"
     out: set[str] = set()
 
@@ -42,6 +59,8 @@ def _imports(path: Path, name: str, known: set[str]) -> set[str]:
             out.add(mod)
 
     for node in ast.walk(tree):
+        if id(node) in skip:
+            continue
         if isinstance(node, ast.Import):
             for a in node.names:
                 if a.name.startswith("gapsweep"):
@@ -64,10 +83,18 @@ def _imports(path: Path, name: str, known: set[str]) -> set[str]:
     return out
 
 
-def _graph() -> dict[str, set[str]]:
+def _graph(*, runtime: bool = False) -> dict[str, set[str]]:
     mods = _modules()
     known = set(mods)
-    return {m: _imports(p, m, known) for m, p in mods.items()}
+    return {m: _imports(p, m, known, runtime=runtime) for m, p in mods.items()}
+
+
+def _third_party(path: Path) -> set[str]:
+    """Top-level names of the packages other than gapsweep that the file imports anywhere."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    names = {a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    names |= {(n.module or "").split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and not n.level}
+    return names - {"gapsweep", ""}
 
 
 def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
@@ -117,7 +144,9 @@ def test_graph_sees_lazy_imports():
 
 
 def test_no_import_cycle():
-    g = _graph()
+    """Rule 1, on the imports that execute: the package's ``if TYPE_CHECKING:`` names (the 0.1 names for type
+    checkers) never run, and every module imports the package ``gapsweep`` first anyway."""
+    g = _graph(runtime=True)
     assert len(g) > 50
     assert _cycles(g) == []
 
@@ -128,12 +157,8 @@ def test_physics_never_imports_the_sweep_or_drivers():
            for d in deps if d.startswith(("gapsweep.sweep", "gapsweep.cli", "gapsweep.demo"))]
     assert bad == []
     # nor I/O or MPI packages (h5py, mpi4py): those belong to the sweep
-    for m, p in _modules().items():
-        if m.startswith(PHYSICS):
-            tree = ast.parse(p.read_text(encoding="utf-8"))
-            names = {a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
-            names |= {(n.module or "").split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
-            assert not names & {"h5py", "mpi4py"}, m
+    bad = sorted(m for m, p in _modules().items() if m.startswith(PHYSICS) and _third_party(p) & {"h5py", "mpi4py"})
+    assert bad == []
 
 
 SWEEP_CORE = ("spec", "tasks", "execute", "runner", "store", "storecheck", "merge", "dataset", "budget",
@@ -171,12 +196,13 @@ ALIASES = sorted(gapsweep.STABLE_NAMES)
 
 @pytest.mark.parametrize("old", ALIASES)
 def test_stable_names_import_the_same_module(old):
-    """Each 0.1 name is a real file (so type checkers and IDEs see it) whose import gives the module it now lives
-    in, the same object; a deprecated one warns, naming the release it goes in; a stable one is silent."""
+    """Each 0.1 name is an alias file in gapsweep/_compat/ whose import gives the module it now lives in, the
+    same object; a deprecated one warns, naming the release it goes in, attributed to the importing line; a
+    stable one is silent."""
     import sys
     import warnings
 
-    assert (PKG / f"{old.rpartition('.')[2]}.py").is_file()
+    assert (COMPAT / f"{old.rpartition('.')[2]}.py").is_file()
     sys.modules.pop(old, None)
     with warnings.catch_warnings(record=True) as w:
         warnings.simplefilter("always")
@@ -191,6 +217,58 @@ def test_stable_names_import_the_same_module(old):
         assert w[0].filename == __file__  # attributed to the importer, not to the import machinery
     else:
         assert dep == []
+    # `from gapsweep import <name>` (the README's form) gives the same module
+    sys.modules.pop(old, None)
+    delattr(importlib.import_module(parent), child)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        ns: dict = {}
+        exec(f"from {parent} import {child}", ns)
+    assert ns[child] is mod
+
+
+def test_the_package_face_is_its_layout():
+    """The top of gapsweep holds the real layout (the package, its drivers, the public reference solutions and
+    the subpackages); the 0.1 names live in gapsweep/_compat/, one alias file per entry of STABLE_NAMES and no
+    other; the deprecated names are a subset of them; an alias file imported under its own path says so."""
+    tops = {p.name for p in PKG.iterdir() if p.suffix == ".py"}
+    assert tops == {"__init__.py", "__main__.py", "cli.py", "demo.py", "reference.py"}, tops
+    subs = {p.name for p in PKG.iterdir() if p.is_dir() and (p / "__init__.py").is_file()}
+    assert subs == {"_compat", "analysis", "core", "flow", "gapdist", "gfmd", "jobs", "surfaces", "sweep", "theory"}
+    files = {p.stem for p in COMPAT.glob("*.py")} - {"__init__"}
+    assert files == {n.rpartition(".")[2] for n in gapsweep.STABLE_NAMES}
+    assert all(n.count(".") == 1 for n in gapsweep.STABLE_NAMES)
+    assert gapsweep.DEPRECATED_NAMES <= set(gapsweep.STABLE_NAMES) and len(gapsweep.DEPRECATED_NAMES) == 13
+    assert str(COMPAT) in gapsweep.__path__ and gapsweep.__path__[0] == str(PKG)  # the real modules come first
+    with pytest.raises(ImportError, match=r"gapsweep\._compat\.tasks is not a 0\.1 name"):
+        importlib.import_module("gapsweep._compat.tasks")
+
+
+def test_the_docs_table_of_the_0_1_names_is_the_package_table():
+    """docs/architecture.md's table "The 0.1 names" lists every name of STABLE_NAMES once, with its module, and
+    says "deprecated" exactly for DEPRECATED_NAMES."""
+    import re
+
+    head = ARCH.index("| 0.1 name | module | status |")
+    rows = ARCH[head:].split("\n\n")[0].splitlines()[2:]
+    table: dict[str, str] = {}
+    deprecated: set[str] = set()
+    for row in rows:
+        names_c, mods_c, status = (c.strip() for c in row.strip().strip("|").split("|"))
+        names = [n if n.startswith("gapsweep.") else f"gapsweep.{n}" for n in re.findall(r"`([^`]+)`", names_c)]
+        mods = re.findall(r"`([^`]+)`", mods_c)
+        if len(mods) == 1 and mods[0].endswith(".*"):
+            targets = [mods[0][:-1] + n.rpartition(".")[2] for n in names]
+        else:
+            base = mods[0].rpartition(".")[0]
+            targets = [m if m.startswith("gapsweep.") else base + m for m in mods]
+        assert len(targets) == len(names), row
+        assert not set(names) & set(table), row
+        table.update(zip(names, targets))
+        if "deprecated" in status:
+            deprecated |= set(names)
+    assert table == gapsweep.STABLE_NAMES
+    assert deprecated == gapsweep.DEPRECATED_NAMES
 
 
 def test_reload_of_the_real_module_after_the_alias(monkeypatch):
@@ -228,9 +306,8 @@ def test_the_package_uses_no_deprecated_name():
     import subprocess
     import sys
 
-    aliases = {n.rpartition(".")[2] for n in gapsweep.STABLE_NAMES}
-    mods = [m for m in sorted(_modules()) if not (m.count(".") == 1 and m.split(".")[1] in aliases)
-            and m.rpartition(".")[2] not in ("__main__", "_sde_cuda", "_sde_kernels", "_cuda", "_warp_kernels")]
+    gpu_only = ("__main__", "_sde_cuda", "_sde_kernels", "_cuda", "_warp_kernels")
+    mods = [m for m in sorted(_modules()) if m.rpartition(".")[2] not in gpu_only]
     code = "import importlib, sys\nfor m in sys.argv[1:]:\n    importlib.import_module(m)\nprint('ok')"
     r = subprocess.run([sys.executable, "-W", "error::DeprecationWarning", "-c", code, *mods], capture_output=True,
                        text=True, timeout=300, env=_env())
@@ -262,6 +339,254 @@ def test_rooms(room):
     bad = [(m, d) for m, deps in g.items() if m.startswith(mine) for d in deps if d.startswith(forbidden)]
     assert bad == []
     assert any(m.startswith(mine) for m in g)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# the rooms table of docs/architecture.md, read from the doc and checked against every import
+
+ARCH = (PKG.parent / "docs" / "architecture.md").read_text(encoding="utf-8")
+OUTSIDE_ROOMS = {"gapsweep", "gapsweep._compat"}  # the package's __init__ and the 0.1 names' alias files
+
+
+def _strip_notes(text: str) -> str:
+    import re
+
+    return re.sub(r"\([^()]*(\([^()]*\)[^()]*)*\)", "", text)
+
+
+def _token_prefixes(token: str) -> tuple[str, ...]:
+    """Module prefixes a backticked word of the "may import" column stands for (the doc's vocabulary)."""
+    if token == "physics":
+        return PHYSICS
+    if token == "gapsweep":
+        return ("gapsweep",)  # the package itself (its version), not all of it
+    if "/" in token:  # a path: sweep/filesurface.py
+        return ("gapsweep." + token.removesuffix(".py").rstrip("/").replace("/", "."),)
+    if token.startswith("gapsweep."):  # a 0.1 name: gapsweep.store
+        return (gapsweep.STABLE_NAMES[token],)
+    assert (PKG / token).is_dir() or (PKG / f"{token}.py").is_file(), f"unknown room {token!r} in the table"
+    return (f"gapsweep.{token}",)
+
+
+def _rooms_table() -> dict[tuple[str, ...], tuple[str, ...]]:
+    """{module prefixes of a row: module prefixes it may import} from the table "The rooms and what each may
+    import" (studies/ aside: it is not part of the package)."""
+    import re
+
+    head = ARCH.index("| room | what lives there | may import |")
+    rows = ARCH[head:].split("\n\n")[0].splitlines()[2:]
+    out = {}
+    for row in rows:
+        room, _, may = (c.strip() for c in row.strip().strip("|").split("|"))
+        mods = tuple("gapsweep." + p.removesuffix(".py").rstrip("/").split("/", 1)[1].replace("/", ".")
+                     for p in re.findall(r"`([^`]+)`", room) if p.startswith("gapsweep/"))
+        if not mods:
+            assert "studies/" in room, row
+            continue
+        out[mods] = tuple(x for t in re.findall(r"`([^`]+)`", _strip_notes(may)) for x in _token_prefixes(t))
+    return out
+
+
+def _under(mod: str, prefixes: tuple[str, ...]) -> bool:
+    return any(mod == p or (p != "gapsweep" and mod.startswith(p + ".")) for p in prefixes)
+
+
+def test_rooms_table_of_the_docs():
+    """Rule 4 as the table says it: every module of gapsweep sits in one row of the rooms table (or is the
+    package's __init__ or a 0.1 alias), and imports (anywhere, TYPE_CHECKING too) only its own room and the rooms
+    named in its row's "may import" column (issue 41: gfmd and theory imported surfaces, the drivers analysis,
+    unlisted)."""
+    table = _rooms_table()
+    assert len(table) == 11 and ("gapsweep.core",) in table and table[("gapsweep.core",)] == ()
+    g = _graph()
+    bad, homeless = [], []
+    for m, deps in sorted(g.items()):
+        rows = [(mods, may) for mods, may in table.items() if _under(m, mods)]
+        if m in OUTSIDE_ROOMS:
+            assert rows == [], m
+            continue
+        if len(rows) != 1:
+            homeless.append(m)
+            continue
+        mods, may = rows[0]
+        bad += [(m, d) for d in sorted(deps) if not _under(d, mods) and not _under(d, may)]
+    assert homeless == [] and bad == [], (homeless, bad)
+    # and the check can fail: a physics module importing the sweep breaks the table
+    assert not _under("gapsweep.sweep.api", table[("gapsweep.gfmd",)])
+
+
+def _rule(number: int) -> str:
+    start = ARCH.index(f"\n{number}. **")
+    return ARCH[start:].split(f"\n{number + 1}. **")[0].split("\n\n")[0]
+
+
+def test_the_sweep_reaches_physics_through_its_doors():
+    """Rule 6: the modules of the sweep that import physics beyond core are exactly the doors the rule names
+    (each door does, no other module does)."""
+    import re
+
+    text = _strip_notes(_rule(6).split("**:", 1)[1].split("; any module", 1)[0])
+    doors = {t.rstrip("/") for t in re.findall(r"`([^`]+)`", text)}
+    assert {"methods", "context", "spec"} <= doors, doors
+    core = ("gapsweep.core",)
+    beyond = tuple(p for p in PHYSICS if p not in core)
+    users = {m.split(".")[2] for m, deps in _graph().items() if m.startswith("gapsweep.sweep.")
+             and any(_under(d, beyond) for d in deps)}
+    assert users == doors, (sorted(users - doors), sorted(doors - users))
+
+
+def test_the_farm_is_pure_logic():
+    """Rule 7: sweep/farm.py imports only the standard library (no MPI, no GPU, no I/O packages, no gapsweep)."""
+    import sys
+
+    path = PKG / "sweep" / "farm.py"
+    assert _third_party(path) <= set(sys.stdlib_module_names), _third_party(path)
+    assert _graph()["gapsweep.sweep.farm"] == set()
+    assert "sweep/farm.py` imports nothing but the standard library" in _rule(7)
+
+
+def test_analysis_reads_stores_only_through_the_store_module():
+    """Rule 4: analysis opens no HDF5 file itself (no h5py, no mpi4py) and reaches the sweep only through
+    gapsweep.store / gapsweep.dataset and filesurface (the rooms table)."""
+    bad = sorted(m for m, p in _modules().items() if m.startswith("gapsweep.analysis")
+                 and _third_party(p) & {"h5py", "mpi4py"})
+    assert bad == []
+    sweep = {d for m, deps in _graph().items() if m.startswith("gapsweep.analysis") for d in deps
+             if d.startswith("gapsweep.sweep")}
+    assert sweep <= {"gapsweep.sweep.api", "gapsweep.sweep.dataset", "gapsweep.sweep.filesurface"}, sweep
+
+
+def test_library_code_prints_nothing_and_logs_under_gapsweep():
+    """Rule 8: no ``print`` call outside the drivers (cli, demo), and every logger the package creates is
+    ``__name__`` or a "gapsweep..." name (the CLI's one handler sees them); no root logger."""
+    prints, loggers = [], []
+    for m, p in sorted(_modules().items()):
+        tree = ast.parse(p.read_text(encoding="utf-8"))
+        for n in ast.walk(tree):
+            if not isinstance(n, ast.Call):
+                continue
+            if isinstance(n.func, ast.Name) and n.func.id == "print" and m not in ("gapsweep.cli", "gapsweep.demo"):
+                prints.append(f"{m}:{n.lineno}")
+            if isinstance(n.func, ast.Attribute) and n.func.attr == "getLogger":
+                arg = n.args[0] if n.args else None
+                ok = (isinstance(arg, ast.Name) and arg.id == "__name__") or (
+                    isinstance(arg, ast.Constant) and isinstance(arg.value, str)
+                    and (arg.value == "gapsweep" or arg.value.startswith("gapsweep.")))
+                if not ok:
+                    loggers.append(f"{m}:{n.lineno}")
+    assert prints == [] and loggers == [], (prints, loggers)
+    assert "print` call outside the drivers" in _rule(8)
+
+
+def test_studies_use_current_names_and_nothing_imports_them():
+    """The studies/ row: research scripts import gapsweep by its current names (no deprecated 0.1 name), and no
+    module of gapsweep imports studies (it is not installed)."""
+    root = PKG.parent / "studies"
+    files = sorted(root.glob("*.py"))
+    assert len(files) > 3
+    used = set()
+    for p in files:
+        tree = ast.parse(p.read_text(encoding="utf-8"))
+        for n in ast.walk(tree):
+            if isinstance(n, ast.Import):
+                used |= {a.name for a in n.names}
+            elif isinstance(n, ast.ImportFrom) and (n.module or "").startswith("gapsweep"):
+                used |= {n.module} | {f"{n.module}.{a.name}" for a in n.names}
+    assert used & gapsweep.DEPRECATED_NAMES == set()
+    assert [m for m, p in _modules().items() if "studies" in _third_party(p)] == []
+
+
+def test_every_file_the_architecture_names_exists():
+    """The structural statements of docs/architecture.md name files and folders (`sweep/farm.py`, `core/slab.py`,
+    `gfmd/_lean.py`, `tests/test_farm.py`, the data-path drawing's modules, ...): each exists, relative to the
+    repository, the package, the sweep or gfmd (a file moved or deleted takes its docs along)."""
+    import re
+
+    root = PKG.parent
+    drawing = ARCH[ARCH.index("```\njob spec"):].split("```", 2)[1]
+    names = set(re.findall(r"`([A-Za-z0-9_./-]+(?:\.py|\.md|\.toml|/))`", ARCH))
+    names |= {n for n in re.findall(r"[A-Za-z0-9_/]+\.py", drawing)}
+    assert {"sweep/farm.py", "core/slab.py", "sweep/api.py", "sweep/execute.py"} <= names, sorted(names)
+    bases = (root, PKG, PKG / "sweep", PKG / "gfmd")
+    missing = sorted(n for n in names if not any((b / n).exists() for b in bases))
+    assert missing == [], missing
+
+
+def _sweep_definitions() -> set[str]:
+    """Names the sweep defines: module-level functions, classes and constants, and ``Class.member`` for methods,
+    class fields and attributes set on ``self``."""
+    out: set[str] = set()
+    for p in (PKG / "sweep").rglob("*.py"):
+        for node in ast.parse(p.read_text(encoding="utf-8")).body:
+            if isinstance(node, (ast.FunctionDef, ast.ClassDef)):
+                out.add(node.name)
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target] if isinstance(
+                node, ast.AnnAssign) else []
+            for t in targets:
+                out |= {n.id for n in ast.walk(t) if isinstance(n, ast.Name)}
+            if isinstance(node, ast.ClassDef):
+                for n in ast.walk(node):
+                    if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                        out.add(f"{node.name}.{n.name}")
+                    elif isinstance(n, ast.AnnAssign) and isinstance(n.target, ast.Name):
+                        out.add(f"{node.name}.{n.target.id}")
+                    elif isinstance(n, ast.Attribute) and isinstance(n.value, ast.Name) and n.value.id == "self" \
+                            and isinstance(n.ctx, ast.Store):
+                        out.add(f"{node.name}.{n.attr}")
+    return out
+
+
+# the code names of docs/architecture.md's farm section: (as the doc writes it, as the code defines it)
+FARM_NAMES = (("_coordinate", "_coordinate"), ("_work", "_work"), ("_serial", "_serial"), ("_Local", "_Local"),
+              ("READY", "TAG_READY"), ("WORK", "TAG_WORK"), ("ROW", "TAG_ROW"), ("FAULT", "TAG_FAULT"),
+              ("STOP", "TAG_STOP"), ("farm.Worker.state", "Worker.state"), ("Farm.dispatch", "Farm.dispatch"),
+              ("Farm.left", "Farm.left"), ("Farm.no_gpu", "Farm.no_gpu"), ("Farm.stop", "Farm.stop"),
+              ("Context.prefetch", "Context.prefetch"), ("gpus.rank_gpu", "rank_gpu"))
+
+
+def test_the_farm_section_names_code_that_exists():
+    """docs/architecture.md's farm section names the runner's and the farm's functions, tags and fields; each is
+    written there and defined in the sweep (a renamed function takes its docs along)."""
+    section = ARCH[ARCH.index("## The farm"):].split("\n## ", 1)[0]
+    defined = _sweep_definitions()
+    assert "Farm.dispatch" in defined and "Farm.nonexistent" not in defined
+    missing_doc = [d for d, _ in FARM_NAMES if f"`{d}`" not in section]
+    missing_code = [c for _, c in FARM_NAMES if c not in defined]
+    assert missing_doc == [] and missing_code == [], (missing_doc, missing_code)
+
+
+def test_one_law_per_file_and_one_method_per_file():
+    """"Where a new thing goes": each file of gfmd/interactions/ (base aside) defines one Interaction subclass,
+    listed in INTERACTIONS, and every law of INTERACTIONS has a file of its own; each file of sweep/methods/ (base
+    aside) defines one registered Method or Extension plug-in, and every registered built-in has its own file."""
+    from gapsweep.gfmd import interactions
+    from gapsweep.sweep import methods
+    from gapsweep.sweep.methods import base
+
+    def own(mod, kind):
+        return [c for c in vars(mod).values() if isinstance(c, type) and issubclass(c, kind) and c is not kind
+                and c.__module__ == mod.__name__]
+
+    laws = {}
+    for p in sorted((PKG / "gfmd" / "interactions").glob("*.py")):
+        if p.stem not in ("__init__", "base"):
+            mod = importlib.import_module(f"gapsweep.gfmd.interactions.{p.stem}")
+            found = own(mod, interactions.Interaction)
+            assert len(found) == 1, (p.stem, found)
+            laws[p.stem] = found[0]
+    listed = {cls for cls, _ in interactions.INTERACTIONS.values()}
+    assert set(laws.values()) == listed and len(laws) >= 4
+    plugins = {}
+    for p in sorted((PKG / "sweep" / "methods").glob("*.py")):
+        if p.stem not in ("__init__", "base"):
+            mod = importlib.import_module(f"gapsweep.sweep.methods.{p.stem}")
+            found = own(mod, base.Method) + own(mod, base.Extension)
+            assert len(found) == 1, (p.stem, found)
+            plugins[p.stem] = found[0]
+    registered = {type(m) for m in base._REGISTRY.values()} | {type(e) for e in base._EXTENSIONS.values()}
+    registered = {c for c in registered if c.__module__.startswith("gapsweep.")}  # built-ins, not a test's toy
+    assert set(plugins.values()) == registered, (set(plugins.values()) ^ registered)
+    assert set(methods.names()) <= {c.name for c in plugins.values()}
 
 
 def test_no_top_level_analysis_package():

@@ -1,4 +1,4 @@
-"""The shared argument validators (gapsweep/_checks.py): types, ranges and the wording tests elsewhere match."""
+"""The shared argument validators (gapsweep/core/checks.py): types, ranges and the wording tests elsewhere match."""
 
 import math
 

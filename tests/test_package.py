@@ -107,7 +107,7 @@ def test_wheel_contents(tmp_path):
     for n in jobs.names():
         assert f"gapsweep/jobs/{n}.toml" in names, n
     assert {"gapsweep/jobs/data/rough_tilted_256.npy", "gapsweep/jobs/data/measured_tilted_192x128.npz",
-            "gapsweep/analysis/report.py", "gapsweep/store.py", "gapsweep/_alias.py"} <= set(names)
+            "gapsweep/analysis/report.py", "gapsweep/_compat/store.py", "gapsweep/_compat/__init__.py"} <= set(names)
     # the Slurm job scripts: `gapsweep submit` from an installed wheel (issue 28)
     assert {f"gapsweep/sweep/jobscripts/{n}.sbatch" for n in ("array_job", "merge_job", "mpi_job")} <= set(names)
     assert not any(n.startswith("gapsweep/") and "/studies/" in n for n in names)

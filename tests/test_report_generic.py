@@ -89,3 +89,25 @@ def test_report_folder_mode_follows_the_umask(tmp_path, monkeypatch, mask):
     out.chmod(0o750)
     report.main([tmp_path / "x.h5"], out, overwrite=True)
     assert stat.S_IMODE(out.stat().st_mode) == 0o750
+
+
+def test_generic_figures_say_quick_only_for_quick_jobs(monkeypatch):
+    """The footer of a per-job figure (mean gap against pressure, against H) warns "QUICK JOB" only for a quick
+    job. (Before, the per-job figures passed their "job ..." label as the quick flag, so every one of them said
+    QUICK JOB, a full job's included.)"""
+    from gapsweep.analysis import figures, report
+
+    rows = [{"job": job, "source": "gfmd", "count": 3, "n": 64, "hurst": h, "rho": 4e-3, "sigma0": s,
+             "sigma0_reduced": s} for job in ("full", "smoke") for h in (0.5, 0.6, 0.7) for s in (1e-3, 1e-2, 1e-1)]
+    agg = pd.DataFrame(rows)
+    notes: dict[str, str] = {}
+    monkeypatch.setattr(figures, "fig_mean_gap_pressure", lambda a, *, hurst, rhos, note: note)
+    monkeypatch.setattr(figures, "fig_mean_gap_hurst", lambda a, *, sigma0_reduced, rho, rtol, note: note)
+    plan = report.plan_figures(agg, {}, pd.DataFrame(), {}, {"smoke"})
+    for name, _, make in plan:
+        notes[name] = make()
+    assert {n.split("_")[1] for n in notes} == {"vs"} and len(notes) == 8, sorted(notes)
+    for name, note in notes.items():
+        job = "smoke" if "_smoke_" in name else "full"
+        assert f"job {job}" in note, (name, note)
+        assert (figures.QUICK_NOTE in note) == (job == "smoke"), (name, note)

@@ -52,25 +52,23 @@ INCONCLUSIVE = "inconclusive"  # the data exist but cannot decide: e.g. a fitted
 
 
 def provenance(path: str | Path) -> dict[str, Any]:
-    """File attributes of one store, read with h5py directly (docs/store.md): strings decoded, JSON values
-    (``runs``, ``versions``, ...) parsed. The spec text is kept under ``spec`` when present."""
-    import h5py
+    """File attributes of one store (docs/store.md), read through :func:`gapsweep.store.read_attrs` (the store is
+    validated on open): strings decoded, numpy values as Python values, JSON values (``runs``, ``versions``,
+    ...) parsed. The spec text is kept under ``spec`` when present."""
+    from gapsweep import store
 
     out: dict[str, Any] = {"path": str(path)}
-    with h5py.File(path, "r", locking=False) as f:
-        for k, v in f.attrs.items():
-            if isinstance(v, bytes):
-                v = v.decode("utf-8", "replace")
-            elif isinstance(v, np.generic):
-                v = v.item()
-            elif isinstance(v, np.ndarray):
-                v = v.tolist()
-            if isinstance(v, str) and v[:1] in "[{":
-                try:
-                    v = json.loads(v)
-                except ValueError:
-                    pass
-            out[k] = v
+    for k, v in store.read_attrs(path).items():
+        if isinstance(v, np.generic):
+            v = v.item()
+        elif isinstance(v, np.ndarray):
+            v = v.tolist()
+        if isinstance(v, str) and v[:1] in "[{":
+            try:
+                v = json.loads(v)
+            except ValueError:
+                pass
+        out[k] = v
     return out
 
 
@@ -176,46 +174,64 @@ def verdicts(cmp: pd.DataFrame, dist: pd.DataFrame, calib: pd.DataFrame | None =
     fitted at the edge of its bounds (status "at_bound": the fit found no optimum inside them, so the model's
     distance reflects the bound, not the model) is "inconclusive" and says why."""
     v = _valid(cmp)
-    out: list[dict[str, str]] = []
+    return [
+        _curve_claim(v, "At H = 0.3 the field theory agrees with GFMD for rho/L = 2e-3 and 1e-3", 0.3, [2e-3, 1e-3],
+                     [], "fig2"),
+        _overestimation_claim(v),
+        _curve_claim(v, "At H = 0.8 the field theory agrees with GFMD only for rho/L = 5e-3 (not 2e-3, 1e-3)", 0.8,
+                     [5e-3], [2e-3, 1e-3], "fig3"),
+        _pressure_claim(v),
+        _h_rms_claim(v),
+        *_distribution_claims(dist, calib),
+    ]
 
-    def curve_claim(claim: str, hurst: float, good: Sequence[float], bad: Sequence[float], job: str) -> None:
-        vv = _prefer(v, job)
-        ev, ok_all, have = [], True, True
-        for rho, want in [(r, True) for r in good] + [(r, False) for r in bad]:
-            m = _curve_max(vv, hurst, rho) if len(vv) else None
-            if m is None:
-                have = False
-                ev.append(f"rho/L={rho:g}: no data")
-                continue
-            agrees = m[0] <= AGREE
-            ok_all &= agrees == want
-            ev.append(f"rho/L={rho:g}: max |rel err| = {m[0] * 100:.2g} % at sigma0/(E* g_rms) = {m[1]:.3g} "
-                      f"({m[2]} points) -> {'agrees' if agrees else 'does not agree'}")
-        verdict = NOT_ENOUGH if not have else ("confirmed" if ok_all else "not confirmed")
-        out.append({"claim": claim, "verdict": verdict, "evidence": "; ".join(ev)})
 
-    curve_claim("At H = 0.3 the field theory agrees with GFMD for rho/L = 2e-3 and 1e-3", 0.3, [2e-3, 1e-3], [], "fig2")
+def _curve_claim(v: pd.DataFrame, claim: str, hurst: float, good: Sequence[float], bad: Sequence[float],
+                 job: str) -> dict[str, str]:
+    """Claims 1 and 3: the theory agrees with GFMD (max |rel err| <= AGREE) on the curves of ``good`` rho and
+    does not on those of ``bad`` (the job's rows preferred)."""
+    vv = _prefer(v, job)
+    ev, ok_all, have = [], True, True
+    for rho, want in [(r, True) for r in good] + [(r, False) for r in bad]:
+        m = _curve_max(vv, hurst, rho) if len(vv) else None
+        if m is None:
+            have = False
+            ev.append(f"rho/L={rho:g}: no data")
+            continue
+        agrees = m[0] <= AGREE
+        ok_all &= agrees == want
+        ev.append(f"rho/L={rho:g}: max |rel err| = {m[0] * 100:.2g} % at sigma0/(E* g_rms) = {m[1]:.3g} "
+                  f"({m[2]} points) -> {'agrees' if agrees else 'does not agree'}")
+    verdict = NOT_ENOUGH if not have else ("confirmed" if ok_all else "not confirmed")
+    return {"claim": claim, "verdict": verdict, "evidence": "; ".join(ev)}
 
-    # Claim 2: overestimation at rho = 5e-4, low pressure.
+
+def _overestimation_claim(v: pd.DataFrame) -> dict[str, str]:
+    """Claim 2: overestimation at rho = 5e-4, low pressure (every point more than 2 standard errors above 0)."""
     claim = "At H = 0.3, rho/L = 5e-4 the field theory overestimates the mean gap for sigma0/(E* g_rms) < 1e-2"
     v2 = _prefer(v, "fig2")
     g = v2[_near(v2["hurst"], 0.3) & _near(v2["rho"], 5e-4) & (v2["sigma0_reduced"] < 1e-2)] if len(v2) else v2
     if len(g) < 1:
-        out.append({"claim": claim, "verdict": NOT_ENOUGH, "evidence": "no valid points at H=0.3, rho/L=5e-4, "
-                    "sigma0/(E* g_rms) < 1e-2"})
-    else:
-        sem = g["rel_err_sem"].fillna(0.0)
-        above = int(((g["rel_err"] - 2 * sem) > 0).sum())
-        big = float(g["rel_err"].max())
-        ok = above == len(g) and big > AGREE
-        out.append({"claim": claim, "verdict": "confirmed" if ok else "not confirmed",
-                    "evidence": f"{above}/{len(g)} points with rel err > 2 standard errors above 0; rel err from "
-                                f"{g['rel_err'].min() * 100:.2g} % to {big * 100:.2g} %"})
+        return {"claim": claim, "verdict": NOT_ENOUGH, "evidence": "no valid points at H=0.3, rho/L=5e-4, "
+                "sigma0/(E* g_rms) < 1e-2"}
+    sem = g["rel_err_sem"].fillna(0.0)
+    above = int(((g["rel_err"] - 2 * sem) > 0).sum())
+    big = float(g["rel_err"].max())
+    ok = above == len(g) and big > AGREE
+    return {"claim": claim, "verdict": "confirmed" if ok else "not confirmed",
+            "evidence": f"{above}/{len(g)} points with rel err > 2 standard errors above 0; rel err from "
+                        f"{g['rel_err'].min() * 100:.2g} % to {big * 100:.2g} %"}
 
-    curve_claim("At H = 0.8 the field theory agrees with GFMD only for rho/L = 5e-3 (not 2e-3, 1e-3)", 0.8,
-                [5e-3], [2e-3, 1e-3], "fig3")
 
-    # Claim 4: agreement improves with pressure.
+def _trend_verdict(signs: Sequence[bool]) -> str:
+    """All indicators agree: confirmed; at least half: mostly confirmed; else not confirmed."""
+    frac = sum(signs) / len(signs)
+    return "confirmed" if frac == 1 else ("mostly confirmed" if frac >= 0.5 else "not confirmed")
+
+
+def _pressure_claim(v: pd.DataFrame) -> dict[str, str]:
+    """Claim 4: agreement improves with pressure (per curve: Spearman of |rel err| against pressure; figs 4/5:
+    the mean |rel err| at sigma0/(E* g_rms) = 0.01 against 0.1)."""
     claim = "Agreement improves with pressure"
     ev, signs = [], []
     if len(v):
@@ -238,15 +254,15 @@ def verdicts(cmp: pd.DataFrame, dist: pd.DataFrame, calib: pd.DataFrame | None =
             ev.append(f"figs 4/5 (rho/L=2e-3, {len(common)} H values): mean |rel err| {a * 100:.2g} % at "
                       f"sigma0/(E* g_rms)=0.01 vs {b * 100:.2g} % at 0.1")
     if not signs:
-        out.append({"claim": claim, "verdict": NOT_ENOUGH, "evidence": "; ".join(ev) or "no curve with >= 3 points "
-                    "and an error above 1 %"})
-    else:
-        frac = sum(signs) / len(signs)
-        verdict = "confirmed" if frac == 1 else ("mostly confirmed" if frac >= 0.5 else "not confirmed")
-        out.append({"claim": claim, "verdict": verdict,
-                    "evidence": f"{sum(signs)}/{len(signs)} indicators improve with pressure: " + "; ".join(ev)})
+        return {"claim": claim, "verdict": NOT_ENOUGH, "evidence": "; ".join(ev) or "no curve with >= 3 points "
+                "and an error above 1 %"}
+    return {"claim": claim, "verdict": _trend_verdict(signs),
+            "evidence": f"{sum(signs)}/{len(signs)} indicators improve with pressure: " + "; ".join(ev)}
 
-    # Claim 5: agreement worsens with h_rms/rho at fixed reduced pressure.
+
+def _h_rms_claim(v: pd.DataFrame) -> dict[str, str]:
+    """Claim 5: agreement worsens with h_rms/rho at fixed reduced pressure (Spearman per pressure with >= 3
+    distinct h_rms/rho)."""
     claim = "Agreement worsens as h_rms/rho grows"
     ev, signs = [], []
     if len(v):
@@ -258,19 +274,16 @@ def verdicts(cmp: pd.DataFrame, dist: pd.DataFrame, calib: pd.DataFrame | None =
                     signs.append(rs > 0)
                     ev.append(f"sigma0/(E* g_rms)={s:g}: Spearman(h_rms/rho, |rel err|) = {rs:+.2f} ({len(g)} pts)")
     if not signs:
-        out.append({"claim": claim, "verdict": NOT_ENOUGH,
-                    "evidence": "no reduced pressure with >= 3 distinct h_rms/rho values"})
-    else:
-        frac = sum(signs) / len(signs)
-        verdict = "confirmed" if frac == 1 else ("mostly confirmed" if frac >= 0.5 else "not confirmed")
-        out.append({"claim": claim, "verdict": verdict,
-                    "evidence": f"{sum(signs)}/{len(signs)} pressures: " + "; ".join(ev[:8])
-                                + (" ..." if len(ev) > 8 else "")})
+        return {"claim": claim, "verdict": NOT_ENOUGH,
+                "evidence": "no reduced pressure with >= 3 distinct h_rms/rho values"}
+    return {"claim": claim, "verdict": _trend_verdict(signs),
+            "evidence": f"{sum(signs)}/{len(signs)} pressures: " + "; ".join(ev[:8]) + (" ..." if len(ev) > 8 else "")}
 
-    # Claims 6 and 7: gap distribution (figure 6: H = 0.3, rho = 2e-3). After calibration: the Fokker-Planck
-    # density at the fitted C2 (the SDE's distribution); before: the store's SDE runs at the job's C2.
-    claim6 = "The SDE gap distribution (calibrated C2) matches GFMD at sigma0/E* = 1e-4 (H = 0.3, rho/L = 2e-3)"
-    claim7 = "The SDE gap distribution deviates from GFMD at small gaps as the pressure grows"
+
+def _distribution_rows(dist: pd.DataFrame) -> tuple[pd.DataFrame, str, pd.DataFrame, pd.DataFrame]:
+    """The figure-6 distances (H = 0.3, rho = 2e-3) a gap-distribution verdict rests on: ``(use, tag, after,
+    before)``, ``use`` the calibrated Fokker-Planck rows when there are any, else the SDE rows (at the best stored
+    C2 when several), sorted by pressure; ``tag`` says which."""
     d = _prefer(dist, "fig6")
     d = d[_near(d["hurst"], 0.3) & _near(d["rho"], 2e-3)] if len(d) else d
     after = d[d["method"] == "fp_calibrated"] if len(d) else d
@@ -281,52 +294,68 @@ def verdicts(cmp: pd.DataFrame, dist: pd.DataFrame, calib: pd.DataFrame | None =
         best = use.groupby("c2")["l1"].mean().idxmin()  # several job C2 values: the best stored one
         use, tag = use[use["c2"] == best], f"SDE at the best stored C2 = {best:g} (no calibration)"
     use = use.sort_values("sigma0") if len(use) else use
+    return use, tag, after, before
+
+
+def _distribution_claims(dist: pd.DataFrame, calib: pd.DataFrame | None) -> list[dict[str, str]]:
+    """Claims 6 and 7: gap distribution (figure 6: H = 0.3, rho = 2e-3). After calibration: the Fokker-Planck
+    density at the fitted C2 (the SDE's distribution); before: the store's SDE runs at the job's C2."""
+    claim6 = "The SDE gap distribution (calibrated C2) matches GFMD at sigma0/E* = 1e-4 (H = 0.3, rho/L = 2e-3)"
+    claim7 = "The SDE gap distribution deviates from GFMD at small gaps as the pressure grows"
+    use, tag, after, before = _distribution_rows(dist)
     if use.empty:
-        out.append({"claim": claim6, "verdict": NOT_ENOUGH, "evidence": "no SDE/FP and GFMD histograms at H=0.3, "
-                    "rho/L=2e-3"})
-        out.append({"claim": claim7, "verdict": NOT_ENOUGH, "evidence": "no SDE/FP and GFMD histograms at H=0.3, "
-                    "rho/L=2e-3"})
-        return out
+        none = "no SDE/FP and GFMD histograms at H=0.3, rho/L=2e-3"
+        return [{"claim": claim6, "verdict": NOT_ENOUGH, "evidence": none},
+                {"claim": claim7, "verdict": NOT_ENOUGH, "evidence": none}]
     bound = _at_bound(use, calib) if len(after) else []
-
-    def inconclusive(claim: str, rows: pd.DataFrame) -> bool:
-        hit = [b for b in bound if any(_near(rows["sigma0"], b[0]))]
-        if not hit:
-            return False
-        out.append({"claim": claim, "verdict": INCONCLUSIVE,
-                    "evidence": f"{tag}: the fitted C2 is at the edge of its bounds at {len(hit)} of {len(rows)} "
-                                "pressure(s) (" + "; ".join(f"sigma0/E* = {s0:.3g}: {msg}" for s0, msg in hit[:4])
-                                + "): the fit found no optimum inside the bounds, so the calibrated distribution "
-                                "shows the bound, not the model; widen c2_bounds or use another metric"})
-        return True
-
     low = use[_near(use["sigma0"], 1e-4, 0.02)]  # sigma0/E*; E* = 1 in the paper's set
     if low.empty:
-        out.append({"claim": claim6, "verdict": NOT_ENOUGH, "evidence": f"{tag}: no point at sigma0/E* = 1e-4"})
-    elif inconclusive(claim6, low.iloc[:1]):
-        pass
+        v6 = {"claim": claim6, "verdict": NOT_ENOUGH, "evidence": f"{tag}: no point at sigma0/E* = 1e-4"}
     else:
-        r = low.iloc[0]
-        ok = r["l1"] <= MATCH_L1
-        b0 = before[_near(before["sigma0"], 1e-4, 0.02)] if len(before) else before
-        extra = "".join(f"; before calibration (SDE, C2 = {x['c2']:g}): L1 = {x['l1']:.3f}" for _, x in b0.iterrows())
-        out.append({"claim": claim6, "verdict": "confirmed" if ok else "not confirmed",
-                    "evidence": f"{tag}, C2 = {r['c2']:.3g}: L1 = {r['l1']:.3f}, KS = {r['ks']:.3f}, "
-                                f"W1/h_rms = {r['w1_over_hrms']:.3f} (match: L1 <= {MATCH_L1:g}){extra}"})
+        v6 = _inconclusive(claim6, low.iloc[:1], bound, tag) or _match_claim(claim6, low.iloc[0], before, tag)
     if len(use) < 3:
-        out.append({"claim": claim7, "verdict": NOT_ENOUGH, "evidence": f"{tag}: {len(use)} pressures (need >= 3)"})
-    elif inconclusive(claim7, use):
-        pass
+        v7 = {"claim": claim7, "verdict": NOT_ENOUGH, "evidence": f"{tag}: {len(use)} pressures (need >= 3)"}
     else:
-        rs = _spearman(use["sigma0"], use["l1"])
-        top = use.iloc[-1]
-        small = top["l1_below"] > top["l1_above"]
-        ok = rs > 0 and small
-        out.append({"claim": claim7, "verdict": "confirmed" if ok else "not confirmed",
-                    "evidence": f"{tag}: Spearman(sigma0, L1) = {rs:+.2f}; L1 from {use['l1'].iloc[0]:.3f} to "
-                                f"{top['l1']:.3f}; at the highest sigma0/E* = {top['sigma0']:.3g} the L1 below the "
-                                f"GFMD mean gap is {top['l1_below']:.3f} vs {top['l1_above']:.3f} above"})
-    return out
+        v7 = _inconclusive(claim7, use, bound, tag) or _deviation_claim(claim7, use, tag)
+    return [v6, v7]
+
+
+def _inconclusive(claim: str, rows: pd.DataFrame, bound: Sequence[tuple[float, str]], tag: str,
+                  ) -> dict[str, str] | None:
+    """The "inconclusive" verdict of a claim whose rows include a pressure where the fitted C2 sits at the edge
+    of its bounds (``bound``: ``(sigma0, message)``), else None."""
+    hit = [b for b in bound if any(_near(rows["sigma0"], b[0]))]
+    if not hit:
+        return None
+    return {"claim": claim, "verdict": INCONCLUSIVE,
+            "evidence": f"{tag}: the fitted C2 is at the edge of its bounds at {len(hit)} of {len(rows)} "
+                        "pressure(s) (" + "; ".join(f"sigma0/E* = {s0:.3g}: {msg}" for s0, msg in hit[:4])
+                        + "): the fit found no optimum inside the bounds, so the calibrated distribution "
+                        "shows the bound, not the model; widen c2_bounds or use another metric"}
+
+
+def _match_claim(claim: str, r: pd.Series, before: pd.DataFrame, tag: str) -> dict[str, str]:
+    """Claim 6 on the row at sigma0/E* = 1e-4: a match is L1 <= MATCH_L1; the SDE rows before calibration are
+    quoted."""
+    ok = r["l1"] <= MATCH_L1
+    b0 = before[_near(before["sigma0"], 1e-4, 0.02)] if len(before) else before
+    extra = "".join(f"; before calibration (SDE, C2 = {x['c2']:g}): L1 = {x['l1']:.3f}" for _, x in b0.iterrows())
+    return {"claim": claim, "verdict": "confirmed" if ok else "not confirmed",
+            "evidence": f"{tag}, C2 = {r['c2']:.3g}: L1 = {r['l1']:.3f}, KS = {r['ks']:.3f}, "
+                        f"W1/h_rms = {r['w1_over_hrms']:.3f} (match: L1 <= {MATCH_L1:g}){extra}"}
+
+
+def _deviation_claim(claim: str, use: pd.DataFrame, tag: str) -> dict[str, str]:
+    """Claim 7: L1 grows with pressure (Spearman > 0) and at the highest pressure most of it lies below the GFMD
+    mean gap."""
+    rs = _spearman(use["sigma0"], use["l1"])
+    top = use.iloc[-1]
+    small = top["l1_below"] > top["l1_above"]
+    ok = rs > 0 and small
+    return {"claim": claim, "verdict": "confirmed" if ok else "not confirmed",
+            "evidence": f"{tag}: Spearman(sigma0, L1) = {rs:+.2f}; L1 from {use['l1'].iloc[0]:.3f} to "
+                        f"{top['l1']:.3f}; at the highest sigma0/E* = {top['sigma0']:.3g} the L1 below the "
+                        f"GFMD mean gap is {top['l1_below']:.3f} vs {top['l1_above']:.3f} above"}
 
 
 def _at_bound(use: pd.DataFrame, calib: pd.DataFrame | None) -> list[tuple[float, str]]:
@@ -380,18 +409,29 @@ def _hist_long(hagg: Mapping[tuple, aggregate.HistogramStats]) -> pd.DataFrame:
     return pd.concat(rows, ignore_index=True) if rows else pd.DataFrame()
 
 
+def _md_inline(t: str) -> str:
+    """Inline Markdown (images, links, code, bold, italics) of one escaped line to HTML."""
+    t = html.escape(t)
+    t = re.sub(r"!\[([^\]]*)\]\(([^)]+)\)", r'<img alt="\1" src="\2" style="max-width:100%">', t)
+    t = re.sub(r"\[([^\]]+)\]\(([^)]+)\)", r'<a href="\2">\1</a>', t)
+    t = re.sub(r"`([^`]+)`", r"<code>\1</code>", t)
+    t = re.sub(r"\*\*([^*]+)\*\*", r"<b>\1</b>", t)
+    return re.sub(r"(?<![\w*])_([^_]+)_(?![\w*])", r"<i>\1</i>", t)
+
+
+def _md_table_row(line: str, header: bool) -> str | None:
+    """One Markdown table line as an HTML row (``th`` cells for the header), None for the separator line."""
+    cells = [c.strip().replace("\\|", "|") for c in re.split(r"(?<!\\)\|", line.strip()[1:-1])]
+    if all(set(c) <= {"-", ":"} and c for c in cells):
+        return None
+    tag = "th" if header else "td"
+    return "<tr>" + "".join(f"<{tag}>{_md_inline(c)}</{tag}>" for c in cells) + "</tr>"
+
+
 def _md_to_html(md: str, title: str) -> str:
     """A small Markdown subset (headings, tables, images, lists, paragraphs, code blocks) to HTML."""
     out, in_table, in_list, in_code = [], False, False, False
-
-    def inline(t: str) -> str:
-        t = html.escape(t)
-        t = re.sub(r"!\[([^\]]*)\]\(([^)]+)\)", r'<img alt="\1" src="\2" style="max-width:100%">', t)
-        t = re.sub(r"\[([^\]]+)\]\(([^)]+)\)", r'<a href="\2">\1</a>', t)
-        t = re.sub(r"`([^`]+)`", r"<code>\1</code>", t)
-        t = re.sub(r"\*\*([^*]+)\*\*", r"<b>\1</b>", t)
-        return re.sub(r"(?<![\w*])_([^_]+)_(?![\w*])", r"<i>\1</i>", t)
-
+    inline = _md_inline
     for line in md.splitlines():
         if line.startswith("```"):
             out.append("</pre>" if in_code else "<pre>")
@@ -407,14 +447,13 @@ def _md_to_html(md: str, title: str) -> str:
             out.append("</ul>")
             in_list = False
         if line.startswith("|"):
-            cells = [c.strip().replace("\\|", "|") for c in re.split(r"(?<!\\)\|", line.strip()[1:-1])]
-            if all(set(c) <= {"-", ":"} and c for c in cells):
+            row = _md_table_row(line, header=not in_table)
+            if row is None:
                 continue
-            tag = "th" if not in_table else "td"
             if not in_table:
                 out.append('<table border="1" cellspacing="0" cellpadding="3">')
                 in_table = True
-            out.append("<tr>" + "".join(f"<{tag}>{inline(c)}</{tag}>" for c in cells) + "</tr>")
+            out.append(row)
         elif line.startswith("#"):
             k = len(line) - len(line.lstrip("#"))
             out.append(f"<h{k}>{inline(line[k:].strip())}</h{k}>")
@@ -567,14 +606,37 @@ def plan_figures(agg: pd.DataFrame, hagg: Mapping[tuple, Any], points: pd.DataFr
     per job: mean gap against pressure per H (a panel per rho with >= 3 pressures), mean gap against H per rho (a
     panel per reduced pressure with >= 3 H values), gap distributions per (H, rho); and the agreement map. Only
     data that exist get a figure or a panel, so no figure is blank."""
-    plan: list[tuple[str, str, Any]] = []
-    covered_p: set[tuple[str, float]] = set()
-    covered_h: set[tuple[str, float, float]] = set()
-    covered_d: set[tuple[str, float, float]] = set()
 
     def note(a: pd.DataFrame, job: str, q: bool | None = None) -> str:
         return figures.footer(a, quick=(job in quick) if q is None else q, extra=f"job {job}" if job else "")
 
+    plan, covered_p, covered_h, covered_d = _paper_figures(agg, hagg, matches, note)
+    generic = _job_figures(agg, covered_p, covered_h, note)
+    for job, hurst, rho in sorted({(str(k[-1]), k[1], k[2]) for k in hagg}):
+        if (job, hurst, rho) in covered_d:
+            continue
+        sel = {k: v for k, v in hagg.items() if str(k[-1]) == job}
+        tag = _slug(job) if job else "store"
+        cap = f"Gap distribution P(g), H = {hurst:g}, rho/L = {rho:g} (job {job or '-'})"
+        generic.append((f"gap_distribution_{tag}_H{_slug(float(hurst))}_rho{_slug(float(rho))}", cap,
+                        lambda sel=sel, h=hurst, r=rho, q=job in quick: figures.fig_gap_distribution(
+                            sel, hurst=h, rho=r, quick=q)))
+    plan += generic
+    if len(points) and (points["tier"] != "no GFMD data").any():
+        plan.append(("fig_agreement", dict(FIGURES)["fig_agreement"],
+                     lambda: figures.fig_agreement(points[points["tier"] != "no GFMD data"],
+                                                   note=figures.footer(agg, quick=bool(quick)))))
+    return plan
+
+
+def _paper_figures(agg: pd.DataFrame, hagg: Mapping[tuple, Any], matches: Mapping[str, Mapping[str, Any]],
+                   note: Any) -> tuple[list[tuple[str, str, Any]], set, set, set]:
+    """The paper's figures for the jobs matching its parameter sets: ``(plan, (job, H) of the pressure figures,
+    (job, rho, level) of the H figures, (job, H, rho) of the distribution figure)``."""
+    plan: list[tuple[str, str, Any]] = []
+    covered_p: set[tuple[str, float]] = set()
+    covered_h: set[tuple[str, float, float]] = set()
+    covered_d: set[tuple[str, float, float]] = set()
     for name, (hurst, rhos) in PAPER_PRESSURE_SETS.items():
         if name in matches:
             job, q = matches[name]["job"], matches[name]["quick"]
@@ -598,7 +660,12 @@ def plan_figures(agg: pd.DataFrame, hagg: Mapping[tuple, Any], points: pd.DataFr
         cap = dict(FIGURES)["fig6"] + f" (the paper's set; job {job or '-'}{', quick' if q else ''})"
         plan.append(("fig6", cap, lambda sel=sel, q=q: figures.fig_gap_distribution(sel, hurst=hh, rho=rr, quick=q)))
         covered_d.add((job, hh, rr))
+    return plan, covered_p, covered_h, covered_d
 
+
+def _job_figures(agg: pd.DataFrame, covered_p: set, covered_h: set, note: Any) -> list[tuple[str, str, Any]]:
+    """Per job, beyond the paper's figures: mean gap against pressure per H (a panel per rho with >= 3
+    pressures) and mean gap against H per rho (a panel per reduced pressure with >= 3 H values, at most 4)."""
     generic: list[tuple[str, str, Any]] = []
     for job in sorted(set(agg["job"].astype(str))) if len(agg) else []:
         a = _job_rows(agg, job)
@@ -614,36 +681,30 @@ def plan_figures(agg: pd.DataFrame, hagg: Mapping[tuple, Any], points: pd.DataFr
                        f"(job {job or '-'})")
                 generic.append((f"gap_vs_pressure_{tag}_H{_slug(float(hurst))}", cap,
                                 lambda a=a, h=hurst, r=rhos, job=job: figures.fig_mean_gap_pressure(
-                                    a, hurst=h, rhos=r, note=note(a[_near(a["hurst"], h)], job, f"job {job}"))))
-        for rho in sorted(set(src["rho"]), reverse=True):
-            g = src[_near(src["rho"], rho)]
-            levels = sorted({float(f"{x:.6g}") for x in g["sigma0_reduced"]})
-            levels = [lv for lv in levels if g[_near(g["sigma0_reduced"], lv, 1e-4)]["hurst"].nunique() >= 3
-                      and (job, rho, lv) not in covered_h]
-            if len(levels) > 4:
-                levels = [levels[i] for i in np.unique(np.linspace(0, len(levels) - 1, 4).round().astype(int))]
-            if levels:
-                cap = (f"Mean gap against the Hurst exponent, rho/L = {rho:g}, sigma0/(E* g_rms) = "
-                       f"{', '.join(f'{lv:g}' for lv in levels)} (job {job or '-'})")
-                generic.append((f"gap_vs_hurst_{tag}_rho{_slug(float(rho))}", cap,
-                                lambda a=a, r=rho, lv=levels, job=job: figures.fig_mean_gap_hurst(
-                                    a, sigma0_reduced=lv, rho=r, rtol=1e-4,
-                                    note=note(a[_near(a["rho"], r)], job, f"job {job}"))))
-    for job, hurst, rho in sorted({(str(k[-1]), k[1], k[2]) for k in hagg}):
-        if (job, hurst, rho) in covered_d:
-            continue
-        sel = {k: v for k, v in hagg.items() if str(k[-1]) == job}
-        tag = _slug(job) if job else "store"
-        cap = f"Gap distribution P(g), H = {hurst:g}, rho/L = {rho:g} (job {job or '-'})"
-        generic.append((f"gap_distribution_{tag}_H{_slug(float(hurst))}_rho{_slug(float(rho))}", cap,
-                        lambda sel=sel, h=hurst, r=rho, q=job in quick: figures.fig_gap_distribution(
-                            sel, hurst=h, rho=r, quick=q)))
-    plan += generic
-    if len(points) and (points["tier"] != "no GFMD data").any():
-        plan.append(("fig_agreement", dict(FIGURES)["fig_agreement"],
-                     lambda: figures.fig_agreement(points[points["tier"] != "no GFMD data"],
-                                                   note=figures.footer(agg, quick=bool(quick)))))
-    return plan
+                                    a, hurst=h, rhos=r, note=note(a[_near(a["hurst"], h)], job))))
+        generic += _hurst_figures(job, a, src, tag, covered_h, note)
+    return generic
+
+
+def _hurst_figures(job: str, a: pd.DataFrame, src: pd.DataFrame, tag: str, covered_h: set,
+                   note: Any) -> list[tuple[str, str, Any]]:
+    """Mean gap against H for one job, one figure per rho (a panel per reduced pressure with >= 3 H values)."""
+    out: list[tuple[str, str, Any]] = []
+    for rho in sorted(set(src["rho"]), reverse=True):
+        g = src[_near(src["rho"], rho)]
+        levels = sorted({float(f"{x:.6g}") for x in g["sigma0_reduced"]})
+        levels = [lv for lv in levels if g[_near(g["sigma0_reduced"], lv, 1e-4)]["hurst"].nunique() >= 3
+                  and (job, rho, lv) not in covered_h]
+        if len(levels) > 4:
+            levels = [levels[i] for i in np.unique(np.linspace(0, len(levels) - 1, 4).round().astype(int))]
+        if levels:
+            cap = (f"Mean gap against the Hurst exponent, rho/L = {rho:g}, sigma0/(E* g_rms) = "
+                   f"{', '.join(f'{lv:g}' for lv in levels)} (job {job or '-'})")
+            out.append((f"gap_vs_hurst_{tag}_rho{_slug(float(rho))}", cap,
+                        lambda a=a, r=rho, lv=levels, job=job: figures.fig_mean_gap_hurst(
+                            a, sigma0_reduced=lv, rho=r, rtol=1e-4,
+                            note=note(a[_near(a["rho"], r)], job))))
+    return out
 
 
 def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
@@ -673,13 +734,10 @@ def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
     calib, models = compare.calibrate_c2(hagg, keys=where) if where else (pd.DataFrame(), {})
     dist = compare.histogram_distances({**hagg, **models})
     field_theory = len(df) > 0  # rows of the exponential law: the field-theory tables, figures and the paper's claims
-    # A table without rows is not written (a contact-only store gets no field-theory CSV files).
-    for name, frame in (("status", status), ("mean_gap", agg), ("theory_vs_gfmd", cmp), ("agreement_points", points),
-                        ("agreement_summary", summary), ("hist_distances", dist), ("calibration", calib),
-                        ("histograms", _hist_long({**hagg, **models})), ("contact", cpoints),
-                        ("contact_vs_persson", cpersson), ("contact_vs_persson_summary", csummary)):
-        if len(frame):
-            frame.to_csv(out / f"{name}.csv", index=False)
+    _write_tables(out, {"status": status, "mean_gap": agg, "theory_vs_gfmd": cmp, "agreement_points": points,
+                        "agreement_summary": summary, "hist_distances": dist, "calibration": calib,
+                        "histograms": _hist_long({**hagg, **models}), "contact": cpoints,
+                        "contact_vs_persson": cpersson, "contact_vs_persson_summary": csummary})
 
     quick = quick_jobs(pd.concat([df, cdf]) if len(cdf) else df, prov)
     matches = paper_matches(df, agg, hagg, quick) if field_theory else {}
@@ -690,22 +748,9 @@ def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
     # the contact-mechanics challenge's outputs (jobs with its law; gapsweep.analysis.challenge)
     cplan, ctables = challenge.plan(cdf, cpoints, infos, quick) if len(cdf) else ([], {})
     plan = cplan + plan
-    for name, frame in ctables.items():
-        if len(frame):
-            frame.to_csv(out / f"{name}.csv", index=False)
+    _write_tables(out, ctables)
     omitted = plan[MAX_FIGURES:]
-    made: list[dict[str, Any]] = []
-    for name, cap, make in plan[:MAX_FIGURES]:
-        fig = make()
-        pts = _panel_points(fig)
-        if not pts or min(pts) == 0:
-            log.warning("figure %s has a panel without data: left out", name)
-            continue
-        figures.save(fig, out, name)
-        made.append({"figure": name, "caption": cap, "panels": len(pts), "min_points": min(pts)})
-    if made:
-        pd.DataFrame(made, columns=["figure", "caption", "panels", "min_points"]).to_csv(out / "figures.csv",
-                                                                                        index=False)
+    made = _draw_figures(plan[:MAX_FIGURES], out)
 
     md: list[str] = [f"# {title}", ""]
     if quick:
@@ -715,23 +760,8 @@ def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
     ver = _paper_verdicts(cmp, dist, matches, calib) if matches else []
     if field_theory:  # a contact-only report says nothing about the seed paper
         md += _verdict_section(ver, matches)
-    md += ["## Tasks", "", "Rows per method and status. Failed, not converged, pending and invalid rows are counted "
-           "here and in every table, never averaged in.", "", _md_table(status)]
-    bad = df[df["status"].isin(["failed", "not_converged"])]
-    if len(bad):
-        cols = [c for c in ("task_id", "method", "status", "hurst", "rho", "sigma0", "seed", "n", "message")
-                if c in bad]
-        md += [f"{len(bad)} failed or unconverged tasks (first 20):", "", _md_table(bad, cols, 20)]
-    md += ["## Figures", "", SYMBOLS if field_theory else contact.SYMBOLS, ""]
-    if len(cdf) and field_theory:
-        md += [contact.SYMBOLS, ""]
-    if not made:
-        md += ["_No figure: the stores hold no finished GFMD, theory or histogram result yet._", ""]
-    for f in made:
-        md += [f"### {f['caption']}", "", f"![{f['figure']}]({f['figure']}.png)", "", f"[PDF]({f['figure']}.pdf)", ""]
-    if omitted:
-        md += [f"_{len(omitted)} more figures were not drawn (at most {MAX_FIGURES}): "
-               + ", ".join(n for n, _, _ in omitted) + "._", ""]
+    md += _tasks_section(df, status)
+    md += _figures_section(made, omitted, field_theory=field_theory, contact_too=bool(len(cdf)))
     if len(cdf):
         md += _contact_section(cpoints, cpersson, csummary, infos)
         md += challenge.section(ctables, _md_table)
@@ -747,6 +777,60 @@ def build(df: pd.DataFrame, hists: Mapping[Any, tuple], out_dir: str | Path,
                                                     *_verdict_section(ver, matches)[2:]]) + "\n")
     log.debug("report: %d figures into %s", len(made), out)
     return path
+
+
+def _write_tables(out: Path, tables: Mapping[str, pd.DataFrame]) -> None:
+    """``<name>.csv`` for each table with rows (a table without rows is not written: a contact-only store gets
+    no field-theory CSV files)."""
+    for name, frame in tables.items():
+        if len(frame):
+            frame.to_csv(out / f"{name}.csv", index=False)
+
+
+def _draw_figures(plan: Sequence[tuple[str, str, Any]], out: Path) -> list[dict[str, Any]]:
+    """Draw and save the planned figures, leaving out (with a warning) one with a panel without data; writes
+    ``figures.csv`` (each figure with the number of data points in its emptiest panel) when any was made."""
+    made: list[dict[str, Any]] = []
+    for name, cap, make in plan:
+        fig = make()
+        pts = _panel_points(fig)
+        if not pts or min(pts) == 0:
+            log.warning("figure %s has a panel without data: left out", name)
+            continue
+        figures.save(fig, out, name)
+        made.append({"figure": name, "caption": cap, "panels": len(pts), "min_points": min(pts)})
+    if made:
+        pd.DataFrame(made, columns=["figure", "caption", "panels", "min_points"]).to_csv(out / "figures.csv",
+                                                                                        index=False)
+    return made
+
+
+def _tasks_section(df: pd.DataFrame, status: pd.DataFrame) -> list[str]:
+    """Markdown of the rows per method and status, and the first 20 failed or unconverged tasks."""
+    md = ["## Tasks", "", "Rows per method and status. Failed, not converged, pending and invalid rows are counted "
+          "here and in every table, never averaged in.", "", _md_table(status)]
+    bad = df[df["status"].isin(["failed", "not_converged"])]
+    if len(bad):
+        cols = [c for c in ("task_id", "method", "status", "hurst", "rho", "sigma0", "seed", "n", "message")
+                if c in bad]
+        md += [f"{len(bad)} failed or unconverged tasks (first 20):", "", _md_table(bad, cols, 20)]
+    return md
+
+
+def _figures_section(made: Sequence[Mapping[str, Any]], omitted: Sequence[tuple[str, str, Any]], *,
+                     field_theory: bool, contact_too: bool) -> list[str]:
+    """Markdown of the figures drawn (the symbols first), and the names of those beyond MAX_FIGURES."""
+    md = ["## Figures", "", SYMBOLS if field_theory else contact.SYMBOLS, ""]
+    if contact_too and field_theory:
+        md += [contact.SYMBOLS, ""]
+    if not made:
+        md += ["_No figure: the stores hold no finished GFMD, theory or histogram result yet._", ""]
+    for f in made:
+        md += [f"### {f['caption']}", "", f"![{f['figure']}]({f['figure']}.png)", "", f"[PDF]({f['figure']}.pdf)", ""]
+    if omitted:
+        md += [f"_{len(omitted)} more figures were not drawn (at most {MAX_FIGURES}): "
+               + ", ".join(n for n, _, _ in omitted) + "._", ""]
+    return md
 
 
 def _field_theory_sections(cmp: pd.DataFrame, summary: pd.DataFrame, dist: pd.DataFrame,

@@ -158,6 +158,20 @@ def open_clusters(gap: Any, *, axis: int = 1, periodic: bool = True, threshold: 
     return keep, bool(both.size)
 
 
+def _gap_array(gap: Any) -> np.ndarray:
+    """The gap field as a float64 host array: 2-D, real, finite (TypeError / ValueError naming the problem)."""
+    if isinstance(gap, (str, bytes)) or gap is None:
+        raise TypeError(f"gap must be a 2-D real array, got {type(gap).__name__}")
+    g = _host(gap)
+    if not (np.issubdtype(g.dtype, np.floating) or np.issubdtype(g.dtype, np.integer)):
+        raise TypeError(f"gap must be a real array, got dtype {g.dtype}")
+    if g.ndim != 2 or min(g.shape) < 1:
+        raise ValueError(f"gap must be a 2-D array (nx x ny), got shape {g.shape}")
+    if not np.all(np.isfinite(g)):
+        raise ValueError("gap must be finite everywhere (NaN or inf found)")
+    return g.astype(np.float64)
+
+
 def solve(
     gap: Any,
     *,
@@ -195,16 +209,7 @@ def solve(
     if solver not in SOLVERS:
         raise ValueError(f"solver must be one of {SOLVERS}, got {solver!r}")
     on_gpu = backend == "cupy" or (backend == "auto" and (type(gap).__module__ or "").startswith("cupy"))
-    if isinstance(gap, (str, bytes)) or gap is None:
-        raise TypeError(f"gap must be a 2-D real array, got {type(gap).__name__}")
-    g = _host(gap)
-    if not (np.issubdtype(g.dtype, np.floating) or np.issubdtype(g.dtype, np.integer)):
-        raise TypeError(f"gap must be a real array, got dtype {g.dtype}")
-    if g.ndim != 2 or min(g.shape) < 1:
-        raise ValueError(f"gap must be a 2-D array (nx x ny), got shape {g.shape}")
-    if not np.all(np.isfinite(g)):
-        raise ValueError("gap must be finite everywhere (NaN or inf found)")
-    g = g.astype(np.float64)
+    g = _gap_array(gap)
     if axis not in (0, 1):
         raise ValueError(f"axis must be 0 or 1 (the array axis of the pressure drop), got {axis!r}")
     lx, ly = (length, length) if np.ndim(length) == 0 else tuple(length)  # type: ignore[misc]

@@ -109,27 +109,15 @@ def fit(edges: np.ndarray, density: np.ndarray, *, sigma0: float, hurst: float, 
     """
     t0 = time.perf_counter()
     e, d = _histogram(edges, density)
-    if metric not in DISTANCES:
-        raise ValueError(f"metric must be one of {DISTANCES}, got {metric!r}")
-    if uncertainty not in UNCERTAINTIES:
-        raise ValueError(f"uncertainty must be one of {UNCERTAINTIES}, got {uncertainty!r}")
-    if uncertainty == "auto":
-        uncertainty = "curvature" if metric == "nll" else "bootstrap"
-    elif uncertainty == "curvature" and metric != "nll":
-        raise ValueError(f"uncertainty='curvature' is the error of the likelihood fit (metric='nll'), not of "
-                         f"metric={metric!r}: use metric='nll' or uncertainty='bootstrap'")
+    uncertainty = _uncertainty_of(metric, uncertainty)
     lo2, hi2 = (chk.positive(c2_bounds[0], "c2_bounds[0]"), chk.positive(c2_bounds[1], "c2_bounds[1]"))
     if not hi2 > lo2:
         raise ValueError(f"c2_bounds must be increasing, got {c2_bounds!r}")
-    if count is not None:
-        count = chk.count(count, "count")
+    count = None if count is None else chk.count(count, "count")
     n_boot = chk.count(n_boot, "n_boot", minimum=2)
     c1_start = hurst * h_rms**2 if c1 is None else chk.nonnegative(c1, "c1")
     if fit_c1:
-        if not c1_start > 0:
-            raise ValueError("fit_c1 needs a start value c1 > 0 (or h_rms > 0)")
-        lo1, hi1 = c1_bounds if c1_bounds is not None else (c1_start / 10.0, c1_start * 10.0)
-        lo1, hi1 = chk.positive(lo1, "c1_bounds[0]"), chk.positive(hi1, "c1_bounds[1]")
+        lo1, hi1 = _c1_range(c1_start, c1_bounds)
     fp_kw = dict(sigma0=sigma0, hurst=hurst, h_rms=h_rms, rho=rho, gamma0=gamma0, lambda_l=lambda_l,
                  lambda_s=lambda_s, e_star=e_star, zetas=None if zeta_end is None else [zeta_end])
     fp_kw.update(fp_options or {})
@@ -182,30 +170,67 @@ def fit(edges: np.ndarray, density: np.ndarray, *, sigma0: float, hurst: float, 
         c2_err *= c2_fit
         c1_err = c1_err * math.exp(x1) if fit_c1 else math.nan
     elif count is not None:
-        rng = np.random.default_rng(seed)
-        pr = d * np.diff(e)
-        rows = []
-        for _ in range(n_boot):
-            cb = rng.multinomial(count, pr / pr.sum())
-            db = cb / (count * np.diff(e))
-            try:
-                bx2, bx1, _ = fit_once(e, db)
-            except (RuntimeError, ValueError, FloatingPointError):
-                continue
-            rows.append((math.exp(bx2), math.exp(bx1) if fit_c1 else math.nan))
-        boot = np.asarray(rows, dtype=float).reshape(-1, 2)
+        boot = _bootstrap(fit_once, e, d, count, n_boot, seed, fit_c1)
         if len(boot) >= 2:
             c2_err = float(np.std(boot[:, 0], ddof=1))
             c1_err = float(np.std(boot[:, 1], ddof=1)) if fit_c1 else math.nan
     stat_err = c2_err
-    if math.isfinite(c2_err):
-        c2_err = math.hypot(c2_err, sys_err)
-        if sys_err > stat_err:
-            message = (message + "; " if message else "") + (
-                f"forward-model error dominates: systematic {sys_err:.3g} > statistical {stat_err:.3g} "
-                "(tighten fp_options['tol'])")
+    c2_err, message = _with_model_error(stat_err, sys_err, message)
     return CalibrationResult(c2_fit, c1_fit, fval, c2_err, c1_err, metric, best.bin_density(e), evals[0], status,
                              message, time.perf_counter() - t0, boot, stat_err, sys_err, uncertainty)
+
+
+def _with_model_error(stat_err: float, sys_err: float, message: str) -> tuple[float, str]:
+    """The error of ``C2``: the statistical and the forward model's systematic error in quadrature (NaN stays
+    NaN), and the message noting when the systematic one dominates."""
+    if not math.isfinite(stat_err):
+        return stat_err, message
+    if sys_err > stat_err:
+        message = (message + "; " if message else "") + (
+            f"forward-model error dominates: systematic {sys_err:.3g} > statistical {stat_err:.3g} "
+            "(tighten fp_options['tol'])")
+    return math.hypot(stat_err, sys_err), message
+
+
+def _uncertainty_of(metric: str, uncertainty: str) -> str:
+    """The error estimate of a fit: "auto" is the likelihood's curvature for metric "nll", else the bootstrap;
+    the curvature is refused for the other metrics."""
+    if metric not in DISTANCES:
+        raise ValueError(f"metric must be one of {DISTANCES}, got {metric!r}")
+    if uncertainty not in UNCERTAINTIES:
+        raise ValueError(f"uncertainty must be one of {UNCERTAINTIES}, got {uncertainty!r}")
+    if uncertainty == "auto":
+        return "curvature" if metric == "nll" else "bootstrap"
+    if uncertainty == "curvature" and metric != "nll":
+        raise ValueError(f"uncertainty='curvature' is the error of the likelihood fit (metric='nll'), not of "
+                         f"metric={metric!r}: use metric='nll' or uncertainty='bootstrap'")
+    return uncertainty
+
+
+def _c1_range(c1_start: float, c1_bounds: tuple[float, float] | None) -> tuple[float, float]:
+    """Bounds of a fitted ``C1`` [length^2]: ``c1_bounds``, default a decade either side of the start value."""
+    if not c1_start > 0:
+        raise ValueError("fit_c1 needs a start value c1 > 0 (or h_rms > 0)")
+    lo1, hi1 = c1_bounds if c1_bounds is not None else (c1_start / 10.0, c1_start * 10.0)
+    return chk.positive(lo1, "c1_bounds[0]"), chk.positive(hi1, "c1_bounds[1]")
+
+
+def _bootstrap(fit_once, e: np.ndarray, d: np.ndarray, count: int, n_boot: int, seed: int, fit_c1: bool,
+               ) -> np.ndarray:
+    """``(n, 2)`` array of ``(C2, C1 or NaN)`` refitted to ``n_boot`` multinomial resamples of ``count`` samples
+    of the histogram (seeded); a resample whose fit fails is left out."""
+    rng = np.random.default_rng(seed)
+    pr = d * np.diff(e)
+    rows = []
+    for _ in range(n_boot):
+        cb = rng.multinomial(count, pr / pr.sum())
+        db = cb / (count * np.diff(e))
+        try:
+            bx2, bx1, _ = fit_once(e, db)
+        except (RuntimeError, ValueError, FloatingPointError):
+            continue
+        rows.append((math.exp(bx2), math.exp(bx1) if fit_c1 else math.nan))
+    return np.asarray(rows, dtype=float).reshape(-1, 2)
 
 
 def _model_error(model, best, x2, c1_fit) -> float:

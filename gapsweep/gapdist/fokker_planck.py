@@ -200,24 +200,16 @@ def solve(sigma0: float, *, hurst: float, h_rms: float, rho: float, gamma0: floa
     ``status="inaccurate"``. ``tol=None`` accepts any error (the estimate is still reported).
     """
     t_start = time.perf_counter()
-    zs = np.atleast_1d(np.asarray(lambda_l / lambda_s if zetas is None else zetas, dtype=float))
-    if zs.ndim != 1 or zs.size == 0 or not np.all(np.isfinite(zs)):
-        raise ValueError(f"zetas must be finite magnifications >= 1, got {zetas!r}")
-    if np.any(zs < 1.0):
-        raise ValueError(f"zetas must be >= 1 (magnification), got {zs.tolist()}")
-    zs = np.unique(zs)
+    zs = _magnifications(zetas, lambda_l, lambda_s)
     p = _check_common(sigma0, hurst, h_rms, rho, gamma0, lambda_l, lambda_s, e_star, float(zs[-1]), c1, c2)
     n_steps = chk.count(n_steps, "n_steps")
     cells_per_sd = chk.positive(cells_per_sd, "cells_per_sd")
     cells_per_rho = chk.positive(cells_per_rho, "cells_per_rho")
     width_sd = chk.positive(width_sd, "width_sd")
-    grading = chk.positive(grading, "grading")
-    if not grading > 1.0:
-        raise ValueError(f"grading must be > 1, got {grading!r}")
+    grading = _grading(grading)
     max_cells = chk.count(max_cells, "max_cells", minimum=8)
     max_steps = chk.count(max_steps, "max_steps")
-    if tol is not None:
-        tol = chk.positive(tol, "tol")
+    tol = None if tol is None else chk.positive(tol, "tol")
     rho_, zeta_end = p["rho"], float(zs[-1])
     coef = dict(hurst=p["hurst"], h_rms=p["h_rms"], rho=rho_, lambda_l=p["lambda_l"], e_star=p["e_star"])
     flat = float(theory.flat_gap(p["sigma0"], rho=rho_, gamma0=p["gamma0"]))
@@ -238,8 +230,6 @@ def solve(sigma0: float, *, hurst: float, h_rms: float, rho: float, gamma0: floa
     v_end = va[-1]
     if not v_end > 0.0:
         raise ValueError("the Fokker-Planck solver needs a non-zero diffusion (h_rms > 0 and c1 > 0)")
-    sd = np.sqrt(va)
-    sd_end = math.sqrt(v_end)
     c = p["c2"] * p["gamma0"] / rho_
 
     # Deterministic push of the repulsion on the auxiliary grid: y_det solves dy/dz = c exp(-(g0 + y)/rho), so
@@ -255,39 +245,8 @@ def solve(sigma0: float, *, hurst: float, h_rms: float, rho: float, gamma0: floa
     # Linearised width in that frame (stiffness k = y_det'/rho): dV = 2 dV_0 - 2 k V dz, exact per interval.
     var_lin = _linear_variance(va, ydet_a / rho_)
 
-    # Domain and grid in the frame y = g - g0 - y_det (the C2 = 0 Gaussian is centred at -y_det).
-    lo, hi, bands = -width_sd * sd_end, width_sd * sd_end, []
-    if c > 0.0:
-        with np.errstate(divide="ignore"):
-            yw = rho_ * np.log(c * (za - 1.0) / rho_) - ga  # deterministic repulsion floor, g0 frame
-        margin = rho_ * (25.0 + 2.0 * math.log1p(sd_end / rho_))
-        relevant = yw > -width_sd * sd - margin
-        lower = np.maximum(-width_sd * sd, yw - margin) - ydet_a
-        upper = width_sd * sd + np.maximum(0.0, 2.0 * yw) - ydet_a
-        # Tighter bounds by comparison (g grows with the noise path W): with |W| <= width_sd sd(z) over the
-        # history, g >= g0 - w sd + push(W = +w sd) and g <= g0 + w sd + push(W = -w sd), where the push of a
-        # path held at g0 + W is rho ln(1 + e^{-W/rho} (c/rho) int exp(-g0/rho)). Both bounds hold; keep the
-        # tighter (at high pressure +-2 w sd around y_det instead of the mirror image of the C2 = 0 tail).
-        with np.errstate(over="ignore"):
-            lower = np.maximum(lower, -width_sd * sd + rho_ * np.logaddexp(0.0, log_push - width_sd * sd / rho_)
-                               - ydet_a)
-            upper = np.minimum(upper, width_sd * sd + rho_ * np.logaddexp(0.0, log_push + width_sd * sd / rho_)
-                               - ydet_a)
-        lo = float(np.min(lower))
-        hi = max(float(np.max(upper)), float(np.max(width_sd * np.sqrt(var_lin))))
-        if np.any(relevant):
-            ywf = (yw - ydet_a)[relevant]
-            bands.append((float(np.min(ywf)) - margin, float(np.max(ywf)) + 10.0 * rho_, rho_ / cells_per_rho))
-    # bulk cells resolve the narrowest requested C2 = 0 density (smallest zeta), within half the cell budget
-    sd_min = math.sqrt(float(np.interp(zs[0], za, va))) if zs[0] > 1.0 else sd_end
-    h_bulk = max(min(sd_min, sd_end) / cells_per_sd, 2.0 * (hi - lo) / max_cells)
-    if c > 0.0:
-        # the narrow core: cells_per_sd cells per linearised width at the requested zetas, over +- width_sd widths
-        sd_lin = math.sqrt(float(np.min(np.interp(zs[zs > 1.0], za, var_lin)))) if np.any(zs > 1.0) else sd_end
-        sd_lin_max = math.sqrt(float(np.max(var_lin)))
-        bands.append((-width_sd * sd_lin, width_sd * sd_lin, sd_lin / cells_per_sd))
-        lo = min(lo, -width_sd * sd_lin_max)
-    edges = _graded_grid(lo, hi, h_bulk, bands, grading, max_cells)
+    edges = _frame_grid(zs, za, va, ga, ydet_a, log_push, var_lin, c=c, rho=rho_, width_sd=width_sd,
+                        cells_per_sd=cells_per_sd, cells_per_rho=cells_per_rho, grading=grading, max_cells=max_cells)
     x = 0.5 * (edges[1:] + edges[:-1])
     h = np.diff(edges)
     n = x.size
@@ -305,14 +264,8 @@ def solve(sigma0: float, *, hurst: float, h_rms: float, rho: float, gamma0: floa
     mass0 = np.diff(ndtr(edges / math.sqrt(v0)))
     mass0 /= mass0.sum()
 
-    out = {}
-    for zq in zs:
-        if zq <= z0:  # before the first step: the Gaussian (C2 = 0 exact), shifted by the push at y=0
-            vq = float(np.interp(zq, za, va))
-            mq = rho_ * math.log1p(p["c2"] * p["sigma0"] * (zq - 1.0) / rho_) if c > 0.0 else 0.0
-            out[zq] = (np.diff(ndtr((edges - mq + m0) / math.sqrt(vq))) / h, m0) if vq > 0 else None
-    if any(v is None for v in out.values()):
-        raise ValueError("zetas must be > 1 (at zeta = 1 the density is a point mass)")
+    out = _early_densities(zs[zs <= z0], za, va, edges, m0, push=p["c2"] * p["sigma0"] if c > 0.0 else 0.0,
+                           rho=rho_)
 
     s_a = 0.5 * va / v_end + 0.5 * np.log(za) / math.log(zeta_end)
     s0 = float(np.interp(z0, za, s_a))
@@ -349,15 +302,8 @@ def solve(sigma0: float, *, hurst: float, h_rms: float, rho: float, gamma0: floa
         g0t, (snaps, mass_err, edge_mass) = run(zt)
         err = 0.0
         if estimate_error and zs_late.size and zt.size > 2:
-            keep = np.zeros(zt.size, dtype=bool)
-            keep[::2] = True
-            keep[-1] = True
-            keep[np.isin(zt, zs_late)] = True
-            _g, (snaps_c, _m, _e) = run(zt[keep])
-            fine, coarse = moments(snaps), moments(snaps_c)
-            for zq in fine:
-                (mf, sf), (mc, sc) = fine[zq], coarse[zq]
-                err = max(err, abs(mf - mc) / sf, abs(sf - sc) / sf)
+            _g, (snaps_c, _m, _e) = run(zt[_every_other(zt, zs_late)])
+            err = _step_error(moments(snaps), moments(snaps_c))
         if tol is None or err <= tol or 2 * k_steps > max_steps:
             break
         logger.debug("fokker_planck: step error %.3g > tol %.3g with %d steps; doubling", err, tol, k_steps)
@@ -371,15 +317,107 @@ def solve(sigma0: float, *, hurst: float, h_rms: float, rho: float, gamma0: floa
     # Report y relative to the frame at the last requested zeta, so that y = g - g0 there (as before the frame
     # moved with the repulsion): g = g0 + offset + y with offset = y_det - y_det(zeta_end).
     y_shift = float(ydet_z[-1])
-    if edge_mass > edge_tol:
-        status = "domain_too_small"
-    elif tol is not None and err > tol:
-        status = "inaccurate"
-    else:
-        status = "ok"
+    status = "domain_too_small" if edge_mass > edge_tol else "inaccurate" if tol is not None and err > tol else "ok"
     return FPResult(zetas=zs, g0=g0z, y_edges=edges + y_shift, density=dens, n_steps=zt.size - 1,
                     mass_error=mass_err, edge_mass=edge_mass, status=status, wall_time=time.perf_counter() - t_start,
                     variance_c2_0=var0, offset=ydet_z - y_shift, error=err, tol=tol)
+
+
+def _magnifications(zetas: float | np.ndarray | None, lambda_l: float, lambda_s: float) -> np.ndarray:
+    """The requested magnifications, sorted and unique (default ``[lambda_l/lambda_s]``); each finite and >= 1."""
+    zs = np.atleast_1d(np.asarray(lambda_l / lambda_s if zetas is None else zetas, dtype=float))
+    if zs.ndim != 1 or zs.size == 0 or not np.all(np.isfinite(zs)):
+        raise ValueError(f"zetas must be finite magnifications >= 1, got {zetas!r}")
+    if np.any(zs < 1.0):
+        raise ValueError(f"zetas must be >= 1 (magnification), got {zs.tolist()}")
+    return np.unique(zs)
+
+
+def _grading(grading: float) -> float:
+    """The grid's growth factor between neighbouring cells, > 1."""
+    grading = chk.positive(grading, "grading")
+    if not grading > 1.0:
+        raise ValueError(f"grading must be > 1, got {grading!r}")
+    return grading
+
+
+def _frame_grid(zs: np.ndarray, za: np.ndarray, va: np.ndarray, ga: np.ndarray, ydet_a: np.ndarray,
+                log_push: np.ndarray, var_lin: np.ndarray, *, c: float, rho: float, width_sd: float,
+                cells_per_sd: float, cells_per_rho: float, grading: float, max_cells: int) -> np.ndarray:
+    """Cell edges of the domain in the frame ``y = g - g0 - y_det`` (lengths): +- ``width_sd`` C2 = 0 standard
+    deviations, with the repulsion (``c > 0``) the bounds by comparison, a band of ``cells_per_rho`` cells per
+    ``rho`` along the repulsion floor and a band resolving the linearised width (auxiliary grid ``za``:
+    variance ``va``, mean gap ``ga``, push ``ydet_a``, ``log_push``, linearised variance ``var_lin``)."""
+    sd = np.sqrt(va)
+    sd_end = math.sqrt(va[-1])
+    # the C2 = 0 Gaussian is centred at -y_det
+    lo, hi, bands = -width_sd * sd_end, width_sd * sd_end, []
+    if c > 0.0:
+        with np.errstate(divide="ignore"):
+            yw = rho * np.log(c * (za - 1.0) / rho) - ga  # deterministic repulsion floor, g0 frame
+        margin = rho * (25.0 + 2.0 * math.log1p(sd_end / rho))
+        relevant = yw > -width_sd * sd - margin
+        lower = np.maximum(-width_sd * sd, yw - margin) - ydet_a
+        upper = width_sd * sd + np.maximum(0.0, 2.0 * yw) - ydet_a
+        # Tighter bounds by comparison (g grows with the noise path W): with |W| <= width_sd sd(z) over the
+        # history, g >= g0 - w sd + push(W = +w sd) and g <= g0 + w sd + push(W = -w sd), where the push of a
+        # path held at g0 + W is rho ln(1 + e^{-W/rho} (c/rho) int exp(-g0/rho)). Both bounds hold; keep the
+        # tighter (at high pressure +-2 w sd around y_det instead of the mirror image of the C2 = 0 tail).
+        with np.errstate(over="ignore"):
+            lower = np.maximum(lower, -width_sd * sd + rho * np.logaddexp(0.0, log_push - width_sd * sd / rho)
+                               - ydet_a)
+            upper = np.minimum(upper, width_sd * sd + rho * np.logaddexp(0.0, log_push + width_sd * sd / rho)
+                               - ydet_a)
+        lo = float(np.min(lower))
+        hi = max(float(np.max(upper)), float(np.max(width_sd * np.sqrt(var_lin))))
+        if np.any(relevant):
+            ywf = (yw - ydet_a)[relevant]
+            bands.append((float(np.min(ywf)) - margin, float(np.max(ywf)) + 10.0 * rho, rho / cells_per_rho))
+    # bulk cells resolve the narrowest requested C2 = 0 density (smallest zeta), within half the cell budget
+    sd_min = math.sqrt(float(np.interp(zs[0], za, va))) if zs[0] > 1.0 else sd_end
+    h_bulk = max(min(sd_min, sd_end) / cells_per_sd, 2.0 * (hi - lo) / max_cells)
+    if c > 0.0:
+        # the narrow core: cells_per_sd cells per linearised width at the requested zetas, over +- width_sd widths
+        sd_lin = math.sqrt(float(np.min(np.interp(zs[zs > 1.0], za, var_lin)))) if np.any(zs > 1.0) else sd_end
+        sd_lin_max = math.sqrt(float(np.max(var_lin)))
+        bands.append((-width_sd * sd_lin, width_sd * sd_lin, sd_lin / cells_per_sd))
+        lo = min(lo, -width_sd * sd_lin_max)
+    return _graded_grid(lo, hi, h_bulk, bands, grading, max_cells)
+
+
+def _early_densities(zs_early: np.ndarray, za: np.ndarray, va: np.ndarray, edges: np.ndarray, m0: float, *,
+                     push: float, rho: float) -> dict[float, tuple[np.ndarray, float]]:
+    """``{zeta: (cell-averaged density, y_det)}`` at the magnifications before the march's first node: the C2 = 0
+    Gaussian (exact there), shifted by the repulsion's push ``rho ln(1 + push (zeta - 1)/rho)`` at y = 0 (``push``
+    = C2 sigma0, 0 without repulsion) relative to the frame's ``m0``."""
+    h = np.diff(edges)
+    out = {}
+    for zq in zs_early:
+        vq = float(np.interp(zq, za, va))
+        if not vq > 0:
+            raise ValueError("zetas must be > 1 (at zeta = 1 the density is a point mass)")
+        mq = rho * math.log1p(push * (zq - 1.0) / rho) if push > 0.0 else 0.0
+        out[zq] = (np.diff(ndtr((edges - mq + m0) / math.sqrt(vq))) / h, m0)
+    return out
+
+
+def _every_other(zt: np.ndarray, zs_late: np.ndarray) -> np.ndarray:
+    """Mask of the coarse march's nodes for step doubling: every other node, the last and the requested ones."""
+    keep = np.zeros(zt.size, dtype=bool)
+    keep[::2] = True
+    keep[-1] = True
+    keep[np.isin(zt, zs_late)] = True
+    return keep
+
+
+def _step_error(fine: dict, coarse: dict) -> float:
+    """Step-doubling error estimate: the largest difference of the mean and of the standard deviation between
+    the fine and the coarse march, relative to the fine standard deviation, over the requested zetas."""
+    err = 0.0
+    for zq in fine:
+        (mf, sf), (mc, sc) = fine[zq], coarse[zq]
+        err = max(err, abs(mf - mc) / sf, abs(sf - sc) / sf)
+    return err
 
 
 def _phi(dg: np.ndarray | float) -> np.ndarray:

@@ -459,89 +459,18 @@ def load(path: str | Path, *, length: Any = None, pixel_size: Any = None, unit: 
         raise ValueError(f"format must be one of {', '.join(map(repr, FORMATS))}; got {format!r}")
     if missing not in MISSING:
         raise ValueError(f"missing must be one of {', '.join(map(repr, MISSING))}; got {missing!r}")
-    fmt = format or ("npy" if p.suffix.lower() == ".npy" else "npz" if p.suffix.lower() == ".npz"
-                     else "xyz" if p.suffix.lower() == ".xyz" else "text" if p.suffix.lower() in _TEXT
-                     else "surfacetopography")
-    file_size = file_unit = None
-    file_periodic = None
-    file_pixel = None
-    channel_name = None
+    fmt = _format_of(p, format)
     if channel is not None and fmt != "surfacetopography":
         raise ValueError(f"{p}: channel= applies to files SurfaceTopography reads (format 'surfacetopography')"
                          + ("; choose an .npz member with key=" if fmt == "npz" else ""))
-    if fmt in ("npy", "npz"):
-        h = _read_numpy(p, fmt, key)
-    elif fmt in ("text", "xyz"):
-        h = _read_text(p, delimiter)
-        # Three columns and no explicit format="text": an x,y,z point list (a 3-wide height grid is rare).
-        if h.size and (fmt == "xyz" or (format is None and h.shape[1] == 3)):
-            if h.shape[1] != 3:
-                raise ValueError(f"{p}: an x,y,z file needs exactly 3 columns, got {h.shape[1]}")
-            if not np.all(np.isfinite(h[:, :2])):
-                raise ValueError(f"{p}: x,y,z points: {int(np.sum(~np.isfinite(h[:, :2])))} x or y coordinates "
-                                 "are NaN or inf")
-            h, file_pixel = _grid_from_points(h, p)
-            log.info("%s: x,y,z points on a regular %d x %d grid, pixel %g x %g", p, *h.shape, *file_pixel)
-    else:  # surfacetopography (the format was validated above)
-        h, file_size, file_unit, file_periodic, channel_name = _read_surfacetopography(p, channel)
-    mask = np.ma.getmaskarray(h) if np.ma.isMaskedArray(h) else None
-    h = np.asarray(h.data if np.ma.isMaskedArray(h) else h)
-    if h.size == 0:
-        raise ValueError(f"{p}: the file holds no heights (empty)")
-    if h.ndim != 2 or min(h.shape) < 2:
-        raise ValueError(f"{p}: a 2-D height map of at least 2 x 2 points is needed, got shape {h.shape}"
-                         + (" (a single profile?)" if h.ndim == 2 else ""))
-    if not np.issubdtype(h.dtype, np.number) or np.iscomplexobj(h):
-        raise ValueError(f"{p}: heights must be real numbers, got dtype {h.dtype}")
-    h = h.astype(np.float64)
-    undefined = ~np.isfinite(h)
-    if mask is not None:
-        undefined |= mask
-    n_missing = int(undefined.sum())
+    raw = _read_file(p, fmt, explicit=format is not None, key=key, delimiter=delimiter, channel=channel)
+    h, undefined = _height_grid(p, raw.heights)
     file_shape = (int(h.shape[0]), int(h.shape[1]))
-    crop = None
-    if n_missing == h.size:
-        raise ValueError(f"{p}: all {h.size} heights are undefined (masked, NaN or inf): no data")
-    if n_missing and missing == "refuse":
-        raise ValueError(f"{p}: {missing_report(undefined)}\n  gapsweep does not invent heights: crop the map "
-                         "to its largest valid rectangle (missing='crop') or fill it (missing='fill_harmonic': "
-                         "the harmonic interpolant, or 'fill_nearest'), or fix it in your instrument's software")
-    if n_missing and missing == "crop":
-        x0, x1, y0, y1 = largest_valid_rectangle(~undefined)
-        if x1 - x0 < 2 or y1 - y0 < 2:
-            raise ValueError(f"{p}: the largest valid rectangle is {x1 - x0} x {y1 - y0} pixels: too small to crop "
-                             f"to (at least 2 x 2)\n{missing_report(undefined)}")
-        crop = (x0, x1, y0, y1)
-        h = h[x0:x1, y0:y1].copy()
-        log.info("%s: %d missing pixels: cropped to x %d..%d, y %d..%d (%d x %d)", p, n_missing, x0, x1 - 1, y0,
-                 y1 - 1, x1 - x0, y1 - y0)
-    elif n_missing:
-        method = missing.split("_", 1)[1]
-        h = fill_missing(np.where(undefined, 0.0, h), undefined, method)
-        frac = n_missing / h.size
-        (log.warning if frac > 0.25 else log.info)(
-            "%s: %d missing pixels (%.3g %% of the map) filled (%s)%s", p, n_missing, 100 * frac, method,
-            ": most of what is solved is interpolation, not measurement" if frac > 0.5 else "")
-    if unit is None and file_unit is not None:
-        unit = file_unit
+    h, n_missing, crop = _treat_missing(p, h, undefined, missing)
+    if unit is None and raw.unit is not None:
+        unit = raw.unit
     unit, height_unit, to_unit = _canonical(unit), _canonical(height_unit), _canonical(to_unit)
-    if length is not None and pixel_size is not None:
-        raise ValueError("give length or pixel_size, not both")
-    if file_pixel is not None and (length is not None or pixel_size is not None):
-        raise ValueError(f"{p}: an x,y,z file states its own pixel size {file_pixel}: leave length= and "
-                         "pixel_size= out")
-    # the box of the file's grid (length= and a file's size describe the whole map, before any crop)
-    if file_pixel is not None:
-        box = (file_pixel[0] * file_shape[0], file_pixel[1] * file_shape[1])
-    elif length is not None:
-        box = _pair(length, "length")
-    elif pixel_size is not None:
-        d = _pair(pixel_size, "pixel_size")
-        box = (d[0] * file_shape[0], d[1] * file_shape[1])
-    elif file_size is not None:
-        box = _pair(file_size, "the file's physical size")
-    else:
-        raise ValueError(f"{p}: the file does not state its size: give length= or pixel_size=")
+    box = _file_box(p, file_shape, length=length, pixel_size=pixel_size, file_pixel=raw.pixel, file_size=raw.size)
     if crop is not None:
         box = (box[0] * h.shape[0] / file_shape[0], box[1] * h.shape[1] / file_shape[1])
     lateral = _unit(unit, "unit")
@@ -556,16 +485,138 @@ def load(path: str | Path, *, length: Any = None, pixel_size: Any = None, unit: 
                          "(float64 overflow): choose another to_unit")
     box = (box[0] * lateral / target, box[1] * lateral / target)
     h = globals()["detrend"](h, detrend, box)
-    if periodic is not None:
-        is_periodic, decided = bool(periodic), "asked"
-    elif file_periodic is not None and crop is None:  # a crop of a periodic map is no period: the edges say
-        is_periodic, decided = bool(file_periodic), "the file's flag"
-    else:  # neither the file nor the caller says: the edges do (after detrending, so a tilt alone is not a jump)
-        ratio = edge_ratio(h)
-        is_periodic = ratio <= EDGE_RATIO_LIMIT
-        decided = f"from the map's edges: edge ratio {ratio:.3g}, periodic up to {EDGE_RATIO_LIMIT:g}"
-        log.info("%s: periodic=%s from the edges (edge ratio %.3g, limit %g)", p, is_periodic, ratio,
-                 EDGE_RATIO_LIMIT)
+    is_periodic, decided = _decide_periodic(p, h, periodic, raw.periodic if crop is None else None)
     done = missing if n_missing else "refuse"
     return Topography(h, box, to_unit if to_unit is not None else unit, is_periodic, str(p), n_missing, done,
-                      file_shape, crop, channel_name, decided)
+                      file_shape, crop, raw.channel, decided)
+
+
+def _format_of(p: Path, format: str | None) -> str:
+    """The reader of a file: ``format`` when given, else from the suffix (SurfaceTopography for the others)."""
+    if format is not None:
+        return format
+    suffix = p.suffix.lower()
+    if suffix in (".npy", ".npz", ".xyz"):
+        return suffix[1:]
+    return "text" if suffix in _TEXT else "surfacetopography"
+
+
+@dataclass
+class _Raw:
+    """What a reader found in a file: the heights as read (maybe masked) and what the file states itself
+    (physical size, lateral unit, periodic flag, pixel size of x,y,z points, channel name), None where silent."""
+
+    heights: Any
+    size: Any = None
+    unit: str | None = None
+    periodic: bool | None = None
+    pixel: tuple[float, float] | None = None
+    channel: str | None = None
+
+
+def _read_file(p: Path, fmt: str, *, explicit: bool, key: str | None, delimiter: str | None,
+               channel: int | str | None) -> _Raw:
+    """Read a file with the reader of ``fmt``; a text file of three columns is an x,y,z point list unless the
+    format was given as "text" (``explicit``)."""
+    if fmt in ("npy", "npz"):
+        return _Raw(_read_numpy(p, fmt, key))
+    if fmt in ("text", "xyz"):
+        h = _read_text(p, delimiter)
+        # Three columns and no explicit format="text": an x,y,z point list (a 3-wide height grid is rare).
+        if h.size and (fmt == "xyz" or (not explicit and h.shape[1] == 3)):
+            if h.shape[1] != 3:
+                raise ValueError(f"{p}: an x,y,z file needs exactly 3 columns, got {h.shape[1]}")
+            if not np.all(np.isfinite(h[:, :2])):
+                raise ValueError(f"{p}: x,y,z points: {int(np.sum(~np.isfinite(h[:, :2])))} x or y coordinates "
+                                 "are NaN or inf")
+            h, pixel = _grid_from_points(h, p)
+            log.info("%s: x,y,z points on a regular %d x %d grid, pixel %g x %g", p, *h.shape, *pixel)
+            return _Raw(h, pixel=pixel)
+        return _Raw(h)
+    # surfacetopography (the format was validated by the caller)
+    h, size, unit, periodic, channel_name = _read_surfacetopography(p, channel)
+    return _Raw(h, size=size, unit=unit, periodic=periodic, channel=channel_name)
+
+
+def _height_grid(p: Path, h: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The heights as a float64 grid of at least 2 x 2 and the mask of its undefined pixels (masked, NaN or
+    inf); refuses an empty file, a non-2-D map, non-real values and a map without any defined height."""
+    mask = np.ma.getmaskarray(h) if np.ma.isMaskedArray(h) else None
+    h = np.asarray(h.data if np.ma.isMaskedArray(h) else h)
+    if h.size == 0:
+        raise ValueError(f"{p}: the file holds no heights (empty)")
+    if h.ndim != 2 or min(h.shape) < 2:
+        raise ValueError(f"{p}: a 2-D height map of at least 2 x 2 points is needed, got shape {h.shape}"
+                         + (" (a single profile?)" if h.ndim == 2 else ""))
+    if not np.issubdtype(h.dtype, np.number) or np.iscomplexobj(h):
+        raise ValueError(f"{p}: heights must be real numbers, got dtype {h.dtype}")
+    h = h.astype(np.float64)
+    undefined = ~np.isfinite(h)
+    if mask is not None:
+        undefined |= mask
+    if int(undefined.sum()) == h.size:
+        raise ValueError(f"{p}: all {h.size} heights are undefined (masked, NaN or inf): no data")
+    return h, undefined
+
+
+def _treat_missing(p: Path, h: np.ndarray, undefined: np.ndarray, missing: str,
+                   ) -> tuple[np.ndarray, int, tuple[int, int, int, int] | None]:
+    """Apply the ``missing`` policy (module docstring): ``(heights, number of undefined pixels, crop)``; crop is
+    ``(x0, x1, y0, y1)`` of the largest valid rectangle under ``missing="crop"``, else None."""
+    n_missing = int(undefined.sum())
+    if not n_missing:
+        return h, 0, None
+    if missing == "refuse":
+        raise ValueError(f"{p}: {missing_report(undefined)}\n  gapsweep does not invent heights: crop the map "
+                         "to its largest valid rectangle (missing='crop') or fill it (missing='fill_harmonic': "
+                         "the harmonic interpolant, or 'fill_nearest'), or fix it in your instrument's software")
+    if missing == "crop":
+        x0, x1, y0, y1 = largest_valid_rectangle(~undefined)
+        if x1 - x0 < 2 or y1 - y0 < 2:
+            raise ValueError(f"{p}: the largest valid rectangle is {x1 - x0} x {y1 - y0} pixels: too small to crop "
+                             f"to (at least 2 x 2)\n{missing_report(undefined)}")
+        log.info("%s: %d missing pixels: cropped to x %d..%d, y %d..%d (%d x %d)", p, n_missing, x0, x1 - 1, y0,
+                 y1 - 1, x1 - x0, y1 - y0)
+        return h[x0:x1, y0:y1].copy(), n_missing, (x0, x1, y0, y1)
+    method = missing.split("_", 1)[1]
+    h = fill_missing(np.where(undefined, 0.0, h), undefined, method)
+    frac = n_missing / h.size
+    (log.warning if frac > 0.25 else log.info)(
+        "%s: %d missing pixels (%.3g %% of the map) filled (%s)%s", p, n_missing, 100 * frac, method,
+        ": most of what is solved is interpolation, not measurement" if frac > 0.5 else "")
+    return h, n_missing, None
+
+
+def _file_box(p: Path, file_shape: tuple[int, int], *, length: Any, pixel_size: Any,
+              file_pixel: tuple[float, float] | None, file_size: Any) -> tuple[float, float]:
+    """The box (Lx, Ly) of the file's whole grid, in the file's lateral unit: from the x,y,z points' pixel,
+    ``length``, ``pixel_size`` or the file's stated size (one source only)."""
+    if length is not None and pixel_size is not None:
+        raise ValueError("give length or pixel_size, not both")
+    if file_pixel is not None and (length is not None or pixel_size is not None):
+        raise ValueError(f"{p}: an x,y,z file states its own pixel size {file_pixel}: leave length= and "
+                         "pixel_size= out")
+    if file_pixel is not None:
+        return (file_pixel[0] * file_shape[0], file_pixel[1] * file_shape[1])
+    if length is not None:
+        return _pair(length, "length")
+    if pixel_size is not None:
+        d = _pair(pixel_size, "pixel_size")
+        return (d[0] * file_shape[0], d[1] * file_shape[1])
+    if file_size is not None:
+        return _pair(file_size, "the file's physical size")
+    raise ValueError(f"{p}: the file does not state its size: give length= or pixel_size=")
+
+
+def _decide_periodic(p: Path, h: np.ndarray, periodic: bool | None, file_periodic: bool | None,
+                     ) -> tuple[bool, str]:
+    """``(periodic, how it was decided)``: the caller's flag, else the file's own (None for a crop: a crop of a
+    periodic map is no period), else from the detrended map's edges (so a tilt alone is not a jump)."""
+    if periodic is not None:
+        return bool(periodic), "asked"
+    if file_periodic is not None:
+        return bool(file_periodic), "the file's flag"
+    ratio = edge_ratio(h)
+    is_periodic = ratio <= EDGE_RATIO_LIMIT
+    log.info("%s: periodic=%s from the edges (edge ratio %.3g, limit %g)", p, is_periodic, ratio, EDGE_RATIO_LIMIT)
+    return is_periodic, f"from the map's edges: edge ratio {ratio:.3g}, periodic up to {EDGE_RATIO_LIMIT:g}"

@@ -1,7 +1,7 @@
 """The CUDA paths against their CPU counterparts (marker ``gpu``; every test skips without an NVIDIA GPU, so CI
 without one stays green). Run on a GPU machine with ``bash scripts/test_gpu.sh`` (= ``pytest -m gpu tests/gpu``).
 
-* SDE on CUDA (both engines: the cupy kernels of gapsweep/_sde_cuda.py and the warp kernels) vs the warp kernel
+* SDE on CUDA (both engines: the cupy kernels of gapsweep/gapdist/_sde_cuda.py and the warp kernels) vs the warp kernel
   on the CPU (docs/model.md M5): same seed and realisations, so the same Philox normals. float64 must agree per
   realisation to 1e-9 of the spread (only libm rounding differs); float32 (fast math on the GPU) per
   realisation to 5e-3 of the spread and in distribution (two-sample KS); the device histogram against binning

@@ -1,0 +1,6 @@
+"""The 0.1 name ``gapsweep.provenance`` (deprecated: it warns and goes in gapsweep 0.4) of
+:mod:`gapsweep.sweep.provenance` (docs/architecture.md, "The 0.1 names")."""
+
+from gapsweep._compat import install
+
+install(__name__, __spec__)

@@ -1,0 +1,6 @@
+"""The 0.1 name ``gapsweep.store`` (stable) of
+:mod:`gapsweep.sweep.api` (docs/architecture.md, "The 0.1 names")."""
+
+from gapsweep._compat import install
+
+install(__name__, __spec__)
