@@ -9,7 +9,8 @@ calls :func:`track` once at its start::
     _record.track(CODE_PATHS)
 
 At the script's exit every result file it wrote (files under ``benchmarks/results/`` and under the paths given
-to its ``--out``/``--out-dir``/``--json``/``--csv`` options, modified since the start) is stamped with
+to its ``--out``/``--out-dir``/``--json``/``--csv`` options, modified since the start, that this process opened
+for writing -- or that a child wrote and no other tracked run has stamped since) is stamped with
 :func:`record`: the project's commit (of *this* repository: ``git -C <repo root> rev-parse HEAD``, never an
 enclosing repository's; outside a checkout the 40-hex commit in GAPSWEEP_COMMIT, for a copy of the working tree
 without .git such as a lent GPU machine gets, else None), its commit time, whether the code paths had uncommitted
@@ -217,8 +218,14 @@ def track(code_paths: list[str], *, header: bool = False) -> dict[str, Any]:
     if header:
         print(HEADER + json.dumps(rec), flush=True)
 
+    own = _OpenedForWriting()
+    sys.addaudithook(own)
+
     def at_exit() -> None:
+        mine = own.paths()
         for f in _written_since(t0, [RESULTS, *_out_paths(sys.argv)]):
+            if f not in mine and _claimed(f):
+                continue  # written and stamped by another tracked run at the same time: its record, not ours
             try:
                 stamp(f, rec)
             except OSError as e:
@@ -226,3 +233,59 @@ def track(code_paths: list[str], *, header: bool = False) -> dict[str, Any]:
 
     atexit.register(at_exit)
     return rec
+
+
+class _OpenedForWriting:
+    """An audit hook (``sys.addaudithook``) collecting the files this process opens for writing or renames into
+    place: the result files a run wrote itself, told apart from those another run wrote at the same time. Paths
+    are kept as given (with the working folder) and resolved only at exit: the hook sees every open."""
+
+    _WRITE = os.O_WRONLY | os.O_RDWR | os.O_CREAT | os.O_APPEND | os.O_TRUNC
+
+    def __init__(self) -> None:
+        self.raw: list[tuple[str, str]] = []
+
+    def __call__(self, event: str, args: tuple) -> None:
+        try:
+            if event == "open":
+                path, mode, flags = args
+                if isinstance(mode, str):
+                    writes = any(c in mode for c in "wax+")
+                else:
+                    writes = isinstance(flags, int) and bool(flags & self._WRITE)
+                if writes and isinstance(path, (str, bytes, os.PathLike)):
+                    self.raw.append((os.fsdecode(path), os.getcwd()))
+            elif event == "os.rename":
+                self.raw.append((os.fsdecode(args[1]), os.getcwd()))
+        except Exception:  # an audit hook must never break the benchmark it watches
+            pass
+
+    def paths(self) -> set[Path]:
+        out = set()
+        for p, cwd in self.raw:
+            try:
+                out.add((Path(cwd) / p).resolve())
+            except OSError:
+                continue
+        return out
+
+
+def _claimed(f: Path) -> bool:
+    """Whether a result file this process did not write carries a record made after it was written (by the
+    tracked run that wrote it): a JSON object with its ``provenance`` key, a text file with its header line, or a
+    sidecar newer than the file. A file a child process wrote (no record) is this run's to stamp."""
+    side = f.with_name(f.name + SIDECAR)
+    try:
+        if side.is_file():
+            return side.stat().st_mtime >= f.stat().st_mtime
+    except OSError:
+        return False
+    return (read(f) is not None and f.suffix == ".json") or _has_header(f)
+
+
+def _has_header(f: Path) -> bool:
+    try:
+        with open(f, encoding="utf-8", errors="replace") as fh:
+            return any(line.startswith(HEADER) for _, line in zip(range(50), fh))
+    except OSError:
+        return False

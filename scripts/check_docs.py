@@ -392,18 +392,8 @@ def check_provenance(files: dict[Path, list[tuple[str, frozenset[str], bool]]] |
         return []
     shallow = _git_ok(root, "rev-parse", "--is-shallow-repository") == "true"
     cites = files if isinstance(files, dict) else {Path(x): [("(cited)", frozenset(), False)] for x in files}
-    problems = []
     rescripts = " or ".join(str(x) for x in REMEASURE_SCRIPTS)
-    planned = remeasured_paths(root)
-    for where, path in markers or []:
-        f = root / path
-        if not f.is_file():
-            problems.append(f"{where}: the remeasure marker names {path}, which does not exist")
-        elif path not in planned:
-            problems.append(f"{where}: the remeasure marker names {path}, which {rescripts} does not write")
-        elif (rec_mod.read(f) or {}).get("commit"):
-            problems.append(f"{where}: {path} has been re-measured (it carries a provenance record): check the "
-                            "numbers of its lines against it and drop the remeasure marker")
+    problems = _marker_problems(markers or [], root, rec_mod, rescripts)
     merged: dict[Path, list[tuple[str, frozenset[str], bool]]] = {}
     for x, c in cites.items():
         merged.setdefault(Path(x).resolve(), []).extend(c)
@@ -428,28 +418,51 @@ def check_provenance(files: dict[Path, list[tuple[str, frozenset[str], bool]]] |
                                     f"{rescripts} and `<!-- remeasure: {rel} -->` beside the claim), or move the "
                                     f"claim to {HISTORY}")
             continue
-        commit, paths = str(rec["commit"]), [str(x) for x in rec.get("code_paths") or []]
-        if not paths:
-            problems.append(f"{rel}: its provenance names no code paths (CODE_PATHS of its benchmark)")
-            continue
-        if _git_ok(root, "cat-file", "-e", f"{commit}^{{commit}}") is None:
-            (WARNINGS if shallow else problems).append(
-                f"{rel}: records commit {commit[:12]}, which this repository does not have"
-                + (" (a shallow clone)" if shallow else ""))
-            continue
-        gone = [p for p in paths if _git_ok(root, "cat-file", "-e", f"{commit}:{p}") is None]
-        if gone:
-            problems.append(f"{rel}: its code path(s) {', '.join(gone)} did not exist at its commit {commit[:12]}: "
-                            "the record names the wrong commit or the wrong code")
-            continue
-        # stale when the measured code differs between its commit and HEAD (a tree comparison: a result measured
-        # on a branch merged since is judged by the code, not by the history's shape)
-        if _git_ok(root, "diff", "--quiet", commit, "HEAD", "--", *paths) is None:
-            last = _git_ok(root, "log", "-1", "--format=%h %cs", "HEAD", "--", *paths) or "?"
-            problems.append(f"{rel}: stale: measured at {commit[:12]}, and {', '.join(paths)} changed since (last "
-                            f"change {last}): re-measure it or stop citing it (its command: `{rec.get('command')}`, "
-                            f"from {rec.get('cwd', '?')})")
+        problems += _record_problems(rel, rec, root, shallow)
     return problems
+
+
+def _marker_problems(markers: list[tuple[str, str]], root: Path, rec_mod: Any, rescripts: str) -> list[str]:
+    """Problems of the remeasure markers ``(where, PATH)``: PATH must exist, be written by a remeasure script and
+    still lack a record (a re-measured file's marker is dropped once its numbers are checked)."""
+    planned = remeasured_paths(root)
+    problems = []
+    for where, path in markers:
+        f = root / path
+        if not f.is_file():
+            problems.append(f"{where}: the remeasure marker names {path}, which does not exist")
+        elif path not in planned:
+            problems.append(f"{where}: the remeasure marker names {path}, which {rescripts} does not write")
+        elif (rec_mod.read(f) or {}).get("commit"):
+            problems.append(f"{where}: {path} has been re-measured (it carries a provenance record): check the "
+                            "numbers of its lines against it and drop the remeasure marker")
+    return problems
+
+
+def _record_problems(rel: str, rec: dict[str, Any], root: Path, shallow: bool) -> list[str]:
+    """Problems of one cited result's provenance record ``rec``: code paths named, its commit known and holding
+    them, and the measured code unchanged since (warnings, for a shallow clone, go to WARNINGS)."""
+    commit, paths = str(rec["commit"]), [str(x) for x in rec.get("code_paths") or []]
+    if not paths:
+        return [f"{rel}: its provenance names no code paths (CODE_PATHS of its benchmark)"]
+    if _git_ok(root, "cat-file", "-e", f"{commit}^{{commit}}") is None:
+        msg = f"{rel}: records commit {commit[:12]}, which this repository does not have"
+        if shallow:
+            WARNINGS.append(msg + " (a shallow clone)")
+            return []
+        return [msg]
+    gone = [p for p in paths if _git_ok(root, "cat-file", "-e", f"{commit}:{p}") is None]
+    if gone:
+        return [f"{rel}: its code path(s) {', '.join(gone)} did not exist at its commit {commit[:12]}: "
+                "the record names the wrong commit or the wrong code"]
+    # stale when the measured code differs between its commit and HEAD (a tree comparison: a result measured
+    # on a branch merged since is judged by the code, not by the history's shape)
+    if _git_ok(root, "diff", "--quiet", commit, "HEAD", "--", *paths) is None:
+        last = _git_ok(root, "log", "-1", "--format=%h %cs", "HEAD", "--", *paths) or "?"
+        return [f"{rel}: stale: measured at {commit[:12]}, and {', '.join(paths)} changed since (last change "
+                f"{last}): re-measure it or stop citing it (its command: `{rec.get('command')}`, from "
+                f"{rec.get('cwd', '?')})"]
+    return []
 
 
 def check(root: Path = ROOT) -> list[str]:

@@ -253,3 +253,46 @@ def test_a_benchmark_run_stamps_its_result(tmp_path):
     assert rec["commit"] == record.project_commit(ROOT) and rec["commit"]
     assert rec["code_paths"] == ["gapsweep/theory"] and "--n 50" in rec["command"]
     assert rec["machine"]["cpus"] >= 1 and rec["versions"]["numpy"]
+
+
+TRACKED = """
+import json, subprocess, sys
+sys.path.insert(0, sys.argv[1])
+import _record
+_record.track(["benchmarks/_record.py"])
+who, out = sys.argv[2], sys.argv[4]
+print("tracking", flush=True)
+sys.stdin.readline()  # the test's barrier: write when told
+with open(f"{out}/{who}.json", "w") as f:
+    json.dump({"who": who}, f)
+if who == "A":  # a result a child process writes (no record of its own): the tracking run stamps it
+    subprocess.run([sys.executable, "-c", f"open('{out}/child.txt', 'w').write('x')"], check=True)
+"""
+
+
+def test_concurrent_runs_stamp_only_their_own_results(tmp_path):
+    """Two tracked benchmarks writing into one folder at the same time: each result carries the record of the
+    run that wrote it (before, the run that exited last stamped every file modified since its start, so records
+    named another benchmark's command); a file a child of the run wrote (no record) is stamped by that run.
+    Order by barriers (stdin lines), no timing."""
+    env = {"PYTHONPATH": str(ROOT), "PATH": os.environ["PATH"], "HOME": str(tmp_path)}
+    out = tmp_path / "out"
+    out.mkdir()
+
+    def start(who: str) -> subprocess.Popen:
+        p = subprocess.Popen([sys.executable, "-c", TRACKED, str(ROOT / "benchmarks"), who, "--out", str(out)],
+                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             env=env, cwd=tmp_path)
+        assert p.stdout.readline().strip() == "tracking"
+        return p
+
+    a = start("A")
+    b = start("B")  # started after A: B's file is modified after A's start
+    _, err = b.communicate("go\n", timeout=120)
+    assert b.returncode == 0, err
+    _, err = a.communicate("go\n", timeout=120)
+    assert a.returncode == 0, err
+    for who in ("A", "B"):
+        cmd = json.loads((out / f"{who}.json").read_text())["provenance"]["command"]
+        assert f" {who} --out" in cmd, (who, cmd)
+    assert " A --out" in record.read(out / "child.txt")["command"]
