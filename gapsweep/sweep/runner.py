@@ -15,6 +15,11 @@
   any HDF5 open for writing; a new store is created under a temporary name and renamed into place; the store is
   validated on resume and incomplete rows are re-run; a write error stops the run with one line; SIGINT/SIGTERM
   or a ``<store>.stop`` file end the run cleanly, recorded as interrupted (exit 130/143).
+
+Beside the runner (docs/architecture.md, "The farm"): what to do with an existing store is
+gapsweep.sweep.resume, rows copied from other stores gapsweep.sweep.reuse, rank 0's progress and ETA
+gapsweep.sweep.progress, a job of distributed tasks gapsweep.sweep.collective; the farm's rules are
+gapsweep.sweep.farm. The runner opens and closes the store, records the run and moves the farm's messages.
 """
 
 from __future__ import annotations
