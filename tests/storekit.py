@@ -1,6 +1,6 @@
 """Shared scaffolding of the store and sweep tests: run a job into a store in-process, make the two-task
-reference store of the ``units`` fault job, copy it, run the CLI in-process, and flip one bit of a store
-attribute (a damaged store). Imported as ``tests.storekit``."""
+reference store of the ``units`` fault job, a store with chosen rows done, failed or pending, copy a store, run
+the CLI in-process, and flip one bit of a store attribute (a damaged store). Imported as ``tests.storekit``."""
 
 from __future__ import annotations
 
@@ -27,6 +27,32 @@ def units_store(tmp_path_factory: Any, folder: str) -> Path:
     path = tmp_path_factory.mktemp(folder) / "u.h5"
     s = run_job(UNITS_JOB, path)
     assert s["done"] == s["tasks"] == 2, s
+    return path
+
+
+def partial_store(path: Path, ref: Path, job: Any = UNITS_JOB, copy: tuple[int, ...] = (),
+                  failed: tuple[int, ...] = ()) -> Path:
+    """A store of ``job`` at ``path`` (no run record) with the rows ``copy`` taken from the finished store
+    ``ref`` of the same job, the rows ``failed`` written as failed (message "boom"), the others pending."""
+    from gapsweep.sweep import methods as registry
+    from gapsweep.sweep import provenance
+    from gapsweep.sweep.schema import PRESSURE_HIST, TaskResult
+    from gapsweep.sweep.store import Store, open_read
+
+    spec = runner._load(job)
+    tasks = runner._select(spec, None)[0]
+    with open_read(ref) as f:
+        res = f["results"][...]
+        h = [f[k][...] for k in ("histograms/edges", "histograms/density", *PRESSURE_HIST)]
+    st = Store.create(path, tasks, {**provenance.store_attrs(spec), "runs": "[]"}, spec.histogram["bins"],
+                      columns=registry.job_columns(spec))
+    try:
+        for i in copy:
+            st.copy_row(i, res[i], tuple(a[i] for a in h))
+        for i in failed:
+            st.write(i, TaskResult("failed", "boom", {}))
+    finally:
+        st.close()
     return path
 
 

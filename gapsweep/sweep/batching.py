@@ -171,6 +171,34 @@ def _failed(e: Exception) -> TaskResult:
     return TaskResult("failed", f"{type(e).__name__}: {e}")
 
 
+def _notes(caught: list[warnings.WarningMessage], n: int) -> dict[int, str]:
+    """The warnings a batched solve raised, as row messages: a warning that names its problem (``_PROBLEM``) goes
+    to that row, any other to every row of the ``n``; the first warning of a row is kept."""
+    notes: dict[int, str] = {}
+    for w in caught:
+        m = _PROBLEM.match(str(w.message))
+        for k in ([int(m.group(1))] if m else range(n)):
+            notes.setdefault(k, f"warning: {w.category.__name__}: {_PROBLEM.sub('', str(w.message))}")
+    return notes
+
+
+def _step_row(t: Task, ctx: Context, r: Any, note: str | None) -> tuple[TaskResult, Any]:
+    """One task's row of a batched solve's result ``r`` and its next warm start: a row with non-finite values is
+    failed (never a NaN stored as success), an error in making the row fails it (a device fault raises)."""
+    try:
+        res, nxt = gfmd_row(t, ctx, r)
+        if note is not None and not res.message:
+            res.message = note
+        bad = _non_finite(res) if res.status == "done" else []
+        if bad:  # never store a NaN as success
+            res.status, res.message, nxt = "failed", f"non-finite result: {', '.join(bad)}", None
+    except (StoreWriteError, DeviceFault):
+        raise
+    except Exception as e:
+        res, nxt = _failed(e), None
+    return res, nxt
+
+
 def _solve_step(tasks: list[Task], probs: list, who: list[tuple[int, int]], ctx: Context, backend: str,
                 limit: float | None, state: dict[int, Any], limits: Any) -> dict[int, TaskResult]:
     """One chain step of a batch: rows of its tasks, and the next warm starts in ``state``."""
@@ -212,26 +240,11 @@ def _solve_step(tasks: list[Task], probs: list, who: list[tuple[int, int]], ctx:
             out[i], state[j] = run_task(tasks[i], ctx, state.get(j))
         return out
     share = (time.perf_counter() - start) / len(probs)
-    notes: dict[int, str] = {}
-    for w in caught:
-        m = _PROBLEM.match(str(w.message))
-        for k in ([int(m.group(1))] if m else range(len(probs))):
-            notes.setdefault(k, f"warning: {w.category.__name__}: {_PROBLEM.sub('', str(w.message))}")
+    notes = _notes(caught, len(probs))
     out = {}
     for k, ((j, i), r) in enumerate(zip(who, results)):
-        t = tasks[i]
         t1 = time.perf_counter()
-        try:
-            res, nxt = gfmd_row(t, ctx, r)
-            if k in notes and not res.message:
-                res.message = notes[k]
-            bad = _non_finite(res) if res.status == "done" else []
-            if bad:  # never store a NaN as success
-                res.status, res.message, nxt = "failed", f"non-finite result: {', '.join(bad)}", None
-        except (StoreWriteError, DeviceFault):
-            raise
-        except Exception as e:
-            res, nxt = _failed(e), None
+        res, nxt = _step_row(tasks[i], ctx, r, notes.get(k))
         res.values["wall_time"] = share + time.perf_counter() - t1
         res.values["rank"] = ctx.rank
         out[i] = res

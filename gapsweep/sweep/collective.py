@@ -21,11 +21,12 @@ import logging
 from collections.abc import Callable, Iterator
 from typing import Any
 
-from gapsweep.sweep import budget
+from gapsweep.sweep import budget, gpus
 from gapsweep.sweep.context import Context
+from gapsweep.sweep.resume import RunError
 from gapsweep.sweep.schema import Task, TaskResult, Unit
 
-__all__ = ["DoesNotFit", "check_memory", "is_collective", "run_collective"]
+__all__ = ["DoesNotFit", "check", "check_memory", "check_options", "is_collective", "run_collective"]
 
 log = logging.getLogger("gapsweep.runner")
 CUDA_CONTEXT = 0.5e9  # bytes a CUDA context and NCCL take on each GPU (as gapsweep.sweep.budget counts)
@@ -86,6 +87,26 @@ def check_memory(tasks: list[Task], ranks: int, on_gpu_total: float | None = Non
                            f"~{budget.human(whole)} over {ranks} ranks, more than this "
                            f"machine's {budget.human(ram)}: use more nodes or smaller grids (n)")
     return lines
+
+
+def check(tasks: list[Task], ranks: int) -> list[str]:
+    """:func:`check_memory` against this node's GPU memory (from nvidia-smi: no CUDA context here) and host
+    memory, its refusal as the runner's RunError; the plan's lines (none for a job without distributed tasks).
+    ``gapsweep plan`` and ``gapsweep run`` (rank 0, before anything is written) refuse the same jobs."""
+    if not is_collective(tasks):
+        return []
+    try:
+        return check_memory(tasks, ranks, on_gpu_total=gpus.memory())
+    except DoesNotFit as e:
+        raise RunError(str(e)) from None
+
+
+def check_options(tasks: list[Task], task_timeout: float | None, batch: str) -> None:
+    """Refuse (RunError) the run options a collective run cannot honour: ``--task-timeout`` (a limit on one rank
+    would leave the others in a collective call) and ``--batch`` (every rank solves one task at a time)."""
+    if is_collective(tasks) and (task_timeout is not None or batch != "off"):
+        raise RunError("[methods.gfmd] distributed = true: every rank solves each task together; "
+                       "--task-timeout and --batch do not apply (leave them out)")
 
 
 # ---------------------------------------------------------------------------------------------- the run

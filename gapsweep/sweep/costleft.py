@@ -37,7 +37,7 @@ from gapsweep.sweep.schema import STATUS, TIMEOUT_PREFIX, StoreError
 from gapsweep.sweep.store import open_read, while_written
 from gapsweep.sweep.tasks import expand
 
-__all__ = ["calibrate", "cost_left", "describe", "summary"]
+__all__ = ["calibrate", "cost_left", "describe", "estimate", "eta_s", "run_rate", "summary"]
 
 _FINISHED = (STATUS["done"], STATUS["not_converged"])
 OUTLIER = 5.0  # rows slower than this many times their method's median ratio are not calibrated on
@@ -74,17 +74,17 @@ def _time(text: str | None) -> _dt.datetime | None:
         return None
 
 
-def _rate(path: Path, runs: list[dict[str, Any]], finished_now: int, n: int, mean_wall: float | None,
-          now: _dt.datetime) -> dict[str, Any] | None:
+def run_rate(runs: list[dict[str, Any]], finished_now: int, n: int, mean_wall: float | None, now: _dt.datetime,
+             held: bool) -> dict[str, Any] | None:
     """The rate of the current (or last) run in measured seconds of task time per second: rows it finished times
-    the mean measured row time, over its elapsed time."""
+    the mean measured row time ``mean_wall`` [s], over its elapsed time. ``runs``: the store's run records;
+    ``finished_now``: rows not pending of the ``n`` rows; ``held``: whether the store's lease is held (the last
+    run, if it has not ended, is then the current one, its elapsed time up to ``now``). None without a rate."""
     if not runs or mean_wall is None:
         return None
     last = runs[-1]
     t0 = _time(last.get("started"))
-    held = lease.read(path)
-    running = held is not None and not last.get("finished") and not last.get("interrupted") \
-        and not last.get("stopped")
+    running = held and not last.get("finished") and not last.get("interrupted") and not last.get("stopped")
     if running:
         t1 = now
         rows = finished_now - (n - int(last.get("todo", n)))
@@ -99,6 +99,28 @@ def _rate(path: Path, runs: list[dict[str, Any]], finished_now: int, n: int, mea
         return None
     return {"run": "current" if running else "last", "rows": rows, "elapsed_s": elapsed,
             "task_s_per_s": rows * mean_wall / elapsed}
+
+
+def estimate(methods: list[str], model: np.ndarray, wall: np.ndarray, gpu: np.ndarray, finished: np.ndarray,
+             remaining: list[int], processes: int) -> dict[str, Any]:
+    """The cost left of the rows ``remaining`` (module docstring): each row's model cost times its method's
+    calibrated ratio (:func:`calibrate` on the ``finished`` rows; the overall ratio for a method without one, 1
+    before any row finished), summed into core-seconds (``gpu`` false) and GPU-seconds, plus the start-up time
+    of ``processes`` processes in core-seconds while rows remain. Returns ``core_seconds``, ``gpu_seconds``,
+    ``ratios``, ``overall`` and ``startup_s``."""
+    ratios, overall, startup = calibrate(methods, model, wall, finished)
+    est = np.array([model[i] * ratios.get(methods[i], overall if overall is not None else 1.0)
+                    for i in remaining], dtype=float)
+    g = gpu[remaining] if remaining else np.zeros(0, bool)
+    start_s = startup * processes if remaining else 0.0
+    return {"core_seconds": float(est[~g].sum()) + start_s, "gpu_seconds": float(est[g].sum()),
+            "ratios": ratios, "overall": overall, "startup_s": startup}
+
+
+def eta_s(core_seconds: float, gpu_seconds: float, rate: dict[str, Any] | None) -> float | None:
+    """The time left [s]: the cost left (core- and GPU-seconds of task time) over the run's rate
+    (:func:`run_rate`, task-seconds per second); None without a rate."""
+    return (core_seconds + gpu_seconds) / rate["task_s_per_s"] if rate else None
 
 
 def cost_left(path: str | Path, now: _dt.datetime | None = None) -> dict[str, Any]:
@@ -128,21 +150,19 @@ def cost_left(path: str | Path, now: _dt.datetime | None = None) -> dict[str, An
     gpu = np.array([bool(t and registry.get(t.method).needs_gpu(t)) for t in tasks], dtype=bool)
     methods = [t.method if t else "?" for t in tasks]
     finished = np.isin(status, _FINISHED) & ~np.isin(np.arange(len(ids)), sorted(rerun))
-    ratios, overall, startup = calibrate(methods, model, wall.astype(float), finished)
     failed = {i for i in np.flatnonzero(status == STATUS["failed"]).tolist()
               if not msg[i].startswith(TIMEOUT_PREFIX.encode())} - rerun
     remaining = sorted(rerun | failed)
-    est = np.array([model[i] * ratios.get(methods[i], overall if overall is not None else 1.0)
-                    for i in remaining], dtype=float)
-    g = gpu[remaining] if remaining else np.zeros(0, bool)
     fin_wall = wall[finished & np.isfinite(wall)]
     mean_wall = float(fin_wall.mean()) if fin_wall.size else None
-    rate = _rate(p, runs, int((status != STATUS["pending"]).sum()), len(ids), mean_wall,
-                 now or _dt.datetime.now(_dt.UTC))
+    held = bool(runs) and mean_wall is not None and lease.read(p) is not None  # the lease only where it matters
+    rate = run_rate(runs, int((status != STATUS["pending"]).sum()), len(ids), mean_wall,
+                    now or _dt.datetime.now(_dt.UTC), held)
     procs = int(runs[-1].get("mpi_size", 1) or 1) if runs else 1
-    start_s = startup * procs if remaining else 0.0
-    core_s, gpu_s = float(est[~g].sum()) + start_s, float(est[g].sum())
-    eta = (core_s + gpu_s) / rate["task_s_per_s"] if rate else None
+    e = estimate(methods, model, wall.astype(float), gpu, finished, remaining, procs)
+    core_s, gpu_s, ratios, overall, startup = (e[k] for k in ("core_seconds", "gpu_seconds", "ratios", "overall",
+                                                               "startup_s"))
+    eta = eta_s(core_s, gpu_s, rate)
     return {
         "store": str(p), "tasks": len(ids),
         "remaining": {"rows": len(remaining), "rerun_by_resume": len(rerun), "failed": len(failed)},

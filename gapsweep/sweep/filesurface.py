@@ -43,17 +43,19 @@ def _pair_or_num(key: str, v: Any) -> float | list[float]:
     return rd.number(key, v, ge=MIN_SIZE, le=MAX_SIZE)
 
 
-def file_surface(s: dict, base: str | Path | None) -> tuple[dict[str, Any], int]:
-    """``[surface] kind = "file"``: validate the keys and load the map now (gapsweep.surface.load), so that a
-    missing or unreadable file fails before anything runs. Returns the canonical surface table (with the file's
-    SHA-256, so a changed file changes the task ids, and its box ``length``) and the map's nx."""
-    rd.known("surface", s, FILE_KEYS)
-    if "path" not in s:
-        raise SpecError("surface.path: missing; the height map file, relative to the job spec")
-    path = rd.string("surface.path", s["path"])
-    full = Path(base if base is not None else ".") / path
-    if not full.is_file():
-        raise SpecError(f"surface.path: no such height map {str(full)!r} (paths are relative to the job spec)")
+def _channel(c: Any) -> int | str:
+    """``surface.channel``: a channel index (an integer >= 0) or a channel name."""
+    if isinstance(c, str):
+        return rd.string("surface.channel", c)
+    if isinstance(c, int) and not isinstance(c, bool):
+        return rd.integer("surface.channel", c, ge=0)
+    raise SpecError(f"surface.channel: expected a channel index (an integer >= 0) or a channel name "
+                    f"(a string), got {c!r} ({type(c).__name__})")
+
+
+def _options(s: dict, path: str) -> dict[str, Any]:
+    """The file surface's table as given (before loading): format, reader keys, units, box or pixel size,
+    detrending, undefined pixels, channel."""
     out: dict[str, Any] = {"kind": "file", "path": path}
     if "format" in s:
         out["format"] = rd.string("surface.format", s["format"], topography.FORMATS)
@@ -76,23 +78,13 @@ def file_surface(s: dict, base: str | Path | None) -> tuple[dict[str, Any], int]
     if missing != "refuse":
         out["missing"] = missing
     if "channel" in s:
-        c = s["channel"]
-        if isinstance(c, str):
-            out["channel"] = rd.string("surface.channel", c)
-        elif isinstance(c, int) and not isinstance(c, bool):
-            out["channel"] = rd.integer("surface.channel", c, ge=0)
-        else:
-            raise SpecError(f"surface.channel: expected a channel index (an integer >= 0) or a channel name "
-                            f"(a string), got {c!r} ({type(c).__name__})")
-    asked = rd.boolean("surface.periodic", s["periodic"]) if "periodic" in s else None
-    try:
-        topo = load_file_surface(out, full)
-        digest = hashlib.sha256(full.read_bytes()).hexdigest()
-    except SpecError:
-        raise
-    except (OSError, ValueError, ImportError) as e:
-        raise SpecError(f"surface.path: {path!r} does not load as a height map: {e}") from None
-    nx, ny = topo.shape
+        out["channel"] = _channel(s["channel"])
+    return out
+
+
+def _check_map(topo: Any, out: dict[str, Any], path: str) -> None:
+    """A loaded map is refused (SpecError) when its heights or box are not finite after the unit conversion, or
+    when it is flat after detrending (rms <= 1e-12 of its box)."""
     if not (np.all(np.isfinite(topo.heights)) and all(math.isfinite(x) and x > 0 for x in topo.length)):
         raise SpecError(f"surface.path: {path!r}: heights or box not finite after the unit conversion "
                         f"({out.get('unit')} -> {out.get('to_unit')}): allowed are maps whose values stay finite "
@@ -105,6 +97,30 @@ def file_surface(s: dict, base: str | Path | None) -> tuple[dict[str, Any], int]
         raise SpecError(f"surface.path: {path!r}: the height map is flat after detrend = {out['detrend']!r} (rms "
                         f"{rms:g}): allowed are maps with a non-zero rms roughness (a measured surface; check the "
                         "file, its unit or the detrending)")
+
+
+def file_surface(s: dict, base: str | Path | None) -> tuple[dict[str, Any], int]:
+    """``[surface] kind = "file"``: validate the keys and load the map now (gapsweep.surface.load), so that a
+    missing or unreadable file fails before anything runs. Returns the canonical surface table (with the file's
+    SHA-256, so a changed file changes the task ids, and its box ``length``) and the map's nx."""
+    rd.known("surface", s, FILE_KEYS)
+    if "path" not in s:
+        raise SpecError("surface.path: missing; the height map file, relative to the job spec")
+    path = rd.string("surface.path", s["path"])
+    full = Path(base if base is not None else ".") / path
+    if not full.is_file():
+        raise SpecError(f"surface.path: no such height map {str(full)!r} (paths are relative to the job spec)")
+    out = _options(s, path)
+    asked = rd.boolean("surface.periodic", s["periodic"]) if "periodic" in s else None
+    try:
+        topo = load_file_surface(out, full)
+        digest = hashlib.sha256(full.read_bytes()).hexdigest()
+    except SpecError:
+        raise
+    except (OSError, ValueError, ImportError) as e:
+        raise SpecError(f"surface.path: {path!r} does not load as a height map: {e}") from None
+    nx, ny = topo.shape
+    _check_map(topo, out, path)
     out["sha256"] = digest
     # The box: one number for a square box (as before), [Lx, Ly] otherwise; a rectangular grid records its shape.
     if math.isclose(topo.length[0], topo.length[1], rel_tol=1e-12):

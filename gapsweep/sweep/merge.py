@@ -104,6 +104,146 @@ def _write(tmp: Path, out: Path, tasks: list, attrs: dict, bins: int, results: n
     st.close()
 
 
+class _Rows:
+    """The merged rows so far, one per task of the job (pending until a shard gives one): results, histograms
+    (gap and pressure: edges, density), the shard each came from, the conflicts met and the damaged rows
+    skipped."""
+
+    def __init__(self, n: int, bins: int, rdtype: np.dtype) -> None:
+        self.results = empty_results(n, rdtype)
+        self.edges = np.full((n, bins + 1), np.nan)
+        self.dens = np.full((n, bins), np.nan)
+        self.pedges = np.full((n, bins + 1), np.nan)
+        self.pdens = np.full((n, bins), np.nan)
+        self.source = [""] * n
+        self.conflicts: list[str] = []
+        self.damaged = 0
+
+    def hists(self) -> tuple[np.ndarray, ...]:
+        return self.edges, self.dens, self.pedges, self.pdens
+
+    def offer(self, i: int, tid: str, s: str | Path, row: Any, h: tuple[np.ndarray, ...], on_conflict: str) -> None:
+        """Shard ``s``'s finished row of task ``tid`` (index ``i``): kept when its status is better than the row
+        held, or equal with other content and ``on_conflict="last"`` (a conflict, recorded either way)."""
+        new, old = _RANK[int(row["status"])], _RANK[int(self.results["status"][i])]
+        if new < old:
+            return
+        if new == old:
+            if _row_equal(self.results[i], row, (self.edges[i], self.dens[i], self.pedges[i], self.pdens[i]), h):
+                return
+            self.conflicts.append(f"task {tid}: {self.source[i]} and {s} both have a "
+                                  f"{STATUS_NAMES[int(row['status'])]!r} row with different results")
+            if on_conflict != "last":
+                return
+        self.results[i] = row
+        self.edges[i], self.dens[i], self.pedges[i], self.pdens[i] = h
+        self.source[i] = str(s)
+
+
+def _read_shard(s: str | Path, js: specmod.JobSpec, rdtype: np.dtype, map_rms: dict[str, tuple[float, ...]],
+                skip_damaged: bool) -> tuple[Any, list[str], np.ndarray, tuple[np.ndarray, ...]] | None:
+    """A shard's check report, task ids, results (in this job's results dtype; a file map's rms values of a
+    layout before 5 in format 5's meaning) and histograms (NaN pressure histograms for a format-1 shard); None
+    for a shard without rows. Raises StoreError for a shard of other histogram bins."""
+    bins = js.histogram["bins"]
+    with open_read(s, tolerate_tasks=skip_damaged) as f:
+        rep = storecheck.check(f, s, tolerate_tasks=skip_damaged)
+        if f["tasks"].shape[0] == 0:
+            return None
+        if f["histograms/density"].shape[1] != bins:
+            raise StoreError(f"merge: {s} has {f['histograms/density'].shape[1]} histogram bins, the job {bins}")
+        ids = [x.decode("utf-8", "replace") for x in f["tasks"].fields("task_id")[...]]
+        old_rms = "h_rms_spectrum" not in f["results"].dtype.names
+        r = upgrade_results(f["results"][...], rdtype)  # a format-1 shard: by column name
+        if old_rms and js.surface.get("kind") == "file":
+            r = _map_rms_to_format5(r, js.surface, map_rms)
+        e, d = f["histograms/edges"][...], f["histograms/density"][...]
+        if PRESSURE_HIST[0] in f:
+            pe, pd_ = f[PRESSURE_HIST[0]][...], f[PRESSURE_HIST[1]][...]
+        else:
+            pe, pd_ = np.full(e.shape, np.nan), np.full(d.shape, np.nan)
+    return rep, ids, r, (e, d, pe, pd_)
+
+
+def _add_shard(rows: _Rows, s: str | Path, index: dict[str, int], js: specmod.JobSpec, rdtype: np.dtype,
+               map_rms: dict[str, tuple[float, ...]], on_conflict: str, skip_damaged: bool) -> None:
+    """Offer every finished, undamaged row of shard ``s`` to ``rows``. A damaged row refuses the merge unless
+    ``skip_damaged`` (then it counts as pending, as a row whose task id is not the job's from a damaged
+    ``/tasks``); a task id that is not the job's otherwise refuses it."""
+    got = _read_shard(s, js, rdtype, map_rms, skip_damaged)
+    if got is None:
+        return
+    rep, ids, r, h = got
+    if rep.damaged and not skip_damaged:
+        raise StoreError(f"merge: {s} has {len(rep.damaged)} damaged row(s) (checksum mismatch, rows "
+                         f"{rep.damaged[:5]}{' ...' if len(rep.damaged) > 5 else ''}); re-run them with "
+                         "--resume, or pass --skip-damaged to merge without them; nothing was written")
+    rows.damaged += len(rep.damaged)
+    bad = set(rep.rerun)
+    for j, tid in enumerate(ids):
+        if j in bad or r["status"][j] == STATUS["pending"]:
+            continue  # (a damaged task id of such a row is restored by --resume of its shard)
+        if tid not in index and rep.tasks_damaged:  # --skip-damaged: a task id changed since it was written
+            log.warning("merge: %s row %d: task id %r is not the job's (damaged /tasks): left out", s, j, tid)
+            rows.damaged += 1
+            continue
+        if tid not in index:
+            raise StoreError(f"merge: task {tid} of {s} is not in the job")
+        rows.offer(index[tid], tid, s, r[j], tuple(x[j] for x in h), on_conflict)
+
+
+def _job(shards: Sequence[str | Path], metas: list[dict[str, Any]], skip_damaged: bool,
+         ) -> tuple[specmod.JobSpec, str]:
+    """The job the shards share (its spec from a shard whose spec attributes can be trusted) and its hash;
+    StoreError for shards of different jobs or a spec that is not valid (naming the shard)."""
+    specs = _trusted_specs(shards, metas, skip_damaged)
+    shas = {m["spec_sha256"] for m, _ in specs}
+    if len(shas) != 1:
+        raise StoreError(f"merge: shards come from different job specs ({len(shas)} spec hashes)")
+    first, s0 = specs[0]
+    try:
+        return specmod.loads(first["spec_text"], base=first.get("spec_dir") or None), first["spec_sha256"]
+    except specmod.SpecError as e:  # name the shard whose spec it is (issue 19)
+        raise StoreError(f"merge: shard {s0}: its job spec is not valid: {e}") from None
+
+
+def _check_args(shards: Sequence[str | Path], outp: Path, on_conflict: str) -> None:
+    if not shards:
+        raise StoreError("merge: no shard stores given")
+    if on_conflict not in CONFLICT_CHOICES:
+        raise ValueError(f"merge: on_conflict must be one of {', '.join(CONFLICT_CHOICES)}, got {on_conflict!r}")
+    if any(outputs.same_file(x, outp) or Path(x).resolve() == outp.resolve() for x in shards):
+        raise StoreError(f"merge: the output {outp} is also a shard (the same file, by device and inode); choose "
+                         "another --out")
+
+
+def _write_out(outp: Path, shards: Sequence[str | Path], overwrite: bool, break_lease: bool, sha: str,
+               js: specmod.JobSpec, tasks: list, attrs: dict[str, Any], rows: _Rows,
+               columns: Sequence[tuple[str, str]]) -> None:
+    """Write the merged store to ``outp`` holding its lease: under a temporary name, with its whole size reserved
+    first, renamed into place; ``--overwrite`` replaces only an earlier merge of the same job
+    (:func:`_not_own_merge`)."""
+    bins = js.histogram["bins"]
+    done = {t.task_id for t, s in zip(tasks, rows.results["status"], strict=True) if s == STATUS["done"]}
+    with lease.acquire(outp, break_lease=break_lease, purpose="merge"):  # a live writer is named first
+        lease.remove_leftovers(outp, held=True)  # of a killed creation or merge (issue 40 item 7)
+        _guard(outp, shards, overwrite, lambda o: _not_own_merge(o, sha, done))
+        tmp = outp.with_name(f".{outp.name}.tmp-{os.getpid()}")
+        # room first (issue 40 item 3): a merge whose HDF5 writes failed on a full disk or under a file-size limit
+        # segfaulted (exit 139); the whole store is reserved before HDF5 writes a byte (writefail.reserve)
+        need = budget.store_bytes(len(tasks), bins, len(js.text) + len(attrs.get("runs", "")))
+        err = writefail.reserve(tmp, int(1.5 * need) + (1 << 20))
+        if err is not None:
+            raise StoreWriteError(f"merge --out {outp}: cannot be written ({err}); nothing was written, the "
+                                  "shards are untouched")
+        try:
+            _write(tmp, outp, tasks, attrs, bins, rows.results, rows.hists(), columns)
+            os.replace(tmp, outp)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+
+
 def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = False,
           on_conflict: str = "error", break_lease: bool = False, skip_damaged: bool = False) -> dict[str, int]:
     """Merge shard stores of one job into ``out`` (rows in the job's canonical task order, keyed by task id).
@@ -117,26 +257,11 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
     into place, holding ``out``'s lease. A shard row whose checksum does not match its bytes (docs/store.md,
     "Checksums") refuses the merge, naming the shard and the rows, unless ``skip_damaged`` (then it counts as
     pending). Returns counts per status (and ``conflicts`` resolved, ``damaged`` rows skipped)."""
-    if not shards:
-        raise StoreError("merge: no shard stores given")
-    if on_conflict not in CONFLICT_CHOICES:
-        raise ValueError(f"merge: on_conflict must be one of {', '.join(CONFLICT_CHOICES)}, got {on_conflict!r}")
     outp = Path(out)
-    if any(outputs.same_file(x, outp) or Path(x).resolve() == outp.resolve() for x in shards):
-        raise StoreError(f"merge: the output {outp} is also a shard (the same file, by device and inode); choose "
-                         "another --out")
+    _check_args(shards, outp, on_conflict)
     _guard(outp, shards, overwrite, lambda o: None)  # exists, folder
     metas = [read_attrs(s, tolerate_tasks=skip_damaged) for s in shards]
-    specs = _trusted_specs(shards, metas, skip_damaged)
-    shas = {m["spec_sha256"] for m, _ in specs}
-    if len(shas) != 1:
-        raise StoreError(f"merge: shards come from different job specs ({len(shas)} spec hashes)")
-    first, s0 = specs[0]
-    sha = first["spec_sha256"]
-    try:
-        js = specmod.loads(first["spec_text"], base=first.get("spec_dir") or None)
-    except specmod.SpecError as e:  # name the shard whose spec it is (issue 19)
-        raise StoreError(f"merge: shard {s0}: its job spec is not valid: {e}") from None
+    js, sha = _job(shards, metas, skip_damaged)
     tasks = tasksmod.expand(js)
     index = {t.task_id: i for i, t in enumerate(tasks)}
     runs = []
@@ -145,92 +270,21 @@ def merge(shards: Sequence[str | Path], out: str | Path, *, overwrite: bool = Fa
     attrs = provenance.store_attrs(js, shard="", extra={"merged_from": json.dumps([str(s) for s in shards]),
                                                         "runs": json.dumps(runs)})
     attrs["spec_sha256"] = sha
-    bins = js.histogram["bins"]
     columns = registry.job_columns(js)  # the job's plug-in columns (docs/store.md "Plug-in columns")
     rdtype = results_dtype(columns)
-    results = empty_results(len(tasks), rdtype)
-    edges = np.full((len(tasks), bins + 1), np.nan)
-    dens = np.full((len(tasks), bins), np.nan)
-    pedges = np.full((len(tasks), bins + 1), np.nan)
-    pdens = np.full((len(tasks), bins), np.nan)
-    source = [""] * len(tasks)
+    rows = _Rows(len(tasks), js.histogram["bins"], rdtype)
     map_rms: dict[str, tuple[float, ...]] = {}  # a file map's rms values, computed once (_map_rms_to_format5)
-    conflicts: list[str] = []
-    damaged = 0
     for s in shards:
-        with open_read(s, tolerate_tasks=skip_damaged) as f:
-            rep = storecheck.check(f, s, tolerate_tasks=skip_damaged)
-            if f["tasks"].shape[0] == 0:
-                continue
-            if f["histograms/density"].shape[1] != bins:
-                raise StoreError(f"merge: {s} has {f['histograms/density'].shape[1]} histogram bins, the job {bins}")
-            ids = [x.decode("utf-8", "replace") for x in f["tasks"].fields("task_id")[...]]
-            old_rms = "h_rms_spectrum" not in f["results"].dtype.names
-            r = upgrade_results(f["results"][...], rdtype)  # a format-1 shard: by column name
-            if old_rms and js.surface.get("kind") == "file":
-                r = _map_rms_to_format5(r, js.surface, map_rms)
-            e, d = f["histograms/edges"][...], f["histograms/density"][...]
-            if PRESSURE_HIST[0] in f:
-                pe, pd_ = f[PRESSURE_HIST[0]][...], f[PRESSURE_HIST[1]][...]
-            else:
-                pe, pd_ = np.full(e.shape, np.nan), np.full(d.shape, np.nan)
-        if rep.damaged and not skip_damaged:
-            raise StoreError(f"merge: {s} has {len(rep.damaged)} damaged row(s) (checksum mismatch, rows "
-                             f"{rep.damaged[:5]}{' ...' if len(rep.damaged) > 5 else ''}); re-run them with "
-                             "--resume, or pass --skip-damaged to merge without them; nothing was written")
-        damaged += len(rep.damaged)
-        bad = set(rep.rerun)
-        for j, tid in enumerate(ids):
-            if j in bad or r["status"][j] == STATUS["pending"]:
-                continue  # (a damaged task id of such a row is restored by --resume of its shard)
-            if tid not in index and rep.tasks_damaged:  # --skip-damaged: a task id changed since it was written
-                log.warning("merge: %s row %d: task id %r is not the job's (damaged /tasks): left out", s, j, tid)
-                damaged += 1
-                continue
-            if tid not in index:
-                raise StoreError(f"merge: task {tid} of {s} is not in the job")
-            i = index[tid]
-            new, old = _RANK[int(r["status"][j])], _RANK[int(results["status"][i])]
-            if new < old:
-                continue
-            if new == old:
-                if _row_equal(results[i], r[j], (edges[i], dens[i], pedges[i], pdens[i]),
-                              (e[j], d[j], pe[j], pd_[j])):
-                    continue
-                conflicts.append(f"task {tid}: {source[i]} and {s} both have a {STATUS_NAMES[int(r['status'][j])]!r} "
-                                 "row with different results")
-                if on_conflict != "last":
-                    continue
-            results[i] = r[j]
-            edges[i], dens[i] = e[j], d[j]
-            pedges[i], pdens[i] = pe[j], pd_[j]
-            source[i] = str(s)
-    if conflicts and on_conflict == "error":
-        raise StoreError(f"merge: {len(conflicts)} conflicting row(s), e.g. {conflicts[0]}; pass "
+        _add_shard(rows, s, index, js, rdtype, map_rms, on_conflict, skip_damaged)
+    if rows.conflicts and on_conflict == "error":
+        raise StoreError(f"merge: {len(rows.conflicts)} conflicting row(s), e.g. {rows.conflicts[0]}; pass "
                          "--on-conflict first|last to choose, nothing was written")
-    for c in conflicts:
+    for c in rows.conflicts:
         log.warning("merge: %s (kept the %s)", c, on_conflict)
-    done = {t.task_id for t, s in zip(tasks, results["status"], strict=True) if s == STATUS["done"]}
-    with lease.acquire(outp, break_lease=break_lease, purpose="merge"):  # a live writer is named first
-        lease.remove_leftovers(outp, held=True)  # of a killed creation or merge (issue 40 item 7)
-        _guard(outp, shards, overwrite, lambda o: _not_own_merge(o, sha, done))
-        tmp = outp.with_name(f".{outp.name}.tmp-{os.getpid()}")
-        # room first (issue 40 item 3): a merge whose HDF5 writes failed on a full disk or under a file-size limit
-        # segfaulted (exit 139); the whole store is reserved before HDF5 writes a byte (writefail.reserve)
-        need = budget.store_bytes(len(tasks), bins, len(js.text) + len(attrs.get("runs", "")))
-        err = writefail.reserve(tmp, int(1.5 * need) + (1 << 20))
-        if err is not None:
-            raise StoreWriteError(f"merge --out {outp}: cannot be written ({err}); nothing was written, the "
-                                  "shards are untouched")
-        try:
-            _write(tmp, outp, tasks, attrs, bins, results, (edges, dens, pedges, pdens), columns)
-            os.replace(tmp, outp)
-        except BaseException:
-            tmp.unlink(missing_ok=True)
-            raise
-    counts = {name: int(np.sum(results["status"] == code)) for name, code in STATUS.items()}
-    counts["conflicts"] = len(conflicts)
-    counts["damaged"] = damaged
+    _write_out(outp, shards, overwrite, break_lease, sha, js, tasks, attrs, rows, columns)
+    counts = {name: int(np.sum(rows.results["status"] == code)) for name, code in STATUS.items()}
+    counts["conflicts"] = len(rows.conflicts)
+    counts["damaged"] = rows.damaged
     return counts
 
 

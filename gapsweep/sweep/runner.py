@@ -15,6 +15,11 @@
   any HDF5 open for writing; a new store is created under a temporary name and renamed into place; the store is
   validated on resume and incomplete rows are re-run; a write error stops the run with one line; SIGINT/SIGTERM
   or a ``<store>.stop`` file end the run cleanly, recorded as interrupted (exit 130/143).
+
+Beside the runner (docs/architecture.md, "The farm"): what to do with an existing store is
+gapsweep.sweep.resume, rows copied from other stores gapsweep.sweep.reuse, rank 0's progress and ETA
+gapsweep.sweep.progress, a job of distributed tasks gapsweep.sweep.collective; the farm's rules are
+gapsweep.sweep.farm. The runner opens and closes the store, records the run and moves the farm's messages.
 """
 
 from __future__ import annotations
@@ -32,20 +37,20 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from gapsweep.sweep import batching, budget, collective, gpus, lease, limits, provenance, storecheck
 from gapsweep.sweep import methods as registry
 from gapsweep.sweep import spec as specmod
 from gapsweep.sweep.context import Context
 from gapsweep.sweep.execute import run_task
 from gapsweep.sweep.farm import DeviceFault, Farm, Worker, device_fault
-from gapsweep.sweep.fields import field_selected, fields_dir, remove_fields, remove_partial
+from gapsweep.sweep.fields import fields_dir, remove_fields, remove_partial
 from gapsweep.sweep.limits import Interrupted, TaskTimeout
-from gapsweep.sweep.repair import job_mismatch
-from gapsweep.sweep.schema import PRESSURE_HIST, STATUS, Task, TaskResult, Unit
+from gapsweep.sweep.progress import Progress
+from gapsweep.sweep.resume import RunError, decide, store_order, stored_order
+from gapsweep.sweep.reuse import Reused, copy_reused, reusable_rows, reused_record
+from gapsweep.sweep.schema import STATUS, Task, TaskResult, Unit
 from gapsweep.sweep.spec import check_extra
-from gapsweep.sweep.store import Store, StoreError, StoreWriteError, open_read
+from gapsweep.sweep.store import Store, StoreError, StoreWriteError
 from gapsweep.sweep.store import io_failed as store_io_failed
 from gapsweep.sweep.tasks import estimate_cost, expand, make_units, shard_units
 from gapsweep.sweep.trace import Trace
@@ -57,10 +62,6 @@ log = logging.getLogger("gapsweep.runner")
 TAG_READY, TAG_WORK, TAG_ROW, TAG_STOP, TAG_FAULT, TAG_ERROR = 1, 2, 3, 4, 5, 6
 _MPI_ENV = ("OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_RANK", "MPI_LOCALNRANKS", "PMI_RANK")
 _MPI_SIZE_ENV = ("OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_SIZE", "MPI_LOCALNRANKS")
-
-
-class RunError(RuntimeError):
-    """The run cannot start as asked (store exists, belongs to another job, writer unavailable)."""
 
 
 def parse_shard(text: str | None) -> tuple[int, int] | None:
@@ -176,7 +177,7 @@ def plan(job: str | Path | specmod.JobSpec, shard: tuple[int, int] | None = None
                  "wall (rough model, see docs/jobs.md)")
     size = budget.store_bytes(len(tasks), spec.histogram["bins"], len(spec.text), len(registry.job_columns(spec)))
     lines.extend(_check_resources(tasks, ranks_per_gpu))
-    lines.extend(_check_collective(tasks, ranks))  # distributed tasks: their slabs on `ranks` ranks
+    lines.extend(collective.check(tasks, ranks))  # distributed tasks: their slabs on `ranks` ranks
     lines.extend(_propose(units))
     lines.append(f"  store ~{budget.human(size)}")
     if store is not None:
@@ -232,17 +233,6 @@ def _check_resources(tasks: list[Task], ranks_per_gpu: int = 1) -> list[str]:
     return lines
 
 
-def _check_collective(tasks: list[Task], ranks: int) -> list[str]:
-    """gapsweep.sweep.collective.check_memory, its refusal as a RunError (the GPU's memory from nvidia-smi: no
-    CUDA context here)."""
-    if not collective.is_collective(tasks):
-        return []
-    try:
-        return collective.check_memory(tasks, ranks, on_gpu_total=gpus.memory())
-    except collective.DoesNotFit as e:
-        raise RunError(str(e)) from None
-
-
 def _store_path(path: str | Path, shard: tuple[int, int] | None) -> Path:
     p = str(path)
     if shard is None and ("{i}" in p or "{n}" in p):  # else a file literally named x{i}.h5 (issue 19)
@@ -251,207 +241,6 @@ def _store_path(path: str | Path, shard: tuple[int, int] | None) -> Path:
     if shard is not None:
         p = p.replace("{i}", str(shard[0])).replace("{n}", str(shard[1]))
     return Path(p)
-
-
-def _decide(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: str, resume: bool,
-            overwrite: bool, *, reordered: bool = False) -> tuple[str, list[int], int]:
-    """('create' | 'resume' | 'noop', task indices to run). Raises RunError when the store cannot be used.
-    On resume the store is validated (docs/reliability.md): pending rows, rows of unknown status and done rows
-    without a complete result are run again."""
-    if not path.exists() or overwrite:
-        size = budget.store_bytes(len(tasks), spec.histogram["bins"], len(spec.text), len(registry.job_columns(spec)))
-        free = budget.disk_free(path.parent)
-        if size > free:
-            raise RunError(f"store {path}: needs ~{budget.human(size)}, only {budget.human(free)} free there")
-        try:  # a file-size limit (ulimit -f) would otherwise fail inside the collective creation under mpio
-            budget.probe_growth(path, min(size, budget.PROBE_BYTES), size=size)
-        except OSError as e:
-            raise RunError(f"store {path}: cannot be created ({e.strerror}: full disk or file-size limit, "
-                           f"~{budget.human(size)} needed); nothing was written") from None
-        return "create", list(range(len(tasks))), 0
-    try:
-        with open_read(path, check=False) as f:
-            report = storecheck.check(f, path, tolerate_tasks=resume)  # once: it reads and checksums every row
-            sha, shard = f.attrs.get("spec_sha256"), f.attrs.get("shard")
-            # issue 40 item 1: spec attributes that fail their checksum are not compared; the job is this store's
-            # when every task row is the job's (the rows verify on their own checksums)
-            not_job = None if report.spec_trusted else job_mismatch(f, spec)
-            todo = storecheck.incomplete_rows(f, path, report)
-            moved, kept = _moved_rows(f, tasks, set(report.damaged), set(todo))
-            runs_bad = report.runs_damaged is not None
-            failed = set(np.flatnonzero(f["results"].fields("status")[...] == STATUS["failed"]).tolist()
-                         if report.n_tasks else []) - set(todo)
-    except (OSError, StoreError) as e:
-        from gapsweep.sweep.outputs import is_store
-
-        if not is_store(path):  # --overwrite would be refused too (the output rule): not ours to replace
-            raise RunError(f"{e}; it is not a gapsweep store: choose another --store") from None
-        raise RunError(f"{e}; pass --overwrite to replace it") from None
-    if isinstance(sha, bytes):
-        sha = sha.decode()
-    if not report.spec_trusted:
-        what = ", ".join(report.spec_damaged) or "the attribute checksums"
-        if not_job is not None or shard != shard_text:
-            raise RunError(f"store {path}: its job spec attributes are damaged ({what}) and this job is not the "
-                           f"store's ({not_job or 'another shard'}): resume it with the job file it was run from; "
-                           "its rows verify on their own checksums")
-        if not resume:
-            raise RunError(f"store {path}: its job spec attributes are damaged ({what}); its rows verify on their "
-                           "own checksums: pass --resume to restore them from this job file (checked against every "
-                           f"task row), or run `gapsweep repair {path} --job JOB`")
-    elif (sha not in (spec.sha256, spec.text_sha256) and not reordered) or shard != shard_text or moved is None:
-        raise RunError(f"store {path} was written for another job spec or shard; pass --overwrite to replace "
-                       "it or choose another --store")
-    if kept:  # done rows whose results verify against the spec's task row: only their task row is restored
-        log.warning("store %s: %d done row(s) with a damaged task row verify against the job spec's: kept, their "
-                    "task rows are restored (rows %s)", path, len(kept), sorted(kept)[:5])
-        todo = [i for i in todo if i not in kept]
-    if not todo and not moved and not (resume and (runs_bad or report.attrs_need_repair)):  # --resume rebuilds
-        # damaged run records, provenance and spec attributes
-        return "noop", [], len(failed)
-    if not resume and not todo:
-        raise RunError(f"store {path}: {len(moved)} damaged task row(s) (rows {sorted(moved)[:5]}): pass --resume to "
-                       "restore them from the job spec (every done row is kept)")
-    if not resume:
-        raise RunError(f"store {path} exists with {len(todo)} of {len(tasks)} tasks pending: pass --resume to "
-                       "finish it or --overwrite to start again")
-    try:
-        budget.probe_growth(path)
-    except OSError as e:
-        raise RunError(f"store {path}: no room to record a new run ({e.strerror}: full disk or file-size "
-                       "limit); nothing was changed: free space and run again") from None
-    return "resume", todo, len(failed)
-
-
-def _task_key(spec: specmod.JobSpec) -> str:
-    """The spec's canonical JSON with the values of every axis list sorted (grid axes and method overrides) and
-    without its description: equal for two specs that differ only in the order of axis values (docs/jobs.md: the
-    order does not enter) or in their free-text ``job.description``, which enters no task (a corrected
-    description must not strand a half-finished store)."""
-    d = json.loads(spec.canonical())
-    d.pop("description", None)
-
-    def norm(x: Any) -> Any:
-        if isinstance(x, dict):
-            return {k: norm(v) for k, v in x.items()}
-        if isinstance(x, list) and all(isinstance(v, (int, float, str)) and not isinstance(v, bool) for v in x):
-            return sorted(x, key=lambda v: (isinstance(v, str), v))
-        return x
-
-    return json.dumps({**d, "grid": norm(d["grid"]), "methods": norm(d["methods"])}, sort_keys=True)
-
-
-def _stored_order(path: Path, spec: specmod.JobSpec, tasks: list[Task], shard_text: str,
-                  overwrite: bool) -> list[int] | None:
-    """Issue 31: a store written from the same spec with the values of an axis in another order, or another
-    ``job.description`` (its hash differs, its tasks are the same: :func:`_task_key`), is resumed in its own row
-    order: the permutation (store row -> index into ``tasks``), or None where the spec is the store's or
-    another job's."""
-    if overwrite or not path.is_file():
-        return None
-    try:
-        with open_read(path, check=False) as f:
-            sha, text, shard = (f.attrs.get(k) for k in ("spec_sha256", "spec_text", "shard"))
-            ids = [x.decode("utf-8", "replace") for x in f["tasks"].fields("task_id")[...]] \
-                if f["tasks"].shape[0] else []
-    except (OSError, StoreError, KeyError):
-        return None  # _decide says what is wrong with it
-    sha, text = (x.decode("utf-8", "replace") if isinstance(x, bytes) else x for x in (sha, text))
-    if sha in (spec.sha256, spec.text_sha256) or shard != shard_text or not isinstance(text, str):
-        return None
-    try:
-        if _task_key(specmod.loads(text, base=spec.base_dir or None)) != _task_key(spec):
-            return None
-    except (specmod.SpecError, ValueError, AttributeError):
-        return None
-    index = {t.task_id: i for i, t in enumerate(tasks)}
-    if sorted(ids) != sorted(index):
-        return None
-    log.info("store %s: the job spec differs from the store's only in the order of axis values or in its "
-             "description; resumed in the store's row order", path)
-    return [index[x] for x in ids]
-
-
-def _store_order(tasks: list[Task], units: list[Unit], order: list[int] | None) -> tuple[list[Task], list[Unit]]:
-    """``tasks`` (and their ``units``) in the store's row order (:func:`_stored_order`); unchanged for None."""
-    if order is None:
-        return tasks, units
-    new = {old: k for k, old in enumerate(order)}
-    return [tasks[i] for i in order], [u.remap(new) for u in units]
-
-
-def _moved_rows(f: Any, tasks: list[Task], damaged: set[int], todo: set[int],
-                ) -> tuple[set[int] | None, set[int]]:
-    """Rows whose stored task row differs from the job's (a damaged task id or parameter, issue 31) and, of those,
-    the done rows whose stored checksum verifies against the job's task row (their results are intact: only the
-    task row is restored, the row stays done). None when the task table cannot be this job's: another length, or
-    a differing row that is neither damaged (checksum) nor to be run again (pending)."""
-    import numpy as np
-
-    from gapsweep.sweep.schema import CHECKSUM, PRESSURE_HIST, row_checksum
-    from gapsweep.sweep.store import task_rows
-
-    have = f["tasks"][...] if f["tasks"].shape[0] else np.zeros(0)
-    if len(have) != len(tasks):
-        return None, set()
-    want = task_rows(tasks)
-    moved = {i for i in range(len(want)) if have[i].tobytes() != want[i].tobytes()}
-    if not moved <= damaged | todo:
-        return None, set()
-    kept = set()
-    r = f["results"]
-    if CHECKSUM in (r.dtype.names or ()):
-        g = (f["histograms/edges"], f["histograms/density"], f[PRESSURE_HIST[0]], f[PRESSURE_HIST[1]])
-        for i in sorted(moved & damaged):
-            row = r[i]
-            if int(row["status"]) != STATUS["pending"] and \
-                    int(row[CHECKSUM]) == row_checksum(want[i], row, tuple(x[i] for x in g)):
-                kept.add(i)
-    return moved, kept
-
-
-class Progress:
-    """Rank 0's progress: a tqdm bar on a terminal, plain log lines (every ``every`` s) otherwise."""
-
-    def __init__(self, total: int, mode: str = "auto", every: float = 10.0) -> None:
-        self.total, self.count = total, dict.fromkeys(STATUS, 0)
-        self.t0 = self.last = time.monotonic()
-        self.every = every
-        tty = sys.stderr.isatty()
-        self.mode = ("bar" if tty else "log") if mode == "auto" else mode
-        self.bar = None
-        if self.mode == "bar" and total:
-            try:
-                from tqdm import tqdm
-            except ImportError:  # the `progress` extra is not installed: log lines instead of a bar
-                self.mode = "log"
-            else:
-                self.bar = tqdm(total=total, unit="task", dynamic_ncols=True, file=sys.stderr)
-
-    def update(self, res: TaskResult) -> None:
-        self.count[res.status] += 1
-        if self.bar is not None:
-            self.bar.update(1)
-            self.bar.set_postfix(failed=self.count["failed"], not_conv=self.count["not_converged"], refresh=False)
-        elif self.mode == "log":
-            t = time.monotonic()
-            if t - self.last >= self.every:
-                self.last = t
-                log.info(self.line())
-
-    def line(self) -> str:
-        n = sum(self.count.values())
-        el = time.monotonic() - self.t0
-        eta = el / n * (self.total - n) if n else float("nan")
-        return (f"{n}/{self.total} finished ({self.count['done']} done, {self.count['failed']} failed, "
-                f"{self.count['not_converged']} not converged), {self.total - n} remaining, "
-                f"elapsed {el:.1f} s, ETA {eta:.1f} s")
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
-        if self.mode != "none":
-            log.info(self.line())
 
 
 def _run_unit(tasks: list[Task], unit: Unit, ctx: Context, todo: set[int], limit: float | None,
@@ -544,6 +333,40 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     Raises :class:`RunError` when the run cannot start or a write fails (rows finished before stay done),
     :class:`~gapsweep.limits.Interrupted` after a clean stop on SIGINT/SIGTERM or a ``<store>.stop`` file (the
     run is recorded as interrupted in the store)."""
+    _check_options(resume, overwrite, task_timeout, batch, ranks_per_gpu, lookahead)
+    spec = _load(job)
+    comm = _comm(mpi)
+    rank, size = (comm.rank, comm.size) if comm is not None else (0, 1)
+    tasks, units = _select(spec, shard, batch)
+    collective.check_options(tasks, task_timeout, batch)
+    path = _store_path(store, shard)
+    shard_text = f"{shard[0]}/{shard[1]}" if shard else ""
+
+    # Rank 0 takes the lease and decides (file system checks once), then shares: every rank raises the same
+    # error. Nothing opens the store for writing before the lease is held.
+    decision: Any = None
+    held: lease.Lease | None = None
+    reused: Reused = {}
+    if rank == 0:
+        decision, held, reused = _rank0_decide(job, spec, tasks, path, shard_text, size, resume, overwrite,
+                                               break_lease, ranks_per_gpu, reuse, reuse_older)
+    if comm is not None:
+        decision = comm.bcast(decision, root=0)
+    if isinstance(decision, RunError):
+        raise decision
+    tasks, units = store_order(tasks, units, decision[0])  # a reordered axis: the store's row order (issue 31)
+    decision = decision[1:]
+    try:
+        return _execute(spec, comm, rank, size, tasks, units, path, shard_text, decision, writer, progress,
+                        coordinator_works, task_timeout, held, (batch, ranks_per_gpu, lookahead), reused)
+    finally:
+        if held is not None:
+            held.release()
+
+
+def _check_options(resume: bool, overwrite: bool, task_timeout: float | None, batch: str,
+                   ranks_per_gpu: int | None, lookahead: int) -> None:
+    """:func:`run`'s options, each refused (ValueError) with the allowed range before anything is read."""
     if resume and overwrite:
         raise ValueError("--resume and --overwrite exclude each other: --resume keeps the finished rows, "
                          "--overwrite discards them")
@@ -555,55 +378,40 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
         gpus.assign(None, 0, ranks_per_gpu)  # validates ranks_per_gpu
     if isinstance(lookahead, bool) or not isinstance(lookahead, int) or not 0 <= lookahead <= 64:
         raise ValueError(f"--lookahead: expected an integer in [0, 64], got {lookahead!r}")
-    spec = _load(job)
-    comm = _comm(mpi)
-    rank, size = (comm.rank, comm.size) if comm is not None else (0, 1)
-    tasks, units = _select(spec, shard, batch)
-    if collective.is_collective(tasks) and (task_timeout is not None or batch != "off"):
-        raise RunError("[methods.gfmd] distributed = true: every rank solves each task together; "
-                       "--task-timeout and --batch do not apply (leave them out)")
-    path = _store_path(store, shard)
-    shard_text = f"{shard[0]}/{shard[1]}" if shard else ""
 
-    # Rank 0 takes the lease and decides (file system checks once), then shares: every rank raises the same
-    # error. Nothing opens the store for writing before the lease is held.
+
+def _rank0_decide(job: str | Path | specmod.JobSpec, spec: specmod.JobSpec, tasks: list[Task], path: Path,
+                  shard_text: str, size: int, resume: bool, overwrite: bool, break_lease: bool,
+                  ranks_per_gpu: int | None, reuse: Sequence[str | Path], reuse_older: bool,
+                  ) -> tuple[Any, lease.Lease | None, Reused]:
+    """Rank 0: check the resources, take the store's lease and decide what to run (gapsweep.sweep.resume), the
+    rows copied from ``reuse`` stores left out. Returns ``((row order, mode, rows to run, failed rows, run id)
+    or the RunError every rank raises, the lease held or None, the reused rows)``."""
     decision: Any = None
     held: lease.Lease | None = None
-    reused: dict[int, tuple[str, Any, tuple]] = {}
-    if rank == 0:
-        try:
-            _check_resources(tasks, ranks_per_gpu or 1)  # the same refusal as `plan`, looked at once (rank 0)
-            _check_collective(tasks, size)  # every rank runs each distributed task together: its slabs fit?
-            _guard_store(path, _inputs(job, spec), overwrite)
-            path.parent.mkdir(parents=True, exist_ok=True)
-            held = lease.acquire(path, break_lease=break_lease)
-            lease.remove_leftovers(path, held=True)  # of a killed creation or merge (issue 40 item 7)
-            order = _stored_order(path, spec, tasks, shard_text, overwrite)
-            ordered = _store_order(tasks, [], order)[0]
-            decision = (order, *_decide(path, spec, ordered, shard_text, resume, overwrite,
-                                        reordered=order is not None), held.run_id)
-            if reuse and decision[1] != "noop":
-                reused = reusable_rows(reuse, path, ordered, decision[2], spec.histogram["bins"], reuse_older)
-                decision = (decision[0], decision[1], [i for i in decision[2] if i not in reused], *decision[3:])
-            _stop_file(path).unlink(missing_ok=True)  # a stop request of an earlier run
-        except Exception as e:  # every rank must learn about it, or the others wait in bcast forever
-            decision = e if isinstance(e, RunError) else RunError(
-                str(e) if isinstance(e, (lease.LeaseError, StoreError)) else f"store {path}: {e}")
-            if held is not None:
-                held.release()
-                held = None
-    if comm is not None:
-        decision = comm.bcast(decision, root=0)
-    if isinstance(decision, RunError):
-        raise decision
-    tasks, units = _store_order(tasks, units, decision[0])  # a reordered axis: the store's row order (issue 31)
-    decision = decision[1:]
+    reused: Reused = {}
     try:
-        return _execute(spec, comm, rank, size, tasks, units, path, shard_text, decision, writer, progress,
-                        coordinator_works, task_timeout, held, (batch, ranks_per_gpu, lookahead), reused)
-    finally:
+        _check_resources(tasks, ranks_per_gpu or 1)  # the same refusal as `plan`, looked at once (rank 0)
+        collective.check(tasks, size)  # every rank runs each distributed task together: its slabs fit?
+        _guard_store(path, _inputs(job, spec), overwrite)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        held = lease.acquire(path, break_lease=break_lease)
+        lease.remove_leftovers(path, held=True)  # of a killed creation or merge (issue 40 item 7)
+        order = stored_order(path, spec, tasks, shard_text, overwrite)
+        ordered = store_order(tasks, [], order)[0]
+        decision = (order, *decide(path, spec, ordered, shard_text, resume, overwrite,
+                                   reordered=order is not None), held.run_id)
+        if reuse and decision[1] != "noop":
+            reused = reusable_rows(reuse, path, ordered, decision[2], spec.histogram["bins"], reuse_older)
+            decision = (decision[0], decision[1], [i for i in decision[2] if i not in reused], *decision[3:])
+        _stop_file(path).unlink(missing_ok=True)  # a stop request of an earlier run
+    except Exception as e:  # every rank must learn about it, or the others wait in bcast forever
+        decision = e if isinstance(e, RunError) else RunError(
+            str(e) if isinstance(e, (lease.LeaseError, StoreError)) else f"store {path}: {e}")
         if held is not None:
             held.release()
+            held = None
+    return decision, held, reused
 
 
 def _inputs(job: str | Path | specmod.JobSpec, spec: specmod.JobSpec) -> list[Path]:
@@ -626,110 +434,6 @@ def _guard_store(path: Path, inputs: list[Path], overwrite: bool) -> None:
                              outputs.is_store(o) else "is not a gapsweep store (a plain HDF5 file or another file)")
     except FileExistsError as e:
         raise RunError(str(e)) from None
-
-
-def _fields_file(store_path: str | Path, task_id: str) -> Path:
-    return fields_dir(store_path) / f"{task_id}.nc"
-
-
-def _wants_fields(t: Task) -> bool:
-    """Whether the task keeps fields (gapsweep.sweep.fields): a reused row must bring its fields file."""
-    opts = t.opt("keep_fields")
-    if not opts:
-        return False
-    return bool(field_selected(json.loads(opts), hurst=t.hurst, rho=t.rho, sigma0=t.sigma0, seed=t.seed, n=t.n))
-
-
-def reusable_rows(sources: Sequence[str | Path], path: Path, tasks: list[Task], todo: list[int], bins: int,
-                  older: bool = False) -> dict[int, tuple[str, Any, tuple]]:
-    """Rows of ``todo`` that other stores hold ``done`` for the same task (task id: the content hash), as
-    ``{index: (source, results row, (edges, density, pressure edges, pressure density))}``; the first source
-    that has a task wins. Only rows whose checksum verifies are taken (a store of format 1 or 2 has none: it is
-    skipped with a warning), from stores of the same histogram bins; the store being written is never a source.
-
-    Issue 40 item 5: only rows computed by the method's current algorithm (column ``algorithm_version`` equal to
-    the plug-in's ``ALGORITHM_VERSION``; a row without one -- format 4 and older -- counts as older) unless
-    ``older`` (``--reuse-older``: the rows are then named as such in the run record and by status); and a row of a
-    task that keeps fields only together with its fields file (copied by :func:`_copy_reused`)."""
-    want = {tasks[i].task_id: i for i in todo}
-    out: dict[int, tuple[str, Any, tuple]] = {}
-    current = {name: registry.get(name).algorithm_version for name in {tasks[i].method for i in todo}}
-    for src in sources:
-        sp = Path(src)
-        if sp.resolve() == path.resolve():
-            raise ValueError(f"--reuse {src}: that is the store being written")
-        with open_read(sp, check=False) as f:
-            rep = storecheck.check(f, sp)
-            if not rep.checksums:
-                log.warning("--reuse %s: a store without row checksums (format 1 or 2): its rows cannot be "
-                            "verified, none reused", sp)
-                continue
-            if f["histograms/density"].shape[1] != bins:
-                log.warning("--reuse %s: %d histogram bins, this job %d: none reused", sp,
-                            f["histograms/density"].shape[1], bins)
-                continue
-            n = f["tasks"].shape[0]
-            ids = [x.decode("utf-8", "replace") for x in f["tasks"].fields("task_id")[...]] if n else []
-            status = f["results"].fields("status")[...] if n else []
-            bad = set(rep.rerun)
-            take = [j for j, tid in enumerate(ids) if tid in want and want[tid] not in out and j not in bad
-                    and int(status[j]) == STATUS["done"]]
-            if not take:
-                continue
-            res = f["results"][...]
-            h = [f[k][...] for k in ("histograms/edges", "histograms/density", *PRESSURE_HIST)]
-        vers = res["algorithm_version"] if "algorithm_version" in (res.dtype.names or ()) else None
-        stale = [j for j in take if (-1 if vers is None else int(vers[j])) != current[tasks[want[ids[j]]].method]]
-        if stale and not older:
-            log.warning("--reuse %s: %d row(s) computed by another (older or unknown) algorithm version of their "
-                        "method are run again (--reuse-older copies them)", sp, len(stale))
-            take = [j for j in take if j not in set(stale)]
-        nofields = [j for j in take if _wants_fields(tasks[want[ids[j]]])
-                    and not _fields_file(sp, ids[j]).is_file()]
-        if nofields:
-            log.warning("--reuse %s: %d row(s) keep fields that the source lacks: run again", sp, len(nofields))
-            take = [j for j in take if j not in set(nofields)]
-        for j in take:
-            older_row = j in set(stale)
-            out[want[ids[j]]] = (str(sp.absolute()), res[j], tuple(a[j] for a in h), older_row)
-        log.info("--reuse %s: %d row(s) copied instead of run", sp, len(take))
-    return out
-
-
-def _reused_record(reused: dict[int, tuple] | None) -> dict[str, Any]:
-    """The run record's ``reused`` entry: rows copied per source store (nothing when none was), and
-    ``reused_older``: those of them computed by another algorithm version (``--reuse-older``)."""
-    if not reused:
-        return {}
-    srcs = sorted({v[0] for v in reused.values()})
-    out: dict[str, Any] = {"reused": {s: sum(1 for v in reused.values() if v[0] == s) for s in srcs}}
-    old = {s: sum(1 for v in reused.values() if v[0] == s and v[3]) for s in srcs}
-    if any(old.values()):
-        out["reused_older"] = {s: k for s, k in old.items() if k}
-    return out
-
-
-def _copy_reused(st: Store, reused: dict[int, tuple] | None, tasks: list[Task] | None = None) -> None:
-    """Write the rows taken from other stores (rank 0, which alone has them), each with its kept fields file
-    (issue 40 item 5: the store then equals one computed from scratch), copied under a temporary name first."""
-    import shutil
-
-    for i, (src, row, hists, _older) in sorted((reused or {}).items()):
-        if tasks is not None:
-            tid = tasks[i].task_id
-            f = _fields_file(src, tid)
-            if f.is_file():
-                d = fields_dir(st.path)
-                d.mkdir(parents=True, exist_ok=True)
-                tmp = d / f".{tid}.{os.getpid()}.tmp"
-                try:
-                    shutil.copyfile(f, tmp)
-                    os.replace(tmp, d / f"{tid}.nc")
-                except OSError as e:
-                    tmp.unlink(missing_ok=True)
-                    raise StoreWriteError(f"store {st.path}: copying the kept fields of task {tid} from {src} failed "
-                                          f"({e.strerror or e})") from None
-        st.copy_row(i, row, hists)
 
 
 def _stop_file(path: Path) -> Path:
@@ -755,7 +459,7 @@ def _writer_mode(comm: Any, writer: str) -> str:
 def _execute(spec: specmod.JobSpec, comm: Any, rank: int, size: int, tasks: list[Task], units: list[Unit],
              path: Path, shard_text: str, decision: tuple, writer: str, progress: str, coordinator_works: str,
              task_timeout: float | None, held: lease.Lease | None, gpu_opts: tuple = ("auto", 1, 0),
-             reused: dict[int, tuple[str, Any, tuple]] | None = None) -> dict[str, Any]:
+             reused: Reused | None = None) -> dict[str, Any]:
     mode, todo_list, old_failed, _ = decision
     summary: dict[str, Any] = {"store": str(path), "tasks": len(tasks), "todo": len(todo_list), "mode": mode,
                                "mpi_size": size, "rank": rank, **dict.fromkeys(STATUS, 0), "pending": 0,
@@ -815,7 +519,7 @@ class _Run:
         self.record: dict[str, Any] = {}
         self.outcome: dict[str, Any] = {}  # the coordinator's: device faults, GPU units left pending
         self.next_check = 0.0  # the coordinator's next look for a stop request
-        self.reused: dict[int, tuple[str, Any, tuple]] | None = None  # rows copied from other stores (rank 0)
+        self.reused: Reused | None = None  # rows copied from other stores (rank 0)
 
     def start(self) -> None:
         """Place this rank (its GPU), agree on the run record, open the store and record the run."""
@@ -824,23 +528,10 @@ class _Run:
         hosts = sorted(set(comm.allgather(socket.gethostname()))) if comm is not None else [socket.gethostname()]
         attrs = provenance.store_attrs(self.spec, shard=self.shard_text) if rank == 0 else None
         need_gpu = any(u.gpu for u in self.units)
-        if need_gpu:  # the default ranks per GPU: no more than the GPU memory holds (gapsweep.sweep.gpus.place)
-            gpu_tasks = [self.tasks[i] for u in self.units if u.gpu for i in u.tasks]
-            placed = gpus.place(comm, self.works, self.per_gpu, need=budget.gpu_memory(gpu_tasks, 1))
-            self.gpu, self.per_gpu, mps_note = placed.gpu, placed.per_gpu, placed.note
-            if placed.note and (comm is None or comm.rank == 0):
-                log.info("%s", placed.note)
-        else:
-            self.gpu, mps_note = None, ""
+        self.gpu: int | None = None
+        mps_note = self._place() if need_gpu else None  # None: no GPU units, no GPU layout to record
         self.gpu_of = comm.allgather(self.gpu) if comm is not None else [self.gpu]
-        record = {"started": provenance.now(), "finished": None, "mpi_size": self.size, "hosts": hosts,
-                  "writer": self.wmode, "mode": self.mode, "todo": len(self.todo_list), "run_id": self.run_id,
-                  **(provenance.run_extras(self.spec, gpu_ranks=self.gpu_of, batch=self.batch,
-                                           batch_units=sum(u.kind == "batch" for u in self.units))
-                     if rank == 0 else {})}
-        record.update(_reused_record(self.reused))
-        if need_gpu:  # the layout of the GPUs (rank 0's node): ranks per GPU and what became of MPS
-            record.update(ranks_per_gpu=self.per_gpu, mps=mps_note)
+        record = self._record(hosts, mps_note)
         # A signal that arrived while the process started (adopted from the early handler) is in the record the
         # store is born with: mpiexec SIGKILLs its ranks 1 s after forwarding it, maybe before anything else is
         # written, and the store must then say interrupted, not "running or killed" (issue 40). Rank 0's view,
@@ -862,24 +553,7 @@ class _Run:
             # born interrupted, and the next run takes the lease over without --break-lease
             self.held.mark_interrupted()
         if self.wmode == "mpio" or rank == 0:
-            with self.stop.critical():
-                # A new store is created with this run's record among its attributes (issue 40): it appears at
-                # its path (a rename) with the record, so no kill (mpiexec SIGKILLs its ranks 1 s after
-                # forwarding a SIGTERM) between its creation and a later attribute write leaves a store that
-                # names no run.
-                if self.mode == "create":
-                    attrs = {**attrs, "runs": json.dumps([birth])}
-                self.st = _open_store(self.path, self.mode, self.tasks, attrs, self.spec.histogram["bins"],
-                                      comm if self.wmode == "mpio" else None, rank, self.run_id,
-                                      registry.job_columns(self.spec))
-                if self.held is not None:  # the file opened is the one leased (issue 19: keyed by device and inode)
-                    self.held.bind(self.path)
-                if self.mode == "resume":  # every byte of a re-run row is written again, NaN histograms included
-                    self.st.force_histograms(self.todo_list)
-                if self.mode != "create":
-                    runs = _earlier_runs(self.st, self.path)
-                    self.st.set_attrs({"runs": json.dumps([*runs, birth])}, flush=True)  # survives a kill -9
-                _copy_reused(self.st, self.reused, self.tasks)
+            self._open(attrs, birth)
         self.prog = Progress(len(self.todo), self.progress if rank == 0 else "none")
         if comm is not None and rank == 0 and self.wmode == "rank0":  # issue 19: mpiexec's 1-s grace, see below
             self.stop.on_request = lambda sig: _mark_interrupted(self.st, record, self.prog, self.held, sig)
@@ -891,6 +565,51 @@ class _Run:
             ngpu = sum(g is not None for g in self.gpu_of)
             log.info("farm: %d ranks: %d GPU worker(s), %d CPU worker(s), coordinator %s", self.size, ngpu,
                      self.size - ngpu - (0 if self.works else 1), "works" if self.works else "only coordinates")
+
+    def _place(self) -> str:
+        """This rank's GPU for a job with GPU units (``self.gpu``, ``self.per_gpu``): the default ranks per GPU
+        no more than the GPU memory holds (gapsweep.sweep.gpus.place). Returns what became of CUDA MPS."""
+        gpu_tasks = [self.tasks[i] for u in self.units if u.gpu for i in u.tasks]
+        placed = gpus.place(self.comm, self.works, self.per_gpu, need=budget.gpu_memory(gpu_tasks, 1))
+        self.gpu, self.per_gpu = placed.gpu, placed.per_gpu
+        if placed.note and (self.comm is None or self.comm.rank == 0):
+            log.info("%s", placed.note)
+        return placed.note
+
+    def _record(self, hosts: list[str], mps_note: str | None) -> dict[str, Any]:
+        """This run's record (its provenance extras and reused rows on rank 0, which broadcasts it); ``mps_note``:
+        None for a job without GPU units, else the GPU layout is recorded (rank 0's node: ranks per GPU, MPS)."""
+        record = {"started": provenance.now(), "finished": None, "mpi_size": self.size, "hosts": hosts,
+                  "writer": self.wmode, "mode": self.mode, "todo": len(self.todo_list), "run_id": self.run_id,
+                  **(provenance.run_extras(self.spec, gpu_ranks=self.gpu_of, batch=self.batch,
+                                           batch_units=sum(u.kind == "batch" for u in self.units))
+                     if self.rank == 0 else {})}
+        record.update(reused_record(self.reused))
+        if mps_note is not None:
+            record.update(ranks_per_gpu=self.per_gpu, mps=mps_note)
+        return record
+
+    def _open(self, attrs: dict[str, Any], birth: dict[str, Any]) -> None:
+        """Open (or create) the store on a rank that writes, record this run (``birth``: its record as the store
+        is born) and copy the reused rows."""
+        with self.stop.critical():
+            # A new store is created with this run's record among its attributes (issue 40): it appears at
+            # its path (a rename) with the record, so no kill (mpiexec SIGKILLs its ranks 1 s after
+            # forwarding a SIGTERM) between its creation and a later attribute write leaves a store that
+            # names no run.
+            if self.mode == "create":
+                attrs = {**attrs, "runs": json.dumps([birth])}
+            self.st = _open_store(self.path, self.mode, self.tasks, attrs, self.spec.histogram["bins"],
+                                  self.comm if self.wmode == "mpio" else None, self.rank, self.run_id,
+                                  registry.job_columns(self.spec))
+            if self.held is not None:  # the file opened is the one leased (issue 19: keyed by device and inode)
+                self.held.bind(self.path)
+            if self.mode == "resume":  # every byte of a re-run row is written again, NaN histograms included
+                self.st.force_histograms(self.todo_list)
+            if self.mode != "create":
+                runs = _earlier_runs(self.st, self.path)
+                self.st.set_attrs({"runs": json.dumps([*runs, birth])}, flush=True)  # survives a kill -9
+            copy_reused(self.st, self.reused, self.tasks)
 
     def finish(self, summary: dict[str, Any]) -> None:
         """Agree on the counts and the outcome, record how the run ended, close the store."""

@@ -42,6 +42,7 @@ import shlex
 import shutil
 import subprocess
 import sys
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -308,19 +309,7 @@ def submit(job: str | Path, out_dir: str | Path, *, shards: int | None = None, m
     sub = Submission(final, store_key(final))
     ident = store_identity(final)
     here = scripts_dir()
-    try:
-        present = existing_jobs(sub.key, ident)
-    except QueueUnknown as e:
-        if not (force or dry_run):
-            raise SubmitError(f"{e}: cannot tell whether jobs of store {final} are queued or running already, "
-                              "so nothing was submitted (a second submission of one store is refused); run it "
-                              "where squeue works, or pass --force to submit anyway") from None
-        present = []
-        sub.notes.append(f"{e}: jobs of this store already queued not checked")
-    if present and not force:
-        raise SubmitError(f"store {final} has jobs queued or running already: {', '.join(present)} (their "
-                          "comment gapsweep:" + sub.key + "); wait for them, cancel them (scancel), or pass "
-                          "--force to submit anyway")
+    _refuse_queued(sub, ident, force, dry_run)
     limits = site_limits()
     max_array = limits["MaxArraySize"] or DEFAULT_MAX_ARRAY
     chunks = split_array(shards, max_array) if shards else []
@@ -362,12 +351,8 @@ def submit(job: str | Path, out_dir: str | Path, *, shards: int | None = None, m
     jenv = {**env, **sub.env}
     ids: list[str] = []
     try:
-        for c in sub.commands:
-            e = jenv
-            if c[0] == "env":  # the shard count and offset of this array
-                e = {**jenv, **dict(x.split("=", 1) for x in c[1:3])}
-                c = c[3:]
-            ids.append(_sbatch(c, e))
+        for c, e in _with_env(sub.commands, jenv):
+            ids.append(_sbatch(c, e))  # one by one: those queued before a failure are named
         if mpi:
             sub.mpi = ids[0]
             return sub
@@ -381,6 +366,35 @@ def submit(job: str | Path, out_dir: str | Path, *, shards: int | None = None, m
                               "them)") from None
         raise
     return sub
+
+
+def _with_env(commands: list[list[str]], jenv: dict[str, str]) -> Iterator[tuple[list[str], dict[str, str]]]:
+    """Each sbatch command with its environment: an array's command starts ``env GAPSWEEP_SHARDS=..
+    GAPSWEEP_SHARD_OFFSET=..`` (its shard count and offset), which go into its environment instead."""
+    for c in commands:
+        if c[0] == "env":
+            yield c[3:], {**jenv, **dict(x.split("=", 1) for x in c[1:3])}
+        else:
+            yield c, jenv
+
+
+def _refuse_queued(sub: Submission, ident: str | None, force: bool, dry_run: bool) -> None:
+    """Refuse (SubmitError) a second submission of one store: jobs with its comment queued or running already,
+    or a queue that cannot be asked -- unless ``force`` (or ``dry_run``, for the latter: then a note says so)."""
+    final = sub.store
+    try:
+        present = existing_jobs(sub.key, ident)
+    except QueueUnknown as e:
+        if not (force or dry_run):
+            raise SubmitError(f"{e}: cannot tell whether jobs of store {final} are queued or running already, "
+                              "so nothing was submitted (a second submission of one store is refused); run it "
+                              "where squeue works, or pass --force to submit anyway") from None
+        present = []
+        sub.notes.append(f"{e}: jobs of this store already queued not checked")
+    if present and not force:
+        raise SubmitError(f"store {final} has jobs queued or running already: {', '.join(present)} (their "
+                          "comment gapsweep:" + sub.key + "); wait for them, cancel them (scancel), or pass "
+                          "--force to submit anyway")
 
 
 def _merge_cmd(site: SiteOptions, tag: str, arrays: list[str], out: Path, name: str, pattern: str, shards: int,

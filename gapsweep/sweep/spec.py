@@ -247,6 +247,114 @@ def _substrate(m: dict, law: str, grid: dict) -> dict[str, Any]:
     return out
 
 
+def _job(raw: dict[str, Any]) -> tuple[str, str]:
+    """The ``[job]`` table: its name (letters, digits, '-', '_', '.') and free-text description."""
+    job = rd.table("job", raw["job"])
+    rd.known("job", job, ("name", "description"))
+    if "name" not in job:
+        raise SpecError("job.name: missing; a short name for the job (letters, digits, '-', '_', '.')")
+    name = rd.string("job.name", job["name"])
+    if not name or not all(c.isalnum() or c in "-_." for c in name):
+        raise SpecError(f"job.name: allowed characters are letters, digits, '-', '_', '.', got {name!r}")
+    return name, rd.string("job.description", job.get("description", ""))
+
+
+def _generated_surface(s: dict[str, Any]) -> tuple[dict[str, Any], str, int]:
+    """A generated surface's ``[surface]`` table (model M2, docs/jobs.md): the canonical table, its
+    normalisation key (rms_slope, rms_height or c0) and the smallest grid ``n`` that carries ``lambda_s``."""
+    rd.known("surface", s, ("kind", "lambda_l", "lambda_s", "lambda_r", "length", "rms_slope", "rms_height",
+                          "c0", "amplitudes", "unit"))
+    length = rd.number("surface.length", s.get("length", 1.0), ge=MIN_LENGTH, le=MAX_LENGTH)
+    lambda_l = rd.number("surface.lambda_l", s.get("lambda_l", 0.25), gt=0.0, le=length)
+    lambda_s = rd.number("surface.lambda_s", s.get("lambda_s", 2.5e-3), gt=0.0, lt=lambda_l)
+    _check_waves(length, lambda_s, s.get("lambda_s"))
+    norms = [k for k in ("rms_slope", "rms_height", "c0") if k in s]
+    if len(norms) > 1:
+        raise SpecError(f"surface: give exactly one of rms_slope, rms_height, c0; got {', '.join(norms)}")
+    norm = norms[0] if norms else "rms_slope"
+    surface = {
+        "lambda_l": lambda_l, "lambda_s": lambda_s, "length": length,
+        norm: rd.number(f"surface.{norm}", s.get(norm, 1.0), gt=0.0),
+        "amplitudes": rd.string("surface.amplitudes", s.get("amplitudes", "fixed"), ("fixed", "gaussian")),
+    }
+    if "lambda_r" in s:  # roll-off: constant spectrum between lambda_l and lambda_r (docs/jobs.md)
+        surface["lambda_r"] = rd.number("surface.lambda_r", s["lambda_r"], gt=lambda_s, le=lambda_l)
+    if "unit" in s:  # a label: lengths (L, lambda_l, lambda_s, rho, heights) are in this unit
+        surface["unit"] = _unit_label("surface.unit", s["unit"], LENGTH_UNITS)
+    # M2 Nyquist condition as the surface module applies it: n > 2 floor(L / lambda_s).
+    nyquist = 2 * int(math.floor(length / lambda_s * (1 + 1e-9))) + 1
+    return surface, norm, nyquist
+
+
+def _surface(s: dict[str, Any], kind: str, base: str | Path | None, law: str,
+             ) -> tuple[dict[str, Any], int | None, str, int]:
+    """The ``[surface]`` table of either kind: the canonical table, a file map's grid size (None for a
+    generated surface), the normalisation and the smallest grid ``n`` (Nyquist)."""
+    if kind != "file":
+        surface, norm, nyquist = _generated_surface(s)
+        return surface, None, norm, nyquist
+    surface, file_n = file_surface(s, base)
+    if law == "hard_wall_adhesive" and surface.get("periodic") is False:
+        raise SpecError("surface.periodic: interaction.kind = 'hard_wall_adhesive' runs on periodic surfaces "
+                        "only (free boundaries are not implemented for it); set surface.periodic = true")
+    return surface, file_n, "file", 8
+
+
+def _material(m: dict[str, Any], law: str, grid: dict[str, Any]) -> dict[str, Any]:
+    """The ``[material]`` table: E*, the pressure unit label, the exponential law's gamma0 and the body
+    (gapsweep.sweep.spec._substrate: a layer, a hardness)."""
+    rd.known("material", m, ("e_star", "gamma0", "pressure_unit", *SUBSTRATE_KEYS))
+    material = {"e_star": rd.number("material.e_star", m.get("e_star", 1.0), gt=0.0)}
+    if "pressure_unit" in m:  # a label: E*, sigma0, gamma0/rho and work/rho are then in this unit (docs/jobs.md)
+        material["pressure_unit"] = _unit_label("material.pressure_unit", m["pressure_unit"], PRESSURE_UNITS)
+    if law == "exponential":
+        material["gamma0"] = rd.number("material.gamma0", m.get("gamma0", 1e-3), gt=0.0)
+    elif "gamma0" in m:
+        raise SpecError(f"material.gamma0: the exponential law's amplitude; not used with interaction.kind = "
+                        f"{law!r} (remove it)")
+    material.update(_substrate(m, law, grid))
+    return material
+
+
+def _histogram(h: dict[str, Any]) -> dict[str, Any]:
+    """The ``[histogram]`` table: bins and range ('auto' or finite ``[lo, hi]`` of the absolute gap)."""
+    rd.known("histogram", h, ("bins", "range"))
+    bins = rd.integer("histogram.bins", h.get("bins", 64), ge=1, le=100000)
+    rng = h.get("range", "auto")
+    if rng != "auto":
+        if not (isinstance(rng, list) and len(rng) == 2 and all(rd.is_num(x) and math.isfinite(x) for x in rng)
+                and rng[0] < rng[1]):
+            raise SpecError(f"histogram.range: expected 'auto' or [lo, hi] with finite lo < hi (absolute gap), "
+                            f"got {rng!r}")
+        rng = [float(rng[0]), float(rng[1])]
+    return {"bins": bins, "range": rng}
+
+
+def _check_body(methods: dict[str, Any], material: dict[str, Any], law: str, surface: dict[str, Any],
+                kind: str) -> None:
+    """A body other than the elastic half-space (a layer, a hardness) only with methods that take it, and a
+    layer neither under the adhesive hard wall nor under a non-periodic file surface."""
+    body = [k for k in SUBSTRATE_KEYS if k in material]
+    if not body:
+        return
+    names = registry.names()
+    able = [k for k in names if registry.get(k).takes_body]
+    for k in methods:
+        if not registry.get(k).takes_body:
+            raise SpecError(f"methods.{k}: not available with material.{body[0]} (no theory of a layer or of "
+                            f"a plastic cap is implemented for it); methods that take them: {', '.join(able)}")
+    if law == "hard_wall_adhesive" and "thickness" in material:
+        raise SpecError("material.thickness: interaction.kind 'hard_wall_adhesive' is not available on an "
+                        "elastic layer yet (the half-space only); remove material.thickness")
+    if kind == "file" and surface.get("periodic") is False and "thickness" in material:
+        from gapsweep.gfmd.substrates import FREE_LAYER_WHY
+
+        raise SpecError("material.thickness: an elastic layer is solved with periodic boundaries only; this "
+                        f"file surface is non-periodic (surface.periodic = false): {FREE_LAYER_WHY}. Instead: "
+                        "surface.periodic = true, or leave out the layer (the half-space) if it is thick "
+                        "against the map")
+
+
 def loads(text: str, base: str | Path | None = None) -> JobSpec:
     """Parse and validate a job spec from TOML text; raise :class:`SpecError` on any problem. ``base``: the
     directory a file surface's ``path`` is relative to (default: the current directory)."""
@@ -258,49 +366,14 @@ def loads(text: str, base: str | Path | None = None) -> JobSpec:
     for k in ("job", "grid", "methods"):
         if k not in raw:
             raise SpecError(f"{k}: missing table [{k}]; a job needs [job], [grid] and [methods.<name>]")
-    job = rd.table("job", raw["job"])
-    rd.known("job", job, ("name", "description"))
-    if "name" not in job:
-        raise SpecError("job.name: missing; a short name for the job (letters, digits, '-', '_', '.')")
-    name = rd.string("job.name", job["name"])
-    if not name or not all(c.isalnum() or c in "-_." for c in name):
-        raise SpecError(f"job.name: allowed characters are letters, digits, '-', '_', '.', got {name!r}")
-    description = rd.string("job.description", job.get("description", ""))
+    name, description = _job(raw)
 
     interaction = _interaction(rd.table("interaction", raw.get("interaction", {})))
     law = interaction.get("kind", "exponential")
 
     s = rd.table("surface", raw.get("surface", {}))
     kind = rd.string("surface.kind", s.get("kind", "self_affine"), SURFACE_KINDS)
-    file_n: int | None = None
-    if kind == "file":
-        surface, file_n = file_surface(s, base)
-        if law == "hard_wall_adhesive" and surface.get("periodic") is False:
-            raise SpecError("surface.periodic: interaction.kind = 'hard_wall_adhesive' runs on periodic surfaces "
-                            "only (free boundaries are not implemented for it); set surface.periodic = true")
-        norm, nyquist = "file", 8
-    else:
-        rd.known("surface", s, ("kind", "lambda_l", "lambda_s", "lambda_r", "length", "rms_slope", "rms_height",
-                              "c0", "amplitudes", "unit"))
-        length = rd.number("surface.length", s.get("length", 1.0), ge=MIN_LENGTH, le=MAX_LENGTH)
-        lambda_l = rd.number("surface.lambda_l", s.get("lambda_l", 0.25), gt=0.0, le=length)
-        lambda_s = rd.number("surface.lambda_s", s.get("lambda_s", 2.5e-3), gt=0.0, lt=lambda_l)
-        _check_waves(length, lambda_s, s.get("lambda_s"))
-        norms = [k for k in ("rms_slope", "rms_height", "c0") if k in s]
-        if len(norms) > 1:
-            raise SpecError(f"surface: give exactly one of rms_slope, rms_height, c0; got {', '.join(norms)}")
-        norm = norms[0] if norms else "rms_slope"
-        surface = {
-            "lambda_l": lambda_l, "lambda_s": lambda_s, "length": length,
-            norm: rd.number(f"surface.{norm}", s.get(norm, 1.0), gt=0.0),
-            "amplitudes": rd.string("surface.amplitudes", s.get("amplitudes", "fixed"), ("fixed", "gaussian")),
-        }
-        if "lambda_r" in s:  # roll-off: constant spectrum between lambda_l and lambda_r (docs/jobs.md)
-            surface["lambda_r"] = rd.number("surface.lambda_r", s["lambda_r"], gt=lambda_s, le=lambda_l)
-        if "unit" in s:  # a label: lengths (L, lambda_l, lambda_s, rho, heights) are in this unit
-            surface["unit"] = _unit_label("surface.unit", s["unit"], LENGTH_UNITS)
-        # M2 Nyquist condition as the surface module applies it: n > 2 floor(L / lambda_s).
-        nyquist = 2 * int(math.floor(length / lambda_s * (1 + 1e-9))) + 1
+    surface, file_n, norm, nyquist = _surface(s, kind, base, law)
 
     g = rd.table("grid", raw["grid"])
     rd.known("grid", g, GRID_AXES)
@@ -309,30 +382,8 @@ def loads(text: str, base: str | Path | None = None) -> JobSpec:
         raise SpecError(f"grid.seeds: a file surface is one surface: allowed seeds = [0] (or leave seeds out), "
                         f"got {grid['seeds']}")
 
-    m = rd.table("material", raw.get("material", {}))
-    rd.known("material", m, ("e_star", "gamma0", "pressure_unit", *SUBSTRATE_KEYS))
-    material = {"e_star": rd.number("material.e_star", m.get("e_star", 1.0), gt=0.0)}
-    if "pressure_unit" in m:  # a label: E*, sigma0, gamma0/rho and work/rho are then in this unit (docs/jobs.md)
-        material["pressure_unit"] = _unit_label("material.pressure_unit", m["pressure_unit"], PRESSURE_UNITS)
-    if law == "exponential":
-        material["gamma0"] = rd.number("material.gamma0", m.get("gamma0", 1e-3), gt=0.0)
-    elif "gamma0" in m:
-        raise SpecError(f"material.gamma0: the exponential law's amplitude; not used with interaction.kind = "
-                        f"{law!r} (remove it)")
-
-    material.update(_substrate(m, law, grid))
-
-    h = rd.table("histogram", raw.get("histogram", {}))
-    rd.known("histogram", h, ("bins", "range"))
-    bins = rd.integer("histogram.bins", h.get("bins", 64), ge=1, le=100000)
-    rng = h.get("range", "auto")
-    if rng != "auto":
-        if not (isinstance(rng, list) and len(rng) == 2 and all(rd.is_num(x) and math.isfinite(x) for x in rng)
-                and rng[0] < rng[1]):
-            raise SpecError(f"histogram.range: expected 'auto' or [lo, hi] with finite lo < hi (absolute gap), "
-                            f"got {rng!r}")
-        rng = [float(rng[0]), float(rng[1])]
-    histogram = {"bins": bins, "range": rng}
+    material = _material(rd.table("material", raw.get("material", {})), law, grid)
+    histogram = _histogram(rd.table("histogram", raw.get("histogram", {})))
 
     meth = rd.table("methods", raw["methods"])
     names = registry.names()
@@ -341,23 +392,7 @@ def loads(text: str, base: str | Path | None = None) -> JobSpec:
         raise SpecError(f"methods: empty; add at least one of [methods.{'], [methods.'.join(names)}]")
     env = Env(law=law, file_n=file_n, nyquist=nyquist, norm=norm)
     methods = {k: _method(k, rd.table(f"methods.{k}", v), env) for k, v in meth.items()}
-    body = [k for k in SUBSTRATE_KEYS if k in material]
-    if body:
-        able = [k for k in names if registry.get(k).takes_body]
-        for k in methods:
-            if not registry.get(k).takes_body:
-                raise SpecError(f"methods.{k}: not available with material.{body[0]} (no theory of a layer or of "
-                                f"a plastic cap is implemented for it); methods that take them: {', '.join(able)}")
-        if law == "hard_wall_adhesive" and "thickness" in material:
-            raise SpecError("material.thickness: interaction.kind 'hard_wall_adhesive' is not available on an "
-                            "elastic layer yet (the half-space only); remove material.thickness")
-        if kind == "file" and surface.get("periodic") is False and "thickness" in material:
-            from gapsweep.gfmd.substrates import FREE_LAYER_WHY
-
-            raise SpecError("material.thickness: an elastic layer is solved with periodic boundaries only; this "
-                            f"file surface is non-periodic (surface.periodic = false): {FREE_LAYER_WHY}. Instead: "
-                            "surface.periodic = true, or leave out the layer (the half-space) if it is thick "
-                            "against the map")
+    _check_body(methods, material, law, surface, kind)
     refused = sorted(k for k in methods if not registry.get(k).rolloff)
     if "lambda_r" in surface and refused:
         raise SpecError(f"surface.lambda_r: a roll-off spectrum is not taken by {', '.join(refused)} (they assume "
@@ -371,8 +406,8 @@ def loads(text: str, base: str | Path | None = None) -> JobSpec:
         raise SpecError(f"grid: the job has up to {n:,} tasks, more than the cap of {cap:,} (every rank holds "
                         "the task list); split the job, or raise the cap with GAPSWEEP_MAX_TASKS=<n>")
     check_extra(js)
-    for name in js.methods:  # checks that need the whole job (a plug-in's selectors against the grid, say)
-        registry.get(name).check_job(js)
+    for m in js.methods:  # checks that need the whole job (a plug-in's selectors against the grid, say)
+        registry.get(m).check_job(js)
     return js
 
 

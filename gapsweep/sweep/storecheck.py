@@ -241,14 +241,43 @@ def check(f: Any, path: str | Path, *, tolerate_tasks: bool = False) -> Report:
         raise  # pragma: no cover - _fail raises
 
 
-def _check(f: Any, path: str | Path, *, tolerate_tasks: bool = False) -> Report:
-    """Validate an open store ``f`` (h5py.File); raise StoreError on a structural problem (a format-4 store's
-    attributes and task table first: one that fails its checksum is named). ``tolerate_tasks`` (``--resume``,
-    which restores task rows from the job; ``status``; ``merge --skip-damaged``): a ``/tasks`` table that
-    fails its checksum is reported (``Report.tasks_damaged``) instead."""
-    integrity = INTEGRITY in f.attrs
-    found = Report(0)
-    tasks_damaged = _integrity(f, path, tolerate_tasks, found) if integrity else False
+def _plugin_columns(f: Any, path: Any, r: Any) -> None:
+    """The ``/results`` dtype is a gapsweep results table whose plug-in columns (after format 5's) are the ones
+    its attribute ``PLUGIN_COLUMNS`` declares."""
+    plugin = plugin_columns_of(r.dtype)  # [] for every layout ever written; plug-in columns after format 5's
+    if plugin is None:
+        _fail(path, f"/results has dtype {r.dtype}, expected the gapsweep results table")
+    if plugin:
+        declared = f.attrs.get(PLUGIN_COLUMNS)
+        try:
+            ok = [tuple(x) for x in json.loads(declared)] == plugin
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            _fail(path, f"/results has plug-in columns {[k for k, _ in plugin]} that its attribute "
+                  f"{PLUGIN_COLUMNS!r} does not declare (damaged store)")
+
+
+def _histograms(f: Any, path: Any, r: Any, e: Any, d: Any) -> bool:
+    """The histogram datasets: 2-d float edges and density, the pressure histograms (format 2 on) both present
+    and of the gap histograms' shape. Returns whether the pressure histograms are there."""
+    if e.dtype.kind != "f" or d.dtype.kind != "f" or e.ndim != 2 or d.ndim != 2:
+        _fail(path, "/histograms/edges or /density is not a 2-d float array")
+    has_p = [name in f for name in PRESSURE_HIST]
+    if any(has_p) and not all(has_p):
+        _fail(path, f"only one of /{PRESSURE_HIST[0]}, /{PRESSURE_HIST[1]} present (damaged or partial store)")
+    if all(has_p):  # format 2: the pressure histograms match the gap histograms' shape
+        pe, pdn = f[PRESSURE_HIST[0]], f[PRESSURE_HIST[1]]
+        if pe.dtype.kind != "f" or pdn.dtype.kind != "f" or pe.shape != e.shape or pdn.shape != d.shape:
+            _fail(path, "/histograms/pressure_edges or /pressure_density does not match the gap histograms' shape")
+    elif r.dtype.names is not None and "contact_area" in r.dtype.names:
+        _fail(path, f"dataset /{PRESSURE_HIST[0]} missing (damaged or partial store)")
+    return all(has_p)
+
+
+def _structure(f: Any, path: Any) -> bool:
+    """The store's structure (format attribute, spec attributes, datasets, their dtypes, shapes and lengths),
+    each problem a StoreError naming it. Returns whether the pressure histograms are there."""
     if f.attrs.get("format") != FORMAT:
         _fail(path, f"not a gapsweep store (format attribute {f.attrs.get('format')!r})")
     for name in ("spec_text", "spec_sha256"):
@@ -262,43 +291,22 @@ def _check(f: Any, path: str | Path, *, tolerate_tasks: bool = False) -> Report:
     t, r, e, d = f["tasks"], f["results"], f["histograms/edges"], f["histograms/density"]
     if t.dtype != TASK_DTYPE:
         _fail(path, f"/tasks has dtype {t.dtype}, expected the gapsweep task table")
-    plugin = plugin_columns_of(r.dtype)  # [] for every layout ever written; plug-in columns after format 5's
-    if plugin is None:
-        _fail(path, f"/results has dtype {r.dtype}, expected the gapsweep results table")
-    if plugin:
-        declared = f.attrs.get(PLUGIN_COLUMNS)
-        try:
-            ok = [tuple(x) for x in json.loads(declared)] == plugin
-        except (TypeError, ValueError):
-            ok = False
-        if not ok:
-            _fail(path, f"/results has plug-in columns {[k for k, _ in plugin]} that its attribute "
-                  f"{PLUGIN_COLUMNS!r} does not declare (damaged store)")
-    if e.dtype.kind != "f" or d.dtype.kind != "f" or e.ndim != 2 or d.ndim != 2:
-        _fail(path, "/histograms/edges or /density is not a 2-d float array")
-    n = t.shape[0]
-    lens = {"tasks": n, "results": r.shape[0], "histograms/edges": e.shape[0], "histograms/density": d.shape[0]}
-    has_p = [name in f for name in PRESSURE_HIST]
-    if any(has_p) and not all(has_p):
-        _fail(path, f"only one of /{PRESSURE_HIST[0]}, /{PRESSURE_HIST[1]} present (damaged or partial store)")
-    if all(has_p):  # format 2: the pressure histograms match the gap histograms' shape
-        pe, pdn = f[PRESSURE_HIST[0]], f[PRESSURE_HIST[1]]
-        if pe.dtype.kind != "f" or pdn.dtype.kind != "f" or pe.shape != e.shape or pdn.shape != d.shape:
-            _fail(path, "/histograms/pressure_edges or /pressure_density does not match the gap histograms' shape")
-    elif r.dtype.names is not None and "contact_area" in r.dtype.names:
-        _fail(path, f"dataset /{PRESSURE_HIST[0]} missing (damaged or partial store)")
+    _plugin_columns(f, path, r)
+    has_p = _histograms(f, path, r, e, d)
+    lens = {"tasks": t.shape[0], "results": r.shape[0], "histograms/edges": e.shape[0],
+            "histograms/density": d.shape[0]}
     if len(set(lens.values())) != 1:
         _fail(path, "tables of different lengths (" + ", ".join(f"{k} {v}" for k, v in lens.items())
               + "): damaged or partial store")
     if e.shape[1] != d.shape[1] + 1:
         _fail(path, f"histogram edges ({e.shape[1]}) and density ({d.shape[1]}) columns do not match")
-    rep = Report(n, layout=_layout(f, path, r, integrity), tasks_damaged=tasks_damaged,
-                 provenance_damaged=found.provenance_damaged, spec_damaged=found.spec_damaged,
-                 integrity_damaged=found.integrity_damaged)
-    rep.checksums = rep.layout.row_checksums == "column"
-    rep.runs_damaged = runs_problem(f.attrs.get("runs", "[]")) or found.runs_damaged
-    if not n:
-        return rep
+    return has_p
+
+
+def _rows(f: Any, path: Any, rep: Report) -> None:
+    """Rows of unknown status and done rows without a complete result (no finite mean gap, or -- for methods
+    whose rows carry a gap histogram -- no finite, non-empty histogram), into ``rep``."""
+    t, r, e, d = f["tasks"], f["results"], f["histograms/edges"], f["histograms/density"]
     try:
         status = r.fields("status")[...]
         mean_gap = r.fields("mean_gap")[...]
@@ -319,7 +327,27 @@ def _check(f: Any, path: str | Path, *, tolerate_tasks: bool = False) -> Report:
     edges_ok = np.all(np.isfinite(e[...]), axis=1)
     bad = done & (~np.isfinite(mean_gap) | (needs_hist & ~(hist_ok & edges_ok)))
     rep.done_incomplete = np.flatnonzero(bad).tolist()
-    if rep.checksums and not all(has_p):
+
+
+def _check(f: Any, path: str | Path, *, tolerate_tasks: bool = False) -> Report:
+    """Validate an open store ``f`` (h5py.File); raise StoreError on a structural problem (a format-4 store's
+    attributes and task table first: one that fails its checksum is named). ``tolerate_tasks`` (``--resume``,
+    which restores task rows from the job; ``status``; ``merge --skip-damaged``): a ``/tasks`` table that
+    fails its checksum is reported (``Report.tasks_damaged``) instead."""
+    integrity = INTEGRITY in f.attrs
+    found = Report(0)
+    tasks_damaged = _integrity(f, path, tolerate_tasks, found) if integrity else False
+    has_p = _structure(f, path)
+    n = f["tasks"].shape[0]
+    rep = Report(n, layout=_layout(f, path, f["results"], integrity), tasks_damaged=tasks_damaged,
+                 provenance_damaged=found.provenance_damaged, spec_damaged=found.spec_damaged,
+                 integrity_damaged=found.integrity_damaged)
+    rep.checksums = rep.layout.row_checksums == "column"
+    rep.runs_damaged = runs_problem(f.attrs.get("runs", "[]")) or found.runs_damaged
+    if not n:
+        return rep
+    _rows(f, path, rep)
+    if rep.checksums and not has_p:
         _fail(path, "row checksums present without the pressure histograms they cover (damaged or partial store)")
     if rep.checksums:
         rep.damaged = _damaged(f, path, n)
