@@ -52,7 +52,8 @@ import numpy as np
 from gapsweep.core import deadline
 from gapsweep.core.vec import axpy
 from gapsweep.gfmd._grid import FreeGrid, Grid
-from gapsweep.gfmd._ops import _is_cupy, remember_pair
+from gapsweep.gfmd._lbfgs import remember_pair
+from gapsweep.gfmd._ops import _is_cupy
 from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status
 from gapsweep.gfmd._smooth import _DETACHED, _STEP_TOL, _Solver, _stalled, _wolfe
 from gapsweep.gfmd.interactions.base import SmoothInteraction

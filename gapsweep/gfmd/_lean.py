@@ -34,6 +34,7 @@ import numpy as np
 
 from gapsweep.core import deadline
 from gapsweep.gfmd._coarse import Start
+from gapsweep.gfmd._lbfgs import two_loop
 from gapsweep.gfmd._result import GFMDResult, final_status
 from gapsweep.gfmd._smooth import _STEP_TOL, _Solver, _stop, _wolfe, touching_gap
 
@@ -175,22 +176,22 @@ class _Pairs:
 
 
 def _direction(st: _LeanState, pairs: _Pairs, minv: Any, D: Any) -> None:
-    """``D = -H G`` by the two-loop recursion (Nocedal & Wright Alg. 7.4) with ``H0 = M^-1``, in ``D``."""
+    """``D = -H G`` by the two-loop recursion (``gfmd._lbfgs.two_loop``, Nocedal & Wright Alg. 7.4) with
+    ``H0 = gamma M^-1``, in ``D`` (every update in place, in row chunks: ``_Passes``)."""
     ps, red = st.ps, st.grid.red
+
+    def axpy(q: Any, a: float, x: Any) -> Any:
+        ps.axpy(q, a, x)
+        return q
+
+    def scale(q: Any, c: Any) -> Any:
+        ps.scale(q, c)
+        return q
+
     st.xp.copyto(D, st.G)
-    alphas = []
-    for i in reversed(pairs.order):
-        al = pairs.r[i] * ps.dot(pairs.s[i], D)
-        alphas.append(al)
-        ps.axpy(D, -al, pairs.y[i])
-    ps.scale(D, minv)
-    if pairs.order:
-        i = pairs.order[-1]
-        yhy = red.sum(ps.wsum(pairs.y[i], pairs.y[i], minv))
-        if yhy > 0:
-            ps.scale(D, 1.0 / (pairs.r[i] * yhy))
-    for i, al in zip(pairs.order, reversed(alphas)):
-        ps.axpy(D, al - pairs.r[i] * ps.dot(pairs.y[i], D), pairs.s[i])
+    two_loop(D, [(pairs.s[i], pairs.y[i], pairs.r[i]) for i in pairs.order], dot=ps.dot, axpy=axpy,
+             precondition=lambda q: scale(q, minv), curvature=lambda y: red.sum(ps.wsum(y, y, minv)),
+             scale=scale)
     ps.scale(D, -1.0)
 
 

@@ -28,7 +28,8 @@ import numpy as np
 from gapsweep.core import deadline
 from gapsweep.gfmd._continuation import next_load, record
 from gapsweep.gfmd._grid import Grid
-from gapsweep.gfmd._ops import _is_cupy, remember_pair
+from gapsweep.gfmd._lbfgs import diagonal, remember_pair, two_loop
+from gapsweep.gfmd._ops import _is_cupy
 from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status
 from gapsweep.gfmd.interactions.base import SmoothInteraction
 
@@ -171,6 +172,7 @@ def _lbfgs(st: _State, minv: Any, p_ref: float, tol: float, max_iter: int, memor
     (``_STALL_ENERGY`` relative), i.e. the steps no longer change anything (the line search returns steps at
     round-off, issue 22), instead of spending the rest of ``max_iter`` there."""
     grid = st.grid
+    steps = diagonal(grid.dot, minv)
     s_hist: list = []
     y_hist: list = []
     r_hist: list[float] = []
@@ -181,20 +183,7 @@ def _lbfgs(st: _State, minv: Any, p_ref: float, tol: float, max_iter: int, memor
             status = _stop(st, grid.dot, p_ref, tol, max_iter, rng, history, best)
             if status is not None:
                 return status
-            q = st.G.copy()
-            alphas = []
-            for s, y, r in zip(reversed(s_hist), reversed(y_hist), reversed(r_hist)):
-                al = r * grid.dot(s, q)
-                alphas.append(al)
-                q -= al * y
-            q *= minv
-            if y_hist:
-                yhy = grid.dot(y_hist[-1], minv * y_hist[-1])
-                if yhy > 0:
-                    q *= 1.0 / (r_hist[-1] * yhy)
-            for s, y, r, al in zip(s_hist, y_hist, r_hist, reversed(alphas)):
-                q += (al - r * grid.dot(y, q)) * s
-            D = -q
+            D = -two_loop(st.G.copy(), list(zip(s_hist, y_hist, r_hist)), **steps)
             slope = grid.dot(st.G, D)
             if not slope < 0:
                 s_hist.clear(), y_hist.clear(), r_hist.clear()

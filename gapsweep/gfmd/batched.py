@@ -35,9 +35,9 @@ import numpy as np
 from gapsweep.core import checks as chk
 from gapsweep.core import deadline
 from gapsweep.core.fft import BACKENDS, available_backends, get_backend
-from gapsweep.gfmd._ops import _is_cupy
+from gapsweep.gfmd._ops import Parseval, _is_cupy
 from gapsweep.gfmd._result import FIELDS, GFMDResult, host_fields
-from gapsweep.gfmd._solvers import _half_q, _next_trial
+from gapsweep.gfmd._solvers import _half_q, first_step, search_steps
 from gapsweep.gfmd.interactions import Interaction, resolve
 
 __all__ = ["Problem", "solve_batch"]
@@ -166,6 +166,7 @@ class _Stack:
 
     def __init__(self, xp: Any, n: int) -> None:
         self.xp, self.n, self.even = xp, n, n % 2 == 0
+        self.weights = Parseval.half(n)
 
     def rfft2(self, a):
         return self.xp.fft.rfft2(a, axes=(-2, -1))
@@ -174,12 +175,9 @@ class _Stack:
         return self.xp.fft.irfft2(a, s=(self.n, self.n), axes=(-2, -1), norm="forward")
 
     def dot(self, a, b) -> np.ndarray:
-        """``<A B>`` per problem by Parseval (weights as :meth:`gapsweep.gfmd._ops._Ops.dot`)."""
-        xp = self.xp
-        s = 2.0 * _re_dot(xp, a, b, (1, 2)) - _re_dot(xp, a[:, :, 0], b[:, :, 0], (1,))
-        if self.even:
-            s = s - _re_dot(xp, a[:, :, -1], b[:, :, -1], (1,))
-        return _host(xp, s)
+        """``<A B>`` per problem by Parseval (the weights of :class:`gapsweep.gfmd._ops.Parseval`, as the
+        one-by-one solver's passes)."""
+        return _host(self.xp, self.weights.stack_dot(a, b))
 
     def sums(self, a) -> np.ndarray:
         return _host(self.xp, a.sum(axis=(1, 2)))
@@ -317,10 +315,6 @@ def _make_stack(xp: Any, n: int) -> _Stack:
     return _Stack(xp, n)
 
 
-def _re_dot(xp, a, b, axes):
-    return (a.real * b.real + a.imag * b.imag).sum(axis=axes)
-
-
 def _host(xp, a) -> np.ndarray:
     return np.asarray(a.get() if xp is not np else a, dtype=np.float64)
 
@@ -331,37 +325,6 @@ def _col(xp, v) -> Any:
 
 
 # ------------------------------------------------------------------------------------- softmax (exponential)
-def _line_search(phi0p: float, a: float, b: float, s0: float, rho: float, S: float, s1: float, s2: float,
-                 eta: float, max_trials: int = 40):
-    """:meth:`gapsweep.gfmd._solvers._Problem.line_search` for one problem as a generator: yields the step
-    ``alpha`` of a trial point, receives its ``(m, S, s1, s2)``; returns ``(alpha, ok, last)`` where ``last``
-    says whether the last trial point is the accepted one (else the caller evaluates ``alpha`` once more)."""
-    curv = b + (s0 / rho) * (s2 / S - (s1 / S) ** 2)
-    alpha = -phi0p / curv if curv > 0 else 1.0
-    lo, hi, dlo, dhi = 0.0, math.inf, phi0p, math.nan
-    for _ in range(max_trials):
-        if not math.isfinite(alpha) or alpha <= 0:
-            break
-        m, S, s1, s2 = yield alpha
-        if not (math.isfinite(m) and math.isfinite(S) and math.isfinite(s1) and math.isfinite(s2)):
-            hi = alpha
-            alpha = 0.5 * (lo + alpha)
-            continue
-        dphi = a + alpha * b - s0 * s1 / S
-        if abs(dphi) <= eta * abs(phi0p):
-            return alpha, True, True
-        if dphi < 0:
-            lo, dlo = alpha, dphi
-        else:
-            hi, dhi = alpha, dphi
-        if hi - lo <= 1e-13 * hi:
-            break
-        alpha = _next_trial(alpha, dphi, b + (s0 / rho) * (s2 / S - (s1 / S) ** 2), lo, dlo, hi, dhi)
-    if lo <= 0.0:
-        return 0.0, False, False
-    return lo, True, False  # round-off or out of trials: the last point known to lie downhill
-
-
 def _softmax_batch(heights: list, laws: list, sigma0s: list[float], starts: list, *, n: int, e_star: float,
                    length: float,
                    tol: float, backend: str, max_iter: int, host: Any, eta: float = 0.1) -> list[GFMDResult]:
@@ -476,7 +439,8 @@ def _softmax_batch(heights: list, laws: list, sigma0s: list[float], starts: list
         # line search, all problems in lockstep (one batched trial pass per round)
         d = ops.irfft2(D)
         s1, s2 = ops.moments(e, d)
-        gens = {j: _line_search(phi0p[j], a[j], b[j], s0[j], rho[j], S[j], s1[j], s2[j], eta)
+        gens = {j: search_steps(phi0p[j], a[j], b[j], s0[j], rho[j],
+                                first_step(phi0p[j], b[j], s0[j] / rho[j], S[j], s1[j], s2[j]), eta)
                 for j in range(nb) if alive[j] and phi0p[j] < 0}
         alpha = np.zeros(nb)
         outcome: dict[int, tuple[float, bool, bool]] = {}
