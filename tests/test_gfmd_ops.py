@@ -13,22 +13,7 @@ import pytest
 from gapsweep.core.slab import SlabFFT
 from gapsweep.gfmd._ops import LOCAL, Parseval, _Ops
 from tests import cupy_shim
-
-
-class _Comm:
-    """The size/rank calls of an mpi4py communicator (SlabFFT's column blocks and weights need nothing else)."""
-
-    def __init__(self, size: int, rank: int) -> None:
-        self.size, self.rank = size, rank
-
-    def Get_size(self) -> int:
-        return self.size
-
-    def Get_rank(self) -> int:
-        return self.rank
-
-    def Allgather(self, a, b) -> None:
-        raise AssertionError("not used")
+from tests.comm_stub import SizeRankComm as _Comm
 
 
 def _pieces(nx: int, ny: int, ranks: int) -> list[tuple[slice, Parseval, bool]]:
