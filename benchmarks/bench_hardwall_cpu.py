@@ -19,8 +19,9 @@ fig-2/3 surfaces of benchmarks/bench_contact.py.
 ``loops`` (issue 30): the iteration loops of gapsweep/gfmd/_constrained.py side by side on one surface ("mpcg",
 tol 1e-8; lambda_s = 2.56 / n, so n = 1024 is the fig-2/3 surface and smaller n stay resolved): ``real`` (the
 real-space loop: ``r = K t`` and ``u = K p`` afresh after a clipping projection), ``spectral`` (``p~`` kept in
-Fourier space, the default on the CPU), or an integer ``K``: the real-space loop that skips the fresh ``K p`` after
-clipping and re-syncs ``u`` every ``K`` iterations (u lags K p in between). Iterations, FFT pairs per iteration,
+Fourier space, the default on the CPU). (An integer ``K`` once ran the real-space loop that skipped the fresh
+``K p`` after clipping, re-syncing ``u`` every ``K`` iterations: it broke convergence, results/contact/
+issue30_lag_resync_512.txt, and was deleted.) Iterations, FFT pairs per iteration,
 CPU seconds, residual, status and the mean gap's relative difference to the first loop listed."""
 
 from __future__ import annotations
@@ -130,8 +131,7 @@ def cmd_loops(a: argparse.Namespace) -> None:
     for s0 in a.sigma0:
         ref = None
         for loop in a.loops:
-            C._LAG, C._SPECTRAL = loop.isdigit(), loop == "spectral"
-            C._RESYNC = int(loop) if loop.isdigit() else C._RESYNC
+            C._SPECTRAL = loop == "spectral"
             t0 = time.process_time()
             r = solve(h, sigma0=s0, interaction="hard_wall", tol=1e-8, method="mpcg", max_iter=a.max_iter)
             cpu = time.process_time() - t0
@@ -141,7 +141,7 @@ def cmd_loops(a: argparse.Namespace) -> None:
                   f"(coarse {r.diagnostics['coarse_iterations']}), FFT pairs {pairs} "
                   f"({pairs / max(r.iterations, 1):.2f} per iteration), CPU {cpu:.2f} s, residual {r.residual:.2e} "
                   f"{r.status}, mean gap rel. diff {abs(r.mean_gap / ref.mean_gap - 1):.1e}", flush=True)
-    C._LAG, C._SPECTRAL = False, True
+    C._SPECTRAL = True
 
 
 def main() -> None:
@@ -158,7 +158,8 @@ def main() -> None:
     lp.add_argument("--hurst", type=float, default=0.8)
     lp.add_argument("--seed", type=int, default=1)
     lp.add_argument("--sigma0", type=float, nargs="+", default=[1e-3, 1e-2, 1e-1])
-    lp.add_argument("--loops", nargs="+", default=["real", "spectral", "real", "spectral"])
+    lp.add_argument("--loops", nargs="+", choices=["real", "spectral"],
+                    default=["real", "spectral", "real", "spectral"])
     lp.add_argument("--max-iter", type=int, default=5000)
     a = ap.parse_args()
     {"passes": cmd_passes, "chain": cmd_chain, "loops": cmd_loops}[a.cmd](a)

@@ -1,10 +1,11 @@
 """A numpy stand-in for the few cupy calls of the GPU branches that tests/test_gpu_shim.py drives on the CPU: the
-free-boundary minimiser (gfmd._free with gfmd._cuda._FreeCupyOps and _PadFFT) and the hard wall's cuFFT backend
-(gapsweep.core.fft._CupyBackend.convolve). Not a GPU emulator: arrays are numpy arrays of a subclass whose module
-reads "cupy" (so ``gfmd._ops._is_cupy`` takes them for cupy's); the CUDA kernels that code launches are replaced by
-numpy versions of their documented results, and each launch is checked against the parameter list of the kernel
-in gapsweep/gfmd/kernels.cu (a wrong argument count would be a launch failure on the GPU). Kernel launches and
-host synchronisations are counted (``COUNTS``)."""
+free-boundary minimiser (gfmd._free with gfmd._cuda._FreeCupyOps and _PadFFT), the hard wall's cuFFT backend
+(gapsweep.core.fft._CupyBackend.convolve) and the passes of a rank's slabs (gfmd._cuda._SlabCupyOps; its cupy
+ElementwiseKernel / ReductionKernel by name, tests/test_gfmd_ops.py). Not a GPU emulator: arrays are numpy arrays of
+a subclass whose module reads "cupy" (so ``gfmd._ops._is_cupy`` takes them for cupy's); the CUDA kernels that code
+launches are replaced by numpy versions of their documented results, and each launch is checked against the
+parameter list of the kernel in gapsweep/gfmd/kernels.cu (a wrong argument count would be a launch failure on the
+GPU). Kernel launches and host synchronisations are counted (``COUNTS``)."""
 
 from __future__ import annotations
 
@@ -100,7 +101,32 @@ _ELEMENTWISE = {
     "gapsweep_free_axpy": (lambda a, x, y: np.add(y, a * x, out=y)),
     "gapsweep_free_grad": (lambda k, u, c, f: k * u - c * f),
     "gapsweep_free_trial": (lambda g, a, d: g + a * d),
+    # gfmd._cuda._SlabCupyOps (output arrays passed: written in place, as cupy does)
+    "gapsweep_slab_grad": (lambda k, X, E, c, G: np.subtract(k * X, c * E, out=G)),
+    "gapsweep_slab_axpy": (lambda a, x, y: np.add(y, a * x, out=y)),
+    "gapsweep_slab_dir": (lambda beta, minv, G, D: np.subtract(beta * D, minv * G, out=D)),
 }
+
+# the map expressions of gfmd._cuda._SlabCupyOps's reductions (summed over ``axis``)
+_REDUCTION = {
+    "gapsweep_slab_rdot": (lambda a, b: a.real * b.real + a.imag * b.imag),
+    "gapsweep_slab_rkdot": (lambda a, b, k: k * (a.real * b.real + a.imag * b.imag)),
+    "gapsweep_slab_m1": (lambda e, d: e * d),
+    "gapsweep_slab_m2": (lambda e, d: e * d * d),
+}
+
+
+def ReductionKernel(in_params: str, out_params: str, map_expr: str, reduce_expr: str, post_map_expr: str,
+                    identity: str, name: str) -> Any:
+    n_in = len(in_params.split(","))
+    f = _REDUCTION[name]
+    assert reduce_expr == "a + b" and identity == "0", name
+
+    def call(*args: Any, axis: Any = None) -> Any:
+        assert len(args) == n_in, (name, len(args))
+        COUNTS[name] += 1
+        return _wrap(np.asarray(f(*(np.asarray(a) for a in args))).sum(axis=axis))
+    return call
 
 
 def ElementwiseKernel(in_params: str, out_params: str, operation: str, name: str) -> Any:
@@ -157,6 +183,7 @@ def modules() -> dict[str, types.ModuleType]:
     cp.ndarray = ndarray
     cp.RawModule = RawModule
     cp.ElementwiseKernel = ElementwiseKernel
+    cp.ReductionKernel = ReductionKernel
     cp.get_default_memory_pool = _Pool
     fft = types.ModuleType("cupy.fft")
     for k in ("rfft2", "irfft2", "rfft", "irfft", "fft", "ifft", "fftfreq", "rfftfreq", "fft2", "ifft2"):

@@ -1,5 +1,5 @@
 """The hard wall's GPU memory plan (``gapsweep.gfmd._cuda.solve_memory``, method "pcg") against the peak of the same
-code traced on the CPU: the GPU's loop (``_constrained._direct_loop``) run on numpy through a stand-in of the cuFFT
+code traced on the CPU: the GPU's loop (``_constrained._RealSpace``) run on numpy through a stand-in of the cuFFT
 backend's buffers (``gapsweep.core.fft._CupyBackend``: one C2R input buffer, the product formed in it, C2R into the
 caller's array), numpy's transient transform outputs in the role of cuFFT's two work areas. tracemalloc counts every
 numpy allocation; the caller's surface is made before tracing starts (as ``heights_on_gpu=False`` leaves it out)."""

@@ -11,10 +11,10 @@ preconditioner: the search direction is built from ``z = P_S M P_S g`` with ``M 
 everything is in contact; the FFT-based preconditioner of Vollebregt, J. Comput. Phys. 257, 333, 2014, in its
 simplest form); "mpcg" (default on the CPU), "pcg" started from the coarse-to-fine pressure of :func:`_coarse_start`
 (the coarsened surface solved to ``_COARSE_TOL``, recursively). Cost per iteration, periodic grids on the CPU
-(:func:`_spectral_loop`, ``p~`` kept in Fourier space): ``M g`` ("pcg", one FFT pair), ``t~`` (one forward
+(:class:`_InFourier`, ``p~`` kept in Fourier space): ``M g`` ("pcg", one FFT pair), ``t~`` (one forward
 transform; the line search's ``<t K t>`` by Parseval, ``t`` made load-neutral in real space), ``u = K p~`` (one
 inverse) and the transform of ``p`` only when the projection clipped something: 2.5 pairs. Free boundaries and
-the GPU (:func:`_direct_loop`): ``K t`` (one pair), ``M g`` ("pcg", one more), and ``K p`` afresh when the
+the GPU (:class:`_RealSpace`): ``K t`` (one pair), ``M g`` ("pcg", one more), and ``K p`` afresh when the
 projection clipped something (else ``u`` follows linearly): 3 pairs. Skipping the fresh ``K p`` (``u`` lagging
 by the clipped part, re-synced every few iterations) breaks the constrained CG (issue 30: 1.2-300x the
 iterations or no convergence; benchmarks/results/contact/issue30_lag_resync_512.txt).
@@ -53,8 +53,6 @@ DEFAULT_METHOD_GPU = "pcg"
 _COARSEST = 128  # "mpcg": smallest grid side of a coarse level
 _COARSE_TOL = 1e-2  # "mpcg": tolerance of the coarse levels (a start only; the fine level decides convergence)
 _REFRESH = 25  # iterations between fresh K p when the update was unclipped (bounds the drift of u)
-_LAG = False  # lag the projection's K-correction up to _RESYNC iterations (measured: breaks convergence; issue 30)
-_RESYNC = 8  # used only with _LAG
 # CG restarts (delta = 0) only when more than this fraction of |S| re-entered. Polonsky & Keer restart at every
 # re-entry; near convergence a few boundary pixels re-enter almost every iteration, so the preconditioned CG was
 # steepest descent there. Measured (tuning: N = 1024, seed 2, H 0.3/0.8; held-out seeds 3-5, H 0.3/0.5/0.8,
@@ -65,7 +63,7 @@ _KEEP = 0.01
 # re-entry stiffness in units of pixel_stiffness: 1e-4..0.1 took about the same iterations, 10 ran to max_iter
 # (benchmarks/results/contact/issue36_reentry_scale.txt)
 _REENTRY = 0.01
-_SPECTRAL = True  # periodic grids: p~ kept in Fourier space (_spectral_loop)
+_SPECTRAL = True  # periodic grids on the CPU: p~ kept in Fourier space (_InFourier)
 log = logging.getLogger("gapsweep.gfmd")
 
 
@@ -130,67 +128,51 @@ def _stop(res: float, tol: float, it: int, max_iter: int) -> str | None:
     return "max_iter" if it >= max_iter else None
 
 
-def _direct_loop(grid: Grid, ops: Any, compliance: Any, h: Any, p: Any, stiff: Any, sigma0: float, tol: float,
-                 g_ref: float, max_iter: int, history: list[float], k_in: float) -> tuple[Any, Any, int, str, int]:
-    """The iteration on real-space fields: ``r = K t`` (one FFT pair), ``z = M gs`` (one more with ``stiff``)
-    and ``u = K p`` afresh when the projection changed ``p`` (else ``u`` follows ``r`` linearly). Free
-    boundaries take this loop. Returns ``(p, u, iterations, status, fft_pairs)``."""
-    xp = grid.xp
-    t, g, gs, r = (xp.zeros(grid.real_shape) for _ in range(4))
-    z = xp.empty(grid.real_shape) if stiff is not None else None
-    delta, gz_old, fft_pairs, status = 0.0, 1.0, 1, "max_iter"
-    it = since_fresh = 0
-    stale = False  # u lags K p by the projection's corrections since the last fresh K p (_LAG only)
-    with np.errstate(all="ignore"):
-        u = compliance(p)
-        while True:
-            deadline.check()  # a task time limit ends the solve between iterations
-            ns, sg2, res = _gap_residual(ops, u, h, p, g, gs, g_ref)
-            if stale and not res > tol:  # converged on a lagging u: decide on a fresh K p
-                u = compliance(p, u)
-                fft_pairs += 1
-                since_fresh, stale = 0, False
-                continue
-            history.append(res)
-            stop = _stop(res, tol, it, max_iter)
-            if stop:
-                status = stop
-                break
-            it += 1
-            if stiff is not None:  # z = P_S M P_S g, kept load-neutral (zero mean on S)
-                z = grid.convolve(gs, stiff, z)
-                fft_pairs += 1
-                z_sum, gz = ops.zstats(z, gs, p)
-                zbar = z_sum / ns
-            else:
-                z, zbar, gz = gs, 0.0, sg2
-            ops.direction(t, z, zbar, delta * gz / gz_old, p)
-            gz_old = gz
-            r = compliance(t, r)
-            fft_pairs += 1
-            r_sum, rt, t_sum, gt = ops.rstats(r, t, gs, p)
-            rt -= (r_sum / ns) * t_sum  # <(r - rbar_S) t>_S
-            if not rt > 0:
-                status = "stalled" if math.isfinite(rt) else "non_finite"
-                break
-            tau = gt / rt
-            clipped, n_overlap, p_sum = ops.update(p, t, g, tau, tau * k_in)
-            delta = 0.0 if n_overlap > _KEEP * ns else 1.0
-            changed = clipped or n_overlap
-            follow = since_fresh < (_RESYNC if _LAG else (0 if changed else _REFRESH))
-            ops.rescale(p, u, r, sigma0 * grid.size / p_sum, tau, follow)
-            if follow:  # K is linear: u = scale (u - tau K t)
-                since_fresh += 1
-                stale = stale or changed
-            else:  # K p afresh
-                u = compliance(p, u)
-                fft_pairs += 1
-                since_fresh, stale = 0, False
-    return p, u, it, status, fft_pairs
+class _RealSpace:
+    """The strategy of :func:`_loop` on real-space fields: ``r = K t`` (one FFT pair) for the line search, ``u``
+    following it linearly (``u = scale (u - tau r)``) when the projection changed nothing, ``u = K p`` afresh
+    (one pair) when it did or every ``_REFRESH`` iterations. Free boundaries and the GPU take it: 3 pairs per
+    iteration with the preconditioner."""
+
+    def __init__(self, grid: Grid, compliance: Any) -> None:
+        self.grid, self.compliance = grid, compliance
+        self.r = grid.xp.zeros(grid.real_shape)
+        self.transforms = self.since_fresh = 0
+
+    def start(self, p: Any) -> Any:
+        self.transforms += 2
+        return self.compliance(p)
+
+    def direction(self, ops: Any, t: Any, z: Any, gs: Any, p: Any, ns: int, sg2: float, delta: float,
+                  gz_old: float, precondition: bool) -> tuple[float, float, float]:
+        """``t = P_S (z - zbar) + c t`` (``c = delta gz / gz_old``, ``z`` kept load-neutral: zero mean on S);
+        returns ``(gz, sum gs t, sum (r - rbar_S) t over S)`` with ``r = K t``."""
+        if precondition:
+            z_sum, gz = ops.zstats(z, gs, p)
+            zbar = z_sum / ns
+        else:
+            zbar, gz = 0.0, sg2
+        ops.direction(t, z, zbar, delta * gz / gz_old, p)
+        self.r = self.compliance(t, self.r)
+        self.transforms += 2
+        r_sum, rt, t_sum, gt = ops.rstats(self.r, t, gs, p)
+        rt -= (r_sum / ns) * t_sum  # <(r - rbar_S) t>_S
+        return gz, gt, rt
+
+    def step(self, ops: Any, p: Any, u: Any, tau: float, scale: float, changed: bool) -> Any:
+        """``p *= scale`` (the load restored) and the displacement of the new ``p``."""
+        follow = not changed and self.since_fresh < _REFRESH
+        ops.rescale(p, u, self.r, scale, tau, follow)
+        if follow:  # K is linear: u = scale (u - tau K t)
+            self.since_fresh += 1
+            return u
+        self.since_fresh = 0  # K p afresh
+        self.transforms += 2
+        return self.compliance(p, u)
 
 
 class _Spectral:
-    """``p~`` and ``t~`` of :func:`_spectral_loop` through ``grid.fwd`` / ``grid.inv`` (any periodic grid)."""
+    """``p~`` and ``t~`` of :class:`_InFourier` through ``grid.fwd`` / ``grid.inv`` (any periodic grid)."""
 
     def __init__(self, grid: Grid, kinv_q: Any) -> None:
         self.grid, self.kinv = grid, kinv_q
@@ -256,27 +238,65 @@ def _spectral_state(grid: Grid, kinv_q: Any) -> _Spectral:
     return _Spectral(grid, kinv_q)
 
 
-def _spectral_loop(grid: Grid, ops: Any, h: Any, p: Any, kinv_q: Any, stiff: Any, sigma0: float, tol: float,
-                   g_ref: float, max_iter: int, history: list[float], k_in: float) -> tuple[Any, Any, int, str, int]:
-    """Periodic grids: the same iteration with ``p~`` kept in Fourier space. The search direction ``t`` is made
-    load-neutral in real space (zero sum on S), so the line search needs only ``<t K t> = N <t~ K t~>``
-    (Parseval, from ``t~``: one forward transform); ``p~ <- s (p~ - tau t~)`` when the projection changed nothing,
-    else ``p~`` = the forward transform of the projected ``p``; ``u = K p~`` is one inverse transform and exact
-    every iteration. Transforms per iteration: 2 (``z = M gs``) + 1 (``t~``) + 1 (``u``) + 1 if the projection
-    changed ``p`` (the real-space loop: 2 + 2 + 2). Returns ``(p, u, iterations, status, fft_pairs)``."""
+class _InFourier:
+    """The strategy of :func:`_loop` on periodic grids of one CPU process: ``p~`` kept in Fourier space
+    (:class:`_Spectral`). The search direction ``t`` is made load-neutral in real space (zero sum on S), so the
+    line search needs only ``<t K t> = N <t~ K t~>`` (Parseval, from ``t~``: one forward transform);
+    ``p~ <- s (p~ - tau t~)`` when the projection changed nothing, else ``p~`` = the forward transform of the
+    projected ``p``; ``u = K p~`` is one inverse transform and exact every iteration. Transforms per iteration:
+    2 (``z = M gs``) + 1 (``t~``) + 1 (``u``) + 1 if the projection changed ``p`` (:class:`_RealSpace`: 2 + 2 +
+    2)."""
+
+    def __init__(self, grid: Grid, kinv_q: Any) -> None:
+        self.grid = grid
+        self.sp = _spectral_state(grid, kinv_q)
+        self.transforms = self.since_fresh = 0
+
+    def start(self, p: Any) -> Any:
+        self.sp.refresh(p)
+        self.transforms += 2
+        return self.sp.displacement(self.grid.xp.empty(self.grid.real_shape))
+
+    def direction(self, ops: Any, t: Any, z: Any, gs: Any, p: Any, ns: int, sg2: float, delta: float,
+                  gz_old: float, precondition: bool) -> tuple[float, float, float]:
+        """``t = P_S (z + c t)`` less its mean on S (zero sum on S: the step keeps the load), in one pass;
+        returns ``(gz, sum gs t, sum t K t)``."""
+        z_sum, gz, t_sum, gt_old, g_sum = ops.zstats5(z, t, gs, p)
+        c = delta * gz / gz_old
+        zbar = (z_sum + c * t_sum) / ns
+        ops.direction(t, z, zbar, c, p)
+        gt = gz + c * gt_old - zbar * g_sum  # sum gs t
+        self.transforms += 1
+        return gz, gt, self.sp.direction(t)
+
+    def step(self, ops: Any, p: Any, u: Any, tau: float, scale: float, changed: bool) -> Any:
+        p *= scale
+        if changed or self.since_fresh >= _REFRESH:
+            self.sp.refresh(p)
+            self.transforms += 1
+            self.since_fresh = 0
+        else:
+            self.sp.advance(tau, scale)
+            self.since_fresh += 1
+        self.transforms += 1
+        return self.sp.displacement(u)
+
+
+def _loop(grid: Grid, ops: Any, way: Any, h: Any, p: Any, stiff: Any, sigma0: float, tol: float, g_ref: float,
+          max_iter: int, history: list[float], k_in: float) -> tuple[Any, Any, int, str, int]:
+    """The constrained CG (module docstring) on the strategy ``way`` (:class:`_RealSpace` or
+    :class:`_InFourier`: how ``t``'s line search and ``u = K p`` are computed): gap and residual, ``z = P_S M
+    P_S g`` (one FFT pair with ``stiff``, else ``z = gs``), the direction and step ``tau``, the projection
+    ``p >= 0`` with re-entry, the load restored by scaling. Returns ``(p, u, iterations, status, fft_pairs)``."""
     xp = grid.xp
     t, g, gs = (xp.zeros(grid.real_shape) for _ in range(3))
     z = xp.empty(grid.real_shape) if stiff is not None else None
-    delta, gz_old, status = 0.0, 1.0, "max_iter"
-    transforms = it = since_fresh = 0
-    sp = _spectral_state(grid, kinv_q)
+    delta, gz_old, status, it = 0.0, 1.0, "max_iter", 0
     with np.errstate(all="ignore"):
-        sp.refresh(p)
-        u = sp.displacement(xp.empty(grid.real_shape))
-        transforms += 2
+        u = way.start(p)
         while True:
             deadline.check()  # a task time limit ends the solve between iterations
-            ns, _, res = _gap_residual(ops, u, h, p, g, gs, g_ref)
+            ns, sg2, res = _gap_residual(ops, u, h, p, g, gs, g_ref)
             history.append(res)
             stop = _stop(res, tol, it, max_iter)
             if stop:
@@ -285,36 +305,19 @@ def _spectral_loop(grid: Grid, ops: Any, h: Any, p: Any, kinv_q: Any, stiff: Any
             it += 1
             if stiff is not None:  # z = P_S M P_S g
                 z = grid.convolve(gs, stiff, z)
-                transforms += 2
+                way.transforms += 2
             else:
                 z = gs
-            # t = P_S (z + c t) - its mean on S (zero sum on S: the step keeps the load), in one pass
-            z_sum, gz, t_sum, gt_old, g_sum = ops.zstats5(z, t, gs, p)
-            c = delta * gz / gz_old
-            zbar = (z_sum + c * t_sum) / ns
-            ops.direction(t, z, zbar, c, p)
-            gt = gz + c * gt_old - zbar * g_sum  # sum gs t
+            gz, gt, rt = way.direction(ops, t, z, gs, p, ns, sg2, delta, gz_old, stiff is not None)
             gz_old = gz
-            rt = sp.direction(t)  # sum t K t
-            transforms += 1
             if not rt > 0:
                 status = "stalled" if math.isfinite(rt) else "non_finite"
                 break
             tau = gt / rt
             clipped, n_overlap, p_sum = ops.update(p, t, g, tau, tau * k_in)
             delta = 0.0 if n_overlap > _KEEP * ns else 1.0
-            scale = sigma0 * grid.size / p_sum
-            p *= scale
-            if clipped or n_overlap or since_fresh >= _REFRESH:
-                sp.refresh(p)
-                transforms += 1
-                since_fresh = 0
-            else:
-                sp.advance(tau, scale)
-                since_fresh += 1
-            u = sp.displacement(u)
-            transforms += 1
-    return p, u, it, status, (transforms + 1) // 2
+            u = way.step(ops, p, u, tau, sigma0 * grid.size / p_sum, bool(clipped or n_overlap))
+    return p, u, it, status, (way.transforms + 1) // 2
 
 
 def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, length: Any, tol: float,
@@ -364,15 +367,13 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
     # pressure), so k_in must be a stiffness (pressure per length): the pixel stiffness of M; plain PK's tau
     # is one already (t a length).
     k_in = _REENTRY * pixel_stiffness(grid, e_star) if precondition else 1.0
-    spectral = _SPECTRAL and periodic and not _LAG and xp is np  # the GPU keeps the real-space loop (fused passes)
+    spectral = _SPECTRAL and periodic and xp is np  # the GPU keeps the real-space loop (fused passes)
     if not spectral:
         del kinv_q  # only the spectral loop reads it (half a grid array: gfmd._cuda.solve_memory)
-    if spectral:
-        p, u, it, status, fft_pairs = _spectral_loop(grid, ops, h, p, kinv_q, stiff if precondition else None,
-                                                     sigma0, tol, g_ref, max_iter, history, k_in)
-    else:
-        p, u, it, status, fft_pairs = _direct_loop(grid, ops, compliance, h, p, stiff if precondition else None,
-                                                   sigma0, tol, g_ref, max_iter, history, k_in)
+    way = _InFourier(grid, kinv_q) if spectral else _RealSpace(grid, compliance)
+    p, u, it, status, fft_pairs = _loop(grid, ops, way, h, p, stiff if precondition else None, sigma0, tol, g_ref,
+                                        max_iter, history, k_in)
+    del way
     with np.errstate(all="ignore"):
         # The returned fields and their residual (issue 9: decided on what is returned); u rewritten in place
         u = compliance(p, u)

@@ -236,7 +236,7 @@ _SPECTRAL: Any = None
 
 
 def spectral_kernels() -> Any:
-    """Fused passes of ``_constrained._spectral_loop`` (numba, serial): ``zstats5`` on the real fields, the rest
+    """Fused passes of ``_constrained._InFourier`` (numba, serial): ``zstats5`` on the real fields, the rest
     on the half spectra of ``_constrained._SpectralFFTW``."""
     global _SPECTRAL
     if _SPECTRAL is not None:

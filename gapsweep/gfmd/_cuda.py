@@ -1,4 +1,5 @@
-"""GPU kernels of the GFMD solver (docs/model.md M3): :class:`_CupyOps`, one fused CUDA pass per operation. The
+"""GPU kernels of the GFMD solver (docs/model.md M3): :class:`_CupyOps`, one fused CUDA pass per operation (one
+GPU), and :class:`_SlabCupyOps`, fused cupy passes of a rank's slabs (gfmd.distributed). The
 CUDA C source lives in ``kernels.cu`` next to this module (package data), compiled by NVRTC on first use."""
 
 from __future__ import annotations
@@ -9,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from gapsweep.gfmd._ops import _Ops
+from gapsweep.gfmd._ops import Parseval, _Ops
 
 # CUDA source of the GPU kernels. Every kernel is one grid-stride pass over its arrays (a fixed grid of
 # _CUDA_BLOCKS_PER_SM blocks per SM) that also reduces its scalars: warp shuffles, one partial per block, then
@@ -36,7 +37,7 @@ _CUFFT_WORK = 1.0
 # exponential law's are counted from gfmd/_softmax.py::_solve_lean; the L-BFGS and FIRE counts of half spectra
 # were read off the pool's high-water mark at n = 4096 and checked at n = 16384 and 2048: docs/benchmarks_gfmd.md,
 # "GPU at the limit". The hard wall's (issue 30) are counted from gfmd/_constrained.py (its peak is in the
-# iteration, _direct_loop): the centred heights h; p, t, g, gs, r, z, u; |q|, K^-1 and M = E* q/2 (half a grid
+# iteration, _loop on _RealSpace): the centred heights h; p, t, g, gs, r, z, u; |q|, K^-1 and M = E* q/2 (half a grid
 # each); the cuFFT backend's one C2R input buffer (gapsweep.core.fft._CupyBackend.convolve transforms into it,
 # multiplies in place and writes C2R straight into the caller's array): 10.5, plus 1 of margin for the pool's
 # fragmentation. The result's residual, contact set and elastic energy (<p u>/2) need real fields only, fewer
@@ -383,6 +384,63 @@ class _CupyOps(_Ops):
     def moments(self, e, d) -> tuple[float, float]:
         r = self._launch("gs_moments", False, 2, e, d)
         return float(r[0]), float(r[1])
+
+
+class _SlabCupyOps(_Ops):
+    """:class:`_Ops` on one rank's slabs on a GPU (gfmd.distributed; Parseval weights along axis 0, the rank's
+    columns ``[ky, kx]``): the local halves of the passes as fused cupy kernels without grid-sized temporaries
+    (the weighted Parseval sums reduce each spectrum row on the device, then the few row sums are weighted);
+    the reducer, the trial point and the exponentials are :class:`_Ops`'s."""
+
+    def __init__(self, xp: Any, n: int, *, red: Any, weights: Parseval, owner: bool) -> None:
+        if weights.axis != 0:
+            raise ValueError("_SlabCupyOps: the Parseval weights must run along the rows (a rank's columns)")
+        super().__init__(xp, n, red=red, weights=weights, owner=owner)
+        self.w1 = None  # the rows' weights on the device, made at the first sum (the row count is the arrays')
+        red_k, ew = xp.ReductionKernel, xp.ElementwiseKernel
+        self._rdot = red_k("complex128 a, complex128 b", "float64 y", "a.real() * b.real() + a.imag() * b.imag()",
+                           "a + b", "y = a", "0", "gapsweep_slab_rdot")
+        self._rkdot = red_k("complex128 a, complex128 b, float64 k", "float64 y",
+                            "k * (a.real() * b.real() + a.imag() * b.imag())", "a + b", "y = a", "0",
+                            "gapsweep_slab_rkdot")
+        self._m1 = red_k("float64 e, float64 d", "float64 y", "e * d", "a + b", "y = a", "0", "gapsweep_slab_m1")
+        self._m2 = red_k("float64 e, float64 d", "float64 y", "e * d * d", "a + b", "y = a", "0", "gapsweep_slab_m2")
+        self._grad = ew("float64 k, complex128 X, complex128 E, float64 c", "complex128 G", "G = k * X - c * E",
+                        "gapsweep_slab_grad")
+        self._axpy = ew("float64 a, complex128 x", "complex128 y", "y = y + a * x", "gapsweep_slab_axpy")
+        self._dir = ew("float64 beta, float64 minv, complex128 G", "complex128 D", "D = beta * D - minv * G",
+                       "gapsweep_slab_dir")
+
+    def _rows(self, a) -> Any:
+        if self.w1 is None or self.w1.size != a.shape[0]:
+            self.w1 = self.weights.vector(self.xp, a.shape[0])
+        return self.w1
+
+    def _ldot(self, a, b) -> float:
+        return float(self._rows(a) @ self._rdot(a, b, axis=1))
+
+    def _lk(self, a, b, k) -> float:
+        return float(self._rows(a) @ self._rkdot(a, b, k, axis=1))
+
+    def _lmoments(self, e, d) -> tuple[float, float]:
+        # per-row sums, then the few row sums: cupy reduces a whole array to one scalar in a single block
+        # (28 ms at 4096^2 on an H200, 20x a row-wise reduction), so never reduce to a scalar in one kernel
+        return float(self._m1(e, d, axis=1).sum()), float(self._m2(e, d, axis=1).sum())
+
+    def grad(self, X, E, c: float, k, G) -> None:
+        self._grad(k, X, E, float(c), G)
+        if self.owner:
+            G[0, 0] = 0.0
+
+    def axpy(self, y, a: float, x) -> None:
+        self._axpy(float(a), x, y)
+
+    def _lcg_dots(self, G, G_old, minv) -> tuple[float, float]:
+        return self._lk(G, G, minv), (self._lk(G, G_old, minv) if G_old is not None else 0.0)
+
+    def _lcg_update(self, G, minv, D, beta: float, k, X) -> tuple[float, float, float]:
+        self._dir(float(beta), minv, G, D)
+        return self._ldot(G, D), self._lk(D, X, k), self._lk(D, D, k)
 
 
 class _PKCupy:

@@ -52,7 +52,8 @@ import numpy as np
 from gapsweep.core import deadline
 from gapsweep.core.vec import axpy
 from gapsweep.gfmd._grid import FreeGrid, Grid
-from gapsweep.gfmd._ops import _is_cupy, remember_pair
+from gapsweep.gfmd._lbfgs import remember_pair, two_loop
+from gapsweep.gfmd._ops import _is_cupy
 from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status
 from gapsweep.gfmd._smooth import _DETACHED, _STEP_TOL, _Solver, _stalled, _wolfe
 from gapsweep.gfmd.interactions.base import SmoothInteraction
@@ -405,6 +406,27 @@ def _lbfgs(st: _FreeState, minv_u: Any, minv_d: float, ratio: float, p_ref: floa
         ops.axpy(y[0], a, x[0])
         return y[0], y[1] + a * x[1]
 
+    def scale(q: tuple[Any, float], c: float) -> tuple[Any, float]:
+        q0 = q[0]  # owned (a copy of the gradient): scaled in place
+        q0 *= c
+        return q0, q[1] * c
+
+    def precondition_owned(q: tuple[Any, float]) -> tuple[Any, float]:
+        q0 = q[0]
+        q0 *= minv_u
+        return q0, minv_d * q[1]
+
+    steps: dict[str, Any] = dict(
+        dot=st.dot, axpy=lambda q, a, x: axpy_pair(a, x, q), precondition=precondition_owned, scale=scale,
+        # <y M^-1 y> in one pass (no preconditioned copy)
+        curvature=lambda y: ops.kdot(y[0], minv_u, y[0]) + y[1] * (minv_d * y[1]))
+    if hasattr(ops, "axpy_dot"):  # each update fused with the next pair's dot product (_HostOps.axpy_dot)
+        def first(q: tuple[Any, float]) -> tuple[tuple[Any, float], list[float]]:
+            q0, q1, alphas = _two_loop_first(ops, s_hist, y_hist, r_hist, q)
+            return (q0, q1), alphas
+
+        steps.update(first=first, second=lambda q, alphas: _two_loop_second(ops, s_hist, y_hist, r_hist, alphas, q))
+
     while True:
         deadline.check()  # a task time limit ends the solve between iterations
         grad = (st.Gu, st.Gd)
@@ -412,33 +434,7 @@ def _lbfgs(st: _FreeState, minv_u: Any, minv_d: float, ratio: float, p_ref: floa
         if stop:
             status = stop
             break
-        q = (st.Gu.copy(), st.Gd)
-        fused = hasattr(ops, "axpy_dot")
-        if fused:  # the same recursion, each update fused with the next pair's dot product (_HostOps.axpy_dot)
-            q = _two_loop_first(ops, s_hist, y_hist, r_hist, q)
-            alphas = q[2]
-            q = (q[0], q[1])
-        else:
-            alphas = []
-            for s, y, r in zip(reversed(s_hist), reversed(y_hist), reversed(r_hist)):
-                al = r * st.dot(s, q)
-                alphas.append(al)
-                q = axpy_pair(-al, y, q)
-        q0 = q[0]  # owned (a copy of the gradient): scaled in place
-        q0 *= minv_u
-        q = (q0, minv_d * q[1])
-        if y_hist:
-            y_last = y_hist[-1]  # <y M^-1 y> in one pass (no preconditioned copy)
-            yhy = ops.kdot(y_last[0], minv_u, y_last[0]) + y_last[1] * (minv_d * y_last[1])
-            if yhy > 0:
-                sc = 1.0 / (r_hist[-1] * yhy)
-                q0 *= sc
-                q = (q0, q[1] * sc)
-        if fused:
-            q = _two_loop_second(ops, s_hist, y_hist, r_hist, alphas, q)
-        else:
-            for s, y, r, al in zip(s_hist, y_hist, r_hist, reversed(alphas)):
-                q = axpy_pair(al - r * st.dot(y, q), s, q)
+        q = two_loop((st.Gu.copy(), st.Gd), list(zip(s_hist, y_hist, r_hist)), **steps)
         q0 = q[0]
         q0 *= -1.0
         D = (q0, -q[1])

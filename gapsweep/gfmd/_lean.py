@@ -32,10 +32,10 @@ from typing import Any
 
 import numpy as np
 
-from gapsweep.core import deadline
 from gapsweep.gfmd._coarse import Start
+from gapsweep.gfmd._lbfgs import two_loop
 from gapsweep.gfmd._result import GFMDResult, final_status
-from gapsweep.gfmd._smooth import _STEP_TOL, _Solver, _stop, _wolfe, touching_gap
+from gapsweep.gfmd._smooth import _STEP_TOL, _lbfgs, _Solver, touching_gap
 
 log = logging.getLogger("gapsweep.gfmd")
 CHUNK = {"numpy": 1 << 22, "cupy": 1 << 25}  # elements per chunk of an elementwise pass (32 / 256 MiB of float64)
@@ -145,14 +145,22 @@ class _LeanState:
 
 
 class _Pairs:
-    """Ring of ``memory`` L-BFGS pairs ``(s, y, 1/s.y)`` in preallocated spectra (allocated when first used)."""
+    """The L-BFGS memory of ``_smooth._lbfgs`` on the lean state: a ring of ``memory`` pairs ``(s, y, 1/s.y)`` in
+    preallocated spectra (allocated when first used) and the direction's buffer; the two-loop recursion and the
+    pairs' updates in place, in row chunks (``_Passes``)."""
 
-    def __init__(self, xp: Any, like: Any, memory: int) -> None:
-        self.xp, self.like, self.memory = xp, like, memory
+    def __init__(self, st: _LeanState, minv: Any, memory: int) -> None:
+        self.xp, self.like, self.memory, self.minv = st.xp, st.Z, memory, minv
+        self.ps = st.ps
+        self.dot = st.ps.dot
         self.s: list = []
         self.y: list = []
         self.r: list[float] = []
         self.order: list[int] = []  # slots, oldest first
+        self.D = st.xp.empty_like(st.Z)
+
+    def __bool__(self) -> bool:
+        return bool(self.order)
 
     def clear(self) -> None:
         self.order.clear()
@@ -173,74 +181,49 @@ class _Pairs:
         if i in self.order:
             self.order.remove(i)
 
+    def direction(self, st: _LeanState) -> Any:
+        """``D = -H G`` by the two-loop recursion (``gfmd._lbfgs.two_loop``, Nocedal & Wright Alg. 7.4) with
+        ``H0 = gamma M^-1``, in the buffer ``D``."""
+        ps, red, minv, D = self.ps, st.grid.red, self.minv, self.D
 
-def _direction(st: _LeanState, pairs: _Pairs, minv: Any, D: Any) -> None:
-    """``D = -H G`` by the two-loop recursion (Nocedal & Wright Alg. 7.4) with ``H0 = M^-1``, in ``D``."""
-    ps, red = st.ps, st.grid.red
-    st.xp.copyto(D, st.G)
-    alphas = []
-    for i in reversed(pairs.order):
-        al = pairs.r[i] * ps.dot(pairs.s[i], D)
-        alphas.append(al)
-        ps.axpy(D, -al, pairs.y[i])
-    ps.scale(D, minv)
-    if pairs.order:
-        i = pairs.order[-1]
-        yhy = red.sum(ps.wsum(pairs.y[i], pairs.y[i], minv))
-        if yhy > 0:
-            ps.scale(D, 1.0 / (pairs.r[i] * yhy))
-    for i, al in zip(pairs.order, reversed(alphas)):
-        ps.axpy(D, al - pairs.r[i] * ps.dot(pairs.y[i], D), pairs.s[i])
-    ps.scale(D, -1.0)
+        def axpy(q: Any, a: float, x: Any) -> Any:
+            ps.axpy(q, a, x)
+            return q
 
+        def scale(q: Any, c: Any) -> Any:
+            ps.scale(q, c)
+            return q
 
-def _steepest(st: _LeanState, minv: Any, D: Any) -> None:
-    for ch in st.ps.rows(D):
-        D[ch] = st.G[ch] * minv[ch]
-        D[ch] *= -1.0
+        st.xp.copyto(D, st.G)
+        two_loop(D, [(self.s[i], self.y[i], self.r[i]) for i in self.order], dot=ps.dot, axpy=axpy,
+                 precondition=lambda q: scale(q, minv), curvature=lambda y: red.sum(ps.wsum(y, y, minv)),
+                 scale=scale)
+        ps.scale(D, -1.0)
+        return D
 
+    def steepest(self, st: _LeanState) -> Any:
+        D, minv = self.D, self.minv
+        for ch in st.ps.rows(D):
+            D[ch] = st.G[ch] * minv[ch]
+            D[ch] *= -1.0
+        return D
 
-def _lbfgs(st: _LeanState, minv: Any, p_ref: float, tol: float, max_iter: int, memory: int, rng: float | None,
-           history: list[float]) -> str:
-    """``_smooth._lbfgs`` on the lean state (module docstring): the status; ``st`` holds the last point."""
-    ps = st.ps
-    pairs = _Pairs(st.xp, st.Z, memory)
-    D = st.xp.empty_like(st.Z)
-    best = [math.inf, math.inf, 0]
-    with np.errstate(all="ignore"):
-        while True:
-            deadline.check()  # a task time limit ends the solve between iterations
-            status = _stop(st, ps.dot, p_ref, tol, max_iter, rng, history, best)
-            if status is not None:
-                return status
-            _direction(st, pairs, minv, D)
-            slope = ps.dot(st.G, D)
-            if not slope < 0:
-                pairs.clear()
-                _steepest(st, minv, D)
-                slope = ps.dot(st.G, D)
-                if not slope < 0:
-                    return "stalled" if math.isfinite(slope) else "non_finite"
-            step = _wolfe(st, D, slope, 1.0)
-            if step is None:
-                if not pairs.order:
-                    return "stalled"
-                pairs.clear()
-                continue
-            alpha, d = step
-            i = pairs.slot()
-            s, y = pairs.s[i], pairs.y[i]
-            st.xp.copyto(y, st.G)
-            st.move(alpha, D, d)
-            for ch in ps.rows(s):  # s = alpha D, y = G_new - G_old
-                st.xp.multiply(D[ch], alpha, out=s[ch])
-                y[ch] *= -1.0
-                y[ch] += st.G[ch]
-            sy = ps.dot(s, y)
-            pairs.drop(i)
-            if sy > 0:
-                pairs.r[i] = 1.0 / sy
-                pairs.order.append(i)
+    def step(self, st: _LeanState, alpha: float, D: Any, d: Any) -> None:
+        """Move ``st`` by ``alpha D`` and keep ``(s, y) = (alpha D, G_new - G_old)`` in a slot of the ring."""
+        ps = self.ps
+        i = self.slot()
+        s, y = self.s[i], self.y[i]
+        st.xp.copyto(y, st.G)
+        st.move(alpha, D, d)
+        for ch in ps.rows(s):  # s = alpha D, y = G_new - G_old
+            st.xp.multiply(D[ch], alpha, out=s[ch])
+            y[ch] *= -1.0
+            y[ch] += st.G[ch]
+        sy = ps.dot(s, y)
+        self.drop(i)
+        if sy > 0:
+            self.r[i] = 1.0 / sy
+            self.order.append(i)
 
 
 class LeanSolver(_Solver):
@@ -273,8 +256,8 @@ class LeanSolver(_Solver):
         minv = self._minv(sigma0)
         st = _LeanState(self.grid, self.law, self.h, self.k, sigma0, Z if own else Z.copy(), self.ps)
         left = max(self.max_iter - self.nfev, 1)
-        status = _lbfgs(st, minv, self.law.pressure_scale(sigma0), tol, left if budget is None else min(budget, left),
-                        self.memory, self.rng, self.history)
+        status = _lbfgs(st, _Pairs(st, minv, self.memory), self.law.pressure_scale(sigma0), tol,
+                        left if budget is None else min(budget, left), self.rng, self.history)
         self.nfev += st.nfev
         st.release()
         return st, status

@@ -1,8 +1,13 @@
-"""Array operations of the GFMD solver (docs/model.md M3): the backend-neutral :class:`_Ops` (numpy or cupy
-namespace) and its fused numba CPU variant :class:`_NumbaOps`."""
+"""Array operations of the GFMD solver (docs/model.md M3), written once: :class:`_Ops`, the exponential law's
+passes for any array namespace (numpy or cupy), any reducer (:data:`LOCAL` on one process, a sum / max over the
+ranks on a rank's slabs: :class:`gapsweep.core.slab.Reducer`) and any explicit Parseval weights
+(:class:`Parseval`: the full grid's half spectrum or a rank's columns of it); fused kernels replace named passes
+of it: :class:`_NumbaOps` here (the CPU default of one process), ``gfmd._cuda._CupyOps`` (one GPU) and
+``gfmd._cuda._SlabCupyOps`` (a rank's slabs on a GPU)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -10,43 +15,119 @@ import numpy as np
 from gapsweep.core.vec import rdot
 
 
-def remember_pair(s_hist: list, y_hist: list, r_hist: list, s: Any, y: Any, sy: float, memory: int) -> None:
-    """The L-BFGS memory (Nocedal & Wright, Alg. 7.4; docs/gfmd.md "Methods"): keep the step ``s`` and gradient
-    change ``y`` with ``1/(s.y)`` when the curvature ``s.y > 0`` (else the pair would spoil the inverse-Hessian
-    estimate), at most ``memory`` pairs, the oldest dropped."""
-    if sy > 0:
-        s_hist.append(s)
-        y_hist.append(y)
-        r_hist.append(1.0 / sy)
-        if len(s_hist) > memory:
-            for lst in (s_hist, y_hist, r_hist):
-                lst.pop(0)
+class _Local:
+    """The reducer of one process: every scalar is already the global one (the interface of
+    :class:`gapsweep.core.slab.Reducer`: ``sum`` of one value returns it, of several a list; ``max``)."""
+
+    @staticmethod
+    def sum(*values: float) -> Any:
+        return values[0] if len(values) == 1 else list(values)
+
+    @staticmethod
+    def max(value: float) -> float:
+        return value
+
+
+LOCAL = _Local()
+
+
+@dataclass(frozen=True)
+class Parseval:
+    """Parseval weights of (a part of) a half spectrum (docs/model.md M2): a mode stands for itself and its
+    conjugate mirror (weight 2) except on the self-conjugate lines ``ky = 0`` and, for even ``ny``, ``ky = ny/2``
+    (weight 1). ``axis``: the axis of ``ky`` in the arrays (1 for the full grid's ``rfft2`` layout ``[kx, ky]``, 0
+    for a rank's columns ``[ky, kx]``); ``ones``: the indices along it of the self-conjugate lines held."""
+
+    axis: int
+    ones: tuple[int, ...]
+
+    @classmethod
+    def half(cls, ny: int) -> Parseval:
+        """The full grid's half spectrum ``(nx, ny//2 + 1)``."""
+        return cls(1, (0, ny // 2) if ny % 2 == 0 else (0,))
+
+    @classmethod
+    def columns(cls, w: Any) -> Parseval:
+        """A rank's columns, from their weights ``w`` of shape ``(nc, 1)`` (``SlabFFT.weights``)."""
+        w = np.asarray(w.get() if hasattr(w, "get") else w).ravel()
+        return cls(0, tuple(int(i) for i in np.flatnonzero(w == 1.0)))
+
+    def vector(self, xp: Any, m: int) -> Any:
+        """The weights of the ``m`` lines along ``axis`` as a device vector."""
+        w = np.full(m, 2.0)
+        w[list(self.ones)] = 1.0
+        return xp.asarray(w)
+
+    def dot(self, a: Any, b: Any) -> float:
+        """``sum_q w_q Re(conj(a_q) b_q)`` over the arrays held (no reduction over ranks): twice the plain sum
+        less the self-conjugate lines."""
+        s = 2.0 * rdot(a, b)
+        for i in self.ones:
+            ix = (i,) if self.axis == 0 else (slice(None), i)
+            s = s - rdot(a[ix], b[ix])
+        return float(s)
+
+    def stack_dot(self, a: Any, b: Any) -> Any:
+        """:meth:`dot` of every problem of a stack ``(B, ...)`` of half spectra (gfmd.batched): ``B`` sums, on
+        the arrays' device."""
+        s = 2.0 * _re_sum(a, b, (1, 2))
+        for i in self.ones:
+            ix = (slice(None), i) if self.axis == 0 else (slice(None), slice(None), i)
+            s = s - _re_sum(a[ix], b[ix], (1,))
+        return s
+
+
+def _re_sum(a: Any, b: Any, axes: tuple[int, ...]) -> Any:
+    return (a.real * b.real + a.imag * b.imag).sum(axis=axes)
 
 
 # ------------------------------------------------------------------------------------------------ kernels
 class _Ops:
-    """Reductions and fused updates, written once for any array namespace ``xp`` (numpy or cupy).
+    """The exponential law's passes (docs/model.md M3), written once for any array namespace ``xp`` (numpy or
+    cupy), reducer ``red`` and Parseval weights ``weights`` (:class:`Parseval`; default: the full ``n x n``
+    grid's half spectrum). ``owner``: whether these arrays hold the ``q = 0`` mode (index ``[0, 0]``).
 
-    Half spectra hold normalised coefficients ``u~`` (M2); ``dot`` is the grid mean ``<A B>`` by Parseval."""
+    Half spectra hold normalised coefficients ``u~`` (M2); ``dot`` is the grid mean ``<A B>`` by Parseval.
+    Every pass returns global scalars: its local sums go through ``red`` together, one collective per pass on
+    slabs. Fused variants override the local halves named ``_l*`` or a whole pass."""
 
-    def __init__(self, xp: Any, n: int) -> None:
+    def __init__(self, xp: Any, n: int, *, red: Any = LOCAL, weights: Parseval | None = None,
+                 owner: bool = True) -> None:
         self.xp = xp
         self.n = n
         self.even = n % 2 == 0
+        self.red = red
+        self.weights = Parseval.half(n) if weights is None else weights
+        self.owner = owner
 
+    # -- local halves (the arrays held here, no reduction)
+    def _ldot(self, a, b) -> float:
+        return self.weights.dot(a, b)
+
+    def _lmoments(self, e, d) -> tuple[float, float]:
+        ed = e * d
+        return float(ed.sum()), rdot(ed, d)
+
+    def _lcg_dots(self, G, G_old, minv) -> tuple[float, float]:
+        Z = minv * G
+        return self._ldot(Z, G), (self._ldot(Z, G_old) if G_old is not None else 0.0)
+
+    def _lcg_update(self, G, minv, D, beta: float, k, X) -> tuple[float, float, float]:
+        D *= beta
+        D -= minv * G
+        kD = k * D
+        return self._ldot(G, D), self._ldot(kD, X), self._ldot(kD, D)
+
+    # -- the passes
     def dot(self, a, b) -> float:
-        """``<A B>`` for half spectra: columns other than ky = 0 (and ky = n/2 for even n) stand for
-        themselves and their conjugates, hence weight 2."""
-        s = 2.0 * rdot(a, b) - rdot(a[:, 0], b[:, 0])
-        if self.even:
-            s = s - rdot(a[:, -1], b[:, -1])
-        return float(s)
+        """``<A B>`` for half spectra (weights: :class:`Parseval`)."""
+        return self.red.sum(self._ldot(a, b))
 
     def trial(self, w, d, c: float, out) -> float:
         """``out = w + c d``; returns ``max(out)``."""
         self.xp.multiply(d, c, out=out)
         out += w
-        return float(out.max())
+        return self.red.max(float(out.max()))
 
     def expstats(self, w, m: float, e, d=None) -> tuple[float, float, float]:
         """``e = exp(w - m)``; returns ``(sum e, sum e d, sum e d^2)`` (zeros without ``d``)."""
@@ -55,19 +136,19 @@ class _Ops:
         xp.exp(e, out=e)
         s = float(e.sum())
         if d is None:
-            return s, 0.0, 0.0
-        return (s, *self.moments(e, d))
+            return self.red.sum(s), 0.0, 0.0
+        return tuple(self.red.sum(s, *self._lmoments(e, d)))
 
     def moments(self, e, d) -> tuple[float, float]:
         """``(sum e d, sum e d^2)``."""
-        ed = e * d
-        return float(ed.sum()), rdot(ed, d)
+        return tuple(self.red.sum(*self._lmoments(e, d)))
 
     def grad(self, X, E, c: float, k, G) -> None:
         """``G = k X - c E`` with ``G(q=0) = 0``."""
         self.xp.multiply(k, X, out=G)
         G -= c * E
-        G[0, 0] = 0.0
+        if self.owner:
+            G[0, 0] = 0.0
 
     def grad_step(self, X, D, alpha: float, E, c: float, k, G) -> float:
         """``X += alpha D``, then :meth:`grad`; returns ``<G G>``."""
@@ -82,15 +163,12 @@ class _Ops:
 
     def cg_dots(self, G, G_old, minv) -> tuple[float, float]:
         """``(<Z G>, <Z G_old>)`` with ``Z = M^-1 G``."""
-        Z = minv * G
-        return self.dot(Z, G), (self.dot(Z, G_old) if G_old is not None else 0.0)
+        zg, zc = self.red.sum(*self._lcg_dots(G, G_old, minv))
+        return zg, zc
 
     def cg_update(self, G, minv, D, beta: float, k, X) -> tuple[float, float, float]:
         """``D = beta D - M^-1 G``; returns ``(<G D>, <kD X>, <kD D>)``."""
-        D *= beta
-        D -= minv * G
-        kD = k * D
-        return self.dot(G, D), self.dot(kD, X), self.dot(kD, D)
+        return tuple(self.red.sum(*self._lcg_update(G, minv, D, beta, k, X)))
 
 
 _NUMBA: Any = None

@@ -28,7 +28,8 @@ import numpy as np
 from gapsweep.core import deadline
 from gapsweep.gfmd._continuation import next_load, record
 from gapsweep.gfmd._grid import Grid
-from gapsweep.gfmd._ops import _is_cupy, remember_pair
+from gapsweep.gfmd._lbfgs import diagonal, remember_pair, two_loop
+from gapsweep.gfmd._ops import _is_cupy
 from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status
 from gapsweep.gfmd.interactions.base import SmoothInteraction
 
@@ -161,59 +162,72 @@ def _stop(st: Any, dot: Any, p_ref: float, tol: float, max_iter: int, rng: float
     return "stalled" if _stalled(st, res, best) else None
 
 
-def _lbfgs(st: _State, minv: Any, p_ref: float, tol: float, max_iter: int, memory: int, rng: float | None,
+class _ListPairs:
+    """The L-BFGS memory of :func:`_lbfgs` as lists of arrays (``gfmd._lbfgs``): the direction by the two-loop
+    recursion over them, each step recorded as a new pair (a new array each: the one-process state)."""
+
+    def __init__(self, grid: Grid, minv: Any, memory: int) -> None:
+        self.dot, self.minv, self.memory = grid.dot, minv, memory
+        self.steps = diagonal(grid.dot, minv)
+        self.s: list = []
+        self.y: list = []
+        self.r: list[float] = []
+
+    def __bool__(self) -> bool:
+        return bool(self.s)
+
+    def clear(self) -> None:
+        self.s.clear(), self.y.clear(), self.r.clear()
+
+    def direction(self, st: Any) -> Any:
+        """``D = -H G`` (two-loop recursion, ``H0 = gamma M^-1``)."""
+        return -two_loop(st.G.copy(), list(zip(self.s, self.y, self.r)), **self.steps)
+
+    def steepest(self, st: Any) -> Any:
+        return -(self.minv * st.G)
+
+    def step(self, st: Any, alpha: float, D: Any, d: Any) -> None:
+        """Move ``st`` by ``alpha D`` (``d`` its real-space form) and keep the pair ``(alpha D, G_new - G_old)``."""
+        G_old = st.G
+        st.move(alpha, D, d)
+        s = alpha * D
+        y = st.G - G_old
+        remember_pair(self.s, self.y, self.r, s, y, self.dot(s, y), self.memory)
+
+
+def _lbfgs(st: Any, pairs: Any, p_ref: float, tol: float, max_iter: int, rng: float | None,
            history: list[float]) -> str:
     """L-BFGS from ``st`` until ``residual <= tol`` (module docstring), at most ``max_iter`` evaluations of
-    ``st``. Returns the status; ``st`` holds the last point.
+    ``st``. Returns the status; ``st`` holds the last point. ``pairs``: the memory and its two-loop recursion
+    (:class:`_ListPairs`; the lean form's ring of preallocated pairs, ``gfmd._lean._Pairs``).
 
     "stalled" when the residual stops moving: for ``_STALL_WINDOW`` evaluations the residual has not fallen
     below 0.9 times its best value and the energy has not fallen by more than its round-off
     (``_STALL_ENERGY`` relative), i.e. the steps no longer change anything (the line search returns steps at
     round-off, issue 22), instead of spending the rest of ``max_iter`` there."""
-    grid = st.grid
-    s_hist: list = []
-    y_hist: list = []
-    r_hist: list[float] = []
     best = [math.inf, math.inf, 0]
     with np.errstate(all="ignore"):
         while True:
             deadline.check()  # a task time limit ends the solve between iterations
-            status = _stop(st, grid.dot, p_ref, tol, max_iter, rng, history, best)
+            status = _stop(st, pairs.dot, p_ref, tol, max_iter, rng, history, best)
             if status is not None:
                 return status
-            q = st.G.copy()
-            alphas = []
-            for s, y, r in zip(reversed(s_hist), reversed(y_hist), reversed(r_hist)):
-                al = r * grid.dot(s, q)
-                alphas.append(al)
-                q -= al * y
-            q *= minv
-            if y_hist:
-                yhy = grid.dot(y_hist[-1], minv * y_hist[-1])
-                if yhy > 0:
-                    q *= 1.0 / (r_hist[-1] * yhy)
-            for s, y, r, al in zip(s_hist, y_hist, r_hist, reversed(alphas)):
-                q += (al - r * grid.dot(y, q)) * s
-            D = -q
-            slope = grid.dot(st.G, D)
+            D = pairs.direction(st)
+            slope = pairs.dot(st.G, D)
             if not slope < 0:
-                s_hist.clear(), y_hist.clear(), r_hist.clear()
-                D = -(minv * st.G)
-                slope = grid.dot(st.G, D)
+                pairs.clear()
+                D = pairs.steepest(st)
+                slope = pairs.dot(st.G, D)
                 if not slope < 0:
                     return "stalled" if math.isfinite(slope) else "non_finite"
             step = _wolfe(st, D, slope, 1.0)
             if step is None:
-                if not s_hist:
+                if not pairs:
                     return "stalled"
-                s_hist.clear(), y_hist.clear(), r_hist.clear()
+                pairs.clear()
                 continue
             alpha, d = step
-            G_old = st.G
-            st.move(alpha, D, d)
-            s = alpha * D
-            y = st.G - G_old
-            remember_pair(s_hist, y_hist, r_hist, s, y, grid.dot(s, y), memory)
+            pairs.step(st, alpha, D, d)
 
 
 class _Solver:
@@ -237,8 +251,8 @@ class _Solver:
         minv = 1.0 / (k + c) if c > 0 else xp.where(k > 0, 1.0 / xp.where(k > 0, k, 1.0), 1.0)
         st = _State(self.grid, self.law, self.h, k, sigma0, Z.copy())
         left = max(self.max_iter - self.nfev, 1)
-        status = _lbfgs(st, minv, self.law.pressure_scale(sigma0), tol, left if budget is None else min(budget, left),
-                        self.memory, self.rng, self.history)
+        status = _lbfgs(st, _ListPairs(self.grid, minv, self.memory), self.law.pressure_scale(sigma0), tol,
+                        left if budget is None else min(budget, left), self.rng, self.history)
         self.nfev += st.nfev
         return st, status
 

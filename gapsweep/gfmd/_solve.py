@@ -119,14 +119,7 @@ def solve(
     """
     from gapsweep.gfmd import _plastic, substrates
 
-    if bottom == "slip" and poisson is None:
-        poisson = 0.0  # the slip layer's stiffness in E* does not depend on nu
-    if thickness is not None and poisson is None:
-        raise ValueError("poisson is needed with thickness and bottom='bonded' (-1 < poisson < 0.5)")
-    layer = substrates.check_layer(thickness, poisson, bottom)
-    if (layer is not None or hardness is not None) and (comm is not None or start != "flat"):
-        raise ValueError("thickness / hardness: solved on one process from the flat start (comm=None, "
-                         "start='flat')")
+    layer = _checked_layer(thickness, poisson, bottom, hardness, comm, start)
     if start != "flat" and comm is None:
         if start != "coarse":
             raise ValueError(f"start must be 'flat' or 'coarse', got {start!r}")
@@ -150,40 +143,12 @@ def solve(
                                  backend=backend, max_iter=max_iter, initial=initial, host=host, start=start,
                                  levels=levels, coarse_tol=coarse_tol)
     t_start = time.perf_counter()
-    from gapsweep.surfaces.topography import Topography
-
-    if isinstance(heights, Topography):
-        if length != 1.0 and tuple(np.broadcast_to(length, 2)) != tuple(heights.length):
-            raise ValueError(f"length={length!r} contradicts the Topography's own length {heights.length}; "
-                             "leave length out when passing a Topography")
-        length = tuple(heights.length)
-        periodic = heights.periodic if periodic is None else periodic
-        heights = heights.heights
-    if periodic is None:
-        periodic = True
-    if not isinstance(periodic, (bool, np.bool_)):
-        raise ValueError(f"periodic must be True or False, got {periodic!r}")
-    periodic = bool(periodic)
-    if not _is_cupy(heights):
-        if isinstance(heights, (str, bytes)) or heights is None:
-            raise TypeError(f"heights must be a 2-D real array, got {type(heights).__name__}")
-        heights = np.asarray(heights)
-        if not (np.issubdtype(heights.dtype, np.floating) or np.issubdtype(heights.dtype, np.integer)):
-            raise TypeError(f"heights must be a real array, got dtype {heights.dtype}")
+    heights, length, periodic = _checked_heights(heights, length, periodic)
     shape = heights.shape
-    if len(shape) != 2:
-        raise ValueError(f"heights must be a 2-D array (nx x ny), got shape {shape}")
-    if min(shape) < 2:
-        raise ValueError(f"heights must be at least 2 x 2, got shape {shape}")
     law = resolve(interaction, gamma0=gamma0, rho=rho, work=work)
     sigma0 = law.check_load(sigma0)
     e_star = chk.positive(e_star, "e_star")
-    if isinstance(length, (tuple, list, np.ndarray)):
-        if len(length) != 2:
-            raise ValueError(f"length must be a number or a pair (Lx, Ly), got {length!r}")
-        length = (chk.positive(length[0], "length[0]"), chk.positive(length[1], "length[1]"))
-    else:
-        length = chk.positive(length, "length")
+    length = _checked_length(length)
     tol = chk.positive(tol, "tol")
     if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
         raise ValueError(f"max_iter must be an integer >= 1, got {max_iter!r}")
@@ -216,6 +181,64 @@ def solve(
                  periodic=False)
     r.periodic = False
     return r
+
+
+def _checked_layer(thickness: Any, poisson: Any, bottom: str, hardness: Any, comm: Any, start: str) -> Any:
+    """The elastic layer of ``thickness``, ``poisson``, ``bottom`` (gfmd.substrates; None: the half-space);
+    a layer or a pressure cap only on one process from the flat start."""
+    from gapsweep.gfmd import substrates
+
+    if bottom == "slip" and poisson is None:
+        poisson = 0.0  # the slip layer's stiffness in E* does not depend on nu
+    if thickness is not None and poisson is None:
+        raise ValueError("poisson is needed with thickness and bottom='bonded' (-1 < poisson < 0.5)")
+    layer = substrates.check_layer(thickness, poisson, bottom)
+    if (layer is not None or hardness is not None) and (comm is not None or start != "flat"):
+        raise ValueError("thickness / hardness: solved on one process from the flat start (comm=None, "
+                         "start='flat')")
+    return layer
+
+
+def _checked_heights(heights: Any, length: Any, periodic: Any) -> tuple[Any, Any, bool]:
+    """``(heights array, length, periodic)`` of a one-process solve: a Topography's own map, length and boundary
+    taken over; the array checked (2-D, real, at least 2 x 2; numpy or cupy)."""
+    from gapsweep.surfaces.topography import Topography
+
+    if isinstance(heights, Topography):
+        if length != 1.0 and tuple(np.broadcast_to(length, 2)) != tuple(heights.length):
+            raise ValueError(f"length={length!r} contradicts the Topography's own length {heights.length}; "
+                             "leave length out when passing a Topography")
+        length = tuple(heights.length)
+        periodic = heights.periodic if periodic is None else periodic
+        heights = heights.heights
+    if periodic is None:
+        periodic = True
+    if not isinstance(periodic, (bool, np.bool_)):
+        raise ValueError(f"periodic must be True or False, got {periodic!r}")
+    periodic = bool(periodic)
+    if not _is_cupy(heights):
+        if isinstance(heights, (str, bytes)) or heights is None:
+            raise TypeError(f"heights must be a 2-D real array, got {type(heights).__name__}")
+        heights = np.asarray(heights)
+        if not (np.issubdtype(heights.dtype, np.floating) or np.issubdtype(heights.dtype, np.integer)):
+            raise TypeError(f"heights must be a real array, got dtype {heights.dtype}")
+    shape = heights.shape
+    if len(shape) != 2:
+        raise ValueError(f"heights must be a 2-D array (nx x ny), got shape {shape}")
+    if min(shape) < 2:
+        raise ValueError(f"heights must be at least 2 x 2, got shape {shape}")
+    return heights, length, periodic
+
+
+def _checked_length(length: Any) -> Any:
+    """``length``: a positive number or a pair ``(Lx, Ly)`` of them."""
+    if isinstance(length, (tuple, list, np.ndarray)):
+        if len(length) != 2:
+            raise ValueError(f"length must be a number or a pair (Lx, Ly), got {length!r}")
+        length = (chk.positive(length[0], "length[0]"), chk.positive(length[1], "length[1]"))
+    else:
+        length = chk.positive(length, "length")
+    return length
 
 
 def _coarse_local(heights: Any, *, sigma0: float, interaction: Any, gamma0: Any, rho: Any, work: Any, e_star: float,

@@ -12,7 +12,8 @@ import numpy as np
 
 from gapsweep.core import deadline
 from gapsweep.core.fft import FFTBackend
-from gapsweep.gfmd._ops import _Ops, remember_pair
+from gapsweep.gfmd._lbfgs import diagonal, remember_pair, two_loop
+from gapsweep.gfmd._ops import _Ops
 
 
 @functools.lru_cache(maxsize=8)
@@ -40,6 +41,46 @@ def _next_trial(alpha: float, dphi: float, curv: float, lo: float, dlo: float, h
         if not (lo < new < hi):
             new = 0.5 * (lo + hi)
     return new
+
+
+def first_step(phi0p: float, b: float, sr: float, S: float, s1: float, s2: float) -> float:
+    """The line search's first step: Newton's from ``alpha = 0``, ``-phi'(0) / phi''(0)`` with
+    ``phi''(0) = b + (sigma0/rho) (s2/S - (s1/S)^2)`` (1 when that curvature is not positive)."""
+    curv = b + sr * (s2 / S - (s1 / S) ** 2)
+    return -phi0p / curv if curv > 0 else 1.0
+
+
+def search_steps(phi0p: float, a: float, b: float, s0: float, rho: float, alpha: float, eta: float,
+                 max_trials: int = 40):
+    """The trials of the line search on ``phi'(alpha) = a + alpha b - sigma0 s1/S = 0`` (M3) from the step
+    ``alpha``, as a generator: yields the step of a trial point, receives its ``(m, S, s1, s2)`` (max of the
+    shifted exponent and the sums ``sum e``, ``sum e d``, ``sum e d^2``); returns ``(alpha, ok, last)``,
+    ``last`` saying whether the last trial is the accepted point (else the caller evaluates ``alpha`` once more).
+    Accepts ``|phi'| <= eta |phi'(0)|``; Newton steps inside the bracket, secant or bisection when Newton leaves
+    it (:func:`_next_trial`); a non-finite trial halves the step. Shared by :meth:`_Problem.line_search` and the
+    batched solver (gfmd.batched), so both take the same trials."""
+    lo, hi, dlo, dhi = 0.0, math.inf, phi0p, math.nan
+    for _ in range(max_trials):
+        if not math.isfinite(alpha) or alpha <= 0:
+            break
+        m, S, s1, s2 = yield alpha
+        if not (math.isfinite(m) and math.isfinite(S) and math.isfinite(s1) and math.isfinite(s2)):
+            hi = alpha
+            alpha = 0.5 * (lo + alpha)
+            continue
+        dphi = a + alpha * b - s0 * s1 / S
+        if abs(dphi) <= eta * abs(phi0p):
+            return alpha, True, True
+        if dphi < 0:
+            lo, dlo = alpha, dphi
+        else:
+            hi, dhi = alpha, dphi
+        if hi - lo <= 1e-13 * hi:
+            break
+        alpha = _next_trial(alpha, dphi, b + (s0 / rho) * (s2 / S - (s1 / S) ** 2), lo, dlo, hi, dhi)
+    if lo <= 0.0:
+        return 0.0, False, False
+    return lo, True, False
 
 
 class _Problem:
@@ -98,52 +139,42 @@ class _Problem:
 
     def line_search(self, D, phi0p: float, a: float, b: float, eta: float, alpha0: float | None = None,
                     max_trials: int = 40, d=None, first: tuple | None = None):
-        """Find ``alpha > 0`` with ``|phi'(alpha)| <= eta |phi'(0)|`` for the convex ``phi(alpha) = F(X + alpha D)``.
+        """Find ``alpha > 0`` with ``|phi'(alpha)| <= eta |phi'(0)|`` for the convex ``phi(alpha) = F(X + alpha D)``
+        (the trials: :func:`search_steps`, shared with the batched solver).
 
         ``phi'(alpha) = a + alpha b - <p_alpha d>`` with ``a = <kD, X>``, ``b = <kD, D>`` (Fourier sums) and the
-        softmax pressure at ``W - alpha d / rho``, ``d = irfft2(D)`` (real space): no further FFT. Newton steps
-        inside a bracket, secant or bisection when Newton leaves it. Leaves the accepted point in (Wt, et)
-        and returns ``(alpha, m, S, ok)``. GPU, chained CG: ``d`` is ``irfft2(D)`` already and ``first = (alpha,
-        m, S, s1, s2)`` the first trial, already evaluated on the device (the same step as below)."""
+        softmax pressure at ``W - alpha d / rho``, ``d = irfft2(D)`` (real space): no further FFT. Leaves the
+        accepted point in (Wt, et) and returns ``(alpha, m, S, ok)``. GPU, chained CG: ``d`` is ``irfft2(D)``
+        already and ``first = (alpha, m, S, s1, s2)`` the first trial, already evaluated on the device (the
+        same step as below)."""
         ops, rho, s0 = self.ops, self.rho, self.sigma0
         d = self.fft.irfft2(D) if d is None else d
         if first is not None:
             alpha = first[0]
         elif alpha0 is None:
             s1, s2 = ops.moments(self.e, d)
-            curv = b + (s0 / rho) * (s2 / self.S - (s1 / self.S) ** 2)
-            alpha = -phi0p / curv if curv > 0 else 1.0
+            alpha = first_step(phi0p, b, s0 / rho, self.S, s1, s2)
         else:
             alpha = alpha0
-        lo, hi, dlo, dhi = 0.0, math.inf, phi0p, math.nan
-        for it in range(max_trials):
-            if not math.isfinite(alpha) or alpha <= 0:
-                break
-            if it == 0 and first is not None:
-                m, S, s1, s2 = first[1:]
-            else:
-                m = ops.trial(self.W, d, -alpha / rho, self.Wt)
-                S, s1, s2 = ops.expstats(self.Wt, m, self.et, d)
-            if not (math.isfinite(m) and math.isfinite(S) and math.isfinite(s1) and math.isfinite(s2)):
-                hi = alpha
-                alpha = 0.5 * (lo + alpha)
-                continue
-            dphi = a + alpha * b - s0 * s1 / S
-            if abs(dphi) <= eta * abs(phi0p):
-                return alpha, m, S, True
-            if dphi < 0:
-                lo, dlo = alpha, dphi
-            else:
-                hi, dhi = alpha, dphi
-            if hi - lo <= 1e-13 * hi:
-                break
-            alpha = _next_trial(alpha, dphi, b + (s0 / rho) * (s2 / S - (s1 / S) ** 2), lo, dlo, hi, dhi)
-        if lo <= 0.0:
+        steps = search_steps(phi0p, a, b, s0, rho, alpha, eta, max_trials)
+        point = first[1:] if first is not None else None
+        try:
+            alpha = next(steps)
+            while True:
+                if point is None:
+                    m = ops.trial(self.W, d, -alpha / rho, self.Wt)
+                    S, s1, s2 = ops.expstats(self.Wt, m, self.et, d)
+                else:
+                    (m, S, s1, s2), point = point, None
+                alpha = steps.send((m, S, s1, s2))
+        except StopIteration as stop:
+            alpha, ok, last = stop.value
+        if not ok:
             return 0.0, 0.0, 0.0, False
-        # Round-off or out of trials: take the last point known to lie downhill of the line minimum.
-        m = ops.trial(self.W, d, -lo / rho, self.Wt)
-        S, _, _ = ops.expstats(self.Wt, m, self.et)
-        return lo, m, S, True
+        if not last:  # round-off or out of trials: the last point known to lie downhill of the line minimum
+            m = ops.trial(self.W, d, -alpha / rho, self.Wt)
+            S, _, _ = ops.expstats(self.Wt, m, self.et)
+        return alpha, m, S, True
 
     def accept(self, alpha: float, D, m: float, S: float) -> None:
         """Move to ``X + alpha D`` (its real-space state is in Wt, et); keep the old gradient in G_old."""
@@ -266,26 +297,15 @@ def _clear(*lists: list) -> None:
 
 def _run_lbfgs(pb: _Problem, tol: float, max_iter: int, history: list[float], memory: int = 5,
                eta: float = 0.5) -> str:
-    """L-BFGS (two-loop recursion, Nocedal & Wright Alg. 7.4) with ``H0 = gamma M^-1``, same line search."""
+    """L-BFGS (``gfmd._lbfgs``: two-loop recursion, Nocedal & Wright Alg. 7.4) with ``H0 = gamma M^-1``, same
+    line search."""
     ops = pb.ops
+    steps = diagonal(ops.dot, pb.minv, ops.axpy)
     s_hist: list = []
     y_hist: list = []
     r_hist: list[float] = []
     while (status := _check(pb, tol, max_iter, history)) is None:
-        q = pb.G.copy()
-        alphas = []
-        for s, y, rr in zip(reversed(s_hist), reversed(y_hist), reversed(r_hist)):
-            al = rr * ops.dot(s, q)
-            alphas.append(al)
-            ops.axpy(q, -al, y)
-        q *= pb.minv
-        if y_hist:
-            yhy = ops.dot(y_hist[-1], pb.minv * y_hist[-1])
-            if yhy > 0:
-                q *= 1.0 / (r_hist[-1] * yhy)  # gamma = s.y / y.H0.y
-        for s, y, rr, al in zip(s_hist, y_hist, r_hist, reversed(alphas)):
-            ops.axpy(q, al - rr * ops.dot(y, q), s)
-        D = -q
+        D = -two_loop(pb.G.copy(), list(zip(s_hist, y_hist, r_hist)), **steps)
         phi0p = ops.dot(pb.G, D)
         if not phi0p < 0:
             _clear(s_hist, y_hist, r_hist)

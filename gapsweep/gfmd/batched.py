@@ -35,9 +35,9 @@ import numpy as np
 from gapsweep.core import checks as chk
 from gapsweep.core import deadline
 from gapsweep.core.fft import BACKENDS, available_backends, get_backend
-from gapsweep.gfmd._ops import _is_cupy
+from gapsweep.gfmd._ops import Parseval, _is_cupy
 from gapsweep.gfmd._result import FIELDS, GFMDResult, host_fields
-from gapsweep.gfmd._solvers import _half_q, _next_trial
+from gapsweep.gfmd._solvers import _half_q, first_step, search_steps
 from gapsweep.gfmd.interactions import Interaction, resolve
 
 __all__ = ["Problem", "solve_batch"]
@@ -84,27 +84,7 @@ def solve_batch(problems: Sequence[Problem], *, e_star: float = 1.0, length: flo
         backend = "cupy" if "cupy" in available_backends() else "numpy"
     if backend == "pyfftw":
         backend = "numpy"  # batched transforms: numpy's pocketfft (pyfftw plans one grid at a time)
-    laws, loads, grids, starts = [], [], [], []
-    for i, p in enumerate(problems):
-        if not isinstance(p, Problem):
-            raise TypeError(f"problems[{i}] must be a gfmd.batched.Problem, got {type(p).__name__}")
-        shape = getattr(p.heights, "shape", None)
-        if shape is None or len(shape) != 2 or shape[0] != shape[1] or shape[0] < 2:
-            raise ValueError(f"problems[{i}].heights must be a square n x n array (n >= 2), got shape {shape}")
-        law = resolve(p.interaction, gamma0=p.gamma0, rho=p.rho)
-        rng = law.range()
-        if rng is not None and rng < length / shape[0]:
-            from gapsweep.gfmd._common import UnderResolvedWarning
-
-            dx = length / shape[0]
-            # the one-by-one solver's text after the problem's index (the sweep stores it in that row)
-            warnings.warn(f"problems[{i}]: rho/dx = {rng / dx:.3g} < 1 (rho={rng:g}, dx={dx:g}): the interaction "
-                          "range is under-resolved; the solver still converges but the mean gap carries a "
-                          "discretisation error (refine n)", UnderResolvedWarning, stacklevel=2)
-        laws.append(law)
-        loads.append(law.check_load(p.sigma0))
-        grids.append(int(shape[0]))
-        starts.append(_initial_field(p.initial, i))
+    laws, loads, grids, starts = _checked(problems, length)
     groups: dict[tuple[int, str], list[int]] = {}
     for i, law in enumerate(laws):
         groups.setdefault((grids[i], law.load_control), []).append(i)
@@ -129,6 +109,33 @@ def solve_batch(problems: Sequence[Problem], *, e_star: float = 1.0, length: flo
             for i, r in zip(chunk, res):
                 out[i] = r
     return out  # type: ignore[return-value]
+
+
+def _checked(problems: Sequence[Problem], length: float) -> tuple[list, list, list, list]:
+    """Every problem validated before any work: ``(laws, loads, grid sizes, warm starts)``; warns for each
+    under-resolved one (the one-by-one solver's text after the problem's index)."""
+    laws, loads, grids, starts = [], [], [], []
+    for i, p in enumerate(problems):
+        if not isinstance(p, Problem):
+            raise TypeError(f"problems[{i}] must be a gfmd.batched.Problem, got {type(p).__name__}")
+        shape = getattr(p.heights, "shape", None)
+        if shape is None or len(shape) != 2 or shape[0] != shape[1] or shape[0] < 2:
+            raise ValueError(f"problems[{i}].heights must be a square n x n array (n >= 2), got shape {shape}")
+        law = resolve(p.interaction, gamma0=p.gamma0, rho=p.rho)
+        rng = law.range()
+        if rng is not None and rng < length / shape[0]:
+            from gapsweep.gfmd._common import UnderResolvedWarning
+
+            dx = length / shape[0]
+            # the one-by-one solver's text after the problem's index (the sweep stores it in that row)
+            warnings.warn(f"problems[{i}]: rho/dx = {rng / dx:.3g} < 1 (rho={rng:g}, dx={dx:g}): the interaction "
+                          "range is under-resolved; the solver still converges but the mean gap carries a "
+                          "discretisation error (refine n)", UnderResolvedWarning, stacklevel=3)
+        laws.append(law)
+        loads.append(law.check_load(p.sigma0))
+        grids.append(int(shape[0]))
+        starts.append(_initial_field(p.initial, i))
+    return laws, loads, grids, starts
 
 
 def _initial_field(initial: Any, i: int) -> np.ndarray | None:
@@ -166,6 +173,7 @@ class _Stack:
 
     def __init__(self, xp: Any, n: int) -> None:
         self.xp, self.n, self.even = xp, n, n % 2 == 0
+        self.weights = Parseval.half(n)
 
     def rfft2(self, a):
         return self.xp.fft.rfft2(a, axes=(-2, -1))
@@ -174,12 +182,9 @@ class _Stack:
         return self.xp.fft.irfft2(a, s=(self.n, self.n), axes=(-2, -1), norm="forward")
 
     def dot(self, a, b) -> np.ndarray:
-        """``<A B>`` per problem by Parseval (weights as :meth:`gapsweep.gfmd._ops._Ops.dot`)."""
-        xp = self.xp
-        s = 2.0 * _re_dot(xp, a, b, (1, 2)) - _re_dot(xp, a[:, :, 0], b[:, :, 0], (1,))
-        if self.even:
-            s = s - _re_dot(xp, a[:, :, -1], b[:, :, -1], (1,))
-        return _host(xp, s)
+        """``<A B>`` per problem by Parseval (the weights of :class:`gapsweep.gfmd._ops.Parseval`, as the
+        one-by-one solver's passes)."""
+        return _host(self.xp, self.weights.stack_dot(a, b))
 
     def sums(self, a) -> np.ndarray:
         return _host(self.xp, a.sum(axis=(1, 2)))
@@ -317,10 +322,6 @@ def _make_stack(xp: Any, n: int) -> _Stack:
     return _Stack(xp, n)
 
 
-def _re_dot(xp, a, b, axes):
-    return (a.real * b.real + a.imag * b.imag).sum(axis=axes)
-
-
 def _host(xp, a) -> np.ndarray:
     return np.asarray(a.get() if xp is not np else a, dtype=np.float64)
 
@@ -331,153 +332,132 @@ def _col(xp, v) -> Any:
 
 
 # ------------------------------------------------------------------------------------- softmax (exponential)
-def _line_search(phi0p: float, a: float, b: float, s0: float, rho: float, S: float, s1: float, s2: float,
-                 eta: float, max_trials: int = 40):
-    """:meth:`gapsweep.gfmd._solvers._Problem.line_search` for one problem as a generator: yields the step
-    ``alpha`` of a trial point, receives its ``(m, S, s1, s2)``; returns ``(alpha, ok, last)`` where ``last``
-    says whether the last trial point is the accepted one (else the caller evaluates ``alpha`` once more)."""
-    curv = b + (s0 / rho) * (s2 / S - (s1 / S) ** 2)
-    alpha = -phi0p / curv if curv > 0 else 1.0
-    lo, hi, dlo, dhi = 0.0, math.inf, phi0p, math.nan
-    for _ in range(max_trials):
-        if not math.isfinite(alpha) or alpha <= 0:
-            break
-        m, S, s1, s2 = yield alpha
-        if not (math.isfinite(m) and math.isfinite(S) and math.isfinite(s1) and math.isfinite(s2)):
-            hi = alpha
-            alpha = 0.5 * (lo + alpha)
-            continue
-        dphi = a + alpha * b - s0 * s1 / S
-        if abs(dphi) <= eta * abs(phi0p):
-            return alpha, True, True
-        if dphi < 0:
-            lo, dlo = alpha, dphi
-        else:
-            hi, dhi = alpha, dphi
-        if hi - lo <= 1e-13 * hi:
-            break
-        alpha = _next_trial(alpha, dphi, b + (s0 / rho) * (s2 / S - (s1 / S) ** 2), lo, dlo, hi, dhi)
-    if lo <= 0.0:
-        return 0.0, False, False
-    return lo, True, False  # round-off or out of trials: the last point known to lie downhill
+class _Batch:
+    """The state of one batched CG (:func:`_softmax_batch`): the stack's arrays (slot ``j`` holds problem
+    ``ids[j]``) and the per-problem host vectors; the steps of :func:`gapsweep.gfmd._solvers._run_cg` as
+    methods, each taken for every problem at once."""
 
+    def __init__(self, xp: Any, ops: _Stack, heights: list, laws: list, sigma0s: list[float], starts: list,
+                 n: int, e_star: float, length: float) -> None:
+        self.xp, self.ops, self.laws = xp, ops, laws
+        B = len(heights)
+        h = xp.stack([xp.asarray(hh, dtype=xp.float64) for hh in heights])
+        if not bool(xp.all(xp.isfinite(h))):
+            bad = [i for i in range(B) if not bool(xp.all(xp.isfinite(h[i])))]
+            raise ValueError(f"heights of batch problem(s) {bad} contain NaN or inf")
+        self.h = h = h - h.mean(axis=(1, 2), keepdims=True)  # only h - <h> enters the gap (docs/model.md M3)
+        self.rho = rho = np.array([law.rho for law in laws])
+        self.s0 = s0 = np.array(sigma0s, dtype=np.float64)
+        self.k = k = 0.5 * e_star * _half_q(xp, n, length)
+        # linear response of M4, per problem as in the one-by-one solver
+        Hq = ops.rfft2(h) * (1.0 / (n * n))
+        X = (Hq * (_col(xp, s0 / rho) / (k + _col(xp, s0 / rho)))).astype(xp.complex128)
+        for j, u0 in enumerate(starts):  # warm starts, as in the one-by-one solver
+            if u0 is None:
+                continue
+            if _is_cupy(u0) and (xp is np or u0.shape[0] != n):
+                u0 = u0.get()
+            if u0.shape[0] == n:
+                X[j] = ops.rfft2(xp.asarray(u0, dtype=xp.float64)[None])[0] * (1.0 / (n * n))
+            else:
+                from gapsweep.gfmd._common import _transfer_modes
 
-def _softmax_batch(heights: list, laws: list, sigma0s: list[float], starts: list, *, n: int, e_star: float,
-                   length: float,
-                   tol: float, backend: str, max_iter: int, host: Any, eta: float = 0.1) -> list[GFMDResult]:
-    """Batched "softmax" minimiser (exponential law), CG as :func:`gapsweep.gfmd._solvers._run_cg`."""
-    t_start = time.perf_counter()
-    if backend == "cupy":
-        import cupy as xp
-    else:
-        xp = np
-    ops = _make_stack(xp, n)
-    B = len(heights)
-    h = xp.stack([xp.asarray(hh, dtype=xp.float64) for hh in heights])
-    if not bool(xp.all(xp.isfinite(h))):
-        bad = [i for i in range(B) if not bool(xp.all(xp.isfinite(h[i])))]
-        raise ValueError(f"heights of batch problem(s) {bad} contain NaN or inf")
-    h = h - h.mean(axis=(1, 2), keepdims=True)  # only h - <h> enters the gap (docs/model.md M3)
-    rho = np.array([law.rho for law in laws])
-    s0 = np.array(sigma0s, dtype=np.float64)
-    k = 0.5 * e_star * _half_q(xp, n, length)
-    # linear response of M4, per problem as in the one-by-one solver
-    Hq = ops.rfft2(h) * (1.0 / (n * n))
-    X = (Hq * (_col(xp, s0 / rho) / (k + _col(xp, s0 / rho)))).astype(xp.complex128)
-    for j, u0 in enumerate(starts):  # warm starts, as in the one-by-one solver
-        if u0 is None:
-            continue
-        if _is_cupy(u0) and (xp is np or u0.shape[0] != n):
-            u0 = u0.get()
-        if u0.shape[0] == n:
-            X[j] = ops.rfft2(xp.asarray(u0, dtype=xp.float64)[None])[0] * (1.0 / (n * n))
-        else:
-            from gapsweep.gfmd._common import _transfer_modes
+                X[j] = xp.asarray(_transfer_modes(u0, n))
+        self.minv = 1.0 / (k + _col(xp, s0 / rho))
+        self.minv[:, 0, 0] = 0.0
+        X[:, 0, 0] = 0.0
+        self.X = X
+        self.W = (h - ops.irfft2(X)) * _col(xp, 1.0 / rho)
+        self.m = ops.maxes(self.W)
+        self.e = xp.exp(self.W - _col(xp, self.m))
+        self.S = ops.sums(self.e)
+        G = k * X - _col(xp, s0 / self.S) * ops.rfft2(self.e)
+        G[:, 0, 0] = 0.0
+        self.G = G
+        self.r2 = ops.dot(G, G)
+        self.G_old = xp.zeros_like(G)
+        self.D = xp.zeros_like(X)
+        self.Wt, self.et = xp.empty_like(self.W), xp.empty_like(self.e)
+        self.ids = list(range(B))  # original index of each slot
+        self.nfev = np.ones(B, dtype=np.int64)
+        self.history: list[list[float]] = [[] for _ in range(B)]
+        self.restart = np.ones(B, dtype=bool)
+        self.zg_old = np.zeros(B)
+        self.status: list[str | None] = [None] * B
+        self.alive = np.ones(B, dtype=bool)  # slots still iterating (the others parked until the next compaction)
 
-            X[j] = xp.asarray(_transfer_modes(u0, n))
-    minv = 1.0 / (k + _col(xp, s0 / rho))
-    minv[:, 0, 0] = 0.0
-    X[:, 0, 0] = 0.0
-    W = (h - ops.irfft2(X)) * _col(xp, 1.0 / rho)
-    m = ops.maxes(W)
-    e = xp.exp(W - _col(xp, m))
-    S = ops.sums(e)
-    G = k * X - _col(xp, s0 / S) * ops.rfft2(e)
-    G[:, 0, 0] = 0.0
-    r2 = ops.dot(G, G)
-    G_old = xp.zeros_like(G)
-    D = xp.zeros_like(X)
-    Wt, et = xp.empty_like(W), xp.empty_like(e)
+    def running(self) -> bool:
+        return bool(self.ids) and bool(self.alive.any())
 
-    ids = list(range(B))  # original index of each slot
-    nfev = np.ones(B, dtype=np.int64)
-    history: list[list[float]] = [[] for _ in range(B)]
-    restart = np.ones(B, dtype=bool)
-    zg_old = np.zeros(B)
-    results: list[GFMDResult | None] = [None] * B
-    status: list[str | None] = [None] * B
-
-    alive = np.ones(B, dtype=bool)  # slots still iterating (the others are parked until the next compaction)
-
-    def finish(slots: list[int]) -> None:
-        """Fields and records of the problems in ``slots``; park them (the kernels skip them) and compact the
-        stack once a quarter of it is parked (a new stack size costs new FFT plans: not at every finish)."""
-        nonlocal X, h, minv, W, e, G, G_old, D, Wt, et, m, S, r2, rho, s0, restart, zg_old, ids, nfev, alive
+    def finish(self, slots: list[int], done: Any) -> None:
+        """Hand the problems in ``slots`` to ``done(slot, problem)`` (their fields and records); park them (the
+        kernels skip them) and compact the stack once a quarter of it is parked (a new stack size costs new FFT
+        plans: not at every finish)."""
         for j in slots:
-            i = ids[j]
-            results[i] = _softmax_fields(xp, ops, X[j], h[j], laws[i], float(s0[j]), status[i],
-                                         int(nfev[j]), history[i], e_star, length, tol, host, t_start)
-            alive[j] = False
-        if alive.sum() > 0.75 * len(ids):
+            done(j, self.ids[j])
+            self.alive[j] = False
+        if self.alive.sum() > 0.75 * len(self.ids):
             return
-        keep = list(np.flatnonzero(alive))
-        ids = [ids[j] for j in keep]
+        keep = list(np.flatnonzero(self.alive))
+        self.ids = [self.ids[j] for j in keep]
         if not keep:
             return
         sel = np.asarray(keep)
-        dsel = xp.asarray(sel)
-        X, h, minv, W, e, G, G_old, D = (a[dsel] for a in (X, h, minv, W, e, G, G_old, D))
-        Wt, et = xp.empty_like(W), xp.empty_like(e)
-        m, S, r2, rho, s0, restart, zg_old, nfev, alive = (
-            a[sel] for a in (m, S, r2, rho, s0, restart, zg_old, nfev, alive))
+        dsel = self.xp.asarray(sel)
+        for name in ("X", "h", "minv", "W", "e", "G", "G_old", "D"):
+            setattr(self, name, getattr(self, name)[dsel])
+        self.Wt, self.et = self.xp.empty_like(self.W), self.xp.empty_like(self.e)
+        for name in ("m", "S", "r2", "rho", "s0", "restart", "zg_old", "nfev", "alive"):
+            setattr(self, name, getattr(self, name)[sel])
 
-    while ids and alive.any():
-        deadline.check()  # a task time limit ends the batch between iterations
-        # _check of _run_cg, per problem
+    def check(self, tol: float, max_iter: int) -> list[int]:
+        """``_check`` of ``_run_cg`` per live problem: its residual into its history; the slots that stop."""
         done = []
-        for j, i in enumerate(ids):
-            if not alive[j]:
+        for j, i in enumerate(self.ids):
+            if not self.alive[j]:
                 continue
-            r = math.sqrt(max(float(r2[j]), 0.0)) / float(s0[j])
-            history[i].append(r)
+            r = math.sqrt(max(float(self.r2[j]), 0.0)) / float(self.s0[j])
+            self.history[i].append(r)
             st = "non_finite" if not math.isfinite(r) else "converged" if r <= tol else \
-                "max_iter" if nfev[j] >= max_iter else None
+                "max_iter" if self.nfev[j] >= max_iter else None
             if st is not None:
-                status[i] = st
+                self.status[i] = st
                 done.append(j)
-        if done:
-            finish(done)
-            if not ids or not alive.any():
-                break
-        nb = len(ids)
-        # cg_dots and cg_update
-        zg, zg_cross = ops.cg_dots(minv, G, G_old)
+        return done
+
+    def direction(self) -> tuple[np.ndarray, ...]:
+        """``cg_dots`` and ``cg_update`` per problem (restart along ``-M^-1 G`` where the direction is not one of
+        descent); problems without descent stop. Returns ``(zg, phi0p, a, b)``."""
+        ops, restart, alive = self.ops, self.restart, self.alive
+        nb = len(self.ids)
+        zg, zg_cross = ops.cg_dots(self.minv, self.G, self.G_old)
         zg_cross = np.where(restart, 0.0, zg_cross)
         with np.errstate(all="ignore"):  # parked slots may hold anything
-            beta = np.where(restart | ~alive, 0.0, np.maximum(0.0, (zg - zg_cross) / np.where(restart, 1.0, zg_old)))
-        phi0p, a, b = ops.cg_update(D, beta, minv, G, k, X)
+            beta = np.where(restart | ~alive, 0.0,
+                            np.maximum(0.0, (zg - zg_cross) / np.where(restart, 1.0, self.zg_old)))
+        phi0p, a, b = ops.cg_update(self.D, beta, self.minv, self.G, self.k, self.X)
         redo = (phi0p >= 0) & (beta > 0) & alive
         if redo.any():  # not a descent direction (round-off): restart along -M^-1 G
-            p2, a2, b2 = ops.cg_update(D, np.zeros(nb), minv, G, k, X, active=redo)
+            p2, a2, b2 = ops.cg_update(self.D, np.zeros(nb), self.minv, self.G, self.k, self.X, active=redo)
             phi0p, a, b = np.where(redo, p2, phi0p), np.where(redo, a2, a), np.where(redo, b2, b)
         for j in range(nb):
             if alive[j] and not phi0p[j] < 0:
-                status[ids[j]] = "stalled" if math.isfinite(phi0p[j]) else "non_finite"
-        # line search, all problems in lockstep (one batched trial pass per round)
-        d = ops.irfft2(D)
-        s1, s2 = ops.moments(e, d)
-        gens = {j: _line_search(phi0p[j], a[j], b[j], s0[j], rho[j], S[j], s1[j], s2[j], eta)
-                for j in range(nb) if alive[j] and phi0p[j] < 0}
+                self.status[self.ids[j]] = "stalled" if math.isfinite(phi0p[j]) else "non_finite"
+        return zg, phi0p, a, b
+
+    def search(self, phi0p: np.ndarray, a: np.ndarray, b: np.ndarray, eta: float) -> tuple[Any, ...]:
+        """The line searches of every problem in lockstep (one batched trial pass per round; problems whose
+        search needs more trials take them while the others wait). Returns ``(alpha, outcome, mt, St)``:
+        ``outcome[j] = (alpha, ok, last)`` of :func:`search_steps`, the accepted points in (Wt, et) with their
+        max ``mt`` and sum ``St``."""
+        ops, rho, s0 = self.ops, self.rho, self.s0
+        nb = len(self.ids)
+        d = ops.irfft2(self.D)
+        s1, s2 = ops.moments(self.e, d)
+        S = self.S
+        gens = {j: search_steps(phi0p[j], a[j], b[j], s0[j], rho[j],
+                                first_step(phi0p[j], b[j], s0[j] / rho[j], S[j], s1[j], s2[j]), eta)
+                for j in range(nb) if self.alive[j] and phi0p[j] < 0}
         alpha = np.zeros(nb)
         outcome: dict[int, tuple[float, bool, bool]] = {}
         pending = set()
@@ -491,7 +471,7 @@ def _softmax_batch(heights: list, laws: list, sigma0s: list[float], starts: list
         while pending:
             act = np.zeros(nb, dtype=bool)
             act[list(pending)] = True
-            mm, SS, t1, t2 = ops.point(W, d, -alpha / rho, m, act, Wt, et)
+            mm, SS, t1, t2 = ops.point(self.W, d, -alpha / rho, self.m, act, self.Wt, self.et)
             for j in sorted(pending):
                 mt[j], St[j] = mm[j], SS[j]
                 try:
@@ -506,12 +486,19 @@ def _softmax_batch(heights: list, laws: list, sigma0s: list[float], starts: list
                 again[j] = True
                 alpha[j] = al
         if again.any():
-            mm, SS, _, _ = ops.point(W, d, -alpha / rho, m, again, Wt, et)
+            mm, SS, _, _ = ops.point(self.W, d, -alpha / rho, self.m, again, self.Wt, self.et)
             mt[again], St[again] = mm[again], SS[again]
+        return alpha, outcome, mt, St
+
+    def accept(self, zg: np.ndarray, alpha: np.ndarray, outcome: dict, mt: np.ndarray, St: np.ndarray) -> None:
+        """Failed searches restart (or stall after a restart); accepted points become the current ones, with
+        their gradients."""
+        xp, restart = self.xp, self.restart
+        nb = len(self.ids)
         for j, (_, ok, _) in outcome.items():
             if not ok:
                 if restart[j]:
-                    status[ids[j]] = "stalled"
+                    self.status[self.ids[j]] = "stalled"
                 else:
                     restart[j] = True
         acc = np.zeros(nb, dtype=bool)
@@ -519,22 +506,56 @@ def _softmax_batch(heights: list, laws: list, sigma0s: list[float], starts: list
             if ok:
                 acc[j] = True
                 alpha[j] = al
-        if acc.any():
-            restart[acc] = False
-            zg_old[acc] = zg[acc]
-            if acc.all():
-                W, e, Wt, et = Wt, et, W, e
-            else:
-                mask = xp.asarray(acc).reshape(-1, 1, 1)
-                W, e = xp.where(mask, Wt, W), xp.where(mask, et, e)
-            m[acc], S[acc] = mt[acc], St[acc]
-            with np.errstate(all="ignore"):
-                c = s0 / S
-            r2[acc] = ops.accept(X, D, alpha, e, c, k, G, G_old, acc)
-            nfev[acc] += 1
-        stopped = [j for j in range(nb) if alive[j] and status[ids[j]] is not None]
+        if not acc.any():
+            return
+        restart[acc] = False
+        self.zg_old[acc] = zg[acc]
+        if acc.all():
+            self.W, self.e, self.Wt, self.et = self.Wt, self.et, self.W, self.e
+        else:
+            mask = xp.asarray(acc).reshape(-1, 1, 1)
+            self.W, self.e = xp.where(mask, self.Wt, self.W), xp.where(mask, self.et, self.e)
+        self.m[acc], self.S[acc] = mt[acc], St[acc]
+        with np.errstate(all="ignore"):
+            c = self.s0 / self.S
+        self.r2[acc] = self.ops.accept(self.X, self.D, alpha, self.e, c, self.k, self.G, self.G_old, acc)
+        self.nfev[acc] += 1
+
+    def stopped(self) -> list[int]:
+        return [j for j in range(len(self.ids)) if self.alive[j] and self.status[self.ids[j]] is not None]
+
+
+def _softmax_batch(heights: list, laws: list, sigma0s: list[float], starts: list, *, n: int, e_star: float,
+                   length: float, tol: float, backend: str, max_iter: int, host: Any,
+                   eta: float = 0.1) -> list[GFMDResult]:
+    """Batched "softmax" minimiser (exponential law), CG as :func:`gapsweep.gfmd._solvers._run_cg` (the steps:
+    :class:`_Batch`)."""
+    t_start = time.perf_counter()
+    if backend == "cupy":
+        import cupy as xp
+    else:
+        xp = np
+    ops = _make_stack(xp, n)
+    bt = _Batch(xp, ops, heights, laws, sigma0s, starts, n, e_star, length)
+    results: list[GFMDResult | None] = [None] * len(heights)
+
+    def done(j: int, i: int) -> None:
+        results[i] = _softmax_fields(xp, ops, bt.X[j], bt.h[j], laws[i], float(bt.s0[j]), bt.status[i],
+                                     int(bt.nfev[j]), bt.history[i], e_star, length, tol, host, t_start)
+
+    while bt.running():
+        deadline.check()  # a task time limit ends the batch between iterations
+        stop = bt.check(tol, max_iter)
+        if stop:
+            bt.finish(stop, done)
+            if not bt.running():
+                break
+        zg, phi0p, a, b = bt.direction()
+        alpha, outcome, mt, St = bt.search(phi0p, a, b, eta)
+        bt.accept(zg, alpha, outcome, mt, St)
+        stopped = bt.stopped()
         if stopped:
-            finish(stopped)
+            bt.finish(stopped, done)
     return results  # type: ignore[return-value]
 
 

@@ -8,8 +8,9 @@ distributed FFTs of a force evaluation and scalar reductions (norms, Parseval su
 ``S = sum exp(w - max w)`` and its maximum, line-search slopes, the mean gap, contact counts).
 
 The minimisers are the single-process ones (same iteration, same decisions): the exponential law's
-:class:`gapsweep.gfmd._solvers._Problem` with the runners "cg", "lbfgs", "fire" on :class:`_SlabOps` (the array
-passes of :class:`gapsweep.gfmd._ops._Ops` with their sums combined over the ranks); the smooth minimiser
+:class:`gapsweep.gfmd._solvers._Problem` with the runners "cg", "lbfgs", "fire" on the array passes
+:class:`gapsweep.gfmd._ops._Ops` given the ranks' reducer, the Parseval weights of the rank's columns and the
+``q = 0`` owner flag (their fused cupy variant ``gfmd._cuda._SlabCupyOps`` on GPUs); the smooth minimiser
 (``gfmd._smooth``, adhesion and the exponential law on rectangles) and the hard wall (``gfmd._constrained``,
 methods "pcg" and "pk") on :class:`SlabGrid`, whose reductions (``mean``, ``dot``, ``amin``, ``mode0`` ...) combine
 over the ranks where :class:`gapsweep.gfmd._grid.Grid` reduces locally. Results therefore equal the single-process
@@ -30,10 +31,9 @@ import numpy as np
 
 from gapsweep.core import checks as chk
 from gapsweep.core.slab import Reducer, SlabFFT, check_comm, slab_rows
-from gapsweep.core.vec import rdot
 from gapsweep.gfmd._coarse import Start
 from gapsweep.gfmd._grid import Grid
-from gapsweep.gfmd._ops import _is_cupy
+from gapsweep.gfmd._ops import Parseval, _is_cupy, _Ops
 from gapsweep.gfmd._result import FIELDS, GFMDResult, final_status, host_fields
 from gapsweep.gfmd._solvers import _RUNNERS, _Problem
 from gapsweep.gfmd.interactions import Interaction, resolve
@@ -156,125 +156,13 @@ class _ReducedPK:
 
 
 # ---------------------------------------------------------------------------------------------- exponential law
-class _SlabOps:
-    """The passes of :class:`gapsweep.gfmd._ops._Ops` on one rank's slabs: half spectra ``(nc, nx)`` with the
-    Parseval weights of their columns ``w`` (``(nc, 1)``), the ``q = 0`` mode only on its owner, and every
-    returned scalar combined over the ranks (several scalars of one pass in one collective)."""
-
-    def __init__(self, xp: Any, red: Reducer, w: Any, owner: bool) -> None:
-        self.xp, self.red, self.w, self.owner = xp, red, w, owner
-
-    def _l(self, a, b) -> float:
-        return float(self.xp.sum(self.w * (a.real * b.real + a.imag * b.imag)))
-
-    def dot(self, a, b) -> float:
-        return self.red.sum(self._l(a, b))
-
-    def trial(self, w, d, c: float, out) -> float:
-        self.xp.multiply(d, c, out=out)
-        out += w
-        return self.red.max(float(out.max()))
-
-    def expstats(self, w, m: float, e, d=None) -> tuple[float, float, float]:
-        xp = self.xp
-        xp.subtract(w, m, out=e)
-        xp.exp(e, out=e)
-        s = float(e.sum())
-        if d is None:
-            return self.red.sum(s), 0.0, 0.0
-        s1, s2 = self._moments(e, d)
-        return tuple(self.red.sum(s, s1, s2))
-
-    def _moments(self, e, d) -> tuple[float, float]:
-        ed = e * d
-        return float(ed.sum()), rdot(ed, d)
-
-    def moments(self, e, d) -> tuple[float, float]:
-        return tuple(self.red.sum(*self._moments(e, d)))
-
-    def grad(self, X, E, c: float, k, G) -> None:
-        self.xp.multiply(k, X, out=G)
-        G -= c * E
-        if self.owner:
-            G[0, 0] = 0.0
-
-    def grad_step(self, X, D, alpha: float, E, c: float, k, G) -> float:
-        if alpha != 0.0:
-            self.axpy(X, alpha, D)
-        self.grad(X, E, c, k, G)
-        return self.dot(G, G)
-
-    def axpy(self, y, a: float, x) -> None:
-        y += a * x
-
-    def cg_dots(self, G, G_old, minv) -> tuple[float, float]:
-        Z = minv * G
-        s = self.red.sum(self._l(Z, G), self._l(Z, G_old) if G_old is not None else 0.0)
-        return s[0], s[1]
-
-    def cg_update(self, G, minv, D, beta: float, k, X) -> tuple[float, float, float]:
-        D *= beta
-        D -= minv * G
-        kD = k * D
-        return tuple(self.red.sum(self._l(G, D), self._l(kD, X), self._l(kD, D)))
-
-
-class _SlabCupyOps(_SlabOps):
-    """:class:`_SlabOps` on GPUs: every pass one fused cupy kernel without grid-sized temporaries (the weighted
-    Parseval sums reduce each spectrum row on the device, then the few row sums are weighted)."""
-
-    def __init__(self, xp: Any, red: Reducer, w: Any, owner: bool) -> None:
-        super().__init__(xp, red, w, owner)
-        self.w1 = xp.ascontiguousarray(w.ravel())
-        red_k, ew = xp.ReductionKernel, xp.ElementwiseKernel
-        self._rdot = red_k("complex128 a, complex128 b", "float64 y", "a.real() * b.real() + a.imag() * b.imag()",
-                           "a + b", "y = a", "0", "gapsweep_slab_rdot")
-        self._rkdot = red_k("complex128 a, complex128 b, float64 k", "float64 y",
-                            "k * (a.real() * b.real() + a.imag() * b.imag())", "a + b", "y = a", "0",
-                            "gapsweep_slab_rkdot")
-        self._m1 = red_k("float64 e, float64 d", "float64 y", "e * d", "a + b", "y = a", "0", "gapsweep_slab_m1")
-        self._m2 = red_k("float64 e, float64 d", "float64 y", "e * d * d", "a + b", "y = a", "0", "gapsweep_slab_m2")
-        self._grad = ew("float64 k, complex128 X, complex128 E, float64 c", "complex128 G", "G = k * X - c * E",
-                        "gapsweep_slab_grad")
-        self._axpy = ew("float64 a, complex128 x", "complex128 y", "y = y + a * x", "gapsweep_slab_axpy")
-        self._dir = ew("float64 beta, float64 minv, complex128 G", "complex128 D", "D = beta * D - minv * G",
-                       "gapsweep_slab_dir")
-
-    def _l(self, a, b) -> float:
-        return float(self.w1 @ self._rdot(a, b, axis=1))
-
-    def _lk(self, a, b, k) -> float:
-        return float(self.w1 @ self._rkdot(a, b, k, axis=1))
-
-    def _moments(self, e, d) -> tuple[float, float]:
-        # per-row sums, then the few row sums: cupy reduces a whole array to one scalar in a single block
-        # (28 ms at 4096^2 on an H200, 20x a row-wise reduction), so never reduce to a scalar in one kernel
-        return float(self._m1(e, d, axis=1).sum()), float(self._m2(e, d, axis=1).sum())
-
-    def grad(self, X, E, c: float, k, G) -> None:
-        self._grad(k, X, E, float(c), G)
-        if self.owner:
-            G[0, 0] = 0.0
-
-    def axpy(self, y, a: float, x) -> None:
-        self._axpy(float(a), x, y)
-
-    def cg_dots(self, G, G_old, minv) -> tuple[float, float]:
-        s = self.red.sum(self._lk(G, G, minv), self._lk(G, G_old, minv) if G_old is not None else 0.0)
-        return s[0], s[1]
-
-    def cg_update(self, G, minv, D, beta: float, k, X) -> tuple[float, float, float]:
-        self._dir(float(beta), minv, G, D)
-        return tuple(self.red.sum(self._l(G, D), self._lk(D, X, k), self._lk(D, D, k)))
-
-
 class _SlabProblem(_Problem):
     """:class:`_Problem` on one rank's slabs: the same state and line search, the stiffness ``k`` and the
     preconditioner on the rank's spectrum columns. ``h`` is the caller's surface (not copied); its mean
     ``h_shift`` is subtracted inside the pass that forms ``W``."""
 
     def __init__(self, h, x0, *, sigma0: float, rho: float, k: Any, h_shift: float, grid: SlabGrid,
-                 ops: _SlabOps) -> None:
+                 ops: _Ops) -> None:
         xp = grid.xp
         self.xp, self.n, self.fft, self.ops = xp, grid.shape[0], grid.slab, ops
         self.sigma0, self.rho = sigma0, rho
@@ -303,13 +191,24 @@ class _SlabProblem(_Problem):
         return self.k + self.sigma0 / self.rho
 
 
+def _slab_ops(grid: SlabGrid) -> _Ops:
+    """The exponential law's passes on the rank's slabs: :class:`_Ops` with the grid's reducer, the Parseval
+    weights of the rank's columns and the ``q = 0`` owner flag; on GPUs its fused cupy variant."""
+    kw = dict(red=grid.red, weights=Parseval.columns(grid._w), owner=grid.owner)
+    if grid.xp is np:
+        return _Ops(np, grid.shape[0], **kw)
+    from gapsweep.gfmd._cuda import _SlabCupyOps
+
+    return _SlabCupyOps(grid.xp, grid.shape[0], **kw)
+
+
 def _softmax(h, law: Any, grid: SlabGrid, *, sigma0: float, e_star: float, tol: float, method: str,
              max_iter: int, initial: Any) -> tuple[dict, dict[str, Any]]:
     """The exponential law (``gfmd._softmax``'s algorithm) on slabs; returns ``(scalars, fields)``."""
     xp, slab = grid.xp, grid.slab
     rho, n2 = law.rho, grid.size
     h_shift = grid.mean(h)  # h is not copied: its mean is taken out where W is formed
-    ops = (_SlabOps if xp is np else _SlabCupyOps)(xp, grid.red, grid._w, grid.owner)
+    ops = _slab_ops(grid)
     k, grid.q = grid.q, None  # E* q/2 in the grid's |q| array (this grid serves this solve only)
     k *= 0.5 * e_star
     if isinstance(initial, Start):  # coarse-to-fine start (gfmd._coarse): the displacement's spectrum, taken over

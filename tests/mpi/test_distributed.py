@@ -20,6 +20,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.comm_stub import SizeRankComm as _Comm
+
 ROOT = Path(__file__).resolve().parents[2]
 WORKER = Path(__file__).with_name("distributed_worker.py")
 ENV = {"OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
@@ -77,22 +79,6 @@ def test_comm_errors_name_the_extra():
         gfmd.slab_rows(10, None)
     with pytest.raises(TypeError, match=r"gapsweep\[distributed\]"):
         gfmd.solve([[0.0, 1.0], [1.0, 0.0]], sigma0=1e-2, gamma0=1e-3, rho=1e-2, comm="world")
-
-
-class _Comm:
-    """Stand-in exposing the size/rank calls of an mpi4py communicator (slab_rows needs nothing else)."""
-
-    def __init__(self, size: int, rank: int) -> None:
-        self.size, self.rank = size, rank
-
-    def Get_size(self) -> int:
-        return self.size
-
-    def Get_rank(self) -> int:
-        return self.rank
-
-    def Allgather(self, a, b) -> None:
-        raise AssertionError("not used")
 
 
 @pytest.mark.parametrize("n,size", [(50, 3), (50, 4), (96, 5), (7, 7)])
