@@ -207,7 +207,8 @@ def _propose(units: list[Unit]) -> list[str]:
                f"{lay.cpu_workers} CPU worker(s)" + ("" if lay.ranks == 1 else ", rank 0 coordinates")
                + f": {lay.args()} (docs/running.md, \"Which layout\")")
     if lay.gpu_workers and lay.ranks > 1:
-        out.append(f"  by default the run puts up to {gpus.DEFAULT_PER_GPU} of these ranks on each GPU under CUDA MPS "
+        k = gpus.auto_per_gpu(n, gpus.MPS_CLIENTS, True)
+        out.append(f"  by default the run puts up to {k} of these ranks on each GPU under CUDA MPS "
                    "(started and stopped by the run where it may; else one per GPU): --ranks-per-gpu K to choose")
     return out
 
