@@ -63,7 +63,8 @@ def test_default_ranks_per_gpu():
 
 def test_mps_started_and_stopped_when_the_ranks_are_gone(fake_mps):
     """No MPS runs and the control program is there: the node starts a daemon in its own folder, the default is
-    16 ranks per GPU on one GPU (15 working ranks: 15); the watcher quits the daemon and removes the folder once the ranks' processes have exited."""
+    16 ranks per GPU on one GPU (15 working ranks: 15); the watcher quits the daemon and removes the folder once
+    the ranks' processes have exited."""
     k, m, note = gpus._node_plan(1, 15, None, gpus.MPS_CLIENTS)
     assert k == 15 and m is not None and "started a daemon" in note
     folder = m.folder
@@ -311,7 +312,7 @@ def test_farm_default_layout_under_mpi(fake_mps, tmp_path):
     assert _until(lambda: not pipe.exists())  # the watcher quits the daemon once the three ranks are gone
     lines = fake_mps.read_text().splitlines()
     assert lines == [f"start {pipe}", f"quit {pipe}"]
-    recs = {r: json.loads((trace / f"rank{r}.json").read_text()) for r in range(3)}
+    recs = {r: json.loads((trace / f"rank{r}.farm0.json").read_text()) for r in range(3)}
     ran = [u[0] for r in (1, 2) for u in recs[r]["units"]]
     assert ran and len(ran) == len(set(ran))
     assert all(u[1] <= u[2] for r in (1, 2) for u in recs[r]["units"])

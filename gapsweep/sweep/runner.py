@@ -29,6 +29,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -429,7 +430,8 @@ class Progress:
             else:
                 self.bar = tqdm(total=total, unit="task", dynamic_ncols=True, file=sys.stderr)
 
-    def update(self, res: TaskResult) -> None:
+    def update(self, res: TaskResult, i: int | None = None) -> None:
+        """Count a row (``i``: its task index, by which a launch's joint farm finds its job: gapsweep.sweep.launch)."""
         self.count[res.status] += 1
         if self.bar is not None:
             self.bar.update(1)
@@ -545,6 +547,44 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     Raises :class:`RunError` when the run cannot start or a write fails (rows finished before stay done),
     :class:`~gapsweep.limits.Interrupted` after a clean stop on SIGINT/SIGTERM or a ``<store>.stop`` file (the
     run is recorded as interrupted in the store)."""
+    p = _prepare(job, store, resume=resume, overwrite=overwrite, shard=shard, mpi=mpi, break_lease=break_lease,
+                 task_timeout=task_timeout, batch=batch, ranks_per_gpu=ranks_per_gpu, lookahead=lookahead,
+                 reuse=reuse, reuse_older=reuse_older)
+    try:
+        return _execute(p.spec, p.comm, p.rank, p.size, p.tasks, p.units, p.path, p.shard_text, p.decision, writer,
+                        progress, coordinator_works, task_timeout, p.held, (batch, ranks_per_gpu, lookahead),
+                        p.reused)
+    finally:
+        if p.held is not None:
+            p.held.release()
+
+
+@dataclass
+class Prepared:
+    """A job ready to run (:func:`_prepare`): its tasks and units in the store's order, the decision of rank 0
+    (``(mode, todo, failed before, run id)``), the lease rank 0 holds, the rows reused from other stores."""
+
+    spec: specmod.JobSpec
+    comm: Any
+    rank: int
+    size: int
+    tasks: list[Task]
+    units: list[Unit]
+    path: Path
+    shard_text: str
+    decision: tuple
+    held: lease.Lease | None
+    reused: dict[int, tuple[str, Any, tuple]]
+
+
+def _prepare(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = False, overwrite: bool = False,
+             shard: tuple[int, int] | None = None, mpi: str = "auto", break_lease: bool = False,
+             task_timeout: float | None = None, batch: str = "off", ranks_per_gpu: int | None = None,
+             lookahead: int = 4, reuse: Sequence[str | Path] = (), reuse_older: bool = False) -> Prepared:
+    """Check the options, load the job, take the store's lease and decide what to run (every rank; rank 0 looks
+    at the file system and tells the others); the caller releases ``held``."""
+
+
     if resume and overwrite:
         raise ValueError("--resume and --overwrite exclude each other: --resume keeps the finished rows, "
                          "--overwrite discards them")
@@ -598,13 +638,7 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     if isinstance(decision, RunError):
         raise decision
     tasks, units = _store_order(tasks, units, decision[0])  # a reordered axis: the store's row order (issue 31)
-    decision = decision[1:]
-    try:
-        return _execute(spec, comm, rank, size, tasks, units, path, shard_text, decision, writer, progress,
-                        coordinator_works, task_timeout, held, (batch, ranks_per_gpu, lookahead), reused)
-    finally:
-        if held is not None:
-            held.release()
+    return Prepared(spec, comm, rank, size, tasks, units, path, shard_text, decision[1:], held, reused)
 
 
 def _inputs(job: str | Path | specmod.JobSpec, spec: specmod.JobSpec) -> list[Path]:
@@ -1164,7 +1198,7 @@ def _serial(r: _Run) -> None:
                 with r.stop.critical():  # a row written is a row counted (a signal acts after both)
                     r.st.write(i, res)
                     farm.row(k, i)
-                    r.prog.update(res)
+                    r.prog.update(res, i)
                 if r.stop.requested():  # the stop file (a signal raises by itself)
                     raise Interrupted(r.stop.signum)
         except DeviceFault as e:
@@ -1311,7 +1345,7 @@ def _on_message(r: _Run, farm: Farm, src: int, tag: int, msg: Any) -> list[tuple
         # rank0 writer: rank 0 writes every row; mpio: workers wrote theirs, rank 0 writes its own.
         if r.st is not None and (r.wmode != "mpio" or src == 0):
             r.st.write(i, res)
-        r.prog.update(res)
+        r.prog.update(res, i)
         return []
     if tag == TAG_READY:
         return farm.request(src, msg)

@@ -1,6 +1,8 @@
 """The farm's timeline, for profiling (docs/benchmarks.md, issue 38): with ``GAPSWEEP_TRACE=DIR`` in the
-environment every MPI rank of a farm writes ``DIR/rank<R>.json`` when it leaves the farm; without it nothing is
-recorded (each hook is one attribute test).
+environment every MPI rank of a farm writes ``DIR/rank<R>.farm<F>.json`` when it leaves the farm, ``F`` counting the
+farms this process was in (0, 1, ...: a launch of several jobs, one farm each with ``--farm each``); without it
+nothing is recorded (each hook is one attribute test). (Before, every farm of a launch wrote ``rank<R>.json`` and
+the last job's farm overwrote the others': a profile of a several-job launch saw only its last job.)
 
 A worker records the units it ran (``[unit, start, end, gpu unit, tasks in it]``, wall clock [s since the epoch], so
 that the ranks of one node share a clock) and the times it asked the coordinator for work (``asks``: every ready
@@ -12,6 +14,7 @@ asked; a worker's idle time = the gaps between its units.
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import time
@@ -19,6 +22,8 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["Trace"]
+
+_FARMS = itertools.count()  # the farms this process has been in (one Trace each)
 
 
 class Trace:
@@ -28,6 +33,7 @@ class Trace:
         self.dir = os.environ.get("GAPSWEEP_TRACE", "")
         self.on = bool(self.dir)
         self.rank, self.gpu = rank, gpu
+        self.farm = next(_FARMS)
         self.t0 = time.time()
         self.units: list[list[Any]] = []
         self.asks: list[float] = []
@@ -48,14 +54,15 @@ class Trace:
             self.handled.setdefault(wid, []).append(time.time())
 
     def write(self) -> None:
-        """Write ``DIR/rank<R>.json`` (a failure to write is not the run's: it is ignored)."""
+        """Write ``DIR/rank<R>.farm<F>.json`` (a failure to write is not the run's: it is ignored)."""
         if not self.on:
             return
-        rec = {"rank": self.rank, "gpu": self.gpu, "pid": os.getpid(), "start": self.t0, "end": time.time(),
-               "units": self.units, "asks": self.asks, "handled": {str(k): v for k, v in self.handled.items()},
+        rec = {"rank": self.rank, "farm": self.farm, "gpu": self.gpu, "pid": os.getpid(), "start": self.t0,
+               "end": time.time(), "units": self.units, "asks": self.asks,
+               "handled": {str(k): v for k, v in self.handled.items()},
                "busy_s": round(self.busy_s, 4), "rows": self.rows}
         try:
             Path(self.dir).mkdir(parents=True, exist_ok=True)
-            Path(self.dir, f"rank{self.rank}.json").write_text(json.dumps(rec))
+            Path(self.dir, f"rank{self.rank}.farm{self.farm}.json").write_text(json.dumps(rec))
         except OSError:
             pass
