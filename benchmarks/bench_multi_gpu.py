@@ -43,7 +43,9 @@ check alone); logs in OUT/runs.log.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
+import math
 import os
 import shutil
 import signal
@@ -323,13 +325,16 @@ def fault_check(out: Path, ranks: int, log) -> dict:
 
 
 # ---------------------------------------------------------------------------------------------- layouts (issue 38)
-def parse_layout(text: str) -> tuple[int, int | None, int | None]:
-    """``G:K[:R]``: G GPUs, K ranks per GPU (``auto``: gapsweep's default, no flag), R ranks (default --ranks)."""
+def parse_layout(text: str) -> tuple[int, int | None, int | None, str]:
+    """``G:K[:R][/each]``: G GPUs, K ranks per GPU (``auto``: gapsweep's default, no flag), R ranks (default
+    --ranks); ``/each``: the jobs of the launch one farm each (``--farm each``, the behaviour before issue 38's
+    joint farm), else one farm for all (the default)."""
+    text, _, farm = text.partition("/")
     parts = text.split(":")
-    if len(parts) not in (2, 3) or not parts[0].isdigit():
-        raise SystemExit(f"--layouts: expected G:K[:R] (K an integer or auto), got {text!r}")
+    if len(parts) not in (2, 3) or not parts[0].isdigit() or farm not in ("", "each", "together"):
+        raise SystemExit(f"--layouts: expected G:K[:R][/each] (K an integer or auto), got {text!r}")
     k = None if parts[1] == "auto" else int(parts[1])
-    return int(parts[0]), k, (int(parts[2]) if len(parts) == 3 else None)
+    return int(parts[0]), k, (int(parts[2]) if len(parts) == 3 else None), farm or "together"
 
 
 def wait_no_mps(log, timeout: float = 20.0) -> float:
@@ -391,53 +396,81 @@ def _q(xs: list[float], q: float) -> float | None:
     return round(xs[min(len(xs) - 1, int(q * (len(xs) - 1) + 0.5))], 4)
 
 
+def _farm_summary(recs: dict, t_launch: float) -> dict:
+    """One farm's records (rank -> trace record): its start (the earliest rank's), its first unit and its last
+    unit's end (s after the launch), its units."""
+    start = min(r["start"] for r in recs.values())
+    us = [u for r in recs.values() for u in r["units"]]
+    first = min((u[1] for u in us), default=None)
+    last = max((u[2] for u in us), default=None)
+    return {"start_s": round(start - t_launch, 2),
+            "first_unit_s": None if first is None else round(first - t_launch, 2),
+            "last_unit_end_s": None if last is None else round(last - t_launch, 2), "units": len(us),
+            "gpu_units": sum(bool(u[3]) for u in us)}
+
+
 def analyse_trace(d: Path, t_launch: float, t_end: float, farm_start: float | None) -> dict:
-    """The farm's timeline (gapsweep.sweep.trace files in ``d``): per worker busy/idle seconds and its units
-    (times from the launch), coordinator latency (handled - asked), the longest units (the critical path's
-    candidates) and the tail (the last unit's end to the exit)."""
-    recs = {}
+    """The farms' timeline (gapsweep.sweep.trace files ``rank<R>.farm<F>.json`` in ``d``; one farm per launch
+    with ``--farm together``, one per job with ``--farm each``): per worker busy/idle seconds over the sweep (the
+    first farm's start to the last unit's end: the gaps between the farms of a launch count as idle) and its
+    units (times from the launch), per farm its start, first unit and last unit's end (``farms``: the gaps
+    between them are the jobs' serial phases), coordinator latency (handled - asked), the longest units (the
+    critical path's candidates) and the tail (the last unit's end to the exit)."""
+    farms: dict[int, dict[int, dict]] = {}
     for f in sorted(d.glob("rank*.json")):
         try:
             r = json.loads(f.read_text())
-            recs[r["rank"]] = r
+            farms.setdefault(int(r.get("farm", 0)), {})[r["rank"]] = r
         except (OSError, ValueError, KeyError):
             continue
-    if not recs:
+    if not farms:
         return {"error": f"no trace files in {d}"}
-    t0 = farm_start or min(r["start"] for r in recs.values())
-    last = max((u[2] for r in recs.values() for u in r["units"]), default=t0)
+    allr = [r for recs in farms.values() for r in recs.values()]
+    t0 = min(farm_start or math.inf, min(r["start"] for r in allr))
+    last = max((u[2] for r in allr for u in r["units"]), default=t0)
     window = max(last - t0, 1e-9)
     workers, lat, units = [], [], []
-    coord = recs.get(0, {})
-    for rank, r in sorted(recs.items()):
-        if not r["units"] and rank == 0:
+    ranks = sorted({r["rank"] for r in allr})
+    for rank in ranks:
+        mine = [farms[f][rank] for f in sorted(farms) if rank in farms[f]]
+        us = [u for r in mine for u in r["units"]]
+        if not us and rank == 0:
             continue
-        busy = sum(u[2] - u[1] for u in r["units"])
-        first = min((u[1] for u in r["units"]), default=None)
-        end = max((u[2] for u in r["units"]), default=None)
-        handled = coord.get("handled", {}).get(str(rank), [])
-        la = [h - a for a, h in zip(r["asks"], handled)]
+        busy = sum(u[2] - u[1] for u in us)
+        la = []
+        for f in sorted(farms):
+            r, coord = farms[f].get(rank), farms[f].get(0, {})
+            if r is not None:
+                la += [h - a for a, h in zip(r["asks"], coord.get("handled", {}).get(str(rank), []))]
         lat += la
-        units += [(u[2] - u[1], rank, r["gpu"], u[0], u[4] if len(u) > 4 else None) for u in r["units"]]
+        units += [(u[2] - u[1], rank, mine[0]["gpu"], u[0], u[4] if len(u) > 4 else None) for u in us]
+        first = min((u[1] for u in us), default=None)
+        end = max((u[2] for u in us), default=None)
         workers.append({
-            "rank": rank, "gpu": r["gpu"], "units": len(r["units"]),
-            "gpu_units": sum(bool(u[3]) for u in r["units"]), "busy_s": round(busy, 2),
+            "rank": rank, "gpu": mine[0]["gpu"], "units": len(us),
+            "gpu_units": sum(bool(u[3]) for u in us), "busy_s": round(busy, 2),
             "idle_s": round(window - busy, 2), "idle_pct": round(100 * (1 - busy / window), 1),
             "first_unit_after_launch_s": round(first - t_launch, 2) if first else None,
             "last_unit_end_after_farm_start_s": round(end - t0, 2) if end else None,
             "latency_median_ms": None if not la else round(1e3 * statistics.median(la), 2),
-            "timeline": [[round(u[1] - t_launch, 3), round(u[2] - t_launch, 3), u[0], int(bool(u[3]))]
-                         for u in r["units"]]})
+            "timeline": [[round(u[1] - t_launch, 3), round(u[2] - t_launch, 3), u[0], int(bool(u[3]))] for u in us]})
     g = [w for w in workers if w["gpu"] is not None]
     units.sort(reverse=True)
     ms = [1e3 * x for x in lat]
+    fs = [_farm_summary(farms[f], t_launch) for f in sorted(farms)]
+    gaps = [round(b["first_unit_s"] - a["last_unit_end_s"], 2) for a, b in itertools.pairwise(fs)
+            if a["last_unit_end_s"] is not None and b["first_unit_s"] is not None]
+    coords = [farms[f].get(0, {}) for f in sorted(farms)]
     return {
+        "farms": fs, "gaps_between_farms_s": gaps,
         "farm_window_s": round(window, 2), "tail_s": round(t_end - last, 2),
         "workers": workers,
         "gpu_workers_idle_pct_mean": round(statistics.fmean(w["idle_pct"] for w in g), 1) if g else None,
+        "gpu_workers_idle_pct_max": max((w["idle_pct"] for w in g), default=None),
         "gpu_workers_busy_s_sum": round(sum(w["busy_s"] for w in g), 2),
         "cpu_workers_busy_s_sum": round(sum(w["busy_s"] for w in workers if w["gpu"] is None), 2),
-        "coordinator": {"busy_s": coord.get("busy_s"), "rows": coord.get("rows"),
+        "coordinator": {"busy_s": round(sum(c.get("busy_s") or 0 for c in coords), 3),
+                        "rows": sum(c.get("rows") or 0 for c in coords),
                         "latency_ms": {"median": _q(ms, 0.5), "p95": _q(ms, 0.95), "max": _q(ms, 1.0),
                                        "n": len(lat)}},
         "longest_units": [{"s": round(du, 2), "rank": rk, "gpu": gp, "unit": k, "tasks": nt}
@@ -447,17 +480,22 @@ def analyse_trace(d: Path, t_launch: float, t_end: float, farm_start: float | No
     }
 
 
+def run_dir(i: int, name: str, g: int, per_gpu: int | None, farm: str) -> str:
+    return f"run{i}_{name}_g{g}_k{per_gpu or 'auto'}" + ("_each" if farm == "each" else "")
+
+
 def layout_run(i: int, name: str, jobs: list[Path], g: int, per_gpu: int | None, ranks: int, work: Path,
-               extra: list[str], log, timeout: float, ref: list[Path] | None) -> dict:
+               extra: list[str], log, timeout: float, ref: list[Path] | None, farm: str = "together") -> dict:
     """One launch of ``jobs`` on GPUs 0..g-1 with ``per_gpu`` ranks per GPU (None: gapsweep's default), traced."""
     from gapsweep import store
 
-    d = work / f"run{i}_{name}_g{g}_k{per_gpu or 'auto'}"
+    d = work / run_dir(i, name, g, per_gpu, farm)
     shutil.rmtree(d, ignore_errors=True)
     d.mkdir(parents=True)
     stores = [d / f"{j.stem}.h5" for j in jobs]
     waited = wait_no_mps(log)
-    args = [*extra, *([] if per_gpu is None else ["--ranks-per-gpu", str(per_gpu)])]
+    args = [*extra, *([] if per_gpu is None else ["--ranks-per-gpu", str(per_gpu)]),
+            *(["--farm", "each"] if farm == "each" and len(jobs) > 1 else [])]
     sampler, apps = GpuSampler(), AppSampler()
     t_launch = time.time()
     rc, wall = launch(jobs, stores, ",".join(map(str, range(g))), ranks, log, args, timeout,
@@ -466,7 +504,7 @@ def layout_run(i: int, name: str, jobs: list[Path], g: int, per_gpu: int | None,
     sampler.stop(g)
     rec = run_record(stores[0])
     start = rec.get("farm_started_unix")
-    r = {"run": i, "set": name, "gpus": g, "ranks_per_gpu": per_gpu or "auto", "ranks": ranks, "rc": rc,
+    r = {"run": i, "set": name, "gpus": g, "ranks_per_gpu": per_gpu or "auto", "farm": farm, "ranks": ranks, "rc": rc,
          "wall_s": round(wall, 2), "startup_s": round(start - t_launch, 2) if start else None,
          "mps_wait_before_s": waited, "layout": {x: rec.get(x) for x in ("ranks_per_gpu", "mps")},
          "gpu_ranks": sum(x is not None for x in rec.get("gpus") or []),
@@ -486,24 +524,33 @@ def layout_run(i: int, name: str, jobs: list[Path], g: int, per_gpu: int | None,
     return r
 
 
+def _lay(r: dict) -> str:
+    return f"{r['gpus']}:{r['ranks_per_gpu']}" + ("/each" if r.get("farm") == "each" else "")
+
+
 def layout_table(rows: list[dict]) -> tuple[str, dict]:
-    """The table against T1_best (the best one-GPU wall time of a set, any layout) and the summary."""
+    """The table against T1_best (the best one-GPU wall time of a set, any layout), and per set the summary:
+    T1_best and its layout, the layouts tried (``G:K[/each]`` -> wall), the default's one-GPU time over T1_best,
+    and per GPU count the default's efficiency, mean GPU utilisation over the sweep and the GPU workers' idle
+    share (mean and largest, from the trace)."""
     summary: dict = {}
     for name in sorted({r["set"] for r in rows}):
-        one = [r for r in rows if r["set"] == name and r.get("gpus") == 1 and r.get("rc") == 0 and r.get("wall_s")]
+        mine = [r for r in rows if r["set"] == name and not r.get("skipped")]
+        one = [r for r in mine if r.get("gpus") == 1 and r.get("rc") == 0 and r.get("wall_s")]
         best = min(one, key=lambda r: r["wall_s"]) if one else None
         summary[name] = {"T1_best_s": best["wall_s"] if best else None,
-                         "T1_best_layout": f"{best['ranks_per_gpu']} ranks per GPU" if best else None}
-        default1 = [r["wall_s"] for r in one if r["ranks_per_gpu"] == "auto"]
+                         "T1_best_layout": _lay(best) if best else None,
+                         "layouts_tried": {_lay(r): r.get("wall_s") for r in mine}}
+        default1 = [r["wall_s"] for r in one if r["ranks_per_gpu"] == "auto" and r.get("farm") != "each"]
         summary[name]["default_over_best_on_1_gpu"] = round(min(default1) / best["wall_s"], 3) if best and default1 \
             else None
-    lines = ["| set | GPUs | ranks per GPU (run) | ranks | wall [s] | start-up [s] | eff. T1_best/(k T_k) | "
-             "GPU util sweep [%] | GPU idle (trace) [%] | latency median/p95 [ms] | longest unit [s] | "
-             "stores = reference | rc |", "|" + " --- |" * 13]
+    lines = ["| set | GPUs | ranks per GPU (run) | farm | ranks | wall [s] | start-up [s] | eff. T1_best/(k T_k) | "
+             "GPU util sweep [%] | GPU workers idle mean/max [%] | gaps between farms [s] | "
+             "latency median/p95 [ms] | longest unit [s] | stores = reference | rc |", "|" + " --- |" * 15]
     for r in rows:
         if r.get("skipped"):
-            lines.append(f"| {r['set']} | {r['gpus']} | {r['ranks_per_gpu']} | | skipped: {r['skipped']} |"
-                         + " |" * 8)
+            lines.append(f"| {r['set']} | {r['gpus']} | {r['ranks_per_gpu']} | | | skipped: {r['skipped']} |"
+                         + " |" * 9)
             continue
         t1 = summary[r["set"]]["T1_best_s"]
         eff = round(t1 / (r["gpus"] * r["wall_s"]), 3) if t1 and r.get("wall_s") else None
@@ -514,10 +561,17 @@ def layout_table(rows: list[dict]) -> tuple[str, dict]:
         same = "ref" if all(e is None for e in eq) else ("yes" if all(eq) else f"no {eq}")
         longest = (tr.get("longest_units") or [{}])[0].get("s")
         lay = r.get("layout", {}).get("ranks_per_gpu")
-        lines.append(f"| {r['set']} | {r['gpus']} | {r['ranks_per_gpu']} ({lay}) | {r['ranks']} | {r['wall_s']} | "
-                     f"{r.get('startup_s')} | {'-' if eff is None else f'{100 * eff:.0f} %'} | "
-                     f"{r['gpu_util_sweep']['mean_pct']} | {tr.get('gpu_workers_idle_pct_mean')} | "
-                     f"{lat.get('median')}/{lat.get('p95')} | {longest} | {same} | {r['rc']} |")
+        if r["ranks_per_gpu"] == "auto" and r.get("farm") != "each":
+            summary[r["set"]].setdefault("default_by_gpus", {})[str(r["gpus"])] = {
+                "wall_s": r["wall_s"], "efficiency_vs_T1_best": eff, "gpu_util_sweep_pct": r["gpu_util_sweep"],
+                "gpu_workers_idle_pct_mean": tr.get("gpu_workers_idle_pct_mean"),
+                "gpu_workers_idle_pct_max": tr.get("gpu_workers_idle_pct_max")}
+        lines.append(f"| {r['set']} | {r['gpus']} | {r['ranks_per_gpu']} ({lay}) | {r.get('farm', '')} | "
+                     f"{r['ranks']} | {r['wall_s']} | {r.get('startup_s')} | "
+                     f"{'-' if eff is None else f'{100 * eff:.0f} %'} | {r['gpu_util_sweep']['mean_pct']} | "
+                     f"{tr.get('gpu_workers_idle_pct_mean')}/{tr.get('gpu_workers_idle_pct_max')} | "
+                     f"{tr.get('gaps_between_farms_s')} | {lat.get('median')}/{lat.get('p95')} | {longest} | "
+                     f"{same} | {r['rc']} |")
     return "\n".join(lines) + "\n", summary
 
 
@@ -538,7 +592,7 @@ def run_layouts(a, out: Path, work: Path, extra: list[str], res: dict, log) -> l
         sname, _, text = item.rpartition("@")
         defs = {x.partition("=")[0]: x for x in a.sets}  # a set named in --sets with its files
         name, jobs = set_jobs(defs.get(sname, sname) if sname else a.sets[0], work, a.pub_seeds)
-        g, k, ranks = parse_layout(text)
+        g, k, ranks, farm = parse_layout(text)
         ranks = ranks or a.ranks
         if g > a.max_gpus:
             rows.append({"set": name, "gpus": g, "ranks_per_gpu": k or "auto", "skipped": "not on this node"})
@@ -550,11 +604,11 @@ def run_layouts(a, out: Path, work: Path, extra: list[str], res: dict, log) -> l
             continue
         log.write(f"== {name} on {g} GPU(s), ranks per GPU {k or 'auto'}, {ranks} ranks, {elapsed():.0f} s\n")
         log.flush()
-        r = layout_run(i, name, jobs, g, k, ranks, work, extra, log,
+        r = layout_run(i, name, jobs, g, k, ranks, work, extra, log, farm=farm,
                        timeout=max(30.0, min(a.launch_timeout, a.budget + 60 - elapsed())), ref=ref.get(name))
         rows.append(r)
         if name not in ref and r["rc"] == 0:
-            ref[name] = [work / f"run{i}_{name}_g{g}_k{k or 'auto'}" / f"{j.stem}.h5" for j in jobs]
+            ref[name] = [work / run_dir(i, name, g, k, farm) / f"{j.stem}.h5" for j in jobs]
         if g == 1 and r["rc"] == 0:
             t1[name] = min(t1.get(name, r["wall_s"]), r["wall_s"])
         print(json.dumps({x: r.get(x) for x in ("set", "gpus", "ranks_per_gpu", "gpu_ranks", "rc", "wall_s",

@@ -1246,8 +1246,8 @@ class _Local:
     queue (rows, device faults, requests), so that every farm decision and every MPI call stays on rank 0's
     main thread."""
 
-    def __init__(self, r: _Run) -> None:
-        self.r = r
+    def __init__(self, r: _Run, tr: Trace | None = None) -> None:
+        self.r, self.tr = r, tr  # tr: rank 0's timeline, which records this thread's units too
         self.inbox: queue.Queue = queue.Queue()
         self.events: queue.Queue = queue.Queue()
         self.thread = threading.Thread(target=self._main, name="gapsweep-rank0-worker", daemon=True)
@@ -1266,6 +1266,7 @@ class _Local:
         try:
             self.events.put((TAG_READY, None))
             while (msg := held.next()) is not None:
+                t0 = time.time()
                 try:
                     for i, res in self.r.units_of(*msg):
                         self.events.put((TAG_ROW, (msg[0], i, res)))
@@ -1273,6 +1274,10 @@ class _Local:
                     held.fault()
                     self.events.put((TAG_FAULT, _fault(0, self.r.gpu, e)))
                     continue
+                finally:
+                    if self.tr is not None:
+                        u = self.r.units[msg[0]]
+                        self.tr.unit(msg[0], t0, u.gpu, len(u.tasks))
                 self.events.put((TAG_READY, msg[0]))
         except BaseException as e:  # surfaced on the main thread, which aborts the job
             self.events.put((TAG_ERROR, e))
@@ -1290,9 +1295,9 @@ def _coordinate(r: _Run) -> None:
     if r.works:
         workers[0] = Worker(gpu=r.gpu_of[0], tail=True, ahead=r.lookahead)
     farm = Farm([u.gpu for u in r.units], r.work, workers, ahead_ok=r.ahead_ok())
-    local = _Local(r) if r.works else None
-    status = MPI.Status()
     tr = Trace(0, r.gpu)  # GAPSWEEP_TRACE: the farm's timeline (gapsweep.sweep.trace)
+    local = _Local(r, tr) if r.works else None
+    status = MPI.Status()
     while farm.busy():
         progressed = False
         _send(r, farm, local, _stop_check(r, farm))

@@ -6,10 +6,11 @@ the last job's farm overwrote the others': a profile of a several-job launch saw
 
 A worker records the units it ran (``[unit, start, end, gpu unit, tasks in it]``, wall clock [s since the epoch], so
 that the ranks of one node share a clock) and the times it asked the coordinator for work (``asks``: every ready
-message). The coordinator records when it handled each worker's ready messages (``handled[worker]``: the k-th entry
-answers that worker's k-th ask, MPI keeping the order of one sender's messages), the seconds it spent handling
-messages and writing rows (``busy_s``), and how many rows it wrote (``rows``). Coordinator latency = handled -
-asked; a worker's idle time = the gaps between its units.
+message). The coordinator records the units of its own worker thread (where it works) as a worker does, when it
+handled each worker's ready messages (``handled[worker]``: the k-th entry answers that worker's k-th ask, MPI
+keeping the order of one sender's messages), the seconds it spent handling messages and writing rows
+(``busy_s``), and how many rows it wrote (``rows``). Coordinator latency = handled - asked; a worker's idle time =
+the gaps between its units.
 """
 
 from __future__ import annotations
