@@ -330,16 +330,22 @@ def fault_check(out: Path, ranks: int, log) -> dict:
 
 
 # ---------------------------------------------------------------------------------------------- layouts (issue 38)
-def parse_layout(text: str) -> tuple[int, int | None, int | None, str]:
-    """``G:K[:R][/each]``: G GPUs, K ranks per GPU (``auto``: gapsweep's default, no flag), R ranks (default
+LAYOUT_FLAGS = ("each", "host")
+
+
+def parse_layout(text: str) -> tuple[int, int | None, int | None, str, bool]:
+    """``G:K[:R][/each][/host]``: G GPUs, K ranks per GPU (``auto``: gapsweep's default, no flag), R ranks (default
     --ranks); ``/each``: the jobs of the launch one farm each (``--farm each``, the behaviour before issue 38's
-    joint farm), else one farm for all (the default)."""
-    text, _, farm = text.partition("/")
+    joint farm), else one farm for all (the default); ``/host``: the GPU tasks' surfaces made on the host
+    (``GAPSWEEP_GPU_SURFACES=0``, as before issue 38), else on their GPU (the default). Returns (G, K, R, farm,
+    host surfaces)."""
+    text, *flags = text.split("/")
     parts = text.split(":")
-    if len(parts) not in (2, 3) or not parts[0].isdigit() or farm not in ("", "each", "together"):
-        raise SystemExit(f"--layouts: expected G:K[:R][/each] (K an integer or auto), got {text!r}")
+    if len(parts) not in (2, 3) or not parts[0].isdigit() or any(f not in LAYOUT_FLAGS for f in flags):
+        raise SystemExit(f"--layouts: expected G:K[:R][/each][/host] (K an integer or auto), got {text!r}")
     k = None if parts[1] == "auto" else int(parts[1])
-    return int(parts[0]), k, (int(parts[2]) if len(parts) == 3 else None), farm or "together"
+    return (int(parts[0]), k, (int(parts[2]) if len(parts) == 3 else None), "each" if "each" in flags
+            else "together", "host" in flags)
 
 
 def wait_no_mps(log, timeout: float = 20.0) -> float:
@@ -485,16 +491,17 @@ def analyse_trace(d: Path, t_launch: float, t_end: float, farm_start: float | No
     }
 
 
-def run_dir(i: int, name: str, g: int, per_gpu: int | None, farm: str) -> str:
-    return f"run{i}_{name}_g{g}_k{per_gpu or 'auto'}" + ("_each" if farm == "each" else "")
+def run_dir(i: int, name: str, g: int, per_gpu: int | None, farm: str, host: bool = False) -> str:
+    return f"run{i}_{name}_g{g}_k{per_gpu or 'auto'}" + ("_each" if farm == "each" else "") + ("_host" if host else "")
 
 
 def layout_run(i: int, name: str, jobs: list[Path], g: int, per_gpu: int | None, ranks: int, work: Path,
-               extra: list[str], log, timeout: float, ref: list[Path] | None, farm: str = "together") -> dict:
+               extra: list[str], log, timeout: float, ref: list[Path] | None, farm: str = "together",
+               host: bool = False) -> dict:
     """One launch of ``jobs`` on GPUs 0..g-1 with ``per_gpu`` ranks per GPU (None: gapsweep's default), traced."""
     from gapsweep import store
 
-    d = work / run_dir(i, name, g, per_gpu, farm)
+    d = work / run_dir(i, name, g, per_gpu, farm, host)
     shutil.rmtree(d, ignore_errors=True)
     d.mkdir(parents=True)
     stores = [d / f"{j.stem}.h5" for j in jobs]
@@ -504,12 +511,14 @@ def layout_run(i: int, name: str, jobs: list[Path], g: int, per_gpu: int | None,
     sampler, apps = GpuSampler(), AppSampler()
     t_launch = time.time()
     rc, wall = launch(jobs, stores, ",".join(map(str, range(g))), ranks, log, args, timeout,
-                      env_extra={"GAPSWEEP_TRACE": str(d / "trace")})
+                      env_extra={"GAPSWEEP_TRACE": str(d / "trace"),
+                                 **({"GAPSWEEP_GPU_SURFACES": "0"} if host else {})})
     t_end = time.time()
     sampler.stop(g)
     rec = run_record(stores[0])
     start = rec.get("farm_started_unix")
-    r = {"run": i, "set": name, "gpus": g, "ranks_per_gpu": per_gpu or "auto", "farm": farm, "ranks": ranks, "rc": rc,
+    r = {"run": i, "set": name, "gpus": g, "ranks_per_gpu": per_gpu or "auto", "farm": farm,
+         "surfaces": "host" if host else "gpu", "ranks": ranks, "rc": rc,
          "wall_s": round(wall, 2), "startup_s": round(start - t_launch, 2) if start else None,
          "mps_wait_before_s": waited, "layout": {x: rec.get(x) for x in ("ranks_per_gpu", "mps")},
          "gpu_ranks": sum(x is not None for x in rec.get("gpus") or []),
@@ -524,13 +533,16 @@ def layout_run(i: int, name: str, jobs: list[Path], g: int, per_gpu: int | None,
             st["equal_to_reference"] = not diff
             if diff:
                 st["diff"] = diff[:5]
+            if host:  # surfaces made on the host: equal to the reference's to round-off, results within tolerance
+                st["within_tolerance_of_reference"] = within_tolerance(s_, ref[j])
         r["stores"][s_.stem] = st
     r["trace"] = analyse_trace(d / "trace", t_launch, t_end, start)
     return r
 
 
 def _lay(r: dict) -> str:
-    return f"{r['gpus']}:{r['ranks_per_gpu']}" + ("/each" if r.get("farm") == "each" else "")
+    return (f"{r['gpus']}:{r['ranks_per_gpu']}" + ("/each" if r.get("farm") == "each" else "")
+            + ("/host" if r.get("surfaces") == "host" else ""))
 
 
 def layout_table(rows: list[dict]) -> tuple[str, dict]:
@@ -546,10 +558,10 @@ def layout_table(rows: list[dict]) -> tuple[str, dict]:
         summary[name] = {"T1_best_s": best["wall_s"] if best else None,
                          "T1_best_layout": _lay(best) if best else None,
                          "layouts_tried": {_lay(r): r.get("wall_s") for r in mine}}
-        default1 = [r["wall_s"] for r in one if r["ranks_per_gpu"] == "auto" and r.get("farm") != "each"]
+        default1 = [r["wall_s"] for r in one if _lay(r) == "1:auto"]
         summary[name]["default_over_best_on_1_gpu"] = round(min(default1) / best["wall_s"], 3) if best and default1 \
             else None
-    lines = ["| set | GPUs | ranks per GPU (run) | farm | ranks | wall [s] | start-up [s] | eff. T1_best/(k T_k) | "
+    lines = ["| set | GPUs | ranks per GPU (run) | layout | ranks | wall [s] | start-up [s] | eff. T1_best/(k T_k) | "
              "GPU util sweep [%] | GPU workers idle mean/max [%] | gaps between farms [s] | "
              "latency median/p95 [ms] | longest unit [s] | stores = reference | rc |", "|" + " --- |" * 15]
     for r in rows:
@@ -564,14 +576,19 @@ def layout_table(rows: list[dict]) -> tuple[str, dict]:
         lat = tr.get("coordinator", {}).get("latency_ms", {})
         eq = [s.get("equal_to_reference") for s in r["stores"].values()]
         same = "ref" if all(e is None for e in eq) else ("yes" if all(eq) else f"no {eq}")
+        tol = [s.get("within_tolerance_of_reference") for s in r["stores"].values()]
+        if any(tol):  # host surfaces: round-off apart from the reference's, compared by grid point
+            worst = max((x.get("mean_gap_rel_max") or 0.0) for x in tol if x)
+            diff_status = sum(x.get("status_differs", 0) for x in tol if x)
+            same = f"{same}; mean gap within {worst:.1e} rel., {diff_status} status differ"
         longest = (tr.get("longest_units") or [{}])[0].get("s")
         lay = r.get("layout", {}).get("ranks_per_gpu")
-        if r["ranks_per_gpu"] == "auto" and r.get("farm") != "each":
+        if _lay(r) == f"{r['gpus']}:auto":
             summary[r["set"]].setdefault("default_by_gpus", {})[str(r["gpus"])] = {
                 "wall_s": r["wall_s"], "efficiency_vs_T1_best": eff, "gpu_util_sweep_pct": r["gpu_util_sweep"],
                 "gpu_workers_idle_pct_mean": tr.get("gpu_workers_idle_pct_mean"),
                 "gpu_workers_idle_pct_max": tr.get("gpu_workers_idle_pct_max")}
-        lines.append(f"| {r['set']} | {r['gpus']} | {r['ranks_per_gpu']} ({lay}) | {r.get('farm', '')} | "
+        lines.append(f"| {r['set']} | {r['gpus']} | {r['ranks_per_gpu']} ({lay}) | {_lay(r)} | "
                      f"{r['ranks']} | {r['wall_s']} | {r.get('startup_s')} | "
                      f"{'-' if eff is None else f'{100 * eff:.0f} %'} | {r['gpu_util_sweep']['mean_pct']} | "
                      f"{tr.get('gpu_workers_idle_pct_mean')}/{tr.get('gpu_workers_idle_pct_max')} | "
@@ -632,7 +649,7 @@ def run_layouts(a, out: Path, work: Path, extra: list[str], res: dict, log) -> l
         sname, _, text = item.rpartition("@")
         defs = {x.partition("=")[0]: x for x in a.sets}  # a set named in --sets with its files
         name, jobs = set_jobs(defs.get(sname, sname) if sname else a.sets[0], work, a.pub_seeds)
-        g, k, ranks, farm = parse_layout(text)
+        g, k, ranks, farm, host = parse_layout(text)
         ranks = ranks or a.ranks
         if g > a.max_gpus:
             rows.append({"set": name, "gpus": g, "ranks_per_gpu": k or "auto", "skipped": "not on this node"})
@@ -644,13 +661,13 @@ def run_layouts(a, out: Path, work: Path, extra: list[str], res: dict, log) -> l
             continue
         log.write(f"== {name} on {g} GPU(s), ranks per GPU {k or 'auto'}, {ranks} ranks, {elapsed():.0f} s\n")
         log.flush()
-        r = layout_run(i, name, jobs, g, k, ranks, work, extra, log, farm=farm,
+        r = layout_run(i, name, jobs, g, k, ranks, work, extra, log, farm=farm, host=host,
                        timeout=max(30.0, min(a.launch_timeout, a.budget + 60 - elapsed())), ref=ref.get(name))
         rows.append(r)
         if name not in ref and r["rc"] == 0:
-            ref[name] = [work / run_dir(i, name, g, k, farm) / f"{j.stem}.h5" for j in jobs]
+            ref[name] = [work / run_dir(i, name, g, k, farm, host) / f"{j.stem}.h5" for j in jobs]
         if name == "mixsplit" and "mix" in ref:  # other task ids: compared by grid point, within tolerance
-            here = [work / run_dir(i, name, g, k, farm) / f"{j.stem}.h5" for j in jobs]
+            here = [work / run_dir(i, name, g, k, farm, host) / f"{j.stem}.h5" for j in jobs]
             r["against_mix"] = {h.stem: within_tolerance(h, m) for h, m in zip(here, ref["mix"])}
         if g == 1 and r["rc"] == 0:
             t1[name] = min(t1.get(name, r["wall_s"]), r["wall_s"])
