@@ -114,3 +114,20 @@ def test_gfmd_task_on_a_gpu_made_surface(shim, tmp_path, monkeypatch):
     a, b = rows["1"].values, rows["0"].values
     assert abs(a["mean_gap"] - b["mean_gap"]) <= 1e-6 * abs(b["mean_gap"])
     assert math.isclose(a["g_rms"], b["g_rms"], rel_tol=1e-12) and math.isclose(a["h_rms"], b["h_rms"], rel_tol=1e-12)
+
+
+def test_units_held_ahead_only_where_the_host_prepares_something(tmp_path, monkeypatch):
+    """A worker holds units ahead only to make their surfaces on host threads: GPU units whose surfaces the GPU
+    makes are not held ahead (they would be committed early, against the largest-first order)."""
+    from types import SimpleNamespace
+
+    from gapsweep.sweep import runner
+    from gapsweep.sweep.schema import Unit
+
+    gpu_made, keep = _tasks(tmp_path)[0], _tasks(tmp_path, extra='keep_fields = { fields = ["gap"] }')[0]
+    r = SimpleNamespace(tasks=[gpu_made, keep], units=[Unit((0,), 1.0, True), Unit((1,), 1.0, True),
+                                                       Unit((0,), 1.0, False)], ctx=C.Context(gpu=0))
+    assert runner._Run.ahead_ok(r) == [False, True, False]
+    monkeypatch.setenv("GAPSWEEP_GPU_SURFACES", "0")
+    r.ctx = C.Context(gpu=0)
+    assert runner._Run.ahead_ok(r) == [True, True, False]

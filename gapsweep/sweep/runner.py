@@ -996,8 +996,11 @@ class _Run:
             raise
 
     def ahead_ok(self) -> list[bool]:
-        """Units worth holding ahead: GPU units with surfaces to make (tasks on a grid, ``n > 0``)."""
-        return [u.gpu and any(self.tasks[i].n > 0 for i in u.tasks) for u in self.units]
+        """Units worth holding ahead: GPU units with surfaces to make on the host (tasks on a grid, ``n > 0``,
+        whose GPU does not make them itself: Context.makes_on_gpu). A unit held ahead is committed to its worker
+        early, which unbalances the largest-first order where there is nothing to prepare."""
+        return [u.gpu and any(self.tasks[i].n > 0 and not self.ctx.makes_on_gpu(self.tasks[i]) for i in u.tasks)
+                for u in self.units]
 
     def prefetch(self, k: int) -> None:
         """A GPU unit just held: its surfaces start on the host threads (``ahead``) while the GPU works."""
