@@ -259,6 +259,9 @@ def compile_kernels(log) -> float:
     code = ("import cupy\nfrom gapsweep import gfmd, sde\nfrom gapsweep.surface import self_affine\n"
             "h = cupy.asarray(self_affine(64, 0.3, lambda_l=0.25, lambda_s=4.0 / 64, seed=0))\n"
             "gfmd.solve(h, sigma0=1e-2, gamma0=1e-3, rho=2e-2, backend='cupy', host=False)\n"
+            "from gapsweep.sweep.context import _rms_gpu\n"  # a GPU task's surface and its rms values (issue 38)
+            "_rms_gpu(self_affine(64, 0.3, lambda_l=0.25, lambda_s=4.0 / 64, seed=0, backend='cupy'), "
+            "{'length': 1.0})\n"
             "sde.gap_histogram_counts(1e-2, hurst=0.3, h_rms=2.34e-3, rho=2e-3, gamma0=1e-3, lambda_l=0.25, "
             "lambda_s=2.5e-3, c2=1.0, n=1000, device='cuda', bins=16)\n")
     t0 = time.perf_counter()

@@ -126,8 +126,9 @@ def test_units_held_ahead_only_where_the_host_prepares_something(tmp_path, monke
 
     gpu_made, keep = _tasks(tmp_path)[0], _tasks(tmp_path, extra='keep_fields = { fields = ["gap"] }')[0]
     r = SimpleNamespace(tasks=[gpu_made, keep], units=[Unit((0,), 1.0, True), Unit((1,), 1.0, True),
-                                                       Unit((0,), 1.0, False)], ctx=C.Context(gpu=0))
-    assert runner._Run.ahead_ok(r) == [False, True, False]
+                                                       Unit((0,), 1.0, False), Unit((0,), 1.0, True, "batch")],
+                        ctx=C.Context(gpu=0))
+    assert runner._Run.ahead_ok(r) == [False, True, False, True]  # a batch stacks host surfaces
     monkeypatch.setenv("GAPSWEEP_GPU_SURFACES", "0")
     r.ctx = C.Context(gpu=0)
-    assert runner._Run.ahead_ok(r) == [True, True, False]
+    assert runner._Run.ahead_ok(r) == [True, True, False, True]

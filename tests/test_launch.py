@@ -158,3 +158,5 @@ def test_bad_farm_mode_and_store_count():
         launch.run_jobs(["a", "b"], ["x", "y"], farm="both")
     with pytest.raises(ValueError, match="one store per job"):
         launch.run_jobs(["a", "b"], ["x"])
+    with pytest.raises(ValueError, match="a store path is given twice"):
+        launch.run_jobs(["a", "b"], ["x.h5", "./x.h5"])

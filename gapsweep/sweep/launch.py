@@ -192,6 +192,9 @@ def run_jobs(jobs: Sequence[Any], stores: Sequence[Any], *, farm: str = "togethe
         raise ValueError(f"--farm: expected one of {', '.join(FARM_MODES)}, got {farm!r}")
     if len(jobs) != len(stores):
         raise ValueError(f"--store: give one store per job ({len(jobs)} job(s), {len(stores)} store(s))")
+    paths = [str(Path(x).resolve()) for x in stores]
+    if len(set(paths)) != len(paths):
+        raise ValueError("--store: each job needs a store of its own (a store path is given twice)")
     if farm == "each" or len(jobs) == 1 or kw.get("shard") is not None:
         return [runner.run(j, s, **kw) for j, s in zip(jobs, stores)]
     run_kw = {k: kw[k] for k in ("writer", "progress", "coordinator_works") if k in kw}

@@ -999,8 +999,8 @@ class _Run:
         """Units worth holding ahead: GPU units with surfaces to make on the host (tasks on a grid, ``n > 0``,
         whose GPU does not make them itself: Context.makes_on_gpu). A unit held ahead is committed to its worker
         early, which unbalances the largest-first order where there is nothing to prepare."""
-        return [u.gpu and any(self.tasks[i].n > 0 and not self.ctx.makes_on_gpu(self.tasks[i]) for i in u.tasks)
-                for u in self.units]
+        return [u.gpu and any(self.tasks[i].n > 0 and (u.kind == "batch" or not self.ctx.makes_on_gpu(self.tasks[i]))
+                              for i in u.tasks) for u in self.units]  # a batch stacks host surfaces
 
     def prefetch(self, k: int) -> None:
         """A GPU unit just held: its surfaces start on the host threads (``ahead``) while the GPU works."""
