@@ -11,7 +11,8 @@ calls :func:`track` once at its start::
 At the script's exit every result file it wrote (files under ``benchmarks/results/`` and under the paths given
 to its ``--out``/``--out-dir``/``--json``/``--csv`` options, modified since the start) is stamped with
 :func:`record`: the project's commit (of *this* repository: ``git -C <repo root> rev-parse HEAD``, never an
-enclosing repository's; None outside a checkout), its commit time, whether the code paths had uncommitted
+enclosing repository's; outside a checkout the 40-hex commit in GAPSWEEP_COMMIT, for a copy of the working tree
+without .git such as a lent GPU machine gets, else None), its commit time, whether the code paths had uncommitted
 changes, the command, the machine, the date and the library versions, and ``code_paths``. A JSON file holding an
 object gets a ``"provenance"`` key; any other file a sidecar ``<file>.provenance.json``. A script whose result is
 its standard output (redirected into a file) is tracked with ``header=True``: the record is printed first, as a
@@ -27,6 +28,7 @@ import atexit
 import json
 import os
 import platform
+import re
 import shlex
 import socket
 import subprocess
@@ -110,13 +112,19 @@ def record(code_paths: list[str], argv: list[str] | None = None, root: Path = RO
     missing = [p for p in code_paths if not (root / p).exists()]
     if missing:
         raise ValueError(f"CODE_PATHS: no such file or folder in {root}: {', '.join(missing)}")
-    commit = project_commit(root)
-    rec: dict[str, Any] = {"commit": commit, "commit_time": None, "dirty": None,
+    commit, source = project_commit(root), "git"
+    env_commit = os.environ.get("GAPSWEEP_COMMIT", "")
+    if commit is None and re.fullmatch(r"[0-9a-f]{40}", env_commit):
+        # a copy of the checkout without .git (a lent GPU machine gets the working tree only): the commit the
+        # caller says it is a copy of (benchmarks/remeasure_gpu.sh passes git rev-parse HEAD); dirty unknown
+        commit, source = env_commit, "GAPSWEEP_COMMIT"
+    rec: dict[str, Any] = {"commit": commit, "commit_source": source if commit else None,
+                           "commit_time": None, "dirty": None,
                            "command": shlex.join([Path(sys.executable).name, *(sys.argv if argv is None else argv)]),
                            "cwd": os.getcwd(), "machine": _machine(),
                            "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "versions": _versions(),
                            "code_paths": list(code_paths)}
-    if commit is not None:
+    if source == "git" and commit is not None:
         t = _git(root, "show", "-s", "--format=%ct", commit)
         rec["commit_time"] = int(t) if t and t.isdigit() else None
         status = _git(root, "status", "--porcelain", "--", *code_paths)

@@ -254,7 +254,10 @@ def kernel_limit(args, fig6: dict, gpu_name: str, device_sync) -> None:
     print(text, flush=True)
     (args.out / "sde_kernel_limit.md").write_text(text + "\n")
     (args.out / "sde_kernel_limit.json").write_text(json.dumps({"gpu": gpu_name, "n": n, "steps": plan.n_steps,
-                                                                "times_s": rows, "count_diff": agree}, indent=1))
+                                                                "times_s": rows,
+                                                                "ratio_to_first_row": {k: t / ref for k, t in
+                                                                                       rows.items()},
+                                                                "count_diff": agree}, indent=1))
 
 
 if __name__ == "__main__":

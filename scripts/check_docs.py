@@ -1,7 +1,10 @@
-"""Docs that cannot drift: check the numbers quoted in README.md ("At a glance") and docs/benchmarks*.md against
-the result files they name (issue 29 item 5). Run by tests/test_docs.py (so by scripts/test.sh and CI):
+"""Docs that cannot drift: check the numbers quoted in README.md and the pages of docs/ (docs/benchmarks*.md,
+docs/history.md and every other page; not docs/results/, which holds results) against the result files they name
+(issue 29 item 5), and the provenance of those files (issue 40). Run by tests/test_docs.py (so by scripts/test.sh
+and CI):
 
     python scripts/check_docs.py            # exit 0, or 1 with one line per problem
+    python scripts/check_docs.py --debts    # also the unsourced sections and the results awaiting re-measurement
 
 The convention (docs/benchmarks.md, "How numbers are checked"):
 
@@ -32,15 +35,24 @@ The convention (docs/benchmarks.md, "How numbers are checked"):
   ``<!-- check: unsourced REASON -->``: it is listed as a debt (``--debts``), not a failure, and
   :data:`KNOWN_DEBTS` caps their number, so a new one fails the check until it is sourced or the cap is raised
   in review.
-* **Provenance** (issue 40): every result file the checked docs cite (a checked number's file, or a path they
-  name) records the commit of this repository it was measured at and the code paths it measures
-  (benchmarks/_record.py: a ``"provenance"`` key, a sidecar ``FILE.provenance.json`` or a ``# provenance:``
-  line). It fails the check when that commit is unknown to the repository, a code path did not exist at it, or
-  the code paths differ between that commit and HEAD (``git diff COMMIT HEAD -- PATHS``): the number is stale,
-  re-measure it or stop citing it. A cited file with no record is *unversioned*: allowed, with a warning, only
-  when listed in ``benchmarks/results/UNVERSIONED.txt`` (the files measured before records existed); any other
-  fails. Without a git checkout (a source archive) this part is skipped with a warning; in a shallow clone a
-  commit it lacks is a warning, not a failure.
+* **Provenance** (issue 40): every result file the checked docs cite (a checked number's file, a path they
+  name, or every file a stem they name starts with) records the commit of this repository it was measured at
+  and the code paths it measures (benchmarks/_record.py: a ``"provenance"`` key, a sidecar
+  ``FILE.provenance.json`` or a ``# provenance:`` line). It fails the check when that commit is unknown to the
+  repository, a code path did not exist at it, or the code paths differ between that commit and HEAD
+  (``git diff COMMIT HEAD -- PATHS``): the number is stale, re-measure it or stop citing it. A cited file with
+  no record is *unversioned* (measured before records existed). It may be cited
+
+  - from ``docs/history.md`` (the dated record of figures not re-measured at the current code; also checked
+    here, numbers against their files, but never judged stale), or
+  - where a comment ``<!-- remeasure: PATH -->`` names it in the citing *scope* -- the table row, the list
+    item, or the paragraph (lines between blank lines) -- and ``benchmarks/remeasure_cpu.sh`` or
+    ``benchmarks/remeasure_gpu.sh`` writes PATH: a debt (listed by ``--debts``) until that script has run and
+    PATH carries a record; a marker whose PATH then carries one fails (check the numbers, drop the marker), as
+    does a marker naming a file that no remeasure script writes.
+
+  Any other citation of an unversioned file fails. Without a git checkout (a source archive) this part is
+  skipped with a warning; in a shallow clone a commit it lacks is a warning, not a failure.
 """
 
 from __future__ import annotations
@@ -65,8 +77,12 @@ STRICT_MARK = "<!-- check: strict -->"
 UNSOURCED = re.compile(r"<!-- check: unsourced (.*?)-->", re.S)
 KNOWN_DEBTS = 7  # sections quoting numbers of runs whose raw output was not kept, or not run yet (issue 27)
 DEBTS: list[str] = []
-UNVERSIONED_LIST = Path("benchmarks") / "results" / "UNVERSIONED.txt"
-CITED: set[Path] = set()  # result files the checked docs cite (filled by check_file)
+HISTORY = Path("docs") / "history.md"  # figures not re-measured at the current code: unversioned files allowed
+REMEASURE = re.compile(r"<!-- remeasure: ([^\s>]+)[^>]*-->")
+REMEASURE_SCRIPTS = (Path("benchmarks") / "remeasure_cpu.sh", Path("benchmarks") / "remeasure_gpu.sh")
+# result file -> its citations: (where, the files named by remeasure markers in the citing scope, from history.md)
+CITED: dict[Path, list[tuple[str, frozenset[str], bool]]] = {}
+MARKERS: list[tuple[str, str]] = []  # (where, PATH) of every remeasure marker outside history.md
 WARNINGS: list[str] = []
 
 
@@ -217,17 +233,46 @@ def _target(md: Path, dest: str) -> tuple[Path, str] | None:
     return (md.parent / path).resolve(), key
 
 
-def check_links(md: Path, text: str, line0: int) -> tuple[list[str], str]:
+ITEM = re.compile(r"\s*(?:[-*+]|\d+[.)])\s")  # a line that starts a list item
+
+
+def _scope_marks(lines: list[str], i: int) -> frozenset[str]:
+    """The files named by ``<!-- remeasure: PATH -->`` comments in the scope of line ``i``: its table row, its
+    list item (the bullet's line and its continuation lines), or its paragraph (the lines between blank lines)."""
+    def marks(line: str) -> list[str]:
+        return REMEASURE.findall(CODE.sub("", line))
+
+    def edge(line: str) -> bool:  # a line no scope crosses
+        return not line.strip() or line.lstrip().startswith(("|", "#"))
+
+    if lines[i].lstrip().startswith("|"):
+        return frozenset(marks(lines[i]))
+    lo = hi = i
+    while lo > 0 and not ITEM.match(lines[lo]) and not edge(lines[lo - 1]):
+        lo -= 1
+    while hi + 1 < len(lines) and not edge(lines[hi + 1]) and not ITEM.match(lines[hi + 1]):
+        hi += 1
+    return frozenset(x for line in lines[lo:hi + 1] for x in marks(line))
+
+
+def _cite(path: Path, md: Path, lines: list[str], i: int, line0: int, history: bool) -> None:
+    CITED.setdefault(path.resolve(), []).append(
+        (f"{md.relative_to(ROOT)}:{line0 + i}", _scope_marks(lines, i), history))
+
+
+def check_links(md: Path, text: str, line0: int, history: bool = False) -> tuple[list[str], str]:
     """Check every checked number of ``text``; returns the problems and the text with checked links removed."""
     problems = []
+    lines = text.splitlines() or [""]
 
     def one(m: re.Match) -> str:
         tgt = _target(md, m[2])
         if tgt is None:
             return m[1]  # an ordinary link: its text stays in
-        where = f"{md.relative_to(ROOT)}:{line0 + text[: m.start()].count(chr(10))}"
+        i = text[: m.start()].count(chr(10))
+        where = f"{md.relative_to(ROOT)}:{line0 + i}"
         path, key = tgt
-        CITED.add(path)
+        _cite(path, md, lines, i, line0, history)
         try:
             if not path.is_file():
                 raise CheckError(f"no file {path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}")
@@ -242,11 +287,17 @@ def check_links(md: Path, text: str, line0: int) -> tuple[list[str], str]:
     return problems, LINK.sub(one, text)
 
 
-def check_file(md: Path, strict_sections: tuple[str, ...] = (), sourced: bool = False) -> list[str]:
+def check_file(md: Path, strict_sections: tuple[str, ...] = (), sourced: bool = False,
+               history: bool = False) -> list[str]:
     text = md.read_text(encoding="utf-8")
     problems: list[str] = []
     for head, line0, body in _sections(text):
-        errs, rest = check_links(md, body, line0 + 1)
+        first = line0 + 1 if head else line0  # the line number of the body's first line
+        errs, rest = check_links(md, body, first, history)
+        if not history:
+            for m in REMEASURE.finditer(CODE.sub("", body)):
+                MARKERS.append((f"{md.relative_to(ROOT)}:{first + CODE.sub('', body)[: m.start()].count(chr(10))}",
+                                m[1]))
         problems += errs
         plain = CODE.sub("", rest)
         plain = re.sub(r"<!--.*?-->", "", plain, flags=re.S)
@@ -256,21 +307,29 @@ def check_file(md: Path, strict_sections: tuple[str, ...] = (), sourced: bool = 
         if strict:
             for i, line in enumerate(plain.splitlines()):
                 for m in NUMBER.finditer(line):
-                    problems.append(f"{md.relative_to(ROOT)}:{line0 + 1 + i}: the number {m[2]!r} names no "
+                    problems.append(f"{md.relative_to(ROOT)}:{first + i}: the number {m[2]!r} names no "
                                     f"result file (a checked link, or a parameter in code)")
         elif UNSOURCED.search(bare):
             DEBTS.append(f"{md.relative_to(ROOT)}:{line0}: {head}: {UNSOURCED.search(bare)[1].strip()}")
         elif sourced and head and NUMBER.search(CODE.sub("", body)) and not _names_result(md, body):
             problems.append(f"{md.relative_to(ROOT)}:{line0}: section {head!r} quotes numbers but names no "
                             "result file that exists")
-        for p in RESULT_PATH.findall(body):
+        body_lines = body.splitlines() or [""]
+        for pm in RESULT_PATH.finditer(body):
+            p = pm[0]
             if UNSOURCED.search(bare):
                 break  # a command not run yet names the files it will write
             if not _exists(md, p.rstrip(".,;:")):
                 problems.append(f"{md.relative_to(ROOT)}:{line0}: names {p}, which does not exist")
             for base in (md.parent, ROOT):
-                if (base / p.rstrip(".,;:")).is_file():
-                    CITED.add((base / p.rstrip(".,;:")).resolve())
+                f = base / p.rstrip(".,;:")
+                # a file, or a stem naming a family of files (``contact_cpu_{a,b}``, ``hardwall_*``): each cited
+                family = [f] if f.is_file() else [x for x in f.parent.glob(glob_escape(f.name) + "*") if x.is_file()
+                                                  and not x.name.endswith(".provenance.json")] \
+                    if f.parent.is_dir() and not f.is_dir() else []
+                for x in family:
+                    _cite(x, md, body_lines, body[: pm.start()].count("\n"), first, history)
+                if family:
                     break
     return problems
 
@@ -311,39 +370,63 @@ def _git_ok(root: Path, *args: str) -> str | None:
     return _record_module()._git(root, *args, timeout=60)
 
 
-def allowed_unversioned(root: Path = ROOT) -> set[str]:
-    """The legacy result files allowed without a provenance record: the first word of each line of
-    ``benchmarks/results/UNVERSIONED.txt`` (``#`` starts a comment)."""
-    f = root / UNVERSIONED_LIST
-    if not f.is_file():
-        return set()
-    return {line.split("#", 1)[0].split()[0] for line in f.read_text(encoding="utf-8").splitlines()
-            if line.split("#", 1)[0].strip()}
+def remeasured_paths(root: Path = ROOT) -> set[str]:
+    """The result files (paths relative to the root) named in benchmarks/remeasure_{cpu,gpu}.sh, the scripts the
+    lead runs after a code freeze to re-measure the cited legacy figures."""
+    out: set[str] = set()
+    for f in REMEASURE_SCRIPTS:
+        if (root / f).is_file():
+            out |= set(RESULT_PATH.findall((root / f).read_text(encoding="utf-8")))
+    return out
 
 
-def check_provenance(files: set[Path] | list[Path], root: Path = ROOT) -> list[str]:
-    """Problems of the cited result ``files`` (module docstring, "Provenance"); warnings go to WARNINGS."""
+def check_provenance(files: dict[Path, list[tuple[str, frozenset[str], bool]]] | set[Path] | list[Path],
+                     root: Path = ROOT, markers: list[tuple[str, str]] | None = None) -> list[str]:
+    """Problems of the cited result ``files`` (module docstring, "Provenance"): a mapping file -> its citations
+    ``(where, files named by remeasure markers in scope, from history.md)``, or a plain collection (each cited
+    once from a current page, unmarked); ``markers``: the ``(where, PATH)`` of the remeasure markers outside
+    history.md. Warnings and debts go to WARNINGS."""
     rec_mod = _record_module()
     if rec_mod.project_commit(root) is None:
         WARNINGS.append(f"{root} is not a git checkout of the project: the results' provenance is not checked")
         return []
     shallow = _git_ok(root, "rev-parse", "--is-shallow-repository") == "true"
-    allow = allowed_unversioned(root)
+    cites = files if isinstance(files, dict) else {Path(x): [("(cited)", frozenset(), False)] for x in files}
     problems = []
-    for f in sorted({Path(x).resolve() for x in files}):
+    rescripts = " or ".join(str(x) for x in REMEASURE_SCRIPTS)
+    planned = remeasured_paths(root)
+    for where, path in markers or []:
+        f = root / path
+        if not f.is_file():
+            problems.append(f"{where}: the remeasure marker names {path}, which does not exist")
+        elif path not in planned:
+            problems.append(f"{where}: the remeasure marker names {path}, which {rescripts} does not write")
+        elif (rec_mod.read(f) or {}).get("commit"):
+            problems.append(f"{where}: {path} has been re-measured (it carries a provenance record): check the "
+                            "numbers of its lines against it and drop the remeasure marker")
+    merged: dict[Path, list[tuple[str, frozenset[str], bool]]] = {}
+    for x, c in cites.items():
+        merged.setdefault(Path(x).resolve(), []).extend(c)
+    for f in sorted(merged):
         if not f.is_file() or not f.is_relative_to(root.resolve()):
             continue
         rel = str(f.relative_to(root.resolve()))
-        if rel == str(UNVERSIONED_LIST) or rel.endswith(rec_mod.SIDECAR):  # the list and records are no results
+        if rel.endswith(rec_mod.SIDECAR):  # records are no results
             continue
+        current = sorted({(w, marks) for w, marks, hist in merged[f] if not hist})
+        if not current:
+            continue  # cited from docs/history.md only: a dated figure, never judged stale
         rec = rec_mod.read(f)
         if not rec or not rec.get("commit"):
-            if rel in allow:
-                WARNINGS.append(f"unversioned (measured before provenance records; {UNVERSIONED_LIST}): {rel}")
-            else:
-                problems.append(f"{rel}: a cited result with no provenance record (commit, code paths): measure "
-                                "it with a benchmark that calls benchmarks/_record.py's track(), or, for a file "
-                                f"measured before records existed, list it in {UNVERSIONED_LIST}")
+            for w, marks in current:
+                if rel in marks:
+                    WARNINGS.append(f"awaiting re-measurement ({rescripts}): {rel} ({w})")
+                else:
+                    problems.append(f"{w}: cites {rel}, a result with no provenance record (measured before "
+                                    "records existed): re-measure it with a benchmark that calls "
+                                    "benchmarks/_record.py's track() (until then: its command in "
+                                    f"{rescripts} and `<!-- remeasure: {rel} -->` beside the claim), or move the "
+                                    f"claim to {HISTORY}")
             continue
         commit, paths = str(rec["commit"]), [str(x) for x in rec.get("code_paths") or []]
         if not paths:
@@ -364,20 +447,29 @@ def check_provenance(files: set[Path] | list[Path], root: Path = ROOT) -> list[s
         if _git_ok(root, "diff", "--quiet", commit, "HEAD", "--", *paths) is None:
             last = _git_ok(root, "log", "-1", "--format=%h %cs", "HEAD", "--", *paths) or "?"
             problems.append(f"{rel}: stale: measured at {commit[:12]}, and {', '.join(paths)} changed since (last "
-                            f"change {last}): re-measure it or stop citing it")
+                            f"change {last}): re-measure it or stop citing it (its command: `{rec.get('command')}`, "
+                            f"from {rec.get('cwd', '?')})")
     return problems
 
 
 def check(root: Path = ROOT) -> list[str]:
+    """Every problem of the checked docs (module docstring): README.md and every page of docs/ (not docs/results/,
+    the results themselves, nor the generated API reference)."""
     DEBTS.clear()
     CITED.clear()
     WARNINGS.clear()
+    MARKERS.clear()
     problems = check_file(root / "README.md", strict_sections=("At a glance",))
     for md in sorted((root / "docs").glob("benchmarks*.md")):
         problems += check_file(md, sourced=True)
+    if (root / HISTORY).is_file():
+        problems += check_file(root / HISTORY, sourced=True, history=True)
+    for md in sorted((root / "docs").glob("*.md")):  # the other pages: their checked numbers and citations
+        if not md.name.startswith("benchmarks") and md.resolve() != (root / HISTORY).resolve():
+            problems += check_file(md)
     if len(DEBTS) > KNOWN_DEBTS:
         problems.append(f"{len(DEBTS)} unsourced sections, more than the {KNOWN_DEBTS} known: source the new one")
-    problems += check_provenance(CITED, root)
+    problems += check_provenance(CITED, root, MARKERS)
     return problems
 
 
@@ -393,7 +485,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"warning: {w}")
     print(f"check_docs: {len(problems)} problem(s)" if problems else
           f"check_docs: every quoted number checked ({len(DEBTS)} unsourced section(s), {len(WARNINGS)} warning(s) "
-          "-- unversioned legacy results -- listed by --debts)")
+          "-- legacy results awaiting re-measurement -- listed by --debts)")
     return 1 if problems else 0
 
 

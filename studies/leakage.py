@@ -119,5 +119,10 @@ def main(argv: list[str] | None = None) -> None:
     print(out.to_string(), flush=True)
 
 
+CODE_PATHS = ['gapsweep/flow', 'gapsweep/theory', 'gapsweep/gfmd', 'gapsweep/surfaces', 'gapsweep/sweep']
+
 if __name__ == "__main__":
+    import studies
+
+    studies.track(CODE_PATHS)
     main()

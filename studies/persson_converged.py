@@ -97,5 +97,10 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+CODE_PATHS = ['gapsweep/theory', 'gapsweep/gfmd', 'gapsweep/surfaces']
+
 if __name__ == "__main__":
+    import studies
+
+    studies.track(CODE_PATHS)
     raise SystemExit(main())

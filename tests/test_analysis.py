@@ -395,3 +395,30 @@ def test_surface_families_apart_and_both_h_rms():
     trend = compare.pressure_trend(cmp)
     assert len(trend) == 2 and set(trend["job"]) == {"fig2", "fig6"}
     assert (trend["points"] == 3).all()
+
+
+def test_theory_outside_its_domain_is_said_on_the_panel_not_as_raw_warnings(caplog):
+    """A figure draws the field theory where the data are (as the paper's figures do); where that is outside the
+    theory's validated domain (rho/h_rms < 0.5 here: docs/theory.md, 'Validity') the panel says so and the log
+    says why, and no raw PredictorDomainWarning reaches the user's terminal (it did once per curve)."""
+    import logging
+    import warnings
+
+    from gapsweep.theory.domain import PredictorDomainWarning
+
+    def panel_texts(fig):
+        return [t.get_text() for ax in fig.axes for t in ax.texts]
+
+    h = 0.002
+    for rho, outside in ((2e-4, True), (4e-3, False)):  # rho/h_rms = 0.1 (outside) and 2 (inside)
+        agg = aggregate.aggregate_mean_gap(_frame([_row(i, "gfmd", hurst=0.3, rho=rho, sigma0=s, seed=0, n=1024,
+                                                         mean_gap=3e-3, h_rms=h)
+                                                    for i, s in enumerate((1e-3, 1e-2, 1e-1))]))
+        caplog.clear()
+        figures._DOMAIN_LOGGED.clear()
+        with warnings.catch_warnings(record=True) as w, caplog.at_level(logging.INFO, "gapsweep.analysis.figures"):
+            warnings.simplefilter("always")
+            fig = figures.fig_mean_gap_pressure(agg, hurst=0.3)
+        assert not [x for x in w if issubclass(x.category, PredictorDomainWarning)]
+        assert (figures.OUTSIDE_NOTE in panel_texts(fig)) is outside
+        assert any("validated domain" in r.getMessage() for r in caplog.records) is outside

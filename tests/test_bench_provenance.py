@@ -1,7 +1,8 @@
 """Numbers with provenance (issue 40 item 11): every benchmark script names the code it measures and stamps its
 result files (benchmarks/_record.py) with the commit of *this* repository, the command, the machine, the date and
 the library versions; scripts/check_docs.py fails a cited result that is stale (its code changed in a later
-commit), whose commit is unknown or lacks its code, or that has no record and is not on the legacy list.
+commit), whose commit is unknown or lacks its code, or that has no record and is cited outside docs/history.md
+without a remeasure marker that a remeasure script honours.
 The staleness cases run in a throw-away git repository built here."""
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ import ast
 import importlib.util
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -73,6 +75,23 @@ def test_commit_is_the_projects_not_an_enclosing_repositorys(tmp_path):
         record.record(["code/no_such.py"], [], root=proj)
 
 
+def test_a_copy_without_git_takes_the_commit_it_is_told(tmp_path, monkeypatch):
+    """A copy of the working tree without .git (what a lent GPU machine gets): GAPSWEEP_COMMIT names the commit
+    (40 hex digits only), said so in the record; inside a checkout git's own commit wins."""
+    proj = tmp_path / "copy"
+    (proj / "code").mkdir(parents=True)
+    (proj / "code" / "a.py").write_text("a = 1\n")
+    monkeypatch.setenv("GAPSWEEP_COMMIT", "abc123")  # not a full commit: ignored
+    assert record.record(["code/a.py"], ["b.py"], root=proj)["commit"] is None
+    monkeypatch.setenv("GAPSWEEP_COMMIT", "a" * 40)
+    rec = record.record(["code/a.py"], ["b.py"], root=proj)
+    assert rec["commit"] == "a" * 40 and rec["commit_source"] == "GAPSWEEP_COMMIT" and rec["dirty"] is None
+    _repo(proj)
+    mine = _commit(proj, "project")
+    rec = record.record(["code/a.py"], ["b.py"], root=proj)
+    assert rec["commit"] == mine and rec["commit_source"] == "git" and rec["dirty"] is False
+
+
 def _result(root: Path, name: str, rec: dict | None) -> Path:
     f = root / "benchmarks" / "results" / name
     f.parent.mkdir(parents=True, exist_ok=True)
@@ -116,18 +135,78 @@ def test_check_docs_fails_stale_wrong_commit_and_unlisted_unversioned(tmp_path):
     probs = check_docs.check_provenance([bad, early], root)
     assert any("bad.json" in p and "does not have" in p for p in probs), probs
     assert any("early.json" in p and "did not exist" in p for p in probs), probs
-    # unversioned: a failure unless on the legacy list, where it is a warning
+    # unversioned, cited from a current page without a remeasure marker: a failure
     legacy = _result(root, "legacy.json", None)
-    check_docs.WARNINGS.clear()
     probs = check_docs.check_provenance([legacy], root)
-    assert len(probs) == 1 and "no provenance record" in probs[0]
-    (root / check_docs.UNVERSIONED_LIST).write_text("# legacy\nbenchmarks/results/legacy.json  # note\n")
-    assert check_docs.check_provenance([legacy], root) == []
-    assert any("legacy.json" in w for w in check_docs.WARNINGS)
+    assert len(probs) == 1 and "no provenance record" in probs[0] and "docs/history.md" in probs[0]
+
+
+def test_unversioned_results_only_in_history_or_beside_a_remeasure_marker(tmp_path, monkeypatch):
+    """A legacy result (no record) may be cited from docs/history.md, or from a current page where a remeasure
+    marker naming it stands in the same table row or paragraph and a remeasure script rewrites it; once it carries
+    a record the marker itself fails. The whole checker runs on a throw-away repository."""
+    root = _repo(tmp_path / "proj")
+    (root / "benchmarks").mkdir()
+    shutil.copy(ROOT / "benchmarks" / "_record.py", root / "benchmarks" / "_record.py")
+    (root / "code").mkdir()
+    (root / "code" / "solver.py").write_text("x = 1\n")
+    (root / "docs").mkdir()
+    (root / "docs" / "benchmarks.md").write_text("# B\n")
+    legacy = _result(root, "legacy.json", None)
+    _commit(root, "c1")
+    monkeypatch.setattr(check_docs, "ROOT", root)
+    link = "[1.0 s](benchmarks/results/legacy.json#t_s)"
+    mark = "<!-- remeasure: benchmarks/results/legacy.json -->"
+    script = root / "benchmarks" / "remeasure_cpu.sh"
+
+    def run(glance: str, history: str | None = None) -> list[str]:
+        (root / "README.md").write_text(f"# x\n\n## At a glance\n\n{glance}\n")
+        h = root / "docs" / "history.md"
+        h.unlink(missing_ok=True)
+        if history is not None:
+            h.write_text(history)
+        return check_docs.check(root)
+
+    out = run(f"- solve in {link}")
+    assert len(out) == 1 and out[0].startswith("README.md:5: cites benchmarks/results/legacy.json"), out
+    out = run("- raw: `benchmarks/results/leg`")  # a stem cites every file it starts with
+    assert len(out) == 1 and "cites benchmarks/results/legacy.json" in out[0], out
+    out = run(f"- solve in {link} {mark}")  # marked, but no remeasure script writes it
+    assert len(out) == 1 and "which benchmarks/remeasure_cpu.sh or benchmarks/remeasure_gpu.sh does not write" in out[0]
+    script.write_text("python b.py > benchmarks/results/legacy.json\n")
+    assert run(f"- solve in {link}\n  (`N = 8`) {mark}") == []  # same list: in scope
+    assert any("awaiting re-measurement" in w and "legacy.json" in w for w in check_docs.WARNINGS)
+    out = run(f"- solve in {link}\n- another item {mark}")  # another list item: out of scope
+    assert len(out) == 1 and "README.md:5: cites" in out[0], out
+    out = run(f"- solve in {link}\n\n{mark} another paragraph")  # another paragraph: out of scope
+    assert len(out) == 1 and "README.md:5: cites" in out[0], out
+    out = run(f"| a | b |\n| --- | --- |\n| x | {link} |\n| y | `z` {mark} |")  # another table row
+    assert len(out) == 1 and "README.md:7: cites" in out[0], out
+    assert run(f"| a | b |\n| --- | --- |\n| x | {link} {mark} |") == []
+    out = run(f"- solve in `{mark}` {link}")  # a marker quoted in code is no marker
+    assert len(out) == 1 and "cites" in out[0], out
+    hist = f"# History\n\n## Old run\n\nMeasured in 2026 ({link.replace('](', '](../')}).\n"
+    assert run("- nothing measured", hist) == []  # history.md may cite it
+    out = run("- nothing measured", hist.replace("1.0 s", "2.0 s"))  # its numbers are still checked
+    assert len(out) == 1 and "quoted '2.0 s'" in out[0], out
+    # re-measured: the file carries a record now, so the marker must go; without it the citation passes
+    legacy.write_text(json.dumps({"t_s": 1.04, "provenance": record.record(["code/solver.py"], ["b.py"],
+                                                                               root=root)}))
+    _commit(root, "re-measured")
+    out = run(f"- solve in {link} {mark}")
+    assert len(out) == 1 and "has been re-measured" in out[0] and "drop the remeasure marker" in out[0], out
+    assert run(f"- solve in {link}") == []
+    # a history-only citation of a stale result is not judged; a current one is
+    (root / "code" / "solver.py").write_text("x = 2\n")
+    _commit(root, "solver change")
+    assert run("- nothing measured", hist) == []
+    out = run(f"- solve in {link}")
+    assert len(out) == 1 and "stale" in out[0], out
 
 
 def test_the_repositorys_cited_results_pass():
-    """The real docs: every cited result is current or on the legacy list (the legacy list only shrinks)."""
+    """The real docs: every cited result is current, cited from docs/history.md, or marked for re-measurement by
+    a remeasure script."""
     assert check_docs.check() == []
 
 
@@ -144,6 +223,22 @@ def test_every_benchmark_script_tracks_its_provenance():
         main = next(n for n in tree.body if isinstance(n, ast.If) and "__main__" in ast.unparse(n.test))
         first = ast.unparse(main.body[0])
         assert first.startswith("_record.track(CODE_PATHS"), (p.name, first)
+
+
+def test_studies_behind_cited_results_track_their_provenance():
+    """The studies whose docs/results files the docs cite (and benchmarks/remeasure_cpu.sh re-runs) name existing
+    CODE_PATHS and call studies.track(CODE_PATHS) first thing under ``if __name__ == "__main__":``."""
+    script = (ROOT / "benchmarks" / "remeasure_cpu.sh").read_text(encoding="utf-8")
+    names = sorted(set(re.findall(r"-m studies\.(\w+)", script)))
+    assert {"persson_converged", "predictors_heldout", "predictors_wide", "leakage"} <= set(names), names
+    for name in names:
+        tree = ast.parse((ROOT / "studies" / f"{name}.py").read_text(encoding="utf-8"))
+        paths = next((ast.literal_eval(n.value) for n in tree.body if isinstance(n, ast.Assign)
+                      and any(getattr(t, "id", "") == "CODE_PATHS" for t in n.targets)), None)
+        assert paths and all((ROOT / x).exists() for x in paths), (name, paths)
+        main = next(n for n in tree.body if isinstance(n, ast.If) and "__main__" in ast.unparse(n.test))
+        calls = [ast.unparse(x) for x in main.body if not isinstance(x, ast.Import)]
+        assert calls[0] == "studies.track(CODE_PATHS)", (name, calls[0])
 
 
 def test_a_benchmark_run_stamps_its_result(tmp_path):

@@ -74,6 +74,14 @@ def test_sourced_sections_of_the_benchmark_pages(fake):
     assert any("gone.json, which does not exist" in p for p in out)
 
 
+def test_other_pages_are_checked(fake, tmp_path):
+    """The other pages of docs/ too: their checked numbers (and the provenance of what they cite)."""
+    (tmp_path / "docs" / "theory.md").write_text(
+        "# T\n\nfast: [0.25 s](../benchmarks/results/r.json#rows[n=1024].t_s)\n")
+    out = fake("- none")
+    assert len(out) == 1 and out[0].startswith("docs/theory.md:3: quoted '0.25 s'"), out
+
+
 VAR = re.compile(r"""(?:environ(?:\.get)?\s*[\[(]\s*|getenv\(\s*)["']([A-Z][A-Z0-9_]+)["']""")
 
 

@@ -21,7 +21,9 @@ else the stored theory points are joined.
 
 from __future__ import annotations
 
+import logging
 import math
+import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -32,6 +34,8 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from gapsweep.analysis.aggregate import HistogramStats
+
+log = logging.getLogger(__name__)
 
 __all__ = ["STYLE", "fig_agreement", "fig_gap_distribution", "fig_mean_gap_hurst", "fig_mean_gap_pressure", "footer",
            "has_data", "save"]
@@ -65,16 +69,38 @@ def _first(g: pd.DataFrame, col: str) -> float:
 
 
 def _theory_curve(sigma0: np.ndarray, *, hurst: float, h_rms: float, rho: float, gamma0: float, lambda_l: float,
-                  lambda_s: float, e_star: float, form: str) -> np.ndarray | None:
-    """Field-theory mean gap on a dense grid (M4) or None when gapsweep.theory or a parameter is missing."""
+                  lambda_s: float, e_star: float, form: str, domain: list[str] | None = None) -> np.ndarray | None:
+    """Field-theory mean gap on a dense grid (M4) or None when gapsweep.theory or a parameter is missing.
+    ``domain``: a list that receives the theory's PredictorDomainWarning messages (docs/theory.md, 'Validity')."""
     if not all(np.isfinite([hurst, h_rms, rho, gamma0, lambda_l, lambda_s, e_star])):
         return None
     try:
         from gapsweep import theory
+        from gapsweep.theory.domain import PredictorDomainWarning
     except ImportError:
         return None
-    return np.asarray(theory.mean_gap(sigma0, hurst=hurst, h_rms=h_rms, rho=rho, gamma0=gamma0, lambda_l=lambda_l,
-                                      lambda_s=lambda_s, e_star=e_star, form=form), dtype=float)
+    with warnings.catch_warnings(record=True) as caught:
+        # a figure draws the theory wherever the data are, as the paper's figures do; outside the validated domain
+        # the figure says so on the panel (OUTSIDE_NOTE) and the log says why, instead of a raw warning per curve
+        warnings.simplefilter("always", PredictorDomainWarning)
+        y = np.asarray(theory.mean_gap(sigma0, hurst=hurst, h_rms=h_rms, rho=rho, gamma0=gamma0, lambda_l=lambda_l,
+                                       lambda_s=lambda_s, e_star=e_star, form=form), dtype=float)
+    for w in caught:
+        if issubclass(w.category, PredictorDomainWarning):
+            if str(w.message) not in _DOMAIN_LOGGED:  # once per message and process: a report draws many panels
+                _DOMAIN_LOGGED.add(str(w.message))
+                log.info("figure: %s", w.message)
+        else:  # any other warning is not ours to swallow
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    if domain is not None:
+        domain.extend(str(w.message) for w in caught if issubclass(w.category, PredictorDomainWarning))
+    return y
+
+
+_DOMAIN_LOGGED: set[str] = set()
+
+#: the note a panel carries where its field-theory curve lies (partly) outside the theory's validated domain
+OUTSIDE_NOTE = "field theory outside its\nvalidated domain (docs/theory.md)"
 
 
 def _panels(n: int, width: float = 3.6, height: float = 3.1):
@@ -203,9 +229,13 @@ def fig_mean_gap_pressure(agg: pd.DataFrame, *, hurst: float, rhos: Sequence[flo
             ax.plot(x, (flat + h**2 / (2 * rho)) / h, **LOW)
             params = {"hurst": hurst, "h_rms": h, "rho": rho, "gamma0": gamma0, "lambda_l": _first(ref, "lambda_l"),
                       "lambda_s": _first(ref, "lambda_s"), "e_star": es}
-            y = _theory_curve(s, form="paper", **params)
+            outside: list[str] = []
+            y = _theory_curve(s, form="paper", domain=outside, **params)
             if y is not None:
                 ax.plot(x, y / h, **THEORY)
+                if outside:
+                    ax.text(0.03, 0.03, OUTSIDE_NOTE, transform=ax.transAxes, fontsize=6, color="0.35",
+                            ha="left", va="bottom")
                 yc = _theory_curve(s, form="continuum", **params)
                 if yc is not None:
                     ax.plot(x, yc / h, **CONTINUUM)
