@@ -58,6 +58,10 @@ def test_joint_numbering_and_largest_first_across_jobs():
     assert j.todo == set(range(9)) and j.ahead_ok() == [True, False, True, True, False]
     seen = []
     b.units_of = lambda k, skip: (seen.append((k, skip)), iter([(1, "row")]))[1]
+    c = _run([Unit((0,), 1.0)])
+    c.ctx = SimpleNamespace(_max=4)
+    launch.Joint([_run([Unit((0,), 1.0)]), c, _run([Unit((0,), 1.0)])])
+    assert c.ctx._max == 1  # three jobs: the surface caches share one job's budget (4 surfaces)
     assert list(j.units_of(2, frozenset({4}))) == [(5, "row")] and seen == [(0, frozenset({0}))]
 
 

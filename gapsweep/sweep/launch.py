@@ -99,6 +99,9 @@ class Joint:
         lead = gpu_runs[0] if gpu_runs else first
         self.gpu, self.gpu_of = lead.gpu, lead.gpu_of
         self.ctx = lead.ctx
+        for r in runs:  # the jobs' surface caches (host and GPU) share one context's budget: a worker holds no more
+            if r.ctx is not None:  # surfaces than a farm of one job (a unit runs its chain on one surface anyway)
+                r.ctx._max = max(1, r.ctx._max // len(runs))
         self.task_offset, self.unit_offset = [], []
         self.tasks: list[Any] = []
         self.units: list[Unit] = []
