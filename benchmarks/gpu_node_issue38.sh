@@ -22,6 +22,7 @@
 #   mixsplit@4:auto                    the mixed sweep with split_chains = 2 (other task ids: compared by grid point,
 #                                      within the solver's tolerance, in the JSON's "against_mix")
 #   pub@4:12 pub@2:16 pub@1:8          48 MPS clients on 4 GPUs; 16 per GPU on 2; 8 per GPU on 1
+# First the GPU test of the surfaces made on the GPU (tests/test_gpu_surfaces.py -m gpu, where pytest is installed).
 # Each run: wall, start-up (launch -> farm start), efficiency T1_best / (k T_k), GPU utilisation (nvidia-smi every
 # 0.5 s over the sweep, share of samples >= 80 %), the farms' trace (GAPSWEEP_TRACE: per-worker units, busy/idle,
 # per farm start/first unit/last unit and the gaps between farms, coordinator latency, the longest units, the
@@ -48,6 +49,12 @@ log="$OUT/gpu_node_issue38.log"
   $PY -c "import sys, cupy, mpi4py, h5py; print(sys.version.split()[0], 'cupy', cupy.__version__)"
   ngpu=$(nvidia-smi -L | grep -c '^GPU ')
   echo "GPUs: $ngpu"
+  # the surfaces made on the GPU against the host's (seconds; needs pytest): a broken GPU path shows here first
+  if $PY -c "import pytest" 2>/dev/null; then
+    $PY -m pytest -q -p no:cacheprovider -m gpu tests/test_gpu_surfaces.py 2>&1 | tail -3
+  else
+    echo "pytest not installed: tests/test_gpu_surfaces.py -m gpu not run"
+  fi
   $PY benchmarks/bench_multi_gpu.py --out "$OUT" --work "$WORK" --name gpu_node_issue38 --sets pub mix mixsplit figs \
     --max-gpus "$ngpu" --budget "${BUDGET:-400}" --launch-timeout 200 \
     --layouts pub@1:auto pub@4:auto pub@2:auto pub@4:auto/each pub@4:auto/host pub@1:auto/host \

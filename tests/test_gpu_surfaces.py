@@ -132,3 +132,27 @@ def test_units_held_ahead_only_where_the_host_prepares_something(tmp_path, monke
     monkeypatch.setenv("GAPSWEEP_GPU_SURFACES", "0")
     r.ctx = C.Context(gpu=0)
     assert runner._Run.ahead_ok(r) == [True, True, False, True]
+
+
+@pytest.mark.gpu
+def test_gpu_made_surface_on_a_gpu(tmp_path):
+    """The same on a GPU (cupy, cuFFT; skipped without one): heights and rms values to round-off, a GFMD row
+    within the solver's tolerance of the host-surface row."""
+    from tests.gpu.cuda_skip import cupy_or_skip
+
+    cupy = cupy_or_skip()
+    from gapsweep.sweep.methods.gfmd import run_gfmd
+
+    t = _tasks(tmp_path)[0]
+    ctx = C.Context(gpu=0)
+    h = ctx.surface_on_gpu(t, t.n)
+    ref = C._make_surface(t, t.n, t.surface_params())
+    assert isinstance(h, cupy.ndarray) and np.max(np.abs(cupy.asnumpy(h) - ref)) <= 1e-13 * np.max(np.abs(ref))
+    got, want = ctx.surface_rms(t, t.n), C._rms(ref, t.surface_params())
+    assert all(math.isclose(a, b, rel_tol=1e-12) for a, b in zip(got, want)) and not ctx._surfaces
+    row, _ = run_gfmd(t, C.Context(gpu=0), None)
+    host = C.Context(gpu=0)
+    host.gpu_surfaces = False
+    row_host, _ = run_gfmd(t, host, None)
+    assert row.status == row_host.status == "done"
+    assert abs(row.values["mean_gap"] - row_host.values["mean_gap"]) <= 1e-6 * abs(row_host.values["mean_gap"])
