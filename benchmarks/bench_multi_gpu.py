@@ -27,12 +27,17 @@ of the budget are left (alone: ``--sets`` with no set).
 (the second writes OUT/fault_check.json and reuses the first's /tmp/farm/gpus1/fig2.h5 as its reference; the
 stores stay in --work, default --out).
 
-``--layouts [SET@]G:K[:R] ...`` (issue 38): these layouts in order instead -- G GPUs, K ranks per GPU (``auto``:
-the run's default, no flag), R ranks -- each traced (``GAPSWEEP_TRACE``: per-worker busy/idle timelines, the
-coordinator's latency, the longest units, the tail), with GPU utilisation over the sweep, the processes holding
-contexts on several GPUs (``nvidia-smi --query-compute-apps``), stores against the set's first run, and the table
-against T1_best (the best one-GPU wall time of the set, any layout); writes OUT/NAME.json, OUT/NAME.md and
-OUT/NAME_runs.log (``--name``; benchmarks/gpu_node_issue38.sh runs it).
+``--layouts [SET@]G:K[:R][/each][/host] ...`` (issue 38): these layouts in order instead -- G GPUs, K ranks per GPU
+(``auto``: the run's default, no flag), R ranks; ``/each``: the jobs one farm each (``--farm each``); ``/host``: the
+GPU tasks' surfaces on the host (``GAPSWEEP_GPU_SURFACES=0``; stores also compared by grid point within
+tolerance) -- each traced (``GAPSWEEP_TRACE``: per-worker busy/idle over the sweep and timelines, per farm its
+window and the gaps between farms, the coordinator's latency, the longest units, the tail), with GPU utilisation
+over the sweep, the processes holding contexts on several GPUs (``nvidia-smi --query-compute-apps``), stores
+against the set's first run, and the table against T1_best (the best one-GPU wall time of the set, any layout)
+with a summary (T1_best and its layout, the layouts tried, per GPU count the default's efficiency, utilisation and
+idle share); sets ``mix`` (benchmarks/jobs/issue38) and ``mixsplit`` (the same with ``split_chains``, compared
+with ``mix`` by grid point); writes OUT/NAME.json, OUT/NAME.md and OUT/NAME_runs.log (``--name``;
+benchmarks/gpu_node_issue38.sh runs it).
 
     python3 benchmarks/bench_multi_gpu.py --out OUT --work /tmp/l --sets pub --layouts 1:auto 1:16 2:auto 4:auto
 
