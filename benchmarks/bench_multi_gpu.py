@@ -468,6 +468,7 @@ def analyse_trace(d: Path, t_launch: float, t_end: float, farm_start: float | No
         workers.append({
             "rank": rank, "gpu": mine[0]["gpu"], "units": len(us),
             "gpu_units": sum(bool(u[3]) for u in us), "busy_s": round(busy, 2),
+            "io_s": round(sum(u[5] for u in us if len(u) > 5), 3),  # writing and sending its rows
             "idle_s": round(window - busy, 2), "idle_pct": round(100 * (1 - busy / window), 1),
             "first_unit_after_launch_s": round(first - t_launch, 2) if first else None,
             "last_unit_end_after_farm_start_s": round(end - t0, 2) if end else None,
@@ -487,6 +488,7 @@ def analyse_trace(d: Path, t_launch: float, t_end: float, farm_start: float | No
         "gpu_workers_idle_pct_mean": round(statistics.fmean(w["idle_pct"] for w in g), 1) if g else None,
         "gpu_workers_idle_pct_max": max((w["idle_pct"] for w in g), default=None),
         "gpu_workers_busy_s_sum": round(sum(w["busy_s"] for w in g), 2),
+        "gpu_workers_io_s_sum": round(sum(w["io_s"] for w in g), 2),  # of the busy time: rows written and sent
         "cpu_workers_busy_s_sum": round(sum(w["busy_s"] for w in workers if w["gpu"] is None), 2),
         "coordinator": {"busy_s": round(sum(c.get("busy_s") or 0 for c in coords), 3),
                         "rows": sum(c.get("rows") or 0 for c in coords),

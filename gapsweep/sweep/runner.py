@@ -1397,19 +1397,21 @@ def _work(r: _Run) -> None:
     held = _Held(r, get, ready)
     ready(None)
     while (msg := held.next()) is not None:
-        t0 = time.time()
+        t0, io = time.time(), 0.0
         try:
             for i, res in r.units_of(*msg):
+                t1 = time.perf_counter()
                 if r.wmode == "mpio":
                     r.st.write(i, res)
                     res = TaskResult(res.status, "", {})  # rank 0 only counts it
                 comm.send((msg[0], i, res), dest=0, tag=TAG_ROW)
+                io += time.perf_counter() - t1
         except DeviceFault as e:
             held.fault()
             comm.send(_fault(r.rank, r.gpu, e), dest=0, tag=TAG_FAULT)
             continue
         finally:
-            tr.unit(msg[0], t0, r.units[msg[0]].gpu, len(r.units[msg[0]].tasks))
+            tr.unit(msg[0], t0, r.units[msg[0]].gpu, len(r.units[msg[0]].tasks), io)
         if r.stop.signum is not None and not told:
             comm.send(r.stop.signum, dest=0, tag=TAG_STOP)
             told = True

@@ -4,13 +4,14 @@ farms this process was in (0, 1, ...: a launch of several jobs, one farm each wi
 nothing is recorded (each hook is one attribute test). (Before, every farm of a launch wrote ``rank<R>.json`` and
 the last job's farm overwrote the others': a profile of a several-job launch saw only its last job.)
 
-A worker records the units it ran (``[unit, start, end, gpu unit, tasks in it]``, wall clock [s since the epoch], so
-that the ranks of one node share a clock) and the times it asked the coordinator for work (``asks``: every ready
-message). The coordinator records the units of its own worker thread (where it works) as a worker does, when it
-handled each worker's ready messages (``handled[worker]``: the k-th entry answers that worker's k-th ask, MPI
-keeping the order of one sender's messages), the seconds it spent handling messages and writing rows
-(``busy_s``), and how many rows it wrote (``rows``). Coordinator latency = handled - asked; a worker's idle time =
-the gaps between its units.
+A worker records the units it ran (``[unit, start, end, gpu unit, tasks in it, io]``, wall clock [s since the epoch],
+so that the ranks of one node share a clock; ``io``: the seconds of the unit spent writing its rows (mpio) and
+sending them to the coordinator, the rest is the tasks' own work) and the times it asked the coordinator for work
+(``asks``: every ready message). The coordinator records the units of its own worker thread (where it works) as a
+worker does, when it handled each worker's ready messages (``handled[worker]``: the k-th entry answers that
+worker's k-th ask, MPI keeping the order of one sender's messages), the seconds it spent handling messages and
+writing rows (``busy_s``), and how many rows it wrote (``rows``). Coordinator latency = handled - asked; a worker's
+idle time = the gaps between its units.
 """
 
 from __future__ import annotations
@@ -46,9 +47,9 @@ class Trace:
         if self.on:
             self.asks.append(time.time())
 
-    def unit(self, k: int, start: float, gpu_unit: bool, tasks: int = 0) -> None:
+    def unit(self, k: int, start: float, gpu_unit: bool, tasks: int = 0, io: float = 0.0) -> None:
         if self.on:
-            self.units.append([k, start, time.time(), bool(gpu_unit), tasks])
+            self.units.append([k, start, time.time(), bool(gpu_unit), tasks, round(io, 6)])
 
     def handle(self, wid: int) -> None:
         if self.on:

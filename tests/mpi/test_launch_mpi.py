@@ -59,7 +59,9 @@ def test_two_jobs_one_mpi_farm(tmp_path, jobs, writer):
     from gapsweep.sweep import tasks
 
     total = sum(len(tasks.make_units(tasks.expand(specmod.load(j)))) for j in specs)
-    ran = [u[0] for f in trace.glob("rank*.json") for u in json.loads(f.read_text())["units"]]
+    units = [u for f in trace.glob("rank*.json") for u in json.loads(f.read_text())["units"]]
+    assert all(0 <= u[5] <= u[2] - u[1] + 1e-3 for u in units)  # the rows' writing and sending: part of the unit
+    ran = [u[0] for u in units]
     # every unit of both jobs ran once, but the one GPU 1 failed in (it ran again on another worker)
     assert set(ran) == set(range(total)) and len(ran) == total + 1
 
