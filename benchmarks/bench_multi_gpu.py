@@ -68,7 +68,7 @@ import _record
 
 # the code this benchmark measures: a result measured before a later change to it is stale
 # (scripts/check_docs.py)
-CODE_PATHS = ['gapsweep/sweep', 'gapsweep/gfmd', 'gapsweep/gapdist']
+CODE_PATHS = ['gapsweep/sweep', 'gapsweep/gfmd', 'gapsweep/gapdist', 'gapsweep/surfaces', 'gapsweep/cli.py']
 
 ROOT = Path(__file__).resolve().parents[1]
 SETS = {
