@@ -27,12 +27,17 @@ of the budget are left (alone: ``--sets`` with no set).
 (the second writes OUT/fault_check.json and reuses the first's /tmp/farm/gpus1/fig2.h5 as its reference; the
 stores stay in --work, default --out).
 
-``--layouts [SET@]G:K[:R] ...`` (issue 38): these layouts in order instead -- G GPUs, K ranks per GPU (``auto``:
-the run's default, no flag), R ranks -- each traced (``GAPSWEEP_TRACE``: per-worker busy/idle timelines, the
-coordinator's latency, the longest units, the tail), with GPU utilisation over the sweep, the processes holding
-contexts on several GPUs (``nvidia-smi --query-compute-apps``), stores against the set's first run, and the table
-against T1_best (the best one-GPU wall time of the set, any layout); writes OUT/NAME.json, OUT/NAME.md and
-OUT/NAME_runs.log (``--name``; benchmarks/gpu_node_issue38.sh runs it).
+``--layouts [SET@]G:K[:R][/each][/host] ...`` (issue 38): these layouts in order instead -- G GPUs, K ranks per GPU
+(``auto``: the run's default, no flag), R ranks; ``/each``: the jobs one farm each (``--farm each``); ``/host``: the
+GPU tasks' surfaces on the host (``GAPSWEEP_GPU_SURFACES=0``; stores also compared by grid point within
+tolerance) -- each traced (``GAPSWEEP_TRACE``: per-worker busy/idle over the sweep and timelines, per farm its
+window and the gaps between farms, the coordinator's latency, the longest units, the tail), with GPU utilisation
+over the sweep, the processes holding contexts on several GPUs (``nvidia-smi --query-compute-apps``), stores
+against the set's first run, and the table against T1_best (the best one-GPU wall time of the set, any layout)
+with a summary (T1_best and its layout, the layouts tried, per GPU count the default's efficiency, utilisation and
+idle share); sets ``mix`` (benchmarks/jobs/issue38) and ``mixsplit`` (the same with ``split_chains``, compared
+with ``mix`` by grid point); writes OUT/NAME.json, OUT/NAME.md and OUT/NAME_runs.log (``--name``;
+benchmarks/gpu_node_issue38.sh runs it).
 
     python3 benchmarks/bench_multi_gpu.py --out OUT --work /tmp/l --sets pub --layouts 1:auto 1:16 2:auto 4:auto
 
@@ -43,7 +48,9 @@ check alone); logs in OUT/runs.log.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
+import math
 import os
 import shutil
 import signal
@@ -61,15 +68,20 @@ import _record
 
 # the code this benchmark measures: a result measured before a later change to it is stale
 # (scripts/check_docs.py)
-CODE_PATHS = ['gapsweep/sweep', 'gapsweep/gfmd', 'gapsweep/gapdist']
+CODE_PATHS = ['gapsweep/sweep', 'gapsweep/gfmd', 'gapsweep/gapdist', 'gapsweep/surfaces', 'gapsweep/cli.py']
 
 ROOT = Path(__file__).resolve().parents[1]
 SETS = {
     "figs": [ROOT / "jobs" / "gpu" / f"{j}.toml" for j in ("fig6", "fig4_5", "fig2", "fig3")],
     "pub": [ROOT / "jobs" / "pub" / f"{j}.toml" for j in ("fig2", "fig3", "fig4_5")],
     "sde": [ROOT / "jobs" / "bench_sde_gpus.toml"],
+    # issue 38's own mixed sweep: exponential law at N = 1024 and 4096, hard wall and adhesion at N = 2048
+    "mix": [ROOT / "benchmarks" / "jobs" / "issue38" / f"mix_{j}.toml" for j in ("exp", "hard", "adh")],
 }
-PRIOR = {"figs": 60.0, "pub": 120.0, "sde": 45.0}  # 1-GPU seconds assumed before it is measured (issue 26)
+SPLIT = 2  # "mixsplit": the mix jobs with [methods.gfmd] split_chains = SPLIT (not the adhesive one: refused)
+# 1-GPU seconds assumed before it is measured (issue 26: figs 18.6 s under MPS, pub 120 s one worker per GPU;
+# mix: a guess)
+PRIOR = {"figs": 25.0, "pub": 120.0, "sde": 45.0, "mix": 40.0, "mixsplit": 40.0}
 T_START = time.monotonic()
 
 
@@ -252,6 +264,9 @@ def compile_kernels(log) -> float:
     code = ("import cupy\nfrom gapsweep import gfmd, sde\nfrom gapsweep.surface import self_affine\n"
             "h = cupy.asarray(self_affine(64, 0.3, lambda_l=0.25, lambda_s=4.0 / 64, seed=0))\n"
             "gfmd.solve(h, sigma0=1e-2, gamma0=1e-3, rho=2e-2, backend='cupy', host=False)\n"
+            "from gapsweep.sweep.context import _rms_gpu\n"  # a GPU task's surface and its rms values (issue 38)
+            "_rms_gpu(self_affine(64, 0.3, lambda_l=0.25, lambda_s=4.0 / 64, seed=0, backend='cupy'), "
+            "{'length': 1.0})\n"
             "sde.gap_histogram_counts(1e-2, hurst=0.3, h_rms=2.34e-3, rho=2e-3, gamma0=1e-3, lambda_l=0.25, "
             "lambda_s=2.5e-3, c2=1.0, n=1000, device='cuda', bins=16)\n")
     t0 = time.perf_counter()
@@ -323,13 +338,22 @@ def fault_check(out: Path, ranks: int, log) -> dict:
 
 
 # ---------------------------------------------------------------------------------------------- layouts (issue 38)
-def parse_layout(text: str) -> tuple[int, int | None, int | None]:
-    """``G:K[:R]``: G GPUs, K ranks per GPU (``auto``: gapsweep's default, no flag), R ranks (default --ranks)."""
+LAYOUT_FLAGS = ("each", "host")
+
+
+def parse_layout(text: str) -> tuple[int, int | None, int | None, str, bool]:
+    """``G:K[:R][/each][/host]``: G GPUs, K ranks per GPU (``auto``: gapsweep's default, no flag), R ranks (default
+    --ranks); ``/each``: the jobs of the launch one farm each (``--farm each``, the behaviour before issue 38's
+    joint farm), else one farm for all (the default); ``/host``: the GPU tasks' surfaces made on the host
+    (``GAPSWEEP_GPU_SURFACES=0``, as before issue 38), else on their GPU (the default). Returns (G, K, R, farm,
+    host surfaces)."""
+    text, *flags = text.split("/")
     parts = text.split(":")
-    if len(parts) not in (2, 3) or not parts[0].isdigit():
-        raise SystemExit(f"--layouts: expected G:K[:R] (K an integer or auto), got {text!r}")
+    if len(parts) not in (2, 3) or not parts[0].isdigit() or any(f not in LAYOUT_FLAGS for f in flags):
+        raise SystemExit(f"--layouts: expected G:K[:R][/each][/host] (K an integer or auto), got {text!r}")
     k = None if parts[1] == "auto" else int(parts[1])
-    return int(parts[0]), k, (int(parts[2]) if len(parts) == 3 else None)
+    return (int(parts[0]), k, (int(parts[2]) if len(parts) == 3 else None), "each" if "each" in flags
+            else "together", "host" in flags)
 
 
 def wait_no_mps(log, timeout: float = 20.0) -> float:
@@ -391,53 +415,83 @@ def _q(xs: list[float], q: float) -> float | None:
     return round(xs[min(len(xs) - 1, int(q * (len(xs) - 1) + 0.5))], 4)
 
 
+def _farm_summary(recs: dict, t_launch: float) -> dict:
+    """One farm's records (rank -> trace record): its start (the earliest rank's), its first unit and its last
+    unit's end (s after the launch), its units."""
+    start = min(r["start"] for r in recs.values())
+    us = [u for r in recs.values() for u in r["units"]]
+    first = min((u[1] for u in us), default=None)
+    last = max((u[2] for u in us), default=None)
+    return {"start_s": round(start - t_launch, 2),
+            "first_unit_s": None if first is None else round(first - t_launch, 2),
+            "last_unit_end_s": None if last is None else round(last - t_launch, 2), "units": len(us),
+            "gpu_units": sum(bool(u[3]) for u in us)}
+
+
 def analyse_trace(d: Path, t_launch: float, t_end: float, farm_start: float | None) -> dict:
-    """The farm's timeline (gapsweep.sweep.trace files in ``d``): per worker busy/idle seconds and its units
-    (times from the launch), coordinator latency (handled - asked), the longest units (the critical path's
-    candidates) and the tail (the last unit's end to the exit)."""
-    recs = {}
+    """The farms' timeline (gapsweep.sweep.trace files ``rank<R>.farm<F>.json`` in ``d``; one farm per launch
+    with ``--farm together``, one per job with ``--farm each``): per worker busy/idle seconds over the sweep (the
+    first farm's start to the last unit's end: the gaps between the farms of a launch count as idle) and its
+    units (times from the launch), per farm its start, first unit and last unit's end (``farms``: the gaps
+    between them are the jobs' serial phases), coordinator latency (handled - asked), the longest units (the
+    critical path's candidates) and the tail (the last unit's end to the exit)."""
+    farms: dict[int, dict[int, dict]] = {}
     for f in sorted(d.glob("rank*.json")):
         try:
             r = json.loads(f.read_text())
-            recs[r["rank"]] = r
+            farms.setdefault(int(r.get("farm", 0)), {})[r["rank"]] = r
         except (OSError, ValueError, KeyError):
             continue
-    if not recs:
+    if not farms:
         return {"error": f"no trace files in {d}"}
-    t0 = farm_start or min(r["start"] for r in recs.values())
-    last = max((u[2] for r in recs.values() for u in r["units"]), default=t0)
+    allr = [r for recs in farms.values() for r in recs.values()]
+    t0 = min(farm_start or math.inf, min(r["start"] for r in allr))
+    last = max((u[2] for r in allr for u in r["units"]), default=t0)
     window = max(last - t0, 1e-9)
     workers, lat, units = [], [], []
-    coord = recs.get(0, {})
-    for rank, r in sorted(recs.items()):
-        if not r["units"] and rank == 0:
+    ranks = sorted({r["rank"] for r in allr})
+    for rank in ranks:
+        mine = [farms[f][rank] for f in sorted(farms) if rank in farms[f]]
+        us = [u for r in mine for u in r["units"]]
+        if not us and rank == 0:
             continue
-        busy = sum(u[2] - u[1] for u in r["units"])
-        first = min((u[1] for u in r["units"]), default=None)
-        end = max((u[2] for u in r["units"]), default=None)
-        handled = coord.get("handled", {}).get(str(rank), [])
-        la = [h - a for a, h in zip(r["asks"], handled)]
+        busy = sum(u[2] - u[1] for u in us)
+        la = []
+        for f in sorted(farms):
+            r, coord = farms[f].get(rank), farms[f].get(0, {})
+            if r is not None:
+                la += [h - a for a, h in zip(r["asks"], coord.get("handled", {}).get(str(rank), []))]
         lat += la
-        units += [(u[2] - u[1], rank, r["gpu"], u[0], u[4] if len(u) > 4 else None) for u in r["units"]]
+        units += [(u[2] - u[1], rank, mine[0]["gpu"], u[0], u[4] if len(u) > 4 else None) for u in us]
+        first = min((u[1] for u in us), default=None)
+        end = max((u[2] for u in us), default=None)
         workers.append({
-            "rank": rank, "gpu": r["gpu"], "units": len(r["units"]),
-            "gpu_units": sum(bool(u[3]) for u in r["units"]), "busy_s": round(busy, 2),
+            "rank": rank, "gpu": mine[0]["gpu"], "units": len(us),
+            "gpu_units": sum(bool(u[3]) for u in us), "busy_s": round(busy, 2),
+            "io_s": round(sum(u[5] for u in us if len(u) > 5), 3),  # writing and sending its rows
             "idle_s": round(window - busy, 2), "idle_pct": round(100 * (1 - busy / window), 1),
             "first_unit_after_launch_s": round(first - t_launch, 2) if first else None,
             "last_unit_end_after_farm_start_s": round(end - t0, 2) if end else None,
             "latency_median_ms": None if not la else round(1e3 * statistics.median(la), 2),
-            "timeline": [[round(u[1] - t_launch, 3), round(u[2] - t_launch, 3), u[0], int(bool(u[3]))]
-                         for u in r["units"]]})
+            "timeline": [[round(u[1] - t_launch, 3), round(u[2] - t_launch, 3), u[0], int(bool(u[3]))] for u in us]})
     g = [w for w in workers if w["gpu"] is not None]
     units.sort(reverse=True)
     ms = [1e3 * x for x in lat]
+    fs = [_farm_summary(farms[f], t_launch) for f in sorted(farms)]
+    gaps = [round(b["first_unit_s"] - a["last_unit_end_s"], 2) for a, b in itertools.pairwise(fs)
+            if a["last_unit_end_s"] is not None and b["first_unit_s"] is not None]
+    coords = [farms[f].get(0, {}) for f in sorted(farms)]
     return {
+        "farms": fs, "gaps_between_farms_s": gaps,
         "farm_window_s": round(window, 2), "tail_s": round(t_end - last, 2),
         "workers": workers,
         "gpu_workers_idle_pct_mean": round(statistics.fmean(w["idle_pct"] for w in g), 1) if g else None,
+        "gpu_workers_idle_pct_max": max((w["idle_pct"] for w in g), default=None),
         "gpu_workers_busy_s_sum": round(sum(w["busy_s"] for w in g), 2),
+        "gpu_workers_io_s_sum": round(sum(w["io_s"] for w in g), 2),  # of the busy time: rows written and sent
         "cpu_workers_busy_s_sum": round(sum(w["busy_s"] for w in workers if w["gpu"] is None), 2),
-        "coordinator": {"busy_s": coord.get("busy_s"), "rows": coord.get("rows"),
+        "coordinator": {"busy_s": round(sum(c.get("busy_s") or 0 for c in coords), 3),
+                        "rows": sum(c.get("rows") or 0 for c in coords),
                         "latency_ms": {"median": _q(ms, 0.5), "p95": _q(ms, 0.95), "max": _q(ms, 1.0),
                                        "n": len(lat)}},
         "longest_units": [{"s": round(du, 2), "rank": rk, "gpu": gp, "unit": k, "tasks": nt}
@@ -447,26 +501,34 @@ def analyse_trace(d: Path, t_launch: float, t_end: float, farm_start: float | No
     }
 
 
+def run_dir(i: int, name: str, g: int, per_gpu: int | None, farm: str, host: bool = False) -> str:
+    return f"run{i}_{name}_g{g}_k{per_gpu or 'auto'}" + ("_each" if farm == "each" else "") + ("_host" if host else "")
+
+
 def layout_run(i: int, name: str, jobs: list[Path], g: int, per_gpu: int | None, ranks: int, work: Path,
-               extra: list[str], log, timeout: float, ref: list[Path] | None) -> dict:
+               extra: list[str], log, timeout: float, ref: list[Path] | None, farm: str = "together",
+               host: bool = False) -> dict:
     """One launch of ``jobs`` on GPUs 0..g-1 with ``per_gpu`` ranks per GPU (None: gapsweep's default), traced."""
     from gapsweep import store
 
-    d = work / f"run{i}_{name}_g{g}_k{per_gpu or 'auto'}"
+    d = work / run_dir(i, name, g, per_gpu, farm, host)
     shutil.rmtree(d, ignore_errors=True)
     d.mkdir(parents=True)
     stores = [d / f"{j.stem}.h5" for j in jobs]
     waited = wait_no_mps(log)
-    args = [*extra, *([] if per_gpu is None else ["--ranks-per-gpu", str(per_gpu)])]
+    args = [*extra, *([] if per_gpu is None else ["--ranks-per-gpu", str(per_gpu)]),
+            *(["--farm", "each"] if farm == "each" and len(jobs) > 1 else [])]
     sampler, apps = GpuSampler(), AppSampler()
     t_launch = time.time()
     rc, wall = launch(jobs, stores, ",".join(map(str, range(g))), ranks, log, args, timeout,
-                      env_extra={"GAPSWEEP_TRACE": str(d / "trace")})
+                      env_extra={"GAPSWEEP_TRACE": str(d / "trace"),
+                                 **({"GAPSWEEP_GPU_SURFACES": "0"} if host else {})})
     t_end = time.time()
     sampler.stop(g)
     rec = run_record(stores[0])
     start = rec.get("farm_started_unix")
-    r = {"run": i, "set": name, "gpus": g, "ranks_per_gpu": per_gpu or "auto", "ranks": ranks, "rc": rc,
+    r = {"run": i, "set": name, "gpus": g, "ranks_per_gpu": per_gpu or "auto", "farm": farm,
+         "surfaces": "host" if host else "gpu", "ranks": ranks, "rc": rc,
          "wall_s": round(wall, 2), "startup_s": round(start - t_launch, 2) if start else None,
          "mps_wait_before_s": waited, "layout": {x: rec.get(x) for x in ("ranks_per_gpu", "mps")},
          "gpu_ranks": sum(x is not None for x in rec.get("gpus") or []),
@@ -481,29 +543,41 @@ def layout_run(i: int, name: str, jobs: list[Path], g: int, per_gpu: int | None,
             st["equal_to_reference"] = not diff
             if diff:
                 st["diff"] = diff[:5]
+            if host:  # surfaces made on the host: equal to the reference's to round-off, results within tolerance
+                st["within_tolerance_of_reference"] = within_tolerance(s_, ref[j])
         r["stores"][s_.stem] = st
     r["trace"] = analyse_trace(d / "trace", t_launch, t_end, start)
     return r
 
 
+def _lay(r: dict) -> str:
+    return (f"{r['gpus']}:{r['ranks_per_gpu']}" + ("/each" if r.get("farm") == "each" else "")
+            + ("/host" if r.get("surfaces") == "host" else ""))
+
+
 def layout_table(rows: list[dict]) -> tuple[str, dict]:
-    """The table against T1_best (the best one-GPU wall time of a set, any layout) and the summary."""
+    """The table against T1_best (the best one-GPU wall time of a set, any layout), and per set the summary:
+    T1_best and its layout, the layouts tried (``G:K[/each]`` -> wall), the default's one-GPU time over T1_best,
+    and per GPU count the default's efficiency, mean GPU utilisation over the sweep and the GPU workers' idle
+    share (mean and largest, from the trace)."""
     summary: dict = {}
     for name in sorted({r["set"] for r in rows}):
-        one = [r for r in rows if r["set"] == name and r.get("gpus") == 1 and r.get("rc") == 0 and r.get("wall_s")]
+        mine = [r for r in rows if r["set"] == name and not r.get("skipped")]
+        one = [r for r in mine if r.get("gpus") == 1 and r.get("rc") == 0 and r.get("wall_s")]
         best = min(one, key=lambda r: r["wall_s"]) if one else None
         summary[name] = {"T1_best_s": best["wall_s"] if best else None,
-                         "T1_best_layout": f"{best['ranks_per_gpu']} ranks per GPU" if best else None}
-        default1 = [r["wall_s"] for r in one if r["ranks_per_gpu"] == "auto"]
+                         "T1_best_layout": _lay(best) if best else None,
+                         "layouts_tried": {_lay(r): r.get("wall_s") for r in mine}}
+        default1 = [r["wall_s"] for r in one if _lay(r) == "1:auto"]
         summary[name]["default_over_best_on_1_gpu"] = round(min(default1) / best["wall_s"], 3) if best and default1 \
             else None
-    lines = ["| set | GPUs | ranks per GPU (run) | ranks | wall [s] | start-up [s] | eff. T1_best/(k T_k) | "
-             "GPU util sweep [%] | GPU idle (trace) [%] | latency median/p95 [ms] | longest unit [s] | "
-             "stores = reference | rc |", "|" + " --- |" * 13]
+    lines = ["| set | GPUs | ranks per GPU (run) | layout | ranks | wall [s] | start-up [s] | eff. T1_best/(k T_k) | "
+             "GPU util sweep [%] | GPU workers idle mean/max [%] | gaps between farms [s] | "
+             "latency median/p95 [ms] | longest unit [s] | stores = reference | rc |", "|" + " --- |" * 15]
     for r in rows:
         if r.get("skipped"):
-            lines.append(f"| {r['set']} | {r['gpus']} | {r['ranks_per_gpu']} | | skipped: {r['skipped']} |"
-                         + " |" * 8)
+            lines.append(f"| {r['set']} | {r['gpus']} | {r['ranks_per_gpu']} | | | skipped: {r['skipped']} |"
+                         + " |" * 9)
             continue
         t1 = summary[r["set"]]["T1_best_s"]
         eff = round(t1 / (r["gpus"] * r["wall_s"]), 3) if t1 and r.get("wall_s") else None
@@ -512,19 +586,66 @@ def layout_table(rows: list[dict]) -> tuple[str, dict]:
         lat = tr.get("coordinator", {}).get("latency_ms", {})
         eq = [s.get("equal_to_reference") for s in r["stores"].values()]
         same = "ref" if all(e is None for e in eq) else ("yes" if all(eq) else f"no {eq}")
+        tol = [s.get("within_tolerance_of_reference") for s in r["stores"].values()]
+        if any(tol):  # host surfaces: round-off apart from the reference's, compared by grid point
+            worst = max((x.get("mean_gap_rel_max") or 0.0) for x in tol if x)
+            diff_status = sum(x.get("status_differs", 0) for x in tol if x)
+            same = f"{same}; mean gap within {worst:.1e} rel., {diff_status} status differ"
         longest = (tr.get("longest_units") or [{}])[0].get("s")
         lay = r.get("layout", {}).get("ranks_per_gpu")
-        lines.append(f"| {r['set']} | {r['gpus']} | {r['ranks_per_gpu']} ({lay}) | {r['ranks']} | {r['wall_s']} | "
-                     f"{r.get('startup_s')} | {'-' if eff is None else f'{100 * eff:.0f} %'} | "
-                     f"{r['gpu_util_sweep']['mean_pct']} | {tr.get('gpu_workers_idle_pct_mean')} | "
-                     f"{lat.get('median')}/{lat.get('p95')} | {longest} | {same} | {r['rc']} |")
+        if _lay(r) == f"{r['gpus']}:auto":
+            summary[r["set"]].setdefault("default_by_gpus", {})[str(r["gpus"])] = {
+                "wall_s": r["wall_s"], "efficiency_vs_T1_best": eff, "gpu_util_sweep_pct": r["gpu_util_sweep"],
+                "gpu_workers_idle_pct_mean": tr.get("gpu_workers_idle_pct_mean"),
+                "gpu_workers_idle_pct_max": tr.get("gpu_workers_idle_pct_max")}
+        lines.append(f"| {r['set']} | {r['gpus']} | {r['ranks_per_gpu']} ({lay}) | {_lay(r)} | "
+                     f"{r['ranks']} | {r['wall_s']} | {r.get('startup_s')} | "
+                     f"{'-' if eff is None else f'{100 * eff:.0f} %'} | {r['gpu_util_sweep']['mean_pct']} | "
+                     f"{tr.get('gpu_workers_idle_pct_mean')}/{tr.get('gpu_workers_idle_pct_max')} | "
+                     f"{tr.get('gaps_between_farms_s')} | {lat.get('median')}/{lat.get('p95')} | {longest} | "
+                     f"{same} | {r['rc']} |")
     return "\n".join(lines) + "\n", summary
+
+
+def split_jobs(work: Path) -> list[Path]:
+    """The mix jobs with ``split_chains = SPLIT`` (copies under WORK/jobs; the adhesive job as it is)."""
+    d = work / "jobs"
+    d.mkdir(parents=True, exist_ok=True)
+    res = []
+    for j in SETS["mix"]:
+        text = j.read_text()
+        if "adhesive" not in text:
+            text = text.replace("[methods.gfmd]\n", f"[methods.gfmd]\nsplit_chains = {SPLIT}\n")
+            j = d / f"split_{j.name}"
+            j.write_text(text)
+        res.append(j)
+    return res
 
 
 def set_jobs(name: str, work: Path, pub_seeds: int | None) -> tuple[str, list[Path]]:
     name, _, files = name.partition("=")
     return name, ([Path(f).resolve() for f in files.split(",")] if files else
-                  pub_jobs(work, pub_seeds) if name == "pub" else SETS[name])
+                  pub_jobs(work, pub_seeds) if name == "pub" else split_jobs(work) if name == "mixsplit"
+                  else SETS[name])
+
+
+def within_tolerance(a: Path, b: Path) -> dict:
+    """Rows of store ``a`` against ``b`` by grid point (method, hurst, rho, seed, n, sigma0) -- stores whose task
+    ids differ (split chains): how many matched, how many differ in status, the largest relative difference of
+    the mean gap (the solver's tolerance bounds it), and how many are bit for bit equal."""
+    from gapsweep import store
+
+    try:
+        da, db = store.read(a), store.read(b)
+    except Exception as e:
+        return {"error": str(e)[:200]}
+    k = ["method", "hurst", "rho", "seed", "n", "sigma0"]
+    m = da.merge(db, on=k, suffixes=("_a", "_b"))
+    ok = m[(m.status_a == "done") & (m.status_b == "done")]
+    rel = ((ok.mean_gap_a - ok.mean_gap_b).abs() / ok.mean_gap_b.abs()) if len(ok) else None
+    return {"matched": len(m), "rows": [len(da), len(db)], "status_differs": int((m.status_a != m.status_b).sum()),
+            "mean_gap_rel_max": None if rel is None else float(rel.max()),
+            "bit_equal": int((ok.mean_gap_a == ok.mean_gap_b).sum())}
 
 
 def run_layouts(a, out: Path, work: Path, extra: list[str], res: dict, log) -> list[dict]:
@@ -538,7 +659,7 @@ def run_layouts(a, out: Path, work: Path, extra: list[str], res: dict, log) -> l
         sname, _, text = item.rpartition("@")
         defs = {x.partition("=")[0]: x for x in a.sets}  # a set named in --sets with its files
         name, jobs = set_jobs(defs.get(sname, sname) if sname else a.sets[0], work, a.pub_seeds)
-        g, k, ranks = parse_layout(text)
+        g, k, ranks, farm, host = parse_layout(text)
         ranks = ranks or a.ranks
         if g > a.max_gpus:
             rows.append({"set": name, "gpus": g, "ranks_per_gpu": k or "auto", "skipped": "not on this node"})
@@ -550,11 +671,14 @@ def run_layouts(a, out: Path, work: Path, extra: list[str], res: dict, log) -> l
             continue
         log.write(f"== {name} on {g} GPU(s), ranks per GPU {k or 'auto'}, {ranks} ranks, {elapsed():.0f} s\n")
         log.flush()
-        r = layout_run(i, name, jobs, g, k, ranks, work, extra, log,
+        r = layout_run(i, name, jobs, g, k, ranks, work, extra, log, farm=farm, host=host,
                        timeout=max(30.0, min(a.launch_timeout, a.budget + 60 - elapsed())), ref=ref.get(name))
         rows.append(r)
         if name not in ref and r["rc"] == 0:
-            ref[name] = [work / f"run{i}_{name}_g{g}_k{k or 'auto'}" / f"{j.stem}.h5" for j in jobs]
+            ref[name] = [work / run_dir(i, name, g, k, farm, host) / f"{j.stem}.h5" for j in jobs]
+        if name == "mixsplit" and "mix" in ref:  # other task ids: compared by grid point, within tolerance
+            here = [work / run_dir(i, name, g, k, farm, host) / f"{j.stem}.h5" for j in jobs]
+            r["against_mix"] = {h.stem: within_tolerance(h, m) for h, m in zip(here, ref["mix"])}
         if g == 1 and r["rc"] == 0:
             t1[name] = min(t1.get(name, r["wall_s"]), r["wall_s"])
         print(json.dumps({x: r.get(x) for x in ("set", "gpus", "ranks_per_gpu", "gpu_ranks", "rc", "wall_s",

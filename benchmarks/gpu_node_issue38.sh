@@ -1,22 +1,36 @@
 #!/usr/bin/env bash
-# Issue 38 on one GPU node (1, 2 or 4 GPUs; H200): the publication sweep (jobs/pub/fig2, fig3, fig4_5 in one launch,
-# 1,632 rows) in the layouts that matter, traced, in about 8 minutes. From the repository root:
-#   OUT=/some/dir bash benchmarks/gpu_node_issue38.sh        (BUDGET=seconds, default 400; GAPSWEEP_COMMIT=hash)
+# Issue 38 on one GPU node (4 H200; runs needing more GPUs than the node has are skipped), about 7 minutes:
+# the publication sweep (jobs/pub: fig2, fig3, fig4_5 in one launch, 1,632 rows), the four figure jobs and issue
+# 38's own mixed sweep (benchmarks/jobs/issue38: exponential N = 1024/4096, hard wall, adhesion) in the layouts
+# that matter, traced. From the repository root:
+#   GAPSWEEP_COMMIT=$(git rev-parse HEAD) bash benchmarks/gpu_node_issue38.sh
+# (OUT=folder, default benchmarks/results/farm/issue38; BUDGET=seconds after which no run starts, default 400.)
 # Needs python3 with numpy, scipy, h5py, mpi4py, cupy (numba optional), Open MPI's mpiexec; CUDA MPS's
 # nvidia-cuda-mps-control for the default layout (gapsweep starts and stops the daemon itself).
-# Runs, in this order, as long as the budget lasts (G GPUs : K ranks per GPU, "auto" = gapsweep's default):
-#   pub 1:auto  2:auto  4:auto   the default layout (the first run is every later store's reference, bit for bit)
-#   pub 1:16                     a second one-GPU layout for T1_best (the best one-GPU time, any layout)
-#   sde G:1 (G = all GPUs, >= 2) SDE job, no MPS: nvidia-smi lists each rank's contexts (item 4: own GPU only)
-#   pub 4:1                      the layout before issue 38 (one GPU worker per GPU), for comparison
-#   pub 4:12  2:16  1:1          48 MPS clients on 4 GPUs; 2 GPUs with 16 per GPU; the old one-GPU default
-# Layouts with more GPUs than the node has are skipped. Each run: wall, start-up (launch -> farm start), efficiency
-# T1_best / (k T_k), GPU utilisation (nvidia-smi every 0.5 s, whole run and sweep only, share of samples >= 80 %),
-# the farm's trace (GAPSWEEP_TRACE: per-worker units, busy/idle, coordinator latency, the longest units, the tail),
-# CUDA contexts per process and GPU (nvidia-smi --query-compute-apps), stores compared with the reference.
-# Writes OUT/gpu_node_issue38.json (everything), .md (the table), _runs.log (gapsweep's output), .log (this).
+# Runs, in this order, while the budget lasts (SET@G:K[/each][/host]: G GPUs, K ranks per GPU, "auto" = gapsweep's
+# default -- 16 per GPU on one GPU, 8 on several --; "/each": the jobs of the launch one farm each, as before issue
+# 38, else one farm for all of them, the default; "/host": the GPU tasks' surfaces made on the host, as before issue
+# 38 -- GAPSWEEP_GPU_SURFACES=0 --, else on their GPU, the default):
+#   pub@1:auto pub@4:auto pub@2:auto   the default (the first run is every later pub store's reference, bit for bit)
+#   pub@4:auto/each                    the same layout, one farm per job: what the joint farm gains
+#   pub@4:auto/host                    the same layout, surfaces on the host: what GPU surfaces gain (stores
+#                                      round-off apart: compared by grid point within tolerance too)
+#   pub@1:auto/host                    a second one-GPU layout for T1_best (the best one-GPU time, any layout: the
+#                                      first run's best, 16 per GPU with host surfaces; 8 per GPU was 10 s slower)
+#   figs@1:auto figs@4:auto            the four figure jobs (jobs/gpu) in one launch
+#   mix@1:auto mix@4:auto              the mixed sweep (its one-GPU run is T1 and the reference)
+#   mixsplit@4:auto                    the mixed sweep with split_chains = 2 (other task ids: compared by grid point,
+#                                      within the solver's tolerance, in the JSON's "against_mix")
+#   pub@4:12 pub@2:16 pub@1:8          48 MPS clients on 4 GPUs; 16 per GPU on 2; 8 per GPU on 1
+# First the GPU test of the surfaces made on the GPU (tests/test_gpu_surfaces.py -m gpu, where pytest is installed).
+# Each run: wall, start-up (launch -> farm start), efficiency T1_best / (k T_k), GPU utilisation (nvidia-smi every
+# 0.5 s over the sweep, share of samples >= 80 %), the farms' trace (GAPSWEEP_TRACE: per-worker units, busy/idle,
+# per farm start/first unit/last unit and the gaps between farms, coordinator latency, the longest units, the
+# tail), CUDA contexts per process and GPU, stores compared with the set's reference. Writes OUT/gpu_node_issue38.json
+# (everything, with a provenance record), .md (the table and the summary: T1_best, layouts tried, the default's
+# efficiency, utilisation and idle share per GPU count), _runs.log (gapsweep's output), .log (this script's).
 set -uo pipefail
-: "${OUT:?set OUT to the output folder}"
+OUT=${OUT:-benchmarks/results/farm/issue38}
 mkdir -p "$OUT"
 export NCCL_NVLS_ENABLE=0 OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1
 export PYTHONUNBUFFERED=1 OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1 GAPSWEEP_FFT_THREADS=1
@@ -25,6 +39,7 @@ unset CUDA_VISIBLE_DEVICES
 PY=${PYTHON:-python3}
 WORK=${WORK:-/tmp/gapsweep_issue38}
 rm -rf "$WORK"; mkdir -p "$WORK"
+rm -f "$OUT/gpu_node_issue38_runs.log"  # the log of this call only
 log="$OUT/gpu_node_issue38.log"
 {
   date -u; hostname; nproc
@@ -34,10 +49,16 @@ log="$OUT/gpu_node_issue38.log"
   $PY -c "import sys, cupy, mpi4py, h5py; print(sys.version.split()[0], 'cupy', cupy.__version__)"
   ngpu=$(nvidia-smi -L | grep -c '^GPU ')
   echo "GPUs: $ngpu"
-  $PY benchmarks/bench_multi_gpu.py --out "$OUT" --work "$WORK" --name gpu_node_issue38 --sets pub sde \
-    --max-gpus "$ngpu" --budget "${BUDGET:-400}" --launch-timeout 240 \
-    --layouts pub@1:auto pub@2:auto pub@4:auto pub@1:16 $([ "$ngpu" -ge 2 ] && echo "sde@$ngpu:1") pub@4:1 \
-    pub@4:12 pub@2:16 pub@1:1
+  # the surfaces made on the GPU against the host's (seconds; needs pytest): a broken GPU path shows here first
+  if $PY -c "import pytest" 2>/dev/null; then
+    $PY -m pytest -q -p no:cacheprovider -m gpu tests/test_gpu_surfaces.py 2>&1 | tail -3
+  else
+    echo "pytest not installed: tests/test_gpu_surfaces.py -m gpu not run"
+  fi
+  $PY benchmarks/bench_multi_gpu.py --out "$OUT" --work "$WORK" --name gpu_node_issue38 --sets pub mix mixsplit figs \
+    --max-gpus "$ngpu" --budget "${BUDGET:-400}" --launch-timeout 200 \
+    --layouts pub@1:auto pub@4:auto pub@2:auto pub@4:auto/each pub@4:auto/host pub@1:auto/host \
+    figs@1:auto figs@4:auto mix@1:auto mix@4:auto mixsplit@4:auto pub@4:12 pub@2:16 pub@1:8
   echo "bench exit: $?"
   echo "MPS processes after: $(pgrep -a nvidia-cuda-mps || echo none)"
   date -u

@@ -69,9 +69,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="ranks sharing one GPU, for the GPU-memory check (default 1)")
 
     s = sub.add_parser("run", help="run a job into a store (serial, or under mpiexec as an MPI task farm)")
-    s.add_argument("job", nargs="+", help="job spec(s) (TOML) or shipped job names (`gapsweep jobs`); several run "
-                                          "one after the other in one launch (start-up paid once), each into its "
-                                          "own --store")
+    s.add_argument("job", nargs="+", help="job spec(s) (TOML) or shipped job names (`gapsweep jobs`); several run in "
+                                          "one launch, through one farm (--farm), each into its own --store")
     s.add_argument("--store", required=True, action="append",
                    help="HDF5 store path ({i} and {n} are replaced by the shard); once per job, in order")
     s.add_argument("--resume", action="store_true", help="finish the pending tasks of an existing store")
@@ -93,8 +92,12 @@ def _parser() -> argparse.ArgumentParser:
                    help="GFMD chains solved side by side: off (default: one solve at a time, measured faster in "
                         "the sweep, docs/benchmarks.md), auto (GPU chains with n <= 1024) or all (CPU backends too)")
     s.add_argument("--ranks-per-gpu", type=int, default=None, metavar="K",
-                   help="ranks of a node that share one GPU, 1-48 (default: up to 8 under CUDA MPS, which the run "
-                        "starts and stops itself where it may, else 1; ranks beyond work CPU units)")
+                   help="ranks of a node that share one GPU, 1-48 (default: up to 16 on one GPU, 8 on several, "
+                        "under CUDA MPS, which the run starts and stops itself where it may, else 1; ranks beyond "
+                        "work CPU units)")
+    s.add_argument("--farm", choices=("together", "each"), default="together",
+                   help="several jobs: together (default: one farm runs the units of all, the longest first; every "
+                        "store as from a run of its own) or each (one farm per job, one after the other)")
     s.add_argument("--lookahead", type=int, default=4, metavar="N",
                    help="GPU units a GPU worker holds beyond the one it runs; their surfaces are made on N host "
                         "threads while the GPU works (default 4; 0: none)")
@@ -368,7 +371,7 @@ def _dispatch(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    """`gapsweep run`: the jobs one after the other in this launch."""
+    """`gapsweep run`: the jobs of this launch, through one farm (``--farm together``) or one after the other."""
     from gapsweep.sweep import runner
     from gapsweep.sweep import spec as specmod
 
@@ -378,13 +381,16 @@ def _run(args: argparse.Namespace) -> int:
     if len(args.job) > 1:  # every spec is validated before the first job runs
         for job in args.job:
             specmod.load(job)
+    from gapsweep.sweep import launch
+
+    summaries = launch.run_jobs(
+        args.job, args.store, farm=args.farm, resume=args.resume, overwrite=args.overwrite,
+        shard=runner.parse_shard(args.shard), writer=args.writer, progress=args.progress,
+        coordinator_works=args.coordinator_works, mpi=args.mpi, break_lease=args.break_lease,
+        task_timeout=args.task_timeout, batch=args.batch, ranks_per_gpu=args.ranks_per_gpu,
+        lookahead=args.lookahead, reuse=args.reuse, reuse_older=args.reuse_older)
     rc = 0
-    for job, store in zip(args.job, args.store):  # every job runs; the first non-zero code is returned
-        s = runner.run(job, store, resume=args.resume, overwrite=args.overwrite,
-                       shard=runner.parse_shard(args.shard), writer=args.writer, progress=args.progress,
-                       coordinator_works=args.coordinator_works, mpi=args.mpi, break_lease=args.break_lease,
-                       task_timeout=args.task_timeout, batch=args.batch, ranks_per_gpu=args.ranks_per_gpu,
-                       lookahead=args.lookahead, reuse=args.reuse, reuse_older=args.reuse_older)
+    for s in summaries:  # every job ran; the first non-zero code is returned
         if s["rank"] == 0 and args.progress != "none":
             print(f"{s['store']}: {s['mode']}, {s['todo']} of {s['tasks']} tasks run: {s['done']} done, "
                   f"{s['failed']} failed, {s['not_converged']} not converged"

@@ -144,6 +144,13 @@ class _Plan:
     def __init__(self, value_type: str, shape: tuple) -> None:
         self.value_type, self.shape = value_type, shape
 
+    def __enter__(self) -> _Plan:  # ``with plan:`` (cupy: the plan the FFT calls inside use); counted
+        COUNTS["plan_" + self.value_type] += 1
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        return None
+
     def fft(self, a: Any, out: Any, direction: int) -> None:
         COUNTS["cufft_" + self.value_type] += 1
         if self.value_type == "R2C":
@@ -185,6 +192,7 @@ def modules() -> dict[str, types.ModuleType]:
     cp.ElementwiseKernel = ElementwiseKernel
     cp.ReductionKernel = ReductionKernel
     cp.get_default_memory_pool = _Pool
+    cp.asnumpy = lambda a, *x, **k: np.array(np.asarray(a).view(np.ndarray))
     fft = types.ModuleType("cupy.fft")
     for k in ("rfft2", "irfft2", "rfft", "irfft", "fft", "ifft", "fftfreq", "rfftfreq", "fft2", "ifft2"):
         setattr(fft, k, _fn(getattr(np.fft, k)))
@@ -194,8 +202,9 @@ def modules() -> dict[str, types.ModuleType]:
     cufft = types.ModuleType("cupy.cuda.cufft")
     cufft.CUFFT_FORWARD, cufft.CUFFT_INVERSE = -1, 1
     cuda.cufft = cufft
-    cuda.Device = lambda *a: types.SimpleNamespace(attributes={"MultiProcessorCount": 4}, id=0)
-    cuda.runtime = types.SimpleNamespace(getDeviceCount=lambda: 1, memGetInfo=lambda: (1 << 34, 1 << 35))
+    cuda.Device = lambda *a: types.SimpleNamespace(attributes={"MultiProcessorCount": 4}, id=0, use=lambda: None)
+    cuda.runtime = types.SimpleNamespace(getDeviceCount=lambda: 1, memGetInfo=lambda: (1 << 34, 1 << 35),
+                                         setDevice=lambda i: None)
     cuda.get_current_stream = _Stream
     cp.cuda = cuda
     cupyx = types.ModuleType("cupyx")  # no empty_pinned: the code falls back to ndarray.get

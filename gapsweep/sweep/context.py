@@ -42,6 +42,9 @@ class Context:
         self._delay = float(os.environ.get("GAPSWEEP_TEST_DELAY", "0") or 0)
         self._fail: set[float] = set()  # sigma0 values whose tasks fail: a fault-injection seam (tests/hooks)
         self._selected = False  # this rank's GPU was made the current CUDA device (select_gpu)
+        # synthetic surfaces of GPU GFMD tasks made on the GPU (issue 38; GAPSWEEP_GPU_SURFACES=0: on the host)
+        self.gpu_surfaces = os.environ.get("GAPSWEEP_GPU_SURFACES", "1") != "0"
+        self._made_on_gpu: OrderedDict[tuple, tuple[int, Any]] = OrderedDict()  # key -> (device, cupy heights)
 
     def select_gpu(self) -> int:
         """Make this rank's GPU (``gpu``, 0 where None) the current CUDA device before the first CUDA call of a
@@ -79,8 +82,9 @@ class Context:
     def prefetch(self, t: Task, n: int) -> None:
         """Start making the surface of ``t`` and its rms values on a host thread (:meth:`ahead` threads), so that
         they are ready when a task needs them: a GPU worker's host work overlaps its GPU's. The same functions
-        make them, so they are the same bits. No-op without threads, or when it is cached or on its way."""
-        if self._pool is None:
+        make them, so they are the same bits. No-op without threads, when it is cached or on its way, or when its
+        GPU makes it (:meth:`makes_on_gpu`)."""
+        if self._pool is None or self.makes_on_gpu(t):
             return
         key = self._key(t, n, t.surface_params())
         if key not in self._surfaces and key not in self._ahead:
@@ -103,17 +107,27 @@ class Context:
     def surface_rms(self, t: Task, n: int) -> tuple[float, float]:
         """``(h_rms, g_rms)`` of :meth:`surface` (M2), computed once per cached surface (``g_rms`` costs an FFT).
         A measured map's are those of the heights solved (:func:`_rms`); its spectral moments are
-        :meth:`surface_spectrum_rms`."""
+        :meth:`surface_spectrum_rms`. A surface made on the GPU (:meth:`surface_on_gpu`): its values computed
+        there by the same formulas (:func:`_rms_gpu`), no host copy made."""
         sp = t.surface_params()
-        h = self.surface(t, n)
         key = self._key(t, n, sp)
+        made = self._made_on_gpu.get(key)
+        if made is not None and key not in self._surfaces:
+            self._made_on_gpu.move_to_end(key)
+            if key not in self._rms:
+                self._rms[key] = _rms_gpu(made[1], sp)
+            return self._rms[key]
+        h = self.surface(t, n)
         if key not in self._rms:
             self._rms[key] = _rms(h, sp)
         return self._rms[key]
 
     def surface_spectrum_rms(self, t: Task, n: int) -> tuple[float, float]:
-        """:func:`spectrum_rms` of :meth:`surface`, computed once per cached surface."""
+        """:func:`spectrum_rms` of :meth:`surface`, computed once per cached surface ((NaN, NaN) for a synthetic
+        surface, whose heights it does not need)."""
         sp = t.surface_params()
+        if sp.get("kind") != "file":
+            return math.nan, math.nan
         h = self.surface(t, n)
         key = (*self._key(t, n, sp), "spectrum")
         if key not in self._rms:
@@ -132,11 +146,39 @@ class Context:
             self._spectra[key] = spectrum.from_heights(h, sp["length"], lambda_l=sp["lambda_l"])
         return self._spectra[key]
 
+    def makes_on_gpu(self, t: Task) -> bool:
+        """Whether :meth:`surface_on_gpu` makes ``t``'s surface on the GPU itself (issue 38): a synthetic surface
+        of a task on a grid, unless the task keeps its fields (their heights are the host surface's) or
+        ``GAPSWEEP_GPU_SURFACES=0``. The host made it before, the GPU workers' host threads being what bounded a
+        node of many GPU workers (docs/benchmarks.md, "Issue 38")."""
+        return (self.gpu_surfaces and t.n > 0 and t.opt("surface.kind") != "file" and not t.opt("keep_fields")
+                and t.opt("backend") == "cupy")
+
     def surface_on_gpu(self, t: Task, n: int) -> Any:
         """:meth:`surface` as a cupy array on the current GPU, copied there once per cached surface (a pressure
-        chain solved one task at a time then copies its surface to the GPU once, not once per task)."""
+        chain solved one task at a time then copies its surface to the GPU once, not once per task). Where
+        :meth:`makes_on_gpu`: made on the GPU by ``surfaces.self_affine(backend="cupy")`` -- the same modes, equal
+        to the host surface to FFT round-off (~1e-15 relative), no host copy -- and cached there (as many as the
+        host cache holds)."""
         import cupy
 
+        if self.makes_on_gpu(t):
+            sp = t.surface_params()
+            key = self._key(t, n, sp)
+            dev = cupy.cuda.Device().id
+            made = self._made_on_gpu.get(key)
+            if made is None or made[0] != dev:
+                from gapsweep.surfaces import synthetic as surface
+
+                h = surface.self_affine(n, t.hurst, seed=t.seed, backend="cupy", **sp)
+                self._rms.pop(key, None)  # of another device's copy: computed again from this one
+                made = self._made_on_gpu[key] = (dev, h)
+                while len(self._made_on_gpu) > self._max:
+                    old = self._made_on_gpu.popitem(last=False)[0]
+                    if old not in self._surfaces:
+                        self._rms.pop(old, None)
+            self._made_on_gpu.move_to_end(key)
+            return made[1]
         h = self.surface(t, n)  # caches (and evicts) the host surface and, with it, its GPU copy
         key = self._key(t, n, t.surface_params())
         dev = cupy.cuda.Device().id
@@ -212,6 +254,31 @@ def _rms(h: np.ndarray, sp: dict[str, Any]) -> tuple[float, float]:
     from gapsweep.surfaces import synthetic as surface
 
     return surface.rms_height(h), surface.rms_slope(h, sp["length"])
+
+
+def _rms_gpu(h: Any, sp: dict[str, Any]) -> tuple[float, float]:
+    """:func:`_rms` of a synthetic surface held on the GPU (cupy), by the formulas of ``surfaces.rms_height`` and
+    ``surfaces.rms_slope`` (M2): ``h_rms = sqrt(<(h - <h>)^2>)``, ``g_rms = sqrt(sum_q q^2 |h~(q)|^2)`` over the
+    half spectrum (rfft2, cuFFT; a plan of its own, dropped after use). Equal to the host values to round-off."""
+    import cupy
+    from cupyx.scipy.fft import get_fft_plan
+
+    n = h.shape[0]
+    length = float(sp["length"])
+    h_rms = float(cupy.sqrt(cupy.mean((h - h.mean()) ** 2)))
+    kx = cupy.asarray(np.fft.fftfreq(n, d=1.0 / n))
+    ky = cupy.asarray(np.fft.rfftfreq(n, d=1.0 / n))
+    w = np.full(n // 2 + 1, 2.0)
+    w[0] = 1.0
+    if n % 2 == 0:
+        w[-1] = 1.0
+    plan = get_fft_plan(h, shape=(n, n), axes=(0, 1), value_type="R2C")
+    with plan:
+        hq = cupy.fft.rfft2(h) / h.size
+    q2w = (2 * np.pi / length) ** 2 * (kx[:, None] ** 2 + ky[None, :] ** 2) * cupy.asarray(w)[None, :]
+    g_rms = float(cupy.sqrt(cupy.sum(q2w * (hq.real ** 2 + hq.imag ** 2))))
+    del hq, q2w, plan
+    return h_rms, g_rms
 
 
 def spectrum_rms(h: np.ndarray, sp: dict[str, Any]) -> tuple[float, float]:

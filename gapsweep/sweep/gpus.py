@@ -4,8 +4,9 @@ the MPS daemon started and stopped by gapsweep itself where it may; one rank per
 Policy. The ranks of a node that work (the coordinator, world rank 0, is left out when it does not work) are
 numbered ``r = 0, 1, ...`` in node-local order; with ``G`` visible GPUs and ``K`` ranks allowed per GPU, working
 rank ``r`` uses GPU ``r mod G`` if ``r < K G``, else none (it works CPU units: theory, Fokker-Planck, CPU GFMD).
-``K`` is ``--ranks-per-gpu`` when given; by default (:func:`auto_per_gpu`) ``K = min(8, W // G, 48 // G)`` with
-``W`` the working ranks of the node -- when CUDA MPS is usable (:func:`place`): an MPS daemon this process can
+``K`` is ``--ranks-per-gpu`` when given; by default (:func:`auto_per_gpu`) ``K = min(K_G, W // G, 48 // G)`` with
+``W`` the working ranks of the node and ``K_G`` the measured best (:data:`MEASURED_PER_GPU`: 16 on one GPU, 8 on
+several) -- when CUDA MPS is usable (:func:`place`): an MPS daemon this process can
 reach already runs, or none runs and ``nvidia-cuda-mps-control`` is on the PATH, in which case node-local rank 0
 starts one with its own pipe and log folders in a temporary folder (``CUDA_MPS_PIPE_DIRECTORY``,
 ``CUDA_MPS_LOG_DIRECTORY``, checked with one client in a separate process, told to every rank of the node before
@@ -40,12 +41,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["DEFAULT_PER_GPU", "MPS_CLIENTS", "Layout", "Mps", "Placement", "assign", "auto_per_gpu", "layout",
-           "memory", "mps_processes", "place", "query", "rank_gpu", "select", "start_mps", "visible_count"]
+__all__ = ["DEFAULT_PER_GPU", "MEASURED_PER_GPU", "MPS_CLIENTS", "Layout", "Mps", "Placement", "assign",
+           "auto_per_gpu", "layout", "memory", "mps_processes", "place", "query", "rank_gpu", "select", "start_mps",
+           "visible_count"]
 
 log = logging.getLogger(__name__)
 
-DEFAULT_PER_GPU = 8  # ranks per GPU under MPS by default: issue 38's best one-GPU layout (16 ranks, 8 on the GPU)
+DEFAULT_PER_GPU = 8  # ranks per GPU under MPS by default where MEASURED_PER_GPU has no entry
+# The best ranks per GPU measured for each GPU count (issue 38, jobs/pub on 1, 2, 4 H200 with 64 ranks:
+# benchmarks/results/farm/issue38/gpu_node_issue38.json): one GPU 53.0 s with 16 against 63.2 s with 8; two GPUs
+# 39.5 s with 8 against 43.9 s with 16; four GPUs 38.4 s with 8 against 39.8 s with 12 (the 48 clients' limit).
+MEASURED_PER_GPU = {1: 16}
 _SMALL_GPU = 8e9  # bytes every GPU that runs MPS clients here is taken to hold (an H200: 141 GiB)
 MPS_CLIENTS = 48  # clients one MPS server admits on a node (issue 26: 64 clients met "Maximum number of clients")
 
@@ -121,11 +127,13 @@ def rank_gpu(comm: Any, coordinator_works: bool, per_gpu: int | None = 1) -> int
 
 
 def auto_per_gpu(n_gpus: int, working: int, mps: bool, cap: int = MPS_CLIENTS) -> int:
-    """Ranks per GPU by default on a node of ``n_gpus`` GPUs and ``working`` working ranks: ``min(8, working //
-    n_gpus, 48 // n_gpus, cap)`` under MPS (``cap``: what the GPU memory allows), else 1; at least 1."""
+    """Ranks per GPU by default on a node of ``n_gpus`` GPUs and ``working`` working ranks: ``min(K_G, working //
+    n_gpus, 48 // n_gpus, cap)`` under MPS (``K_G``: :data:`MEASURED_PER_GPU`, else :data:`DEFAULT_PER_GPU`;
+    ``cap``: what the GPU memory allows), else 1; at least 1."""
     if not mps or n_gpus <= 0:
         return 1
-    return max(1, min(DEFAULT_PER_GPU, working // n_gpus, MPS_CLIENTS // n_gpus, cap))
+    best = MEASURED_PER_GPU.get(n_gpus, DEFAULT_PER_GPU)
+    return max(1, min(best, working // n_gpus, MPS_CLIENTS // n_gpus, cap))
 
 
 _MPS_NAMES = ("nvidia-cuda-mps-control", "nvidia-cuda-mps-server")

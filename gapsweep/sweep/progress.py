@@ -49,8 +49,9 @@ class Progress:
             else:
                 self.bar = tqdm(total=total, unit="task", dynamic_ncols=True, file=sys.stderr)
 
-    def update(self, res: TaskResult) -> None:
-        """Count one finished row (its status) and show it: the bar moves, or a log line every ``every`` s."""
+    def update(self, res: TaskResult, i: int | None = None) -> None:
+        """Count one finished row (its status) and show it: the bar moves, or a log line every ``every`` s.
+        ``i``: the row's task index, by which a launch's joint farm finds its job (gapsweep.sweep.launch)."""
         self.count[res.status] += 1
         if self.bar is not None:
             self.bar.update(1)

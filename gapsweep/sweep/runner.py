@@ -34,6 +34,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -208,7 +209,8 @@ def _propose(units: list[Unit]) -> list[str]:
                f"{lay.cpu_workers} CPU worker(s)" + ("" if lay.ranks == 1 else ", rank 0 coordinates")
                + f": {lay.args()} (docs/running.md, \"Which layout\")")
     if lay.gpu_workers and lay.ranks > 1:
-        out.append(f"  by default the run puts up to {gpus.DEFAULT_PER_GPU} of these ranks on each GPU under CUDA MPS "
+        k = gpus.auto_per_gpu(n, gpus.MPS_CLIENTS, True)
+        out.append(f"  by default the run puts up to {k} of these ranks on each GPU under CUDA MPS "
                    "(started and stopped by the run where it may; else one per GPU): --ranks-per-gpu K to choose")
     return out
 
@@ -333,6 +335,42 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     Raises :class:`RunError` when the run cannot start or a write fails (rows finished before stay done),
     :class:`~gapsweep.limits.Interrupted` after a clean stop on SIGINT/SIGTERM or a ``<store>.stop`` file (the
     run is recorded as interrupted in the store)."""
+    p = _prepare(job, store, resume=resume, overwrite=overwrite, shard=shard, mpi=mpi, break_lease=break_lease,
+                 task_timeout=task_timeout, batch=batch, ranks_per_gpu=ranks_per_gpu, lookahead=lookahead,
+                 reuse=reuse, reuse_older=reuse_older)
+    try:
+        return _execute(p.spec, p.comm, p.rank, p.size, p.tasks, p.units, p.path, p.shard_text, p.decision, writer,
+                        progress, coordinator_works, task_timeout, p.held, (batch, ranks_per_gpu, lookahead),
+                        p.reused)
+    finally:
+        if p.held is not None:
+            p.held.release()
+
+
+@dataclass
+class Prepared:
+    """A job ready to run (:func:`_prepare`): its tasks and units in the store's order, the decision of rank 0
+    (``(mode, todo, failed before, run id)``), the lease rank 0 holds, the rows reused from other stores."""
+
+    spec: specmod.JobSpec
+    comm: Any
+    rank: int
+    size: int
+    tasks: list[Task]
+    units: list[Unit]
+    path: Path
+    shard_text: str
+    decision: tuple
+    held: lease.Lease | None
+    reused: Reused
+
+
+def _prepare(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = False, overwrite: bool = False,
+             shard: tuple[int, int] | None = None, mpi: str = "auto", break_lease: bool = False,
+             task_timeout: float | None = None, batch: str = "off", ranks_per_gpu: int | None = None,
+             lookahead: int = 4, reuse: Sequence[str | Path] = (), reuse_older: bool = False) -> Prepared:
+    """Check the options, load the job, take the store's lease and decide what to run (every rank; rank 0 looks
+    at the file system and tells the others); the caller releases ``held``."""
     _check_options(resume, overwrite, task_timeout, batch, ranks_per_gpu, lookahead)
     spec = _load(job)
     comm = _comm(mpi)
@@ -355,13 +393,7 @@ def run(job: str | Path | specmod.JobSpec, store: str | Path, *, resume: bool = 
     if isinstance(decision, RunError):
         raise decision
     tasks, units = store_order(tasks, units, decision[0])  # a reordered axis: the store's row order (issue 31)
-    decision = decision[1:]
-    try:
-        return _execute(spec, comm, rank, size, tasks, units, path, shard_text, decision, writer, progress,
-                        coordinator_works, task_timeout, held, (batch, ranks_per_gpu, lookahead), reused)
-    finally:
-        if held is not None:
-            held.release()
+    return Prepared(spec, comm, rank, size, tasks, units, path, shard_text, decision[1:], held, reused)
 
 
 def _check_options(resume: bool, overwrite: bool, task_timeout: float | None, batch: str,
@@ -680,8 +712,11 @@ class _Run:
             raise
 
     def ahead_ok(self) -> list[bool]:
-        """Units worth holding ahead: GPU units with surfaces to make (tasks on a grid, ``n > 0``)."""
-        return [u.gpu and any(self.tasks[i].n > 0 for i in u.tasks) for u in self.units]
+        """Units worth holding ahead: GPU units with surfaces to make on the host (tasks on a grid, ``n > 0``,
+        whose GPU does not make them itself: Context.makes_on_gpu). A unit held ahead is committed to its worker
+        early, which unbalances the largest-first order where there is nothing to prepare."""
+        return [u.gpu and any(self.tasks[i].n > 0 and (u.kind == "batch" or not self.ctx.makes_on_gpu(self.tasks[i]))
+                              for i in u.tasks) for u in self.units]  # a batch stacks host surfaces
 
     def prefetch(self, k: int) -> None:
         """A GPU unit just held: its surfaces start on the host threads (``ahead``) while the GPU works."""
@@ -882,7 +917,7 @@ def _serial(r: _Run) -> None:
                 with r.stop.critical():  # a row written is a row counted (a signal acts after both)
                     r.st.write(i, res)
                     farm.row(k, i)
-                    r.prog.update(res)
+                    r.prog.update(res, i)
                 if r.stop.requested():  # the stop file (a signal raises by itself)
                     raise Interrupted(r.stop.signum)
         except DeviceFault as e:
@@ -930,8 +965,8 @@ class _Local:
     queue (rows, device faults, requests), so that every farm decision and every MPI call stays on rank 0's
     main thread."""
 
-    def __init__(self, r: _Run) -> None:
-        self.r = r
+    def __init__(self, r: _Run, tr: Trace | None = None) -> None:
+        self.r, self.tr = r, tr  # tr: rank 0's timeline, which records this thread's units too
         self.inbox: queue.Queue = queue.Queue()
         self.events: queue.Queue = queue.Queue()
         self.thread = threading.Thread(target=self._main, name="gapsweep-rank0-worker", daemon=True)
@@ -950,6 +985,7 @@ class _Local:
         try:
             self.events.put((TAG_READY, None))
             while (msg := held.next()) is not None:
+                t0 = time.time()
                 try:
                     for i, res in self.r.units_of(*msg):
                         self.events.put((TAG_ROW, (msg[0], i, res)))
@@ -957,6 +993,10 @@ class _Local:
                     held.fault()
                     self.events.put((TAG_FAULT, _fault(0, self.r.gpu, e)))
                     continue
+                finally:
+                    if self.tr is not None:
+                        u = self.r.units[msg[0]]
+                        self.tr.unit(msg[0], t0, u.gpu, len(u.tasks))
                 self.events.put((TAG_READY, msg[0]))
         except BaseException as e:  # surfaced on the main thread, which aborts the job
             self.events.put((TAG_ERROR, e))
@@ -974,9 +1014,9 @@ def _coordinate(r: _Run) -> None:
     if r.works:
         workers[0] = Worker(gpu=r.gpu_of[0], tail=True, ahead=r.lookahead)
     farm = Farm([u.gpu for u in r.units], r.work, workers, ahead_ok=r.ahead_ok())
-    local = _Local(r) if r.works else None
-    status = MPI.Status()
     tr = Trace(0, r.gpu)  # GAPSWEEP_TRACE: the farm's timeline (gapsweep.sweep.trace)
+    local = _Local(r, tr) if r.works else None
+    status = MPI.Status()
     while farm.busy():
         progressed = False
         _send(r, farm, local, _stop_check(r, farm))
@@ -1029,7 +1069,7 @@ def _on_message(r: _Run, farm: Farm, src: int, tag: int, msg: Any) -> list[tuple
         # rank0 writer: rank 0 writes every row; mpio: workers wrote theirs, rank 0 writes its own.
         if r.st is not None and (r.wmode != "mpio" or src == 0):
             r.st.write(i, res)
-        r.prog.update(res)
+        r.prog.update(res, i)
         return []
     if tag == TAG_READY:
         return farm.request(src, msg)
@@ -1073,19 +1113,21 @@ def _work(r: _Run) -> None:
     held = _Held(r, get, ready)
     ready(None)
     while (msg := held.next()) is not None:
-        t0 = time.time()
+        t0, io = time.time(), 0.0
         try:
             for i, res in r.units_of(*msg):
+                t1 = time.perf_counter()
                 if r.wmode == "mpio":
                     r.st.write(i, res)
                     res = TaskResult(res.status, "", {})  # rank 0 only counts it
                 comm.send((msg[0], i, res), dest=0, tag=TAG_ROW)
+                io += time.perf_counter() - t1
         except DeviceFault as e:
             held.fault()
             comm.send(_fault(r.rank, r.gpu, e), dest=0, tag=TAG_FAULT)
             continue
         finally:
-            tr.unit(msg[0], t0, r.units[msg[0]].gpu, len(r.units[msg[0]].tasks))
+            tr.unit(msg[0], t0, r.units[msg[0]].gpu, len(r.units[msg[0]].tasks), io)
         if r.stop.signum is not None and not told:
             comm.send(r.stop.signum, dest=0, tag=TAG_STOP)
             told = True

@@ -96,6 +96,39 @@ def test_stop_mpi(tmp_path, refs, writer, how):
     assert not (tmp_path / "s.h5.stop").exists()  # consumed by the resumed run
 
 
+@needs_mpi
+@pytest.mark.parametrize("how", ["sigterm-rank0", "stop-file-of-the-second"])
+def test_stop_joint_farm_mpi(tmp_path, refs, how):
+    """Two jobs through one farm under mpiexec (issue 38, gapsweep.sweep.launch): SIGTERM to rank 0, or the stop
+    file of the second job's store, drains the farm; every rank exits 143, both stores are closed and record the
+    interruption; resuming each gives its uninterrupted store."""
+    paths = [tmp_path / "a.h5", tmp_path / "b.h5"]
+    pids, hold = tmp_path / "pids", Hold(tmp_path / "hold", 4)
+    pids.mkdir()
+    p = subprocess.Popen(mpi_cmd(2, "run", JOBS["theory"], JOBS["hist"], "--store", paths[0], "--store", paths[1],
+                                 "--progress", "none"), env=env(**hold.env(GAPSWEEP_TEST_PIDDIR=str(pids))),
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    with reaped(p):
+        hold.wait(p)
+        seen = [done_rows(x) for x in paths]
+        if how == "stop-file-of-the-second":
+            (tmp_path / "b.h5.stop").touch()
+        else:
+            import os
+
+            os.kill(int((pids / "rank0.pid").read_text()), signal.SIGTERM)
+        hold.release()
+        rc, _, err = finish(p, timeout=60)
+    assert rc == 143, err
+    for x, before, job in zip(paths, seen, ("theory", "hist")):
+        assert_only_done_pending(x)
+        assert_done_kept(before, x)
+        run = _last_run(x)
+        assert run["interrupted"] == "SIGTERM" and run["farm"] == {"together_with": [str(y) for y in paths if y != x]}
+        assert lease.read(x) is None
+        resume_to_ref(x, refs[job], JOBS[job])
+
+
 def test_task_timeout_serial(tmp_path):
     """Every task sleeps 5 s; with --task-timeout 0.3 each is recorded as failed (timeout) and the sweep goes on;
     all failed -> exit 3."""

@@ -45,6 +45,7 @@ from gapsweep.sweep.schema import (
     SpecError,
     Task,
     TaskResult,
+    make_task,
 )
 
 JUMP_FACTOR = 3.0  # a jump: the mean gap moved by more than this times the secant prediction (docs/store.md)
@@ -92,7 +93,8 @@ class GFMD(Method):
     name = "gfmd"
     rolloff = True  # solves any surface; the theories assume M2's spectrum
     order = 1
-    keys = ("n", "tol", "max_iter", "method", "backend", "warm_start", "order", "keep_fields", "distributed")
+    keys = ("n", "tol", "max_iter", "method", "backend", "warm_start", "order", "keep_fields", "distributed",
+            "split_chains")
     columns = ("mean_gap", "h_rms", "g_rms", "residual", "load_error", "iterations", "gap_std", "gap_min",
                "gap_max", "contact_area", "elastic_energy", "contact_atom", "pressure_atom", "flags", "count",
                "last_attached_load", "h_rms_spectrum", "g_rms_spectrum")
@@ -165,6 +167,8 @@ class GFMD(Method):
         if rd.boolean(f"{key}.distributed", t.get("distributed", False)):  # only when asked, as keep_fields
             o["distributed"] = True
             _check_distributed(key, o, env)
+        if "split_chains" in t:  # only when asked: the task ids of other specs stay as they were
+            o["split_chains"] = _split_option(key, t["split_chains"], o, env)
         return o
 
     def check_job(self, spec: JobSpec) -> None:
@@ -187,8 +191,9 @@ class GFMD(Method):
 
     def expand(self, spec: JobSpec) -> Iterator[Task]:
         o = spec.methods[self.name]
-        yield from grid_tasks(spec, self.name, ns=o["n"], with_hist=True, chain=o["warm_start"], sort=True,
-                              reverse=o["order"] == "decreasing")
+        tasks = grid_tasks(spec, self.name, ns=o["n"], with_hist=True, chain=o["warm_start"], sort=True,
+                           reverse=o["order"] == "decreasing")
+        yield from (split_chains(tasks, o["split_chains"]) if o.get("split_chains") else tasks)
 
     def cost(self, t: Task) -> float:
         # ~ iterations x (FFT pair + a few array passes); preconditioned CG needs 5..30 (measured at N = 1024,
@@ -300,6 +305,45 @@ def gfmd_host_fields(t: Task, ctx: Context) -> bool | tuple[str, ...]:
     return False
 
 
+# laws whose solution at a load depends on the load path (adhesive hysteresis: snap-in, pull-off, detachment): a
+# chain of them is never cut (a cold start in the middle would take another branch, not the same result)
+_PATH_LAWS = ("adhesive", "hard_wall_adhesive")
+
+
+def _split_option(key: str, v: Any, o: dict[str, Any], env: Env) -> int:
+    """``split_chains = L``: warm-started chains cut into segments of at most ``L`` pressures (docs/jobs.md)."""
+    n = rd.integer(f"{key}.split_chains", v, ge=1)
+    if not o["warm_start"]:
+        raise SpecError(f"{key}.split_chains: only with warm_start = true (without it every task starts cold "
+                        "already)")
+    if env.law in _PATH_LAWS:
+        raise SpecError(f"{key}.split_chains: interaction {env.law!r} depends on the load path (hysteresis): a "
+                        "chain cut in the middle would start another branch; remove split_chains")
+    return n
+
+
+def split_chains(tasks: Iterator[Task], length: int) -> Iterator[Task]:
+    """Cut every chain (tasks of one chain key, consecutive, in chain order) into segments of ``length`` tasks
+    (the last may be shorter). The first segment is the chain's start as before; every task of a later segment
+    gets the option ``chain_start`` = the pressure its segment starts from (cold, from the flat body), which
+    enters its task id and its chain key: each segment is a chain of its own (a unit of its own,
+    gapsweep.sweep.tasks.make_units) and each row says where its warm starts began. Deterministic: the cut
+    depends on the job alone, never on the ranks that run it. A solve started cold converges to the same
+    equilibrium within the solver's tolerance for laws with one solution per load (exponential, hard wall;
+    tests/test_split_chains.py); the adhesive laws are refused (:func:`_split_option`)."""
+    key, pos, start = None, 0, 0.0
+    for t in tasks:
+        if t.chain != key:
+            key, pos = t.chain, 0
+        if pos % length == 0:
+            start = t.sigma0
+        if pos >= length:
+            opts = {**dict(t.options), "chain_start": start}
+            t = make_task(t.method, t.hurst, t.rho, t.sigma0, t.seed, t.n, opts, chain=True)
+        pos += 1
+        yield t
+
+
 def _check_body(spec: JobSpec, o: dict[str, Any]) -> None:
     """A layer or a pressure cap (``[material] thickness``, ``hardness``): one process, and the minimisers that
     solve them (gapsweep.gfmd.substrates.minimise_on)."""
@@ -310,6 +354,9 @@ def _check_body(spec: JobSpec, o: dict[str, Any]) -> None:
     if o.get("distributed"):
         raise SpecError(f"methods.gfmd.distributed: a solve with material.{body[0]} runs on one process "
                         "(remove distributed)")
+    if "hardness" in m and o.get("split_chains"):
+        raise SpecError("methods.gfmd.split_chains: with material.hardness the plastic flow depends on the load "
+                        "path: a chain cut in the middle would not give the same result; remove split_chains")
     if "hardness" in m:  # the method's own sigma0 (a grid override) too
         top = max(float(x) for x in axes(spec, "gfmd")["sigma0"])
         if not m["hardness"] > top:
