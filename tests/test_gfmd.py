@@ -57,6 +57,7 @@ def test_converges_and_balances_forces(method: str) -> None:
     check_fields(r, h)
 
 
+@pytest.mark.validation
 def test_stiff_limit_is_rigid_mean_gap() -> None:
     h = surface(64, lambda_s=1 / 16)
     rho, s0 = 0.02, 1e-2
@@ -68,6 +69,7 @@ def test_stiff_limit_is_rigid_mean_gap() -> None:
     assert np.max(np.abs(r.displacement)) < 1e-6 * np.std(h)
 
 
+@pytest.mark.validation
 def test_soft_limit_is_flat_gap() -> None:
     h = surface(64, lambda_s=1 / 16)
     rho, s0 = 0.02, 1e-2
@@ -84,6 +86,7 @@ def single_mode(n: int, amp: float, kx: int = 3, ky: int = 2) -> np.ndarray:
     return amp * np.cos(2 * np.pi * (kx * x[:, None] + ky * x[None, :]))
 
 
+@pytest.mark.validation
 def test_single_mode_linear_response_second_order() -> None:
     """u~ = h~/(1 + eta zeta) (M4): the relative error of u is first order in amplitude/rho, i.e. u is right
     to second order; the mean gap matches the second-order (discrete M4) formula."""
@@ -106,6 +109,7 @@ def test_single_mode_linear_response_second_order() -> None:
     assert gap_errs[1] / gap_errs[0] == pytest.approx(1 / 16, rel=0.15)
 
 
+@pytest.mark.validation
 def test_methods_agree() -> None:
     h = surface(128)
     gaps = {}
