@@ -205,14 +205,14 @@ def test_nonfinite_theory_result_is_failed(tmp_path, monkeypatch):
 
 
 
-def test_plan_refuses_what_will_not_fit(tmp_path):
+def test_plan_refuses_what_will_not_fit(tmp_path, capsys):
     """A GFMD grid of 65536^2 needs ~1 TB per rank: plan says so and refuses (exit 1). (`run` is not tried: it does not
     refuse on this rough upper bound and would start allocating.)"""
     job = tmp_path / "big.toml"
     job.write_text(BASE.replace('[methods.theory]\nforms = ["paper", "continuum", "discrete"]\nn = 64',
                                 "[methods.gfmd]\nn = 65536\nseeds = [0]\nhurst = [0.3]\nrho = [2e-3]\n"
                                 "sigma0 = [1e-2]"))
-    p = gs("plan", job)
+    p = gs_here(capsys, "plan", job)
     one_line_error(p, "per rank", "more than this machine")
     assert p.returncode == 1
 
@@ -325,7 +325,7 @@ EXPORT_TRAPS = ["out-is-input", "out-is-hardlink-of-input", "out-is-symlink-to-i
 
 
 @pytest.mark.parametrize("case", EXPORT_TRAPS)
-def test_export_never_replaces_a_store(tmp_path, refs, case):
+def test_export_never_replaces_a_store(tmp_path, capsys, refs, case):
     """``export STORE --out X --overwrite`` where X is the store (by any path) or another store or a folder:
     refused, nothing replaced (the old code replaced the store by its netCDF view)."""
     import os
@@ -344,7 +344,7 @@ def test_export_never_replaces_a_store(tmp_path, refs, case):
     elif case == "out-is-folder":
         out.mkdir()
     before = refs["theory"].read_bytes()
-    p = gs("export", s, "--out", out, "--overwrite")
+    p = gs_here(capsys, "export", s, "--out", out, "--overwrite")
     one_line_error(p, "export --out", str(out))
     assert s.read_bytes() == before
     if case == "out-is-other-store":
@@ -392,13 +392,13 @@ MAPS = [
 
 
 @pytest.mark.parametrize("case,name,make,extra,needles", MAPS, ids=[m[0] for m in MAPS])
-def test_bad_height_map(tmp_path, case, name, make, extra, needles):
+def test_bad_height_map(tmp_path, capsys, case, name, make, extra, needles):
     """An empty or truncated .npy, a .npz without the key asked for or not a zip: `plan` and `run` fail with
     one line naming the file and the problem, exit 2, nothing written (EOFError/KeyError tracebacks before)."""
     make(tmp_path / name)
     job = _file_job(tmp_path, f'kind = "file"\npath = "{name}"\npixel_size = 0.5\n{extra}')
     for cmd in (["plan", job], ["run", job, "--store", tmp_path / "s.h5", "--mpi", "off"]):
-        p = gs(*cmd, timeout=60)
+        p = gs_here(capsys, *cmd)
         err = one_line_error(p, "surface.path", *needles)
         assert p.returncode == 2, err
     assert not (tmp_path / "s.h5").exists()
@@ -434,15 +434,15 @@ def test_store_with_non_json_runs(tmp_path, refs):
 
 
 @pytest.mark.parametrize("pattern", ["x{i}.h5", "x{n}.h5", "x{i}of{n}.h5"])
-def test_shard_pattern_without_shard(tmp_path, pattern):
+def test_shard_pattern_without_shard(tmp_path, capsys, pattern):
     """A store path with {i}/{n} but no --shard is refused (a file literally named x{i}.h5 was created)."""
-    p = gs("run", THEORY_JOB, "--store", tmp_path / pattern, "--mpi", "off", timeout=60)
+    p = gs_here(capsys, "run", THEORY_JOB, "--store", tmp_path / pattern, "--mpi", "off")
     err = one_line_error(p, "--store", "--shard", pattern)
     assert p.returncode == 2, err
     assert list(tmp_path.iterdir()) == []
 
 
-def test_merge_spec_error_names_the_shard(tmp_path, refs):
+def test_merge_spec_error_names_the_shard(tmp_path, capsys, refs):
     """A shard whose stored spec no longer validates: the merge names that shard."""
     import h5py
 
@@ -451,7 +451,7 @@ def test_merge_spec_error_names_the_shard(tmp_path, refs):
     with h5py.File(s, "r+") as f:
         f.attrs["spec_text"] = f.attrs["spec_text"].replace("hurst = [0.3, 0.8]", "hurst = [0.3, 1.5]")
         store.seal_attrs(f)  # a spec that no longer validates, not a damaged attribute (test_integrity.py)
-    p = gs("merge", s, "--out", tmp_path / "m.h5")
+    p = gs_here(capsys, "merge", s, "--out", tmp_path / "m.h5")
     one_line_error(p, "merge", str(s), "grid.hurst[1]")
     assert not (tmp_path / "m.h5").exists()
 
