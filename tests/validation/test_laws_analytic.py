@@ -108,3 +108,34 @@ def test_hard_wall_adhesive_is_johnson_in_the_jkr_limit(alpha: float, frac: floa
     assert r.converged
     psi = curve.half_width(frac)
     assert abs(r.contact_area - 2 * psi / math.pi) <= 16 / n
+
+
+# (L, rho, gamma0, e_star): model units; nm with GPa (a 1 um box, a 50 nm range, E* = 100 GPa)
+UNITS = {"model": (1.0, 0.05, 1e-3, 1.0), "GPa_nm": (1000.0, 50.0, 5.0, 100.0)}
+
+
+@pytest.mark.parametrize("units", sorted(UNITS))
+@pytest.mark.parametrize(("nx", "ny"), [(32, 32), (33, 33), (40, 24)])
+@pytest.mark.parametrize(("kx", "ky"), [(1, 0), (0, 1), (1, 1), (2, 3)])
+@pytest.mark.parametrize("eta", [0.2, 5.0])
+def test_exponential_one_mode_linear_response(units: str, nx: int, ny: int, kx: int, ky: int, eta: float) -> None:
+    """The exponential law (M3) on one mode ``amp cos(q.r)`` of any direction, on square, odd and rectangular
+    grids (the softmax and the generic minimisers), model units and nm/GPa: ``u = amp / (1 + eta)`` with
+    ``eta = rho |q| E* / (2 sigma0)`` (M4's linear response, exact as amp/rho -> 0; amp/rho = 1e-3 here) and the
+    mean gap ``rho ln(gamma0/(rho sigma0)) + (amp - u)^2 / (4 rho)``. Tolerances: 1e-5 relative on the
+    amplitude, 1e-9 rho on the mean gap (next terms O((amp/rho)^2) and O((amp/rho)^4) rho)."""
+    length, rho, gamma0, e_star = UNITS[units]
+    lx, ly = length, length * ny / nx
+    q = 2 * math.pi * math.hypot(kx / lx, ky / ly)
+    sigma0 = rho * q * e_star / (2 * eta)
+    amp = 1e-3 * rho
+    x = (np.arange(nx) * lx / nx)[:, None]
+    y = (np.arange(ny) * ly / ny)[None, :]
+    phase = 2 * math.pi * (kx * x / lx + ky * y / ly)
+    h = amp * np.cos(phase)
+    r = solve(h, sigma0=sigma0, gamma0=gamma0, rho=rho, e_star=e_star, length=(lx, ly), tol=1e-10)
+    assert r.converged
+    u_amp = 2 * float(np.mean(r.displacement * np.cos(phase)))
+    assert u_amp == pytest.approx(amp / (1 + eta), rel=1e-5, abs=0)
+    g0 = rho * math.log(gamma0 / (rho * sigma0)) + (amp - amp / (1 + eta)) ** 2 / (4 * rho)
+    assert r.mean_gap == pytest.approx(g0, abs=1e-9 * rho)
