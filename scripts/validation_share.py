@@ -4,7 +4,8 @@
 
     python scripts/validation_share.py [pytest args...]     # e.g. tests/ or -m "not slow"
 
-Prints the number of collected tests, the number marked ``validation`` and their share."""
+Prints the number of collected tests, the number marked ``validation`` and their share, and the same without the
+tests marked ``peers`` (they skip where the peer codes are not installed, as in CI)."""
 
 from __future__ import annotations
 
@@ -31,9 +32,12 @@ def collected(*args: str) -> int:
 def main(argv: list[str]) -> int:
     total = collected(*argv)
     marked = collected("-m", "validation", *argv)
+    own = collected("-m", "validation and not peers", *argv)
     print(f"collected:  {total}")
     print(f"validation: {marked}")
     print(f"share:      {marked / total:.1%}" if total else "share:      n/a (no tests)")
+    if total:
+        print(f"without peers: {own} ({own / total:.1%}; the peers' tests skip where the peer codes are missing)")
     return 0
 
 
