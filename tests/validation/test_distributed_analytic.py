@@ -165,3 +165,42 @@ def test_coarse_start_linear_response(n: int, eta: float) -> None:
     assert r.converged and [lv["shape"] for lv in r.diagnostics["levels"]] == [[n // 2, n // 2]]
     assert mode_amplitude(r.displacement, x, 1.0) == pytest.approx(u_amp, rel=1e-5, abs=0)
     assert r.mean_gap == pytest.approx(g0, abs=1e-9 * rho)
+
+
+@pytest.mark.parametrize("ranks", [3, 5])
+@pytest.mark.parametrize("eta", [0.1, 10.0])
+@pytest.mark.parametrize("law", ["exponential", "adhesive"])
+def test_distributed_coarse_start_linear_response(ranks: int, eta: float, law: str) -> None:
+    """The coarse-to-fine start on slabs (levels=1: a 40 x 40 grid first, then 80 x 80, over 3 or 5 ranks)
+    against the one-mode linear response ``u = amp / (1 + k/s)`` with the law's local stiffness ``s``
+    (exponential: ``sigma0/rho``; adhesive: ``-p'(g0)`` at its flat gap, from tests/validation/test_laws_analytic),
+    ``k/s = eta``, amp/rho = 1e-3. Tolerance: amplitude 1e-4 relative (the adhesive law's curvature shifts s at
+    O(amp/rho)^2; the exponential law's error is smaller), on every rank's rows."""
+    from .test_laws_analytic import rsf_pressure
+
+    n, amp, rho, e_star = 80, 5e-5, 5e-2, 1.0
+    q = 2 * math.pi
+    h, x = wave(n, n, amp)
+    if law == "exponential":
+        kw = dict(gamma0=1e-3, rho=rho)
+        sigma0 = rho * q * e_star / (2 * eta)
+    else:
+        from scipy.optimize import brentq
+
+        w = 1e-3
+        sigma0 = 0.5 * w / (math.e * rho)  # compressive: the coarse start is for compressive loads
+        g0 = brentq(lambda g: rsf_pressure(g, w, rho) - sigma0, -20 * rho, rho)
+        s = (w / rho**2) * (1 - g0 / rho) * math.exp(-g0 / rho)
+        e_star = 2 * eta * s / q
+        kw = dict(interaction="adhesive", work=w, rho=rho)
+
+    def work(comm):
+        r = solve(h[slab_rows(n, comm)], comm=comm, sigma0=sigma0, e_star=e_star, tol=1e-10, start="coarse",
+                  levels=1, **kw)
+        return r.status, [lv["shape"] for lv in r.diagnostics["levels"]], r.displacement
+
+    out = run_ranks(ranks, work)
+    assert all(st == "converged" for st, _, _ in out)
+    assert out[0][1] == [[n // 2, n // 2]]
+    u = np.concatenate([d for _, _, d in out])
+    assert mode_amplitude(u, x, 1.0) == pytest.approx(amp / (1 + eta), rel=1e-4, abs=0)
