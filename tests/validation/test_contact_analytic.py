@@ -59,7 +59,8 @@ def test_sinusoid_in_full_contact(units: str, axis: int, n: int, ratio: float) -
 @pytest.mark.parametrize("axis", [0, 1])
 @pytest.mark.parametrize("n", [127, 256, 401])
 @pytest.mark.parametrize("frac", [0.1, 0.4, 0.8])
-def test_westergaard_partial_contact(units: str, axis: int, n: int, frac: float) -> None:
+@pytest.mark.parametrize("method", ["mpcg", "pk"])  # coarse-to-fine start (the CPU default) and the plain iteration
+def test_westergaard_partial_contact(units: str, axis: int, n: int, frac: float, method: str) -> None:
     """Westergaard (Johnson Eqs. 13.11-13.12) at ``pbar = frac p*``: the contact width within 2 pixels (one per
     edge: the discrete contact edge lies within a pixel of the true one) and the pressure within
     0.3/sqrt(m) rms, relative to pbar, with m the contact's width in pixels (an edge placed within a pixel
@@ -68,7 +69,8 @@ def test_westergaard_partial_contact(units: str, axis: int, n: int, frac: float)
     e_star, lam, amp = UNITS[units]
     pbar = frac * math.pi * e_star * amp / lam
     h, x, length = wave(n, 2, amp, lam, axis)
-    r = solve(h, sigma0=pbar, interaction="hard_wall", e_star=e_star, length=length, tol=1e-10, backend="numpy")
+    r = solve(h, sigma0=pbar, interaction="hard_wall", e_star=e_star, length=length, tol=1e-10, backend="numpy",
+              method=method)
     assert r.converged
     a, p_exact = westergaard(x, pbar, amp, e_star, lam)
     assert abs(r.contact_area - 2 * a / lam) <= 2.0 / n
