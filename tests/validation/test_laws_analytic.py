@@ -7,7 +7,8 @@ docs/model.md M3, M3b, "Elastic layer on a rigid base"):
   brentq): the exponential law on layers (``s = sigma0 / rho``), the adhesive (Rose-Smith-Ferrante) law at
   compressive and tensile loads;
 * the challenge's hard wall with adhesion in the JKR limit (range a few pixels, Johnson's alpha 0.2-0.3) against
-  Johnson's adhesive wave (gapsweep.reference.johnson_wavy_adhesion).
+  Johnson's adhesive wave (gapsweep.reference.johnson_wavy_adhesion);
+* the exponential law with the coarse-to-fine start converging to Westergaard's hard-wall contact as rho -> 0.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import pytest
 from scipy.optimize import brentq
 
 from gapsweep.gfmd import solve
-from gapsweep.reference import johnson_wavy_adhesion
+from gapsweep.reference import johnson_wavy_adhesion, westergaard
 
 from .test_contact_analytic import layer_factor
 
@@ -139,3 +140,26 @@ def test_exponential_one_mode_linear_response(units: str, nx: int, ny: int, kx: 
     assert u_amp == pytest.approx(amp / (1 + eta), rel=1e-5, abs=0)
     g0 = rho * math.log(gamma0 / (rho * sigma0)) + (amp - amp / (1 + eta)) ** 2 / (4 * rho)
     assert r.mean_gap == pytest.approx(g0, abs=1e-9 * rho)
+
+
+@pytest.mark.parametrize("frac", [0.3, 0.5, 0.8])
+def test_exponential_coarse_start_tends_to_westergaard(frac: float) -> None:
+    """As its range rho -> 0 the exponential law is the hard wall (M3): with the coarse-to-fine start on a
+    512 x 512 grid (a wave of amplitude 0.05 lam, ``gamma0 = pbar rho``, so that ``p(0) = pbar``), rho from 8 to
+    1 pixel, the rms pressure error against Westergaard (relative to pbar) falls by a factor within
+    [0.5, 0.75] at each halving of rho (the soft wall rounds the square-root edges over a width of order rho;
+    measured 0.60-0.66) and stays below ``2 sqrt(rho/a)`` (measured at most 1.9)."""
+    n, lam, amp = 512, 1.0, 0.05
+    pbar = frac * math.pi * amp / lam
+    h, x = wave(n, n, amp, lam)
+    a, p_exact = westergaard(x, pbar, amp, 1.0, lam)
+    errors = []
+    for pixels in (8, 4, 2, 1):
+        rho = pixels * lam / n
+        r = solve(h, sigma0=pbar, gamma0=pbar * rho, rho=rho, tol=1e-8, start="coarse")
+        assert r.converged and r.diagnostics["levels"]
+        err = float(np.sqrt(np.mean((r.pressure[:, 0] - p_exact) ** 2))) / pbar
+        assert err <= 2 * math.sqrt(rho / a)
+        errors.append(err)
+    ratios = np.array(errors[1:]) / np.array(errors[:-1])
+    assert np.all((ratios >= 0.5) & (ratios <= 0.75)), ratios
