@@ -125,8 +125,13 @@ def test_persson_bad_input():
 @pytest.mark.parametrize("y", [1e-6, 0.03, 0.7, 1.0, 2.5, 6.0])
 @pytest.mark.parametrize("gam", [0.42, 1.0])
 def test_separation_kernel_against_mpmath(y, gam):
-    ref = mp.quad(lambda x: (gam + 3 * (1 - gam) * mp.erf(x) ** 2) * mp.exp(-x * x) / x, [y, 1, 3, mp.inf])
-    assert float(P.separation_kernel(y, gam)) == pytest.approx(float(ref), rel=1e-12)
+    # breakpoints above y only, and more of them past y, at 30 digits: [6, 1, 3, inf] integrated back and forth
+    # and lost the 1e-17 tail to cancellation (1 % off at y = 6; [6, inf] alone 1e-5), which the default absolute
+    # tolerance of approx (1e-12) hid; hence also abs=0
+    with mp.workdps(30):
+        pts = sorted({y, *[b for b in (1, 3) if b > y], y + 0.5, y + 1, y + 2, y + 4})
+        ref = mp.quad(lambda x: (gam + 3 * (1 - gam) * mp.erf(x) ** 2) * mp.exp(-x * x) / x, [*pts, mp.inf])
+    assert float(P.separation_kernel(y, gam)) == pytest.approx(float(ref), rel=1e-12, abs=0)
 
 
 def _u_direct(s0, gam, hurst=0.8, ql=2 * math.pi / 0.25, qs=2 * math.pi / 2.5e-2):
