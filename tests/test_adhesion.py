@@ -29,6 +29,7 @@ def adhesive(h: np.ndarray, sigma0: float, **kw):
     return solve(h, sigma0=sigma0, interaction="adhesive", work=WORK, rho=RHO, backend="numpy", **kw)
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize(("seed", "frac"), [(5, 0.2), (5, 0.3), (6, 0.3)])
 def test_direct_tensile_solve_finds_the_attached_equilibrium(seed: int, frac: float) -> None:
     """Before issue 22 these direct solves reported "detached" (measured: 8-10 evaluations) although the load

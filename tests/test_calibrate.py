@@ -10,6 +10,7 @@ from gapsweep import calibrate, fokker_planck, sde
 P = dict(hurst=0.3, h_rms=2.34e-3, rho=5e-4, gamma0=1e-3, lambda_l=0.25, lambda_s=2.5e-3)
 
 
+@pytest.mark.validation
 def test_recovers_c2_from_noise_free_fp_histogram():
     truth = 0.4
     ref = fokker_planck.solve(1e-2, c2=truth, **P)
@@ -22,6 +23,7 @@ def test_recovers_c2_from_noise_free_fp_histogram():
         assert r.distance < 1e-3 if metric != "nll" else math.isfinite(r.distance)
 
 
+@pytest.mark.validation
 def test_recovers_c2_from_sde_histogram_within_uncertainty():
     truth = 0.3
     h = sde.gap_histogram_counts(1e-2, c2=truth, n=40_000, dzeta=0.05, steps="log", seed=5, bins=60, **P)
@@ -67,6 +69,7 @@ def test_bad_input_and_bounds():
     assert r.status == "at_bound" and r.c2 == pytest.approx(1.0, rel=1e-2)
 
 
+@pytest.mark.validation
 def test_pulls_of_default_fit_have_unit_spread():
     # issue 9.2: over repeated synthetic targets (multinomial draws of `count` samples from the FP density at the
     # true C2) the pulls (c2 - truth) / c2_err of the default fit have a standard deviation within [0.7, 1.4]

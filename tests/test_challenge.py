@@ -22,6 +22,7 @@ from gapsweep.sweep.spec import loads
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.validation
 def test_rolloff_spectrum_is_constant_below_q_r_and_a_power_law_above() -> None:
     """|h~(q)|^2 of the fixed-amplitude modes: one value for q_l <= q < q_r, (q/q_r)^(-2H-2) times it above."""
     L, hurst = 1.0, 0.8
@@ -38,6 +39,7 @@ def test_rolloff_spectrum_is_constant_below_q_r_and_a_power_law_above() -> None:
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-14 * np.abs(a).max())
 
 
+@pytest.mark.validation
 def test_rolloff_rms_height_matches_quadrature_and_the_discrete_surface() -> None:
     """continuum_rms_height with lambda_r (closed form) against a quadrature of the spectrum, and the discrete
     surface of a fine mode set within 2 % (mode discreteness)."""

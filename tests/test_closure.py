@@ -14,6 +14,7 @@ from gapsweep.theory import closure
 KW = dict(hurst=0.3, h_rms=2.4e-3, rho=2e-3, gamma0=1e-3, lambda_l=0.25, lambda_s=2.5e-3)
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("s0", [1e-4, 1e-1])
 def test_identity_mean_pressure(s0):
     """(gamma0/rho) <exp(-g/rho)> = sigma0 holds for the drift a = D2/rho (Monte Carlo + step error)."""
@@ -22,6 +23,7 @@ def test_identity_mean_pressure(s0):
     assert ratio == pytest.approx(1.0, abs=0.02)
 
 
+@pytest.mark.validation
 def test_mean_pressure_limit_is_the_paper_process():
     """local=False: Gaussian with the continuum-form mean gap (C1 = H h_rms^2/(1 - zeta_s^(-2H)), M4) and variance
     2 int D2 = 2 rho (g0 - flat)."""
@@ -37,6 +39,7 @@ def test_mean_pressure_limit_is_the_paper_process():
     assert np.quantile(gl, 0.01) > np.quantile(g, 0.01)
 
 
+@pytest.mark.validation
 def test_rigid_limit_variance_is_h_rms_squared():
     """Issue 21 defect: as sigma0 -> 0 (u -> 0) the gap is g0 - h, so its variance is h_rms^2 (M5 low-pressure
     reference). With C1 = H h_rms^2 it was short by the factor 1 - zeta_s^(-2H) = 0.75 (H = 0.2, zeta_s = 32)."""
@@ -59,6 +62,7 @@ def test_bad_input():
         closure.gap_distribution(1e-3, h + 1e-4 * np.eye(16), rho=1e-3, gamma0=1e-3, lambda_l=0.5, edges=[1.0, 0.0])
 
 
+@pytest.mark.validation
 def test_multiscale_everything_resolved_is_gfmd():
     """A grid the coarse ladder reaches (n = 32): no fine shell is left, the samples are GFMD's own gap field."""
     h = surface.self_affine(32, 0.5, lambda_l=0.5, lambda_s=0.1, rms_slope=1.0, seed=1)
@@ -78,6 +82,7 @@ def _l1(x, ref):
     return float(np.sum(np.abs(a - b) * np.diff(e)))
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("s0", [1e-4, 1e-1])
 def test_multiscale_against_full_gfmd(s0):
     """Independent reference: full GFMD on the whole surface (N = 256, zeta_s = 32, H = 0.5, rho = 0.2 h_rms),
@@ -139,6 +144,7 @@ def test_multiscale_self_check_sets_the_status():
         closure.multiscale_gap_samples(1e-2, h, l1_tol=0.0, **kw)
 
 
+@pytest.mark.validation
 def test_l1_distance():
     """0 for identical samples, 2 for disjoint ones, and a hand-computed value."""
     x = np.arange(100.0)

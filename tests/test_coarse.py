@@ -18,6 +18,7 @@ from gapsweep.surfaces.synthetic import self_affine
 SELF = _coarse.SelfComm()
 
 
+@pytest.mark.validation
 def test_restriction_is_the_generators_coarse_surface():
     kw = dict(hurst=0.8, lambda_l=0.5, lambda_s=1 / 24, rms_slope=0.5, seed=3)
     h = self_affine(256, **kw)
@@ -27,6 +28,7 @@ def test_restriction_is_the_generators_coarse_surface():
         assert np.abs(hc - ref).max() <= 1e-12 * np.abs(ref).max()
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("shape", [(32, 48), (64, 64)])
 def test_prolongation_is_the_band_limited_interpolant(shape):
     """A field with modes below the coarse Nyquist numbers, sampled on the coarse grid, prolonged to a grid 2x and
@@ -52,6 +54,7 @@ def _surface(n=256):
     return self_affine(n, 0.8, lambda_l=0.5, lambda_s=1 / 32, rms_slope=0.5, seed=5)
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("law,kw", [("exponential", dict(gamma0=1e-3, rho=4 / 256)),
                                     ("adhesive", dict(work=2e-4, rho=2 / 256))])
 def test_coarse_start_agrees_with_the_plain_solve(law, kw):
@@ -118,6 +121,7 @@ def test_a_level_far_from_balance_starts_nothing(status, residual, used):
     assert (Z is not None) is used
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("shape,length,law,kw", [
     ((128, 192), (2.0 / 3.0, 1.0), "exponential", dict(gamma0=1e-3, rho=1 / 96)),  # rectangle: the smooth path
     ((128, 128), 1.0, "adhesive", dict(work=2e-4, rho=1 / 64)),

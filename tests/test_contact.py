@@ -20,6 +20,7 @@ def wavy(n: int, amplitude: float = 0.01, lam: float = 1.0) -> tuple[np.ndarray,
     return np.repeat((amplitude * np.cos(2 * np.pi * x / lam))[:, None], 2, axis=1), x
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("frac", [0.3, 0.7])
 @pytest.mark.parametrize("n", [128, 512, 2048])
 def test_hard_wall_westergaard(n: int, frac: float) -> None:
@@ -59,6 +60,7 @@ def test_hard_wall_fields_consistent() -> None:
     assert r.contact_area == pytest.approx(np.mean(r.pressure > 0))
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize(("n", "tol_px"), [(1024, 16), pytest.param(4096, 8, marks=pytest.mark.slow)])
 def test_adhesive_wavy_surface_johnson(n: int, tol_px: float) -> None:
     """Exponential cohesive law with range rho = 4 dx on a wave of amplitude D = 0.05 lam (Tabor-like parameter
@@ -144,6 +146,7 @@ def rms_gradient(h: np.ndarray, length: float = 1.0) -> float:
     return float(np.sqrt(np.mean(gx**2 + gy**2)))
 
 
+@pytest.mark.validation
 @pytest.mark.slow
 def test_hard_wall_area_linear_at_small_load() -> None:
     """A/A0 = kappa sigma0 / (E* |grad h|_rms) at small load. Theory brackets kappa between Persson's
@@ -199,6 +202,7 @@ def test_bad_law_input() -> None:
         solve(np.zeros((8, 6)), sigma0=1.0, gamma0=1e-3, rho=0.1, method="fire")
 
 
+@pytest.mark.validation
 def test_exponential_on_rectangular_grid() -> None:
     """A rectangular grid runs the exponential law on the generic smooth minimiser: a wave extruded along y
     gives the square grid's (softmax minimiser's) answer whatever ny."""
@@ -225,6 +229,7 @@ def _cupy_or_skip():
     return cupy
 
 
+@pytest.mark.validation
 def test_coarsen_keeps_band_limited_field() -> None:
     """The coarse level of "mpcg" holds the same function: a field of modes below the coarse Nyquist, coarsened,
     is the field on every second point."""
@@ -236,6 +241,7 @@ def test_coarsen_keeps_band_limited_field() -> None:
     np.testing.assert_allclose(coarsen(f, np), f[::2, ::2], atol=1e-13)
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("backend", ["auto", "numpy"])
 def test_hard_wall_coarse_to_fine_agrees(backend: str) -> None:
     """"mpcg" (coarse-to-fine start, then "pcg") ends at the same answer as "pcg" by the same fine-grid
@@ -286,6 +292,7 @@ def test_adhesive_cupy_agrees() -> None:
     assert abs(a.mean_gap - b.mean_gap) <= 1e-7 * a.mean_gap
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("method", ["pcg", "pk"])
 @pytest.mark.parametrize("backend", ["auto", "numpy"])
 def test_hard_wall_spectral_loop_matches_real_space_loop(monkeypatch, backend: str, method: str) -> None:
@@ -334,6 +341,7 @@ def test_hard_wall_load_path_reports_no_jumps():
     assert path.jumps == []
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("periodic", [True, False])
 def test_hard_wall_restart_rule_same_answer(monkeypatch, periodic: bool) -> None:
     """The CG restart rule (restart only when > 1 % of the contact set re-enters, issue 39) against Polonsky &

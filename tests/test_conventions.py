@@ -43,6 +43,7 @@ def test_batch_gap_invariant_under_height_shift() -> None:
     assert abs(a.mean_gap - b.mean_gap) <= 1e-9 and abs(a.mean_gap - one.mean_gap) <= 1e-9
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("c", [0.0, 0.9])
 def test_rectangle_equals_its_square_tiling(c: float) -> None:
     """A 32 x 16 periodic map on (1, 0.5) and its 2x tiling in y, 32 x 32 on (1, 1), are one physical problem:

@@ -23,6 +23,7 @@ AMG = pytest.param("amg", marks=pytest.mark.skipif(not has("pyamg"), reason="pya
 SOLVERS = ("direct", AMG, "cg")
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("axis", [0, 1])
 @pytest.mark.parametrize("periodic", [True, False])
 def test_uniform_gap_is_exact(axis, periodic):
@@ -32,8 +33,8 @@ def test_uniform_gap_is_exact(axis, periodic):
                    fields=True)
     k = g0 ** 3 / (12 * mu)
     assert r.percolating and r.converged
-    assert r.conductance == pytest.approx(k, rel=1e-12)
-    assert r.leak_rate == pytest.approx(k * dp / L[axis], rel=1e-12)
+    assert r.conductance == pytest.approx(k, rel=1e-12, abs=0)  # abs=0: k ~ 1e-15, below approx's default abs
+    assert r.leak_rate == pytest.approx(k * dp / L[axis], rel=1e-12, abs=0)
     assert r.ratio == pytest.approx(1.0, rel=1e-12)
     # the pressure falls linearly from dp to 0 between the edges (cell centres at (i + 1/2) / n)
     n = r.pressure.shape[axis]
@@ -44,6 +45,7 @@ def test_uniform_gap_is_exact(axis, periodic):
     assert np.abs(r.flux[1 - axis]).max() < 1e-10 * r.leak_rate
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("solver", SOLVERS)
 def test_stripes_harmonic_across_arithmetic_along(solver):
     """A gap varying along array axis 0 only: flow along axis 0 crosses the stripes in series (harmonic mean of
@@ -60,6 +62,7 @@ def test_stripes_harmonic_across_arithmetic_along(solver):
     assert across.converged and along.converged and across.balance < 1e-8
 
 
+@pytest.mark.validation
 def test_contact_blocks_or_channels():
     """A closed row of contact across the flow seals (leak exactly 0, not percolating); contact stripes along the
     flow leave parallel channels whose conductance is the open fraction times k; an isolated open pocket changes
@@ -89,6 +92,7 @@ def test_contact_blocks_or_channels():
     assert not flow.solve(g3, axis=0, periodic=False).percolating
 
 
+@pytest.mark.validation
 def test_duality_refined_checkerboard():
     """Random two-phase checkerboard (k1, k2 at 1/2 each, ln k symmetric): K_eff -> sqrt(k1 k2) (Keller-Dykhne).
     Each square resolved by r x r cells: the discretisation error (the harmonic face rule at a corner) falls
@@ -106,6 +110,7 @@ def test_duality_refined_checkerboard():
     assert abs(errs[2]) < 0.08
 
 
+@pytest.mark.validation
 def test_duality_lognormal_geometric_mean():
     """A lognormal gap, correlated over 3 cells, ln g^3 Gaussian (symmetric): K_eff -> geometric mean of k as the
     map grows (2-D duality). Mean |error| over 4 seeds shrinks with size; below 8% at 128^2 (measured about 3%),
@@ -124,6 +129,7 @@ def test_duality_lognormal_geometric_mean():
     assert np.mean(np.abs(out[128])) < 0.08 and abs(np.mean(out[128])) < 0.04
 
 
+@pytest.mark.validation
 def test_grid_convergence_smooth_gap():
     """A smooth gap varying along the flow: the exact conductance is 1 / int_0^1 12 mu / g^3 dx; the cell-centred
     solve is the midpoint rule of that integral: second order for a ramp, spectral for a periodic profile. A
@@ -164,6 +170,7 @@ def _percolation_point(n, seed, steps=10):
     return 0.5 * (alo + ahi)
 
 
+@pytest.mark.validation
 def test_percolation_near_dapp_threshold():
     """Hard-wall GFMD contacts of self-affine surfaces (H = 0.8, 64^2, 4 seeds): the leak rate vanishes at a
     relative contact area near 0.42 (Dapp et al. 2012; studies/percolation.py measures the finite-size trend:
@@ -180,6 +187,7 @@ def test_leak_rate_falls_with_load():
     assert leaks[0] > leaks[1] > leaks[2] > 0
 
 
+@pytest.mark.validation
 def test_theories_exact_cases():
     """Bruggeman: a single open gap g with contact fraction c gives K = k (1 - 2c); two phases at 1/2 each give
     sqrt(k1 k2); 0 from c = 1/2. Critical junction: on a uniform density the critical gap is exact."""
@@ -248,6 +256,7 @@ def _sparse_shim(monkeypatch):
     return cp, calls
 
 
+@pytest.mark.validation
 def test_gpu_path_on_the_shim(monkeypatch):
     """backend='cupy' (a cupy array in) runs Jacobi-preconditioned CG through cupyx.scipy.sparse and agrees with
     the direct CPU solve (shim: numpy arrays posing as cupy's, scipy behind cupyx.scipy.sparse)."""

@@ -12,6 +12,7 @@ from gapsweep import fokker_planck, sde, theory
 P = dict(hurst=0.3, h_rms=2.34e-3, gamma0=1e-3, lambda_l=0.25, lambda_s=2.5e-3)
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("s0", [1e-5, 1e-2, 1.0])
 def test_c2_zero_gaussian(s0):
     # M5: C2 = 0 -> Gaussian of mean g0(zeta) (M4) and variance 2 int_1^zeta D2 (= 2 rho (g0 - flat), C1 default)
@@ -101,6 +102,7 @@ def test_bad_input():
         r.at(50.0)
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("s0, hurst, rho", [(1.0, 0.3, 5e-4), (10.0, 0.3, 5e-4), (10.0, 0.8, 2e-3)])
 def test_stiff_high_pressure_matches_sde_moments(s0, hurst, rho):
     # issue 9.1, M7 stiff parameters (rho = 5e-4, C2 = 1): the density is much narrower than rho. The backward

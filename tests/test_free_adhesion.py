@@ -45,6 +45,7 @@ def _fine_continuation(h: np.ndarray, kw: dict, ds: float) -> tuple[float, dict[
         prev = r
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize(("seed", "shape", "aspect"), [(7, (40, 32), 1.0), (12, (40, 32), 1.0), (5, (37, 29), 1.3)])
 def test_free_tensile_loads_detach_only_beyond_pull_off(seed: int, shape: tuple[int, int], aspect: float) -> None:
     """From the default start, no load is reported detached where the fine warm-started continuation finds an

@@ -29,6 +29,7 @@ from gapsweep.topography import Topography
 PEER = Path(__file__).with_name("peers") / "contactmechanics_free.py"
 
 
+@pytest.mark.validation
 def test_pixel_green_function_is_the_integrated_point_load() -> None:
     """Love's rectangle formula = the Boussinesq kernel 1/(pi E* r) integrated over the pixel (Gauss-Legendre,
     60 x 60 nodes, away from the singularity: 1e-10), and -> 4ab/(pi E* r) far away (O((a/r)^2): 1e-4 at 100
@@ -44,6 +45,7 @@ def test_pixel_green_function_is_the_integrated_point_load() -> None:
     assert far == pytest.approx(float(boussinesq_point(math.hypot(100.0, 30.0), 4 * a * b, e_star)), rel=1e-4)
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("path", ["scipy", "array-api", "pyfftw"])
 def test_free_compliance_is_the_direct_sum(path: str) -> None:
     """The doubled-grid FFT convolution = the O(N^2) direct sum over the map's pixels (1e-12), rectangular
@@ -78,6 +80,7 @@ def hertz_case(nx: int = 256, ny: int = 192, a: float = 50.0, radius: float = 25
     return h, (float(nx), float(ny)), hz.force / (nx * ny), hz.force, hz.p0
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("method", ["mpcg", "pk"])
 def test_hertz_on_a_free_map(method: str) -> None:
     """Contact radius within 2 % and peak pressure within 3 % of Hertz at a = 50 pixels (the issue's
@@ -124,6 +127,7 @@ CASES = [((96, 64), (1.5, 1.0), 0.8, 0.05), ((64, 64), (1.0, 1.0), 0.3, 0.2), ((
          ((64, 48), (1.0, 1.0), 0.8, 0.05)]  # the last with rectangular pixels (dx != dy)
 
 
+@pytest.mark.validation
 @pytest.mark.peers
 @pytest.mark.parametrize(("shape", "length", "hurst", "sigma0"), CASES)
 def test_free_hard_wall_agrees_with_contactmechanics(tmp_path, shape, length, hurst, sigma0) -> None:
@@ -177,6 +181,7 @@ SMOOTH = [("exponential", dict(gamma0=1e-4, rho=2e-3), 0.01), ("exponential", di
           ("adhesive", dict(work=1e-4, rho=2e-3), 0.01)]
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize(("name", "kw", "sigma0"), SMOOTH)
 def test_smooth_laws_on_a_free_map_agree_with_dense_newton(name, kw, sigma0) -> None:
     """Exponential repulsion and adhesion on a 24 x 16 free map (box 1.5 x 1): mean gap to 1e-8 relative and
@@ -214,6 +219,7 @@ def test_free_exponential_warm_start_and_bad_method() -> None:
         solve(h, sigma0=0.01, gamma0=1e-4, rho=2e-3, periodic=False, initial=np.zeros_like(h))
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize(("name", "kw", "sigma0"), [("exponential", dict(gamma0=1e-4, rho=2e-3), 0.01),
                                                    ("adhesive", dict(work=1e-4, rho=2e-3), 0.01),
                                                    ("adhesive", dict(work=1e-4, rho=2e-3), -2e-5)])

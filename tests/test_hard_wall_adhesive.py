@@ -30,6 +30,7 @@ def rough(nx: int, ny: int, seed: int, h_rms: float = 0.01) -> np.ndarray:
     return (h - h.mean()) * (h_rms / h.std())
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("tensile", [True, False])
 def test_sinusoid_in_full_contact_has_the_analytic_pressure(tensile: bool) -> None:
     """h = a cos(2 pi x / Lx) in full contact: p = sigma0 + (E* q / 2) h exactly (the gap vanishes, u = h up to a
@@ -60,6 +61,7 @@ def test_beyond_the_theoretical_strength_the_body_detaches() -> None:
     assert off.status == "detached" and not off.converged
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize(("nx", "ny", "sigma0"), [(64, 64, 1e-2), (45, 64, 3e-3)])
 def test_vanishing_work_is_the_hard_wall(nx: int, ny: int, sigma0: float) -> None:
     """work -> 0: the law is the hard wall; the mean gap matches the hard-wall minimiser (Polonsky-Keer CG on
@@ -73,6 +75,7 @@ def test_vanishing_work_is_the_hard_wall(nx: int, ny: int, sigma0: float) -> Non
     assert abs(a.contact_area - b.contact_area) <= 1.0 / (nx * ny)
 
 
+@pytest.mark.validation
 def test_gradient_is_the_derivative_of_the_energy() -> None:
     """The minimiser's gradient G = p_el + V'(g) + sigma0 is dF/dg of its energy per area (central finite
     differences along a random direction, at a random admissible gap, rectangular grid)."""
@@ -96,6 +99,7 @@ def test_gradient_is_the_derivative_of_the_energy() -> None:
     assert abs(df - (fp - st.f)) <= 1e-9 * abs(df)
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize(("nx", "ny", "seed", "sigma0"), [(48, 75, 1, 2e-3), (63, 40, 2, -3e-5), (64, 64, 3, 0.0)])
 def test_returned_fields_are_an_equilibrium(nx: int, ny: int, seed: int, sigma0: float) -> None:
     """From the returned fields alone, with numpy's FFT: the elastic pressure of the displacement equals
@@ -121,6 +125,7 @@ def test_returned_fields_are_an_equilibrium(nx: int, ny: int, seed: int, sigma0:
     np.testing.assert_allclose(r.gap, r.mean_gap + r.displacement - (h - h.mean()), rtol=0, atol=1e-12)
 
 
+@pytest.mark.validation
 def test_tensile_load_follows_the_branch_from_zero_load() -> None:
     """A tensile load without ``initial`` is reached by continuation from zero load: the same equilibrium as an
     explicit load path in small steps (gfmd.solve_path, warm starts), and the diagnostics record the path."""

@@ -17,6 +17,7 @@ from gapsweep.theory import cumulant, improved
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.validation
 def test_gap_fluctuations_single_mode_closed_form():
     """h = a cos(k x): dg1 = -a R1 cos, dg2 = (a R1)^2 cos(2 k x) / (4 rho (1 + ez2)), R = ez/(1+ez)."""
     n, a, k, rho, s0 = 64, 3e-3, 5, 2e-3, 0.02
@@ -38,6 +39,7 @@ def test_gap_fluctuations_single_mode_closed_form():
     assert cumulant.next_order_term(s0, h, rho=rho) == pytest.approx(t, rel=1e-12)
 
 
+@pytest.mark.validation
 def test_lme_linear_limits():
     h = surface.self_affine(128, 0.5, lambda_l=0.25, lambda_s=0.02, seed=1)
     # sigma0 -> 0: rigid response (dg1 = -h), the exact rigid mean gap of M3/M4
@@ -50,6 +52,7 @@ def test_lme_linear_limits():
     assert abs(got - ref) < 1e-3 * (ref - theory.flat_gap(1e-3, rho=1e-3, gamma0=1e-3))
 
 
+@pytest.mark.validation
 def test_hybrid_limits():
     h = surface.self_affine(64, 0.5, lambda_l=0.5, lambda_s=0.05, seed=2)
     kw = dict(rho=5e-3, gamma0=1e-3)
@@ -102,6 +105,7 @@ def test_resummed_term_identity():
         assert got == pytest.approx(ref, rel=1e-9, abs=1e-15)
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("hurst, s0", [(0.3, 1e-2), (0.8, 1e-2)])
 def test_hybrid_local_pressure_shift(hurst, s0):
     """Independent reference: full GFMD on the whole surface (N = 256, zeta_s = 25). At zeta_c = 6 the
@@ -117,6 +121,7 @@ def test_hybrid_local_pressure_shift(hurst, s0):
     assert abs(local / ref - 1) < abs(const / ref - 1)
 
 
+@pytest.mark.validation
 def test_hybrid_no_double_count_when_coarse_grid_is_the_input_grid():
     """Issue 21 defect: N = 512, lambda_l = L/4, lambda_s = L/200, zeta_c = 32 puts the coarse grid on the input
     grid (n_c = 512); the modes beyond k_c = 128 must then be in the shift only, not also in the heights.
@@ -155,6 +160,7 @@ def test_hybrid_bad_input(bad, match):
         improved.hybrid(0.01, h, **kw)
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("s0", [3e-4, 3e-2])
 def test_hybrid_auto_against_full_gfmd(s0):
     """zeta_c="auto" (rtol 0.05) against full GFMD on the whole surface (independent reference; N = 256,

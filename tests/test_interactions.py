@@ -20,6 +20,7 @@ def test_exponential_object_equals_name() -> None:
     np.testing.assert_array_equal(a.gap, b.gap)
 
 
+@pytest.mark.validation
 def test_exponential_law_functions() -> None:
     law = Exponential(2e-3, 0.05)
     g = np.linspace(-0.1, 0.3, 7)

@@ -42,6 +42,7 @@ def bvp_stiffness(q: float, t: float, nu: float, bottom: str, young: float = 1.0
     return 1.0 / sum(c[j] * fields(*basis[j], 0.0)[1] for j in range(4))
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("bottom", ["bonded", "slip"])
 @pytest.mark.parametrize("nu", [-0.3, 0.0, 0.25, 0.49])
 def test_stiffness_matches_boundary_value_problem(bottom: str, nu: float) -> None:
@@ -53,6 +54,7 @@ def test_stiffness_matches_boundary_value_problem(bottom: str, nu: float) -> Non
         assert got == pytest.approx(want, rel=1e-8), (x, got, want)
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("bottom", ["bonded", "slip"])
 def test_stiffness_limits(bottom: str) -> None:
     nu = 0.3
@@ -75,6 +77,7 @@ def test_stiffness_limits(bottom: str) -> None:
     assert f[0] == pytest.approx(f[1], rel=1e-9)
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("law", ["hard_wall", "exponential", "adhesive"])
 def test_thick_layer_is_the_half_space(law: str) -> None:
     h = self_affine(32, 0.7, lambda_l=0.5, lambda_s=4 / 32, seed=11) * 0.5  # physical units: box 2 x 1.5
@@ -89,6 +92,7 @@ def test_thick_layer_is_the_half_space(law: str) -> None:
     assert lay.substrate["bottom"] == "bonded" and ref.substrate == {}
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize(("bottom", "nu"), [("bonded", 0.35), ("slip", 0.2)])
 def test_thin_layer_is_a_winkler_foundation(bottom: str, nu: float) -> None:
     """t << pixel: every pixel a spring of stiffness k0 = k(0) (a Winkler foundation). Closed form: the body's
@@ -145,6 +149,7 @@ def test_layer_refusals() -> None:
         solve(h, sigma0=0.01, gamma0=1e-3, rho=1e-2, thickness=0.1, poisson=0.3, start="coarse")
 
 
+@pytest.mark.validation
 def test_exponential_on_a_layer_two_minimisers_agree() -> None:
     """The exponential law's own minimiser with the layer's stiffness (square grid, CPU) against the generic smooth
     minimiser (L-BFGS on gfmd._smooth, which a rectangular grid takes) on the same square map."""
@@ -164,6 +169,7 @@ def test_exponential_on_a_layer_two_minimisers_agree() -> None:
     np.testing.assert_allclose(own.pressure, gen.pressure, atol=1e-5 * 0.02 * 50)
 
 
+@pytest.mark.validation
 def test_persson_contact_area_of_a_layer() -> None:
     """Persson's contact area with E* -> E* f(q t): the half-space's for a thick layer; at small loads
     ``A -> sqrt(2/pi) sigma0 / sqrt(V_c)`` with the Winkler variance ``V_c = k(0)^2 h_rms^2`` for a thin one; a
@@ -193,6 +199,7 @@ def test_persson_contact_area_of_a_layer() -> None:
         persson_layer.contact_area(1e-3, thickness=0.1, **kw)
 
 
+@pytest.mark.validation
 def test_layer_coarse_start_agrees_with_plain_pk() -> None:
     """N = 256: "auto" (pcg from the coarse-to-fine start solved on the same layer, FFTW spectral loop) against
     the plain Polonsky-Keer iteration from the flat start."""
@@ -205,6 +212,7 @@ def test_layer_coarse_start_agrees_with_plain_pk() -> None:
     assert a.contact_area == b.contact_area
 
 
+@pytest.mark.validation
 def test_persson_mean_separation_on_a_layer() -> None:
     """Persson's mean separation with the layer's stiffness (gapsweep.theory.persson_layer; docs/theory.md): the
     half-space's value as t -> oo (continuum spectrum: its closed form against the layer's shell sum; a map's own

@@ -22,7 +22,7 @@ import pytest
 from gapsweep.gfmd import solve
 from gapsweep.surface import self_affine
 
-pytestmark = pytest.mark.peers
+pytestmark = [pytest.mark.peers, pytest.mark.validation]
 
 WORK = 1e-3
 DETACHED = 30.0  # every gap beyond this many ranges: the body has left

@@ -23,7 +23,7 @@ import pytest
 
 from gapsweep.gfmd import solve
 
-pytestmark = pytest.mark.peers
+pytestmark = [pytest.mark.peers, pytest.mark.validation]
 
 
 def periodic_map(nx: int, ny: int, lx: float, ly: float, seed: int, hurst: float = 0.8,

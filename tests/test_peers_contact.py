@@ -16,7 +16,7 @@ import pytest
 from gapsweep.gfmd import solve
 from gapsweep.surface import self_affine
 
-pytestmark = pytest.mark.peers
+pytestmark = [pytest.mark.peers, pytest.mark.validation]
 
 CASES = [(0.8, 1e-3), (0.8, 1e-2), (0.3, 1e-2), (0.3, 1e-1)]
 

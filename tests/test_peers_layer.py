@@ -15,7 +15,7 @@ import pytest
 from gapsweep.gfmd import solve
 from gapsweep.surface import self_affine
 
-pytestmark = pytest.mark.peers
+pytestmark = [pytest.mark.peers, pytest.mark.validation]
 
 
 @pytest.mark.parametrize(("n", "t", "nu", "sigma0", "seed"), [(64, 0.05, 0.3, 0.01, 5), (48, 0.2, 0.45, 0.03, 6),

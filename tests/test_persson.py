@@ -17,6 +17,7 @@ SA = dict(hurst=0.8, lambda_l=0.25, lambda_s=2.5e-3)
 
 
 # ---------------------------------------------------------------------------------------------------- spectrum
+@pytest.mark.validation
 def test_self_affine_spectrum_moments():
     sp = spec.self_affine(0.3, lambda_l=0.25, lambda_s=2.5e-3, rms_slope=1.0)
     assert sp.g_rms == pytest.approx(1.0, rel=1e-13)
@@ -29,6 +30,7 @@ def test_self_affine_spectrum_moments():
     assert spec.self_affine(H, lambda_l=0.25, lambda_s=2.5e-3, c0=1.0).h_rms ** 2 == pytest.approx(ref, rel=1e-9)
 
 
+@pytest.mark.validation
 def test_from_heights_rectangular_moments():
     rng = np.random.default_rng(1)
     h = rng.normal(size=(24, 40))
@@ -56,6 +58,7 @@ def test_spectrum_bad_input():
 
 
 # ---------------------------------------------------------------------------------------------------- area
+@pytest.mark.validation
 def test_area_small_load_coefficients():
     """A/A0 -> kappa sigma0/(E* g): sqrt(8/pi) (Persson 2001), sqrt(8/pi)/sqrt(gamma) for the corrected forms
     (their variance grows as gamma V_c once A -> 0)."""
@@ -69,6 +72,7 @@ def test_area_small_load_coefficients():
     assert a / s == pytest.approx(math.sqrt(8 / math.pi / P.GAMMA_WM), rel=1e-4)
 
 
+@pytest.mark.validation
 def test_area_full_contact_and_gamma_one():
     for v in P.VARIANTS:
         assert P.contact_area(20.0, variant=v, **SA) == pytest.approx(1.0, abs=1e-12)
@@ -79,6 +83,7 @@ def test_area_full_contact_and_gamma_one():
     assert np.all(np.diff(a) > 0) and np.all((a > 0) & (a <= 1))
 
 
+@pytest.mark.validation
 def test_area_corrected_against_stepwise_solution():
     """Independent algorithm: march V over V_c in small steps, solving A = erf(sigma0/sqrt(2V)) by brentq each
     step (implicit Euler), for both corrected variants."""
@@ -116,11 +121,17 @@ def test_persson_bad_input():
 
 
 # ---------------------------------------------------------------------------------------------------- separation
+@pytest.mark.validation
 @pytest.mark.parametrize("y", [1e-6, 0.03, 0.7, 1.0, 2.5, 6.0])
 @pytest.mark.parametrize("gam", [0.42, 1.0])
 def test_separation_kernel_against_mpmath(y, gam):
-    ref = mp.quad(lambda x: (gam + 3 * (1 - gam) * mp.erf(x) ** 2) * mp.exp(-x * x) / x, [y, 1, 3, mp.inf])
-    assert float(P.separation_kernel(y, gam)) == pytest.approx(float(ref), rel=1e-12)
+    # breakpoints above y only, and more of them past y, at 30 digits: [6, 1, 3, inf] integrated back and forth
+    # and lost the 1e-17 tail to cancellation (1 % off at y = 6; [6, inf] alone 1e-5), which the default absolute
+    # tolerance of approx (1e-12) hid; hence also abs=0
+    with mp.workdps(30):
+        pts = sorted({y, *[b for b in (1, 3) if b > y], y + 0.5, y + 1, y + 2, y + 4})
+        ref = mp.quad(lambda x: (gam + 3 * (1 - gam) * mp.erf(x) ** 2) * mp.exp(-x * x) / x, [*pts, mp.inf])
+    assert float(P.separation_kernel(y, gam)) == pytest.approx(float(ref), rel=1e-12, abs=0)
 
 
 def _u_direct(s0, gam, hurst=0.8, ql=2 * math.pi / 0.25, qs=2 * math.pi / 2.5e-2):
@@ -143,6 +154,7 @@ def _u_direct(s0, gam, hurst=0.8, ql=2 * math.pi / 0.25, qs=2 * math.pi / 2.5e-2
                                                limit=200, points=[ql * 1.01, ql * 2])[0]
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("s0", [1e-3, 0.05])
 def test_mean_separation_against_direct_quadrature(s0):
     for gam in (0.42, 1.0):
@@ -150,6 +162,7 @@ def test_mean_separation_against_direct_quadrature(s0):
         assert got == pytest.approx(_u_direct(s0, gam), rel=2e-5)
 
 
+@pytest.mark.validation
 def test_mean_separation_small_load_slope():
     """u -> -u0 ln sigma0 + const, u0 = gamma sqrt(pi) int q^2 C_P w dq = gamma sqrt(2/pi) int_0^g ds / q(s)."""
     sp = spec.self_affine(**SA)
@@ -163,6 +176,7 @@ def test_mean_separation_small_load_slope():
         assert slope == pytest.approx(u0, rel=1e-6)
 
 
+@pytest.mark.validation
 def test_mean_separation_large_load_and_single_mode():
     """Full contact: u -> 0 like exp(-y^2); one cosine mode (a single shell): u = sqrt(2/pi) int_0^g F(c/s) ds / q
     exactly, checked against scipy quad."""
@@ -191,6 +205,7 @@ def test_gap_distribution_normalised():
     assert np.all(P.gap_distribution(np.array([-1e-3]), 0.01, **SA)[0] == 0.0)
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("gam", [P.GAMMA_YP, 1.0, P.GAMMA_WM])
 def test_separation_table_against_kernels(gam):
     """The spline table of ``y Hk(y)`` (``persson._hk``, issue 39) against the Gauss-Legendre kernels at points
@@ -200,6 +215,7 @@ def test_separation_table_against_kernels(gam):
     assert np.max(np.abs(t_new - t_old)) <= 1e-10 * np.max(np.abs(t_old))
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("shape,length", [((96, 96), 1.0), ((75, 75), 2.5), ((64, 80), (1.0, 1.25))])
 def test_map_predictions_match_per_shell_kernels(shape, length, monkeypatch):
     """Mean separation (discrete shells) and gap distribution (radial PSD) from a map: the spline-table evaluation
@@ -222,6 +238,7 @@ def test_map_predictions_match_per_shell_kernels(shape, length, monkeypatch):
     assert a_new == pytest.approx(a_old, abs=1e-14)
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("shape,length", [((48, 48), 1.0), ((45, 45), 3.0), ((40, 56), 2.0)])
 def test_discrete_shells_by_bincount_equal_sorted_grouping(shape, length):
     """Square boxes group the discrete shells by the integer ``kx^2 + ky^2`` (a bincount); the shells, their

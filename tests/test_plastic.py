@@ -17,6 +17,7 @@ def surface(n: int = 64, seed: int = 5, shape: tuple[int, int] | None = None) ->
     return h if shape is None else h[: shape[0], : shape[1]]
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("periodic", [True, False])
 def test_large_hardness_is_the_elastic_hard_wall(periodic: bool) -> None:
     h = surface(32, seed=7)
@@ -48,6 +49,7 @@ def test_kkt_conditions_hold(hard: float, seed: int, shape) -> None:
     assert r.mean_gap == pytest.approx(float(r.gap.mean()))
 
 
+@pytest.mark.validation
 def test_rigid_plastic_limit_is_the_bearing_area() -> None:
     """E* h'_rms / H -> oo: elastic deformation negligible, p = H on the contact, whose area is sigma0 / H: the
     bearing area of the surface, the part above the level d with <h > d> = sigma0 / H; the mean gap <(d - h)+>."""
@@ -62,6 +64,7 @@ def test_rigid_plastic_limit_is_the_bearing_area() -> None:
     assert np.sum(r.plastic_displacement) == pytest.approx(np.sum(np.maximum(h - d, 0.0)), rel=2e-3)
 
 
+@pytest.mark.validation
 def test_residual_surface_reloads_elastically() -> None:
     """After unloading, the surface h - u_pl; loaded again to sigma0 it carries the first loading's pressure
     elastically (no further flow): the same pressure field from the elastic hard wall."""
@@ -128,6 +131,7 @@ def test_displacement_from_the_gap_and_the_plastic_field() -> None:
     np.testing.assert_allclose(u, r.displacement, atol=1e-9 * h.std())
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("kw", [{"periodic": False}, {"thickness": 0.03, "poisson": 0.3}])
 def test_coarse_start_with_the_cap_agrees_with_plain_pk(kw) -> None:
     """N = 256: "mpcg" (coarse levels of the same substrate: block means for free boundaries, the layer's grid)

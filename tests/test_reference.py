@@ -12,6 +12,7 @@ from scipy import integrate
 from gapsweep import reference as ref
 
 
+@pytest.mark.validation
 def test_hertz_force_and_radius_invert_and_the_pressure_carries_the_force():
     h = ref.hertz(2500.0, 1.3, a=50.0)
     assert ref.hertz(2500.0, 1.3, force=h.force).a == pytest.approx(50.0, rel=1e-14)
@@ -23,6 +24,7 @@ def test_hertz_force_and_radius_invert_and_the_pressure_carries_the_force():
         ref.hertz(1.0, a=1.0, force=1.0)
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("frac", [0.1, 0.5, 0.9])
 def test_westergaard_pressure_averages_to_the_load(frac):
     amp, lam, e = 0.01, 2.0, 1.7
@@ -36,6 +38,7 @@ def test_westergaard_pressure_averages_to_the_load(frac):
         ref.westergaard(x, 2 * math.pi * e * amp / lam, amp, e, lam)
 
 
+@pytest.mark.validation
 def test_johnson_reduces_to_westergaard_and_has_a_tensile_pull_off():
     c0 = ref.johnson_wavy_adhesion(0.0)
     for psi in (0.2, 0.7, 1.2):
@@ -49,6 +52,7 @@ def test_johnson_reduces_to_westergaard_and_has_a_tensile_pull_off():
     assert ref.johnson_alpha(w, 0.05) == pytest.approx(0.3, rel=1e-14)
 
 
+@pytest.mark.validation
 def test_boussinesq_rectangle_is_the_integrated_point_load():
     a, b, e = 0.5, 0.75, 2.0
     x, w = np.polynomial.legendre.leggauss(60)

@@ -31,6 +31,7 @@ def _chi2_pvalue(counts: np.ndarray, prob: np.ndarray, n: int) -> float:
     return float(stats.chi2.sf(chi2, obs.size - 1))
 
 
+@pytest.mark.validation
 def test_plan_matches_theory_mean_gap():
     # the per-step quadrature of D1 reproduces the closed-form mean gap; D2 = rho D1 gives V = 2 rho (g0 - flat)
     for s0 in (1e-7, 1e-3, 10.0):
@@ -52,6 +53,7 @@ def test_zeta_grid():
     assert sde.zeta_grid(1.0).tolist() == [1.0]
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("dtype", ["float32", "float64"])
 def test_c2_zero_is_exact_gaussian(dtype):
     # M5: with C2 = 0 the gap is Gaussian, mean g0(zeta), variance 2 int D2: exact for any step size
@@ -107,6 +109,7 @@ def test_float32_close_to_float64_same_stream():
     assert np.max(np.abs(a - b)) < 1e-3 * sd
 
 
+@pytest.mark.validation
 def test_repulsion_sde_matches_fokker_planck():
     # M5 with repulsion: SDE histogram vs noise-free FP density, chi-square at the Monte Carlo noise
     n = 40_000
@@ -119,6 +122,7 @@ def test_repulsion_sde_matches_fokker_planck():
         assert _chi2_pvalue(r.counts, prob, r.counts.sum()) > 1e-4
 
 
+@pytest.mark.validation
 def test_stiff_case_finite_and_right():
     # M7: rho = 5e-4, C2 = 1, dzeta = 0.1 (uniform, as the paper's scheme would take it)
     n = 20_000
@@ -143,6 +147,7 @@ def test_euler_baseline_reports_failure_on_stiff_case(s0):
     assert r.nonfinite == 500 and r.counts.sum() == 0
 
 
+@pytest.mark.validation
 def test_euler_baseline_runs_where_stable():
     # the same baseline with steps inside its stability bound returns gaps that agree with the split scheme
     kw = dict(rho=2e-3, c2=1.0, n=4000, dzeta=0.01, seed=3, **P)
@@ -203,6 +208,7 @@ def test_bad_input():
         sde.gap_histogram(1e-2, n=10, bins=0, **kw)
 
 
+@pytest.mark.validation
 def test_zeta_end_one_is_flat_gap():
     g = sde.gap_samples(1e-2, rho=5e-4, n=16, zeta_end=1.0, c2=1.0, **P)
     assert np.allclose(g, theory.flat_gap(1e-2, rho=5e-4, gamma0=P["gamma0"]))
@@ -220,6 +226,7 @@ PHILOX_KAT = [
 ]
 
 
+@pytest.mark.validation
 def test_philox_known_answers():
     # issue 9.7: the generator the SDE kernels use (gapsweep._sde_kernels.philox4x32), run by warp on the CPU
     wp = sde._warp()

@@ -153,9 +153,23 @@ def test_sbatch_failure_names_what_was_submitted(tmp_path, fake):
 
 @pytest.mark.parametrize("args", [["--shards", "0"], ["--shards", "2", "--max-running", "0"],
                                   ["--shards", "2", "--requeue", "-1"], ["--mpi", "2", "--signal-lead", "5"]])
-def test_bad_arguments_name_the_option(tmp_path, fake, args):
-    p = _submit(fake, tmp_path, *args)
-    assert p.returncode == 2 and args[-2] in p.stderr, p.stderr
+def test_bad_arguments_name_the_option(tmp_path, fake, capsys, monkeypatch, args):
+    """Refused before anything is submitted: in this process (``cli.main``; no process boundary is under test),
+    with the fake Slurm commands first on the PATH as for ``_submit``."""
+    from gapsweep import cli
+
+    for k in list(os.environ):
+        if k.startswith(("GAPSWEEP_", "SLURM_", "SBATCH")):
+            monkeypatch.delenv(k)
+    monkeypatch.setenv("SB_DIR", str(fake))
+    monkeypatch.setenv("PATH", f"{fake}:{os.environ['PATH']}")
+    monkeypatch.chdir(tmp_path)
+    try:
+        rc = cli.main(["submit", str(JOB), str(tmp_path / "out"), *args])
+    except SystemExit as e:  # argparse's usage errors
+        rc = e.code
+    err = capsys.readouterr().err
+    assert rc == 2 and args[-2] in err, err
     assert not (fake / "count").exists()
 
 

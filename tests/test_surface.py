@@ -19,6 +19,7 @@ def test_rms_slope_normalisation_exact(hurst, amplitudes):
     assert abs(h.mean()) < 1e-15
 
 
+@pytest.mark.validation
 def test_rms_height_normalisation_exact():
     h = surface.self_affine(192, 0.5, **SMALL, length=2.0, rms_height=0.013, seed=5)
     assert surface.rms_height(h) == pytest.approx(0.013, rel=1e-12)
@@ -26,6 +27,7 @@ def test_rms_height_normalisation_exact():
     assert np.sum(np.abs(surface.fourier_coefficients(h)) ** 2) == pytest.approx(0.013**2, rel=1e-12)
 
 
+@pytest.mark.validation
 def test_c0_convention_fixed_amplitudes():
     """h~(q) = sqrt(C(q)/A) exp(i phase): |h~|^2 A = C0 (q/q_l)^(-2H-2) on every populated mode."""
     length, hurst, c0 = 1.5, 0.3, 8e-6
@@ -48,6 +50,7 @@ def test_real_and_hermitian():
     np.testing.assert_allclose(hq, flipped, atol=1e-14 * np.abs(hq).max())
 
 
+@pytest.mark.validation
 def test_spectrum_band_and_slope():
     """Spectrum confined to [q_l, q_s] with log-slope -2H-2 (fixed amplitudes: exact in every shell)."""
     hurst = 0.8
@@ -61,6 +64,7 @@ def test_spectrum_band_and_slope():
     assert c[outside].max() < 1e-20 * c[inside].max()
 
 
+@pytest.mark.validation
 def test_gaussian_amplitudes_are_rayleigh():
     """|h~|^2 / <|h~|^2> is exponential(1) for Gaussian amplitudes: mean 1, variance 1 (many modes)."""
     h = surface.self_affine(512, 0.5, lambda_l=1.0, lambda_s=1 / 250, c0=1.0, amplitudes="gaussian", seed=1)
@@ -95,6 +99,7 @@ def test_seeds_reproducible_and_distinct():
     assert np.corrcoef(a.ravel(), c.ravel())[0, 1] < 0.5
 
 
+@pytest.mark.validation
 def test_moments_of_ensemble_heights_gaussian():
     """Random-phase surfaces with many modes have near-Gaussian heights: excess kurtosis small."""
     h = surface.self_affine(512, 0.3, lambda_l=0.25, lambda_s=1 / 200, seed=9)
@@ -103,6 +108,7 @@ def test_moments_of_ensemble_heights_gaussian():
     assert abs(np.mean(z**4) - 3.0) < 0.2
 
 
+@pytest.mark.validation
 def test_rms_slope_matches_finite_difference_when_well_resolved():
     h = surface.self_affine(1024, 0.8, lambda_l=0.5, lambda_s=0.05, seed=4)
     dx = 1 / 1024
@@ -145,6 +151,7 @@ def test_bad_heights():
         surface.rms_height(np.full((4, 4), np.nan))
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize("hurst", [0.3, 0.8])
 def test_continuum_rms_height_close_to_discrete(hurst):
     """The discrete mode sum approaches the continuum integral of M2 (a few % at zeta_s = 100)."""

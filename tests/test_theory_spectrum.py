@@ -24,6 +24,7 @@ KW = dict(rho=2e-3, gamma0=1e-3)
 SIG = np.logspace(-4, 0, 9)
 
 
+@pytest.mark.validation
 def test_rectangular_map_of_a_tiled_surface_is_the_square_one():
     """Tiling a periodic surface twice along y (nx x 2nx map, box 1 x 2) leaves its spectrum, hence the
     discrete mean gap, unchanged: an exact identity."""
@@ -62,6 +63,7 @@ def parent(n: int, hurst: float, seed: int) -> np.ndarray:
     return self_affine(n, hurst, lambda_l=0.25, lambda_s=8 / n, seed=seed, rms_slope=1.0)
 
 
+@pytest.mark.validation
 def test_periodic_map_is_the_plain_fft() -> None:
     """A periodic map: edge ratio about 1, detected as periodic, shells identical to ``from_heights``."""
     h = parent(128, 0.8, 7)[:, :64]  # not periodic along y ...
@@ -74,6 +76,7 @@ def test_periodic_map_is_the_plain_fft() -> None:
     assert not spec.map_spectrum(h, (1.0, 0.5)).looks_periodic  # ... which the edges show
 
 
+@pytest.mark.validation
 def test_differences_on_a_periodic_map_match_its_spectrum() -> None:
     """The non-periodic estimator on a map that happens to be periodic: rms slope and height within 1 % of the
     exact ones (it only drops one row and column), curvature within 3 %."""
@@ -89,6 +92,7 @@ def test_differences_on_a_periodic_map_match_its_spectrum() -> None:
 CROPS = [(256, (160, 120), 0.3, 7), (256, (160, 120), 0.8, 8), (384, (200, 150), 0.8, 9), (384, (200, 150), 0.3, 8)]
 
 
+@pytest.mark.validation
 @pytest.mark.parametrize(("n", "crop", "hurst", "seed"), CROPS)
 def test_crop_gives_persson_area_of_the_parent(n, crop, hurst, seed, caplog) -> None:
     """Issue 20: Persson's contact area from a non-periodic crop within 5 % of Persson's with the parent's exact
@@ -108,6 +112,7 @@ def test_crop_gives_persson_area_of_the_parent(n, crop, hurst, seed, caplog) -> 
     assert ms.periodic_mismatch and "does not look periodic" in caplog.text
 
 
+@pytest.mark.validation
 def test_tilt_is_removed_exactly() -> None:
     """A plane tilt changes nothing (it is the excluded mean slope): shells equal to round-off."""
     c = parent(128, 0.8, 7)[5:101, 9:81]

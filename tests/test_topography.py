@@ -42,6 +42,7 @@ def test_round_trip_same_heights_same_result(tmp_path, heights, fmt: str) -> Non
     np.testing.assert_array_equal(a.gap, b.gap)
 
 
+@pytest.mark.validation
 def test_surfacetopography_round_trip(tmp_path, heights) -> None:
     """Optional extra: a map written by SurfaceTopography (its own NetCDF format) loads back the same."""
     st = pytest.importorskip("SurfaceTopography")

@@ -46,6 +46,31 @@ def gs(*args: str, timeout: float = 120, preexec=None, **envkw: str) -> subproce
                           preexec_fn=preexec)
 
 
+def gs_here(capsys, *args: str, **envkw: str) -> subprocess.CompletedProcess:
+    """``gapsweep ARGS`` in this process, for the refusals of bad input where no process boundary is under test
+    (issue 41: one interpreter start per case cost ~1.5 s): ``cli.main`` with the output captured by pytest's
+    ``capsys``, returned as a CompletedProcess (exit code, stdout, stderr) for :func:`one_line_error`. ``envkw``:
+    environment variables set for the call only (GAPSWEEP_TEST_* hooks need a child: use :func:`gs`)."""
+    from gapsweep import cli
+
+    assert not any(k.startswith("GAPSWEEP_TEST_") for k in envkw), "fault hooks live in a child process: use gs()"
+    saved = {k: os.environ.get(k) for k in envkw}
+    os.environ.update(envkw)
+    try:
+        try:
+            rc = cli.main([str(a) for a in args])
+        except SystemExit as e:  # argparse's usage errors exit 2
+            rc = e.code if isinstance(e.code, int) else 1
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+    out = capsys.readouterr()
+    return subprocess.CompletedProcess([str(a) for a in args], rc, out.out, out.err)
+
+
 def gs_popen(*args: str, preexec=None, **envkw: str) -> subprocess.Popen:
     return subprocess.Popen(gs_cmd(*args), env=env(**envkw), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, preexec_fn=preexec)

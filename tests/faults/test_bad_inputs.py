@@ -1,5 +1,7 @@
 """Bad inputs (docs/reliability.md, "Bad inputs"): each gets a clear one-line error naming the field (or file) and
-the allowed values, a non-zero exit, and nothing written or changed."""
+the allowed values, a non-zero exit, and nothing written or changed. The refusals run the CLI in this process
+(``gs_here``: ``cli.main``, its exit code and output), where no process boundary is under test; the cases that need
+a child (fault hooks, a store's exit handlers) start one (``gs``)."""
 
 from __future__ import annotations
 
@@ -10,7 +12,7 @@ import pytest
 
 from gapsweep import store
 
-from .conftest import HIST_JOB, THEORY_JOB, gs, one_line_error
+from .conftest import HIST_JOB, THEORY_JOB, gs, gs_here, one_line_error
 
 BASE = THEORY_JOB.read_text()
 _GFMD = '\n[methods.gfmd]\nn = 64\nbackend = "numpy"\n'
@@ -79,37 +81,37 @@ SPEC_CASES = [("plan", *c) for c in SPECS] + [("run", *c) for c in SPECS if c[0]
 
 
 @pytest.mark.parametrize("command,case,text,needles", SPEC_CASES, ids=[f"{c[0]}-{c[1]}" for c in SPEC_CASES])
-def test_bad_spec(tmp_path, case, text, needles, command):
+def test_bad_spec(tmp_path, capsys, case, text, needles, command):
     job = tmp_path / "job.toml"
     job.write_text(text)
     out = tmp_path / "s.h5"
     args = ["run", job, "--store", out, "--mpi", "off"] if command == "run" else ["plan", job]
-    p = gs(*args, timeout=60)
+    p = gs_here(capsys, *args)
     err = one_line_error(p, *needles)
     assert p.returncode == 2, err
     assert str(job) in err  # the message names the file
     assert not out.exists() and not Path(str(out) + ".lease").exists()
 
 
-def test_bad_spec_non_utf8(tmp_path):
+def test_bad_spec_non_utf8(tmp_path, capsys):
     job = tmp_path / "latin1.toml"
     job.write_bytes(BASE.replace("tests: field theory", "caf\xe9").encode("latin-1"))
-    p = gs("plan", job)
+    p = gs_here(capsys, "plan", job)
     one_line_error(p, str(job), "UTF-8")
 
 
-def test_bad_spec_missing_file(tmp_path):
-    p = gs("plan", tmp_path / "nope.toml")
+def test_bad_spec_missing_file(tmp_path, capsys):
+    p = gs_here(capsys, "plan", tmp_path / "nope.toml")
     one_line_error(p, "nope.toml", "no such file")
 
 
-def test_task_cap_env(tmp_path):
+def test_task_cap_env(tmp_path, capsys):
     """The cap is documented and can be raised; a bad value of the variable is named."""
-    p = gs("plan", THEORY_JOB, GAPSWEEP_MAX_TASKS="10")
+    p = gs_here(capsys, "plan", THEORY_JOB, GAPSWEEP_MAX_TASKS="10")
     one_line_error(p, "48", "GAPSWEEP_MAX_TASKS")
-    p = gs("plan", THEORY_JOB, GAPSWEEP_MAX_TASKS="ten")
+    p = gs_here(capsys, "plan", THEORY_JOB, GAPSWEEP_MAX_TASKS="ten")
     one_line_error(p, "GAPSWEEP_MAX_TASKS", "positive integer")
-    assert gs("plan", THEORY_JOB, GAPSWEEP_MAX_TASKS="48").returncode == 0
+    assert gs_here(capsys, "plan", THEORY_JOB, GAPSWEEP_MAX_TASKS="48").returncode == 0
 
 
 ARGS = [
@@ -133,13 +135,14 @@ ARGS = [
 
 
 @pytest.mark.parametrize("case,args,needles", ARGS, ids=[c[0] for c in ARGS])
-def test_bad_arguments(tmp_path, refs, case, args, needles):
+def test_bad_arguments(tmp_path, capsys, monkeypatch, refs, case, args, needles):
+    monkeypatch.delenv("SLURM_ARRAY_TASK_ID", raising=False)  # "outside Slurm", whatever runs the suite
     out = tmp_path / "s.h5"
     ref2 = tmp_path / "copy.h5"
     ref2.write_bytes(refs["theory"].read_bytes())
     subst = {"{out}": str(out), "{ref}": str(refs["theory"]), "{ref2}": str(ref2)}
     before = refs["theory"].read_bytes()
-    p = gs(*[subst.get(str(a), a) for a in args], timeout=60)
+    p = gs_here(capsys, *[subst.get(str(a), a) for a in args])
     assert p.returncode != 0
     if "usage:" in p.stderr:  # argparse: a usage line and the error, exit 2
         assert p.returncode == 2 and "Traceback" not in p.stderr
@@ -150,17 +153,17 @@ def test_bad_arguments(tmp_path, refs, case, args, needles):
     assert refs["theory"].read_bytes() == before and ref2.read_bytes() == before
 
 
-def test_merge_different_jobs(tmp_path, refs):
-    p = gs("merge", refs["theory"], refs["hist"], "--out", tmp_path / "m.h5")
+def test_merge_different_jobs(tmp_path, capsys, refs):
+    p = gs_here(capsys, "merge", refs["theory"], refs["hist"], "--out", tmp_path / "m.h5")
     one_line_error(p, "different job specs")
     assert not (tmp_path / "m.h5").exists()
 
 
-def test_mpi_off_under_launcher(tmp_path):
+def test_mpi_off_under_launcher(tmp_path, capsys):
     """A process that says --mpi off while a launcher reports several ranks is refused (it would run the whole
     job as one of several writers); simulated with the launcher's environment variable."""
     out = tmp_path / "s.h5"
-    p = gs("run", THEORY_JOB, "--store", out, "--mpi", "off", OMPI_COMM_WORLD_SIZE="2")
+    p = gs_here(capsys, "run", THEORY_JOB, "--store", out, "--mpi", "off", OMPI_COMM_WORLD_SIZE="2")
     one_line_error(p, "--mpi off", "2 ranks")
     assert not out.exists()
 
@@ -202,19 +205,19 @@ def test_nonfinite_theory_result_is_failed(tmp_path, monkeypatch):
 
 
 
-def test_plan_refuses_what_will_not_fit(tmp_path):
+def test_plan_refuses_what_will_not_fit(tmp_path, capsys):
     """A GFMD grid of 65536^2 needs ~1 TB per rank: plan says so and refuses (exit 1). (`run` is not tried: it does not
     refuse on this rough upper bound and would start allocating.)"""
     job = tmp_path / "big.toml"
     job.write_text(BASE.replace('[methods.theory]\nforms = ["paper", "continuum", "discrete"]\nn = 64',
                                 "[methods.gfmd]\nn = 65536\nseeds = [0]\nhurst = [0.3]\nrho = [2e-3]\n"
                                 "sigma0 = [1e-2]"))
-    p = gs("plan", job)
+    p = gs_here(capsys, "plan", job)
     one_line_error(p, "per rank", "more than this machine")
     assert p.returncode == 1
 
 
-def test_heights_that_overflow_after_unit_conversion(tmp_path):
+def test_heights_that_overflow_after_unit_conversion(tmp_path, capsys):
     """A map in metres converted to picometres overflows float64: refused at validation (plan and run)."""
     np.save(tmp_path / "big.npy", np.full((16, 16), 1e300) * np.arange(256).reshape(16, 16))
     job = tmp_path / "j.toml"
@@ -222,7 +225,7 @@ def test_heights_that_overflow_after_unit_conversion(tmp_path):
                    'unit = "m"\nto_unit = "pm"\npixel_size = 1.0\n[interaction]\nkind = "hard_wall"\n'
                    '[methods.gfmd]\nbackend = "numpy"\n')
     for cmd in (("plan", job), ("run", job, "--store", tmp_path / "s.h5", "--mpi", "off")):
-        one_line_error(gs(*cmd), "surface.path", "not finite", "to_unit")
+        one_line_error(gs_here(capsys, *cmd), "surface.path", "not finite", "to_unit")
     assert not (tmp_path / "s.h5").exists()
 
 
@@ -322,7 +325,7 @@ EXPORT_TRAPS = ["out-is-input", "out-is-hardlink-of-input", "out-is-symlink-to-i
 
 
 @pytest.mark.parametrize("case", EXPORT_TRAPS)
-def test_export_never_replaces_a_store(tmp_path, refs, case):
+def test_export_never_replaces_a_store(tmp_path, capsys, refs, case):
     """``export STORE --out X --overwrite`` where X is the store (by any path) or another store or a folder:
     refused, nothing replaced (the old code replaced the store by its netCDF view)."""
     import os
@@ -341,7 +344,7 @@ def test_export_never_replaces_a_store(tmp_path, refs, case):
     elif case == "out-is-folder":
         out.mkdir()
     before = refs["theory"].read_bytes()
-    p = gs("export", s, "--out", out, "--overwrite")
+    p = gs_here(capsys, "export", s, "--out", out, "--overwrite")
     one_line_error(p, "export --out", str(out))
     assert s.read_bytes() == before
     if case == "out-is-other-store":
@@ -389,13 +392,13 @@ MAPS = [
 
 
 @pytest.mark.parametrize("case,name,make,extra,needles", MAPS, ids=[m[0] for m in MAPS])
-def test_bad_height_map(tmp_path, case, name, make, extra, needles):
+def test_bad_height_map(tmp_path, capsys, case, name, make, extra, needles):
     """An empty or truncated .npy, a .npz without the key asked for or not a zip: `plan` and `run` fail with
     one line naming the file and the problem, exit 2, nothing written (EOFError/KeyError tracebacks before)."""
     make(tmp_path / name)
     job = _file_job(tmp_path, f'kind = "file"\npath = "{name}"\npixel_size = 0.5\n{extra}')
     for cmd in (["plan", job], ["run", job, "--store", tmp_path / "s.h5", "--mpi", "off"]):
-        p = gs(*cmd, timeout=60)
+        p = gs_here(capsys, *cmd)
         err = one_line_error(p, "surface.path", *needles)
         assert p.returncode == 2, err
     assert not (tmp_path / "s.h5").exists()
@@ -431,15 +434,15 @@ def test_store_with_non_json_runs(tmp_path, refs):
 
 
 @pytest.mark.parametrize("pattern", ["x{i}.h5", "x{n}.h5", "x{i}of{n}.h5"])
-def test_shard_pattern_without_shard(tmp_path, pattern):
+def test_shard_pattern_without_shard(tmp_path, capsys, pattern):
     """A store path with {i}/{n} but no --shard is refused (a file literally named x{i}.h5 was created)."""
-    p = gs("run", THEORY_JOB, "--store", tmp_path / pattern, "--mpi", "off", timeout=60)
+    p = gs_here(capsys, "run", THEORY_JOB, "--store", tmp_path / pattern, "--mpi", "off")
     err = one_line_error(p, "--store", "--shard", pattern)
     assert p.returncode == 2, err
     assert list(tmp_path.iterdir()) == []
 
 
-def test_merge_spec_error_names_the_shard(tmp_path, refs):
+def test_merge_spec_error_names_the_shard(tmp_path, capsys, refs):
     """A shard whose stored spec no longer validates: the merge names that shard."""
     import h5py
 
@@ -448,7 +451,7 @@ def test_merge_spec_error_names_the_shard(tmp_path, refs):
     with h5py.File(s, "r+") as f:
         f.attrs["spec_text"] = f.attrs["spec_text"].replace("hurst = [0.3, 0.8]", "hurst = [0.3, 1.5]")
         store.seal_attrs(f)  # a spec that no longer validates, not a damaged attribute (test_integrity.py)
-    p = gs("merge", s, "--out", tmp_path / "m.h5")
+    p = gs_here(capsys, "merge", s, "--out", tmp_path / "m.h5")
     one_line_error(p, "merge", str(s), "grid.hurst[1]")
     assert not (tmp_path / "m.h5").exists()
 

@@ -9,7 +9,8 @@ write; ``--overwrite`` replaces only a file of the command's own kind (gapsweep.
   the job spec or another file.
 
 Before: merge --overwrite replaced another job's finished store, a hard link of its own input shard and plain
-HDF5 files (lost data). Every refusal here is one line, exit 1, and leaves the file byte for byte as it was."""
+HDF5 files (lost data). Every refusal here is one line, exit 1, and leaves the file byte for byte as it was. The
+refusals run the CLI in this process (``gs_here``); the commands that write a store run as children (``gs``)."""
 
 from __future__ import annotations
 
@@ -20,7 +21,7 @@ import pytest
 
 from gapsweep import store
 
-from .conftest import JOBS, THEORY_JOB, gs, one_line_error
+from .conftest import JOBS, THEORY_JOB, gs, gs_here, one_line_error
 
 
 @pytest.fixture(scope="module")
@@ -77,14 +78,14 @@ REFUSED = {
 
 
 @pytest.mark.parametrize("kind", list(REFUSED))
-def test_merge_overwrite_refuses_what_it_did_not_write(tmp_path, refs, shards, kind):
+def test_merge_overwrite_refuses_what_it_did_not_write(tmp_path, capsys, refs, shards, kind):
     s, _ = shards
     t = _target(tmp_path, kind, shards, refs)
     before = t.read_bytes()
     inputs = [x.read_bytes() for x in s]
     # the merge with fewer shards: the earlier merge holds done rows this one lacks
     args = [s[0]] if kind == "merge-with-more-done-rows" else [s[0], s[1]]
-    p = gs("merge", *args, "--out", t, "--overwrite")
+    p = gs_here(capsys, "merge", *args, "--out", t, "--overwrite")
     one_line_error(p, REFUSED[kind])
     assert t.read_bytes() == before
     assert [x.read_bytes() for x in s] == inputs
@@ -113,7 +114,7 @@ EXPORT_REFUSED = {
 
 
 @pytest.mark.parametrize("kind", list(EXPORT_REFUSED))
-def test_export_overwrite_refuses_what_it_did_not_write(tmp_path, refs, kind):
+def test_export_overwrite_refuses_what_it_did_not_write(tmp_path, capsys, refs, kind):
     src = tmp_path / "in" / "s.h5"
     src.parent.mkdir()
     shutil.copyfile(refs["theory"], src)
@@ -128,7 +129,7 @@ def test_export_overwrite_refuses_what_it_did_not_write(tmp_path, refs, kind):
     else:
         shutil.copyfile(refs["hist"], t)
     before, inp = t.read_bytes(), src.read_bytes()
-    p = gs("export", src, "--out", t, "--overwrite")
+    p = gs_here(capsys, "export", src, "--out", t, "--overwrite")
     one_line_error(p, "export --out", EXPORT_REFUSED[kind])
     assert t.read_bytes() == before and src.read_bytes() == inp
 
@@ -142,7 +143,7 @@ RUN_REFUSED = {
 
 
 @pytest.mark.parametrize("kind", list(RUN_REFUSED))
-def test_run_overwrite_refuses_what_it_did_not_write(tmp_path, kind):
+def test_run_overwrite_refuses_what_it_did_not_write(tmp_path, capsys, kind):
     job = tmp_path / "job.toml"
     shutil.copyfile(JOBS["theory"], job)
     t = tmp_path / "s.h5"
@@ -156,7 +157,7 @@ def test_run_overwrite_refuses_what_it_did_not_write(tmp_path, kind):
     else:
         t.write_text("notes\n")
     before = t.read_bytes()
-    p = gs("run", job, "--store", t, "--overwrite", "--mpi", "off", "--progress", "none")
+    p = gs_here(capsys, "run", job, "--store", t, "--overwrite", "--mpi", "off", "--progress", "none")
     one_line_error(p, "run --store", RUN_REFUSED[kind])
     assert t.read_bytes() == before and job.read_bytes() == JOBS["theory"].read_bytes()
 

@@ -21,7 +21,7 @@ from gapsweep.sweep import runner, spec, tasks
 from gapsweep.sweep.context import Context
 from gapsweep.sweep.execute import run_task
 
-from .conftest import HIST_JOB, gs, one_line_error
+from .conftest import HIST_JOB, gs, gs_here, one_line_error
 
 ROOT = Path(__file__).resolve().parents[2]
 JOBS_DIR = ROOT / "jobs"
@@ -90,22 +90,22 @@ EXTREME = [
 
 
 @pytest.mark.parametrize("field,old,new", EXTREME)
-def test_extreme_values_refused_with_field(tmp_path, field, old, new):
+def test_extreme_values_refused_with_field(tmp_path, capsys, field, old, new):
     job = tmp_path / "x.toml"
     job.write_text(MIXED.replace(old, new, 1))
-    p = gs("plan", job)
+    p = gs_here(capsys, "plan", job)  # a refusal: in process
     one_line_error(p, field, "expected a number")
     assert p.returncode == 2
 
 
 @pytest.mark.parametrize("value", ["1e-308", "1e308", "[1e-308, 0.5]", "0.0"])
-def test_extreme_pixel_size_refused_with_field(value):
+def test_extreme_pixel_size_refused_with_field(capsys, value):
     text = (JOBS_DIR / "contact_file.toml").read_text()
     assert "pixel_size = 0.5" in text and 'detrend = "plane"' in text
     job = JOBS_DIR / ".extreme-pixel.toml"
     try:
         job.write_text(text.replace("pixel_size = 0.5", f"pixel_size = {value}"))
-        p = gs("plan", job)
+        p = gs_here(capsys, "plan", job)  # a refusal: in process
     finally:
         job.unlink(missing_ok=True)
     one_line_error(p, "surface.pixel_size", "expected a number")
