@@ -12,7 +12,7 @@ At the script's exit every result file it wrote (files under ``benchmarks/result
 to its ``--out``/``--out-dir``/``--json``/``--csv`` options, modified since the start, that this process opened
 for writing -- or that a child wrote and no other tracked run has stamped since) is stamped with
 :func:`record`: the project's commit (of *this* repository: ``git -C <repo root> rev-parse HEAD``, never an
-enclosing repository's; outside a checkout the 40-hex commit in GAPSWEEP_COMMIT, for a copy of the working tree
+enclosing repository's; where GAPSWEEP_COMMIT holds a 40-hex commit, that one, for a copy of the working tree
 without .git such as a lent GPU machine gets, else None), its commit time, whether the code paths had uncommitted
 changes, the command, the machine, the date and the library versions, and ``code_paths``. A JSON file holding an
 object gets a ``"provenance"`` key; any other file a sidecar ``<file>.provenance.json``. A script whose result is
@@ -115,9 +115,10 @@ def record(code_paths: list[str], argv: list[str] | None = None, root: Path = RO
         raise ValueError(f"CODE_PATHS: no such file or folder in {root}: {', '.join(missing)}")
     commit, source = project_commit(root), "git"
     env_commit = os.environ.get("GAPSWEEP_COMMIT", "")
-    if commit is None and re.fullmatch(r"[0-9a-f]{40}", env_commit):
-        # a copy of the checkout without .git (a lent GPU machine gets the working tree only): the commit the
-        # caller says it is a copy of (benchmarks/remeasure_gpu.sh passes git rev-parse HEAD); dirty unknown
+    if re.fullmatch(r"[0-9a-f]{40}", env_commit):
+        # a copy of the checkout (a lent GPU machine gets the working tree, without .git or with the .git of an
+        # older commit than the files it holds): the commit the caller says it is a copy of wins
+        # (benchmarks/remeasure_gpu.sh passes git rev-parse HEAD); dirty unknown
         commit, source = env_commit, "GAPSWEEP_COMMIT"
     rec: dict[str, Any] = {"commit": commit, "commit_source": source if commit else None,
                            "commit_time": None, "dirty": None,

@@ -77,7 +77,9 @@ def test_commit_is_the_projects_not_an_enclosing_repositorys(tmp_path):
 
 def test_a_copy_without_git_takes_the_commit_it_is_told(tmp_path, monkeypatch):
     """A copy of the working tree without .git (what a lent GPU machine gets): GAPSWEEP_COMMIT names the commit
-    (40 hex digits only), said so in the record; inside a checkout git's own commit wins."""
+    (40 hex digits only), said so in the record, also where the copy carries a .git of another commit (a lent GPU
+    machine's copy held the .git of the session's first commit under newer files: git's HEAD there was wrong);
+    without it, git's own commit."""
     proj = tmp_path / "copy"
     (proj / "code").mkdir(parents=True)
     (proj / "code" / "a.py").write_text("a = 1\n")
@@ -88,6 +90,9 @@ def test_a_copy_without_git_takes_the_commit_it_is_told(tmp_path, monkeypatch):
     assert rec["commit"] == "a" * 40 and rec["commit_source"] == "GAPSWEEP_COMMIT" and rec["dirty"] is None
     _repo(proj)
     mine = _commit(proj, "project")
+    rec = record.record(["code/a.py"], ["b.py"], root=proj)
+    assert rec["commit"] == "a" * 40 and rec["commit_source"] == "GAPSWEEP_COMMIT"
+    monkeypatch.delenv("GAPSWEEP_COMMIT")
     rec = record.record(["code/a.py"], ["b.py"], root=proj)
     assert rec["commit"] == mine and rec["commit_source"] == "git" and rec["dirty"] is False
 
