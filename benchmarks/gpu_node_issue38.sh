@@ -8,7 +8,7 @@
 # Needs python3 with numpy, scipy, h5py, mpi4py, cupy (numba optional), Open MPI's mpiexec; CUDA MPS's
 # nvidia-cuda-mps-control for the default layout (gapsweep starts and stops the daemon itself).
 # Runs, in this order, while the budget lasts (SET@G:K[/each][/host]: G GPUs, K ranks per GPU, "auto" = gapsweep's
-# default -- 16 per GPU on one GPU, 8 on several --; "/each": the jobs of the launch one farm each, as before issue
+# default -- 8 per GPU --; "/each": the jobs of the launch one farm each, as before issue
 # 38, else one farm for all of them, the default; "/host": the GPU tasks' surfaces made on the host, as before issue
 # 38 -- GAPSWEEP_GPU_SURFACES=0 --, else on their GPU, the default):
 #   pub@1:auto pub@4:auto pub@2:auto   the default (the first run is every later pub store's reference, bit for bit)
@@ -16,12 +16,12 @@
 #   pub@4:auto/host                    the same layout, surfaces on the host: what GPU surfaces gain (stores
 #                                      round-off apart: compared by grid point within tolerance too)
 #   pub@1:auto/host                    a second one-GPU layout for T1_best (the best one-GPU time, any layout: the
-#                                      first run's best, 16 per GPU with host surfaces; 8 per GPU was 10 s slower)
+#                                      one-GPU probe: 8 per GPU best with GPU surfaces, one_gpu_probe.json)
 #   figs@1:auto figs@4:auto            the four figure jobs (jobs/gpu) in one launch
 #   mix@1:auto mix@4:auto              the mixed sweep (its one-GPU run is T1 and the reference)
 #   mixsplit@4:auto                    the mixed sweep with split_chains = 2 (other task ids: compared by grid point,
 #                                      within the solver's tolerance, in the JSON's "against_mix")
-#   pub@4:12 pub@2:16 pub@1:8          48 MPS clients on 4 GPUs; 16 per GPU on 2; 8 per GPU on 1
+#   pub@4:12 pub@2:16 pub@1:16         48 MPS clients on 4 GPUs; 16 per GPU on 2; 16 per GPU on 1
 # First the GPU test of the surfaces made on the GPU (tests/test_gpu_surfaces.py -m gpu, where pytest is installed).
 # Each run: wall, start-up (launch -> farm start), efficiency T1_best / (k T_k), GPU utilisation (nvidia-smi every
 # 0.5 s over the sweep, share of samples >= 80 %), the farms' trace (GAPSWEEP_TRACE: per-worker units, busy/idle,
@@ -58,7 +58,7 @@ log="$OUT/gpu_node_issue38.log"
   $PY benchmarks/bench_multi_gpu.py --out "$OUT" --work "$WORK" --name gpu_node_issue38 --sets pub mix mixsplit figs \
     --max-gpus "$ngpu" --budget "${BUDGET:-400}" --launch-timeout 200 \
     --layouts pub@1:auto pub@4:auto pub@2:auto pub@4:auto/each pub@4:auto/host pub@1:auto/host \
-    figs@1:auto figs@4:auto mix@1:auto mix@4:auto mixsplit@4:auto pub@4:12 pub@2:16 pub@1:8
+    figs@1:auto figs@4:auto mix@1:auto mix@4:auto mixsplit@4:auto pub@4:12 pub@2:16 pub@1:16
   echo "bench exit: $?"
   echo "MPS processes after: $(pgrep -a nvidia-cuda-mps || echo none)"
   date -u

@@ -92,7 +92,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="GFMD chains solved side by side: off (default: one solve at a time, measured faster in "
                         "the sweep, docs/benchmarks.md), auto (GPU chains with n <= 1024) or all (CPU backends too)")
     s.add_argument("--ranks-per-gpu", type=int, default=None, metavar="K",
-                   help="ranks of a node that share one GPU, 1-48 (default: up to 16 on one GPU, 8 on several, "
+                   help="ranks of a node that share one GPU, 1-48 (default: up to 8 per GPU, "
                         "under CUDA MPS, which the run starts and stops itself where it may, else 1; ranks beyond "
                         "work CPU units)")
     s.add_argument("--farm", choices=("together", "each"), default="together",

@@ -47,10 +47,10 @@ def fake_mps(tmp_path, monkeypatch):
 
 
 def test_default_ranks_per_gpu():
-    """min(K_G, W // G, 48 // G, memory cap) under MPS (K_G: 16 on one GPU, 8 on several, as measured), at least
-    1; 1 without MPS."""
-    assert gpus.auto_per_gpu(1, 63, True) == 16  # issue 38: 16 per GPU was the best one-GPU layout
-    assert gpus.auto_per_gpu(1, 15, True) == 15  # no more than the working ranks
+    """min(K_G, W // G, 48 // G, memory cap) under MPS (K_G: 8 per GPU, as measured), at least 1; 1 without
+    MPS."""
+    assert gpus.auto_per_gpu(1, 63, True) == 8  # issue 38: 8 per GPU the best one-GPU layout with GPU surfaces
+    assert gpus.auto_per_gpu(1, 5, True) == 5  # no more than the working ranks
     assert gpus.auto_per_gpu(2, 63, True) == 8  # two GPUs: 8 per GPU beat 16
     assert gpus.auto_per_gpu(4, 63, True) == 8
     assert gpus.auto_per_gpu(8, 127, True) == 6  # 48 clients per MPS server (issue 26)
@@ -63,10 +63,10 @@ def test_default_ranks_per_gpu():
 
 def test_mps_started_and_stopped_when_the_ranks_are_gone(fake_mps):
     """No MPS runs and the control program is there: the node starts a daemon in its own folder, the default is
-    16 ranks per GPU on one GPU (15 working ranks: 15); the watcher quits the daemon and removes the folder once
+    8 ranks per GPU (15 working ranks: 8); the watcher quits the daemon and removes the folder once
     the ranks' processes have exited."""
     k, m, note = gpus._node_plan(1, 15, None, gpus.MPS_CLIENTS)
-    assert k == 15 and m is not None and "started a daemon" in note
+    assert k == 8 and m is not None and "started a daemon" in note
     folder = m.folder
     assert (folder / "pipe" / "control").exists() and m.env["CUDA_MPS_PIPE_DIRECTORY"] == str(folder / "pipe")
     assert fake_mps.read_text().splitlines() == [f"start {folder / 'pipe'}"]
@@ -117,7 +117,7 @@ def test_without_mps_one_rank_per_gpu_and_why(fake_mps, monkeypatch, tmp_path):
     (tmp_path / "elsewhere").mkdir()
     (tmp_path / "elsewhere" / "control").touch()
     k, m, note = gpus._node_plan(1, 15, None, gpus.MPS_CLIENTS)
-    assert (k, m) == (15, None) and "using the running daemon" in note
+    assert (k, m) == (8, None) and "using the running daemon" in note
     # the daemon starts but a client cannot connect (its server refuses): stopped again, one rank per GPU
     monkeypatch.setattr(gpus, "mps_processes", lambda: [])
     monkeypatch.delenv("CUDA_MPS_PIPE_DIRECTORY")

@@ -5,8 +5,8 @@ Policy. The ranks of a node that work (the coordinator, world rank 0, is left ou
 numbered ``r = 0, 1, ...`` in node-local order; with ``G`` visible GPUs and ``K`` ranks allowed per GPU, working
 rank ``r`` uses GPU ``r mod G`` if ``r < K G``, else none (it works CPU units: theory, Fokker-Planck, CPU GFMD).
 ``K`` is ``--ranks-per-gpu`` when given; by default (:func:`auto_per_gpu`) ``K = min(K_G, W // G, 48 // G)`` with
-``W`` the working ranks of the node and ``K_G`` the measured best (:data:`MEASURED_PER_GPU`: 16 on one GPU, 8 on
-several) -- when CUDA MPS is usable (:func:`place`): an MPS daemon this process can
+``W`` the working ranks of the node and ``K_G`` the measured best (:data:`MEASURED_PER_GPU`, else
+:data:`DEFAULT_PER_GPU`: 8 per GPU on any number of GPUs) -- when CUDA MPS is usable (:func:`place`): an MPS daemon this process can
 reach already runs, or none runs and ``nvidia-cuda-mps-control`` is on the PATH, in which case node-local rank 0
 starts one with its own pipe and log folders in a temporary folder (``CUDA_MPS_PIPE_DIRECTORY``,
 ``CUDA_MPS_LOG_DIRECTORY``, checked with one client in a separate process, told to every rank of the node before
@@ -48,10 +48,11 @@ __all__ = ["DEFAULT_PER_GPU", "MEASURED_PER_GPU", "MPS_CLIENTS", "Layout", "Mps"
 log = logging.getLogger(__name__)
 
 DEFAULT_PER_GPU = 8  # ranks per GPU under MPS by default where MEASURED_PER_GPU has no entry
-# The best ranks per GPU measured for each GPU count (issue 38, jobs/pub on 1, 2, 4 H200 with 64 ranks:
-# benchmarks/results/farm/issue38/gpu_node_issue38.json): one GPU 53.0 s with 16 against 63.2 s with 8; two GPUs
-# 39.5 s with 8 against 43.9 s with 16; four GPUs 38.4 s with 8 against 39.8 s with 12 (the 48 clients' limit).
-MEASURED_PER_GPU = {1: 16}
+# The best ranks per GPU measured for a GPU count where it differs from DEFAULT_PER_GPU (issue 38, jobs/pub on H200).
+# With the surfaces made on the GPU and one farm for the launch, one GPU ran pub in 43.4 s with 8 per GPU against
+# 53.8 s with 15 (benchmarks/results/farm/issue38/one_gpu_probe.json; 16 had been best with the surfaces made on
+# the host, 53.0 s against 63.2 s: gpu_node_issue38_bb77f13.json); on two and four GPUs 8 was best there too.
+MEASURED_PER_GPU: dict[int, int] = {}
 _SMALL_GPU = 8e9  # bytes every GPU that runs MPS clients here is taken to hold (an H200: 141 GiB)
 MPS_CLIENTS = 48  # clients one MPS server admits on a node (issue 26: 64 clients met "Maximum number of clients")
 
