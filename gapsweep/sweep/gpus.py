@@ -6,9 +6,9 @@ numbered ``r = 0, 1, ...`` in node-local order; with ``G`` visible GPUs and ``K`
 rank ``r`` uses GPU ``r mod G`` if ``r < K G``, else none (it works CPU units: theory, Fokker-Planck, CPU GFMD).
 ``K`` is ``--ranks-per-gpu`` when given; by default (:func:`auto_per_gpu`) ``K = min(K_G, W // G, 48 // G)`` with
 ``W`` the working ranks of the node and ``K_G`` the measured best (:data:`MEASURED_PER_GPU`, else
-:data:`DEFAULT_PER_GPU`: 8 per GPU on any number of GPUs) -- when CUDA MPS is usable (:func:`place`): an MPS daemon this process can
-reach already runs, or none runs and ``nvidia-cuda-mps-control`` is on the PATH, in which case node-local rank 0
-starts one with its own pipe and log folders in a temporary folder (``CUDA_MPS_PIPE_DIRECTORY``,
+:data:`DEFAULT_PER_GPU`: 8 per GPU on any number of GPUs) -- when CUDA MPS is usable (:func:`place`): an MPS
+daemon this process can reach already runs, or none runs and ``nvidia-cuda-mps-control`` is on the PATH, in which
+case node-local rank 0 starts one with its own pipe and log folders in a temporary folder (``CUDA_MPS_PIPE_DIRECTORY``,
 ``CUDA_MPS_LOG_DIRECTORY``, checked with one client in a separate process, told to every rank of the node before
 any of them touches CUDA) and a watcher process
 stops it (``quit``) and removes the folder once every rank of the node has exited -- also after a crash or a
