@@ -4,14 +4,13 @@
 from __future__ import annotations
 
 import math
-import time
 from typing import Any
 
 import numpy as np
 
 from gapsweep.core.fft import available_backends, get_backend
 from gapsweep.gfmd._ops import _is_cupy
-from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status, host_fields
+from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status, host_fields, law_result
 from gapsweep.gfmd._solvers import _RUNNERS, _half_q, _Problem
 from gapsweep.gfmd.interactions.exponential import Exponential
 
@@ -119,33 +118,9 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
     converged = status == "converged"
     gap, p, u = fields_to_host(fft, host, gap, p, u)
     fft.synchronize()
-    return GFMDResult(
-        mean_gap=g0,
-        gap=gap,
-        pressure=p,
-        displacement=u,
-        iterations=pb.nfev,
-        converged=converged,
-        residual=residual,
-        load_error=load_error,
-        wall_time=time.perf_counter() - t_start,
-        method=method,
-        backend=backend,
-        status=status,
-        sigma0=sigma0,
-        rho=rho,
-        gamma0=gamma0,
-        e_star=e_star,
-        length=length,
-        tol=tol,
-        history=history,
-        interaction=law.name,
-        params=law.params(),
-        contact_area=area,
-        elastic_energy=elastic,
-        contact_criterion=law.contact_criterion,
-        diagnostics={"running_residual": history[-1] if history else math.inf},
-    )
+    return _record(law, t_start, g0, (gap, p, u), pb.nfev, status, converged, residual, load_error, history,
+                   method=method, backend=backend, sigma0=sigma0, rho=rho, gamma0=gamma0, e_star=e_star,
+                   length=length, tol=tol, contact_area=area, elastic_energy=elastic)
 
 
 def _initial_modes(initial: Any, n: int, fft: Any) -> Any:
@@ -221,11 +196,15 @@ def _solve_lean(h: Any, h_mean: float, law: Exponential, fft: Any, ops: Any, *, 
     converged = status == "converged"
     gap, p, u = fields_to_host(fft, host, gap, p, u)
     fft.synchronize()
-    return GFMDResult(
-        mean_gap=g0, gap=gap, pressure=p, displacement=u, iterations=nfev, converged=converged,
-        residual=residual, load_error=load_error, wall_time=time.perf_counter() - t_start, method=method,
-        backend=backend, status=status, sigma0=sigma0, rho=rho, gamma0=law.gamma0, e_star=e_star, length=length,
-        tol=tol, history=history, interaction=law.name, params=law.params(), contact_area=area,
-        elastic_energy=elastic, contact_criterion=law.contact_criterion,
-        diagnostics={"running_residual": history[-1] if history else math.inf},
-    )
+    return _record(law, t_start, g0, (gap, p, u), nfev, status, converged, residual, load_error, history,
+                   method=method, backend=backend, sigma0=sigma0, rho=rho, gamma0=law.gamma0, e_star=e_star,
+                   length=length, tol=tol, contact_area=area, elastic_energy=elastic)
+
+
+def _record(law: Any, t_start: float, g0: float, fields: tuple, nfev: int, status: str, converged: bool,
+            residual: float, load_error: float, history: list[float], **kw: Any) -> GFMDResult:
+    """The result of both branches (:func:`law_result`; the running residual among the diagnostics)."""
+    gap, p, u = fields
+    return law_result(law, t_start, mean_gap=g0, gap=gap, pressure=p, displacement=u, iterations=nfev,
+                      converged=converged, residual=residual, load_error=load_error, status=status, history=history,
+                      diagnostics={"running_residual": history[-1] if history else math.inf}, **kw)

@@ -36,7 +36,7 @@ from gapsweep.core import checks as chk
 from gapsweep.core import deadline
 from gapsweep.core.fft import BACKENDS, available_backends, get_backend
 from gapsweep.gfmd._ops import _is_cupy, _Ops
-from gapsweep.gfmd._result import FIELDS, GFMDResult, host_fields
+from gapsweep.gfmd._result import FIELDS, GFMDResult, host_fields, law_result
 from gapsweep.gfmd._solvers import _half_q, first_step, search_steps
 from gapsweep.gfmd.interactions import Interaction, resolve
 
@@ -610,11 +610,11 @@ def _softmax_fields(xp, ops: _Stack, X, h, law, sigma0: float, status: str, nfev
     wanted = {k: fields[k] for k in host_fields(host) if _is_cupy(fields[k])}
     if wanted:  # pinned, asynchronous copies as in gfmd.solve
         fields.update(get_backend("cupy", n).to_host_many(wanted))
-    return GFMDResult(mean_gap=g0, gap=fields["gap"], pressure=fields["pressure"],
+    return law_result(law, t_start, mean_gap=g0, gap=fields["gap"], pressure=fields["pressure"],
                       displacement=fields["displacement"], iterations=nfev, converged=converged, residual=residual,
-                      load_error=load_error, wall_time=time.perf_counter() - t_start, method="cg",
-                      backend="cupy" if xp is not np else "numpy", status=status, sigma0=sigma0, rho=rho,
-                      gamma0=law.gamma0, e_star=e_star, length=length, tol=tol, history=list(history))
+                      load_error=load_error, method="cg", backend="cupy" if xp is not np else "numpy",
+                      status=status, sigma0=sigma0, rho=rho, gamma0=law.gamma0, e_star=e_star, length=length,
+                      tol=tol, history=list(history))
 
 
 # load_control -> batched minimiser; laws with another load_control are solved one by one
