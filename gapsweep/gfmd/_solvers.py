@@ -89,28 +89,40 @@ class _Problem:
     ``X = u~`` (half spectrum), ``W = (h - u)/rho`` and ``e = exp(W - m)`` (real space), ``S = sum e``, the
     Fourier gradient ``G = (E* q/2) u~ - p~`` and ``r2 = <G G>`` (M3)."""
 
-    def __init__(self, h, x0, *, sigma0, rho, e_star, length, fft: FFTBackend, ops: _Ops,
-                 h_mean: float | None = None, share_gold: bool = False, stiffness: Any = None) -> None:
+    def __init__(self, h, x0, *, sigma0, rho, fft: FFTBackend, ops: _Ops, e_star: float | None = None,
+                 length: float | None = None, h_mean: float | None = None, h_shift: float | None = None,
+                 share_gold: bool = False, stiffness: Any = None, keep_mass: bool = True) -> None:
         """``h_mean`` (GPU, ops with ``field``): ``h`` is the caller's surface, centred in the pass that forms
         ``W`` (no centred copy is kept). ``share_gold`` (CG on the GPU): ``G_old`` is ``G`` itself, the
-        gradient pass reading each old mode before writing the new one (one half spectrum less)."""
+        gradient pass reading each old mode before writing the new one (one half spectrum less). A rank's slabs
+        (gfmd.distributed): ``fft`` the slab transforms, ``ops`` the slab passes (``ops.owner``: these columns
+        hold ``q = 0``), ``stiffness`` ``k`` on the rank's columns, ``h_shift`` the mean of the caller's
+        surface ``h`` (taken out where ``W`` is formed: :func:`_centred`), ``keep_mass=False`` (the masses
+        ``M(q)`` made when FIRE asks, not kept: memory)."""
         xp = fft.xp
-        n = h.shape[0]
-        self.xp, self.n, self.fft, self.ops = xp, n, fft, ops
+        self.xp, self.n, self.fft, self.ops = xp, ops.n, fft, ops
         self.sigma0, self.rho = sigma0, rho
         # elastic stiffness E* q / 2 per mode; ``stiffness``: another substrate's k(q) on the same half grid (an
         # elastic layer, gfmd.substrates; CPU ops only: the GPU's fused kernels recompute E* q / 2 per mode)
-        self.k = 0.5 * e_star * _half_q(xp, n, length) if stiffness is None else stiffness
-        self.mass = self.k + sigma0 / rho  # Fourier-diagonal Hessian estimate M(q)
-        self.minv = 1.0 / self.mass
-        self.minv[0, 0] = 0.0  # <u> = 0: the q = 0 mode is not an unknown
+        self.k = 0.5 * e_star * _half_q(xp, ops.n, length) if stiffness is None else stiffness
+        self._mass = self.k + sigma0 / rho if keep_mass else None  # Fourier-diagonal Hessian estimate M(q)
+        if keep_mass:
+            self.minv = 1.0 / self._mass
+        else:
+            self.minv = self.k + sigma0 / rho
+            xp.reciprocal(self.minv, out=self.minv)
+        if ops.owner:
+            self.minv[0, 0] = 0.0  # <u> = 0: the q = 0 mode is not an unknown
         if hasattr(ops, "bind_stiffness") and stiffness is None:  # GPU: k, M^-1 recomputed per mode beat reading
             ops.bind_stiffness(self.k, self.minv, 0.5 * e_star, 2 * np.pi / length, sigma0 / rho)
         self.h = h
         self.X = x0
-        self.X[0, 0] = 0.0
-        if h_mean is not None and hasattr(ops, "field"):
-            self.W = xp.empty((n, n), dtype=xp.float64)
+        if ops.owner:
+            self.X[0, 0] = 0.0
+        if h_shift is not None:
+            self.W = _centred(h, fft.irfft2(self.X), h_shift, rho)
+        elif h_mean is not None and hasattr(ops, "field"):
+            self.W = xp.empty(h.shape, dtype=xp.float64)
             # the pass returns max W: the start point's exponentials need no separate max pass
             ops._guess = ops.field(h, h_mean, fft.irfft2(self.X), 1.0 / rho, self.W)
         else:
@@ -124,6 +136,11 @@ class _Problem:
         self.m = ops.trial(self.W, self.W, 0.0, self.Wt)
         self.S, _, _ = ops.expstats(self.Wt, self.m, self.e)
         self.r2 = self._gradient(None, 0.0)
+
+    @property
+    def mass(self) -> Any:
+        """FIRE's masses ``M(q) = k + sigma0/rho`` (kept, or made when asked: ``keep_mass``)."""
+        return self._mass if self._mass is not None else self.k + self.sigma0 / self.rho
 
     def _gradient(self, D, alpha: float) -> float:
         """``X += alpha D`` and the Fourier gradient of the accepted point (its ``e``, ``S``): one rfft2.
@@ -183,6 +200,14 @@ class _Problem:
         self.m, self.S = m, S
         self.G, self.G_old = self.G_old, self.G
         self.r2 = self._gradient(D, alpha)
+
+
+def _centred(h: Any, u: Any, h_shift: float, rho: float) -> Any:
+    """``W = (h - <h> - u) / rho`` as a new array (one temporary-free pass chain), ``h_shift = <h>``."""
+    w = h - u
+    w -= h_shift
+    w *= 1.0 / rho
+    return w
 
 
 def _check(pb: _Problem, tol: float, max_iter: int, history: list[float]) -> str | None:
