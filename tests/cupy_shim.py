@@ -83,9 +83,85 @@ def _kernel(name: str) -> Any:
         elif name == "gs_moments":
             e, d = args[0].ravel(), args[1].ravel()
             out[0], out[1] = np.sum(e * d), np.sum(e * d * d)
+        elif name in _BATCH:
+            _batch_launch(name, int(grid[1]), args)
         else:
             raise AssertionError(f"kernel {name} not emulated")
     return launch
+
+
+def _pweights(nh: int, even: Any, N: int) -> np.ndarray:
+    """Parseval weights of a half spectrum's ``N`` modes, row-major with ``nh`` columns (kernels.cu PWEIGHT)."""
+    j = np.arange(N) % nh
+    return np.where((j == 0) | (bool(even) & (j == nh - 1)), 1.0, 2.0)
+
+
+def _re(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return a.real * b.real + a.imag * b.imag
+
+
+def _bt_point(B: int, N: int, args: tuple) -> np.ndarray:
+    W, d, c, shift, active, Wt, e = (np.asarray(a).reshape(B, -1) if np.ndim(a) > 1 else np.asarray(a)
+                                      for a in args[:7])
+    v = np.zeros((B, 4))
+    v[:, 0] = -np.inf
+    for b in np.flatnonzero(active):
+        Wt[b] = W[b] + c[b] * d[b]
+        e[b] = np.exp(Wt[b] - shift[b])
+        v[b] = Wt[b].max(), e[b].sum(), (e[b] * d[b]).sum(), (e[b] * d[b] * d[b]).sum()
+    return v
+
+
+def _bt_cgupdate(B: int, N: int, args: tuple) -> np.ndarray:
+    D, beta, minv, G, k, X, active, nh, even = args[:9]
+    D, minv, G, X = (np.asarray(a).reshape(B, N) for a in (D, minv, G, X))
+    w = _pweights(int(nh), even, N)
+    kw = w * np.asarray(k).ravel()
+    v = np.zeros((B, 3))
+    for b in np.flatnonzero(np.asarray(active)):
+        D[b] = beta[b] * D[b] - minv[b] * G[b]
+        v[b] = (w * _re(G[b], D[b])).sum(), (kw * _re(D[b], X[b])).sum(), (kw * _re(D[b], D[b])).sum()
+    return v
+
+
+def _bt_accept(B: int, N: int, args: tuple) -> np.ndarray:
+    X, D, alpha, E, c, k, G, Gold, active, nh, even = args[:11]
+    X, D, E, G, Gold = (np.asarray(a).reshape(B, N) for a in (X, D, E, G, Gold))
+    w = _pweights(int(nh), even, N)
+    v = np.zeros((B, 1))
+    for b in np.flatnonzero(np.asarray(active)):
+        Gold[b] = G[b]
+        X[b] += alpha[b] * D[b]
+        G[b] = np.asarray(k).ravel() * X[b] - c[b] * E[b]
+        G[b, 0] = 0.0
+        v[b, 0] = (w * _re(G[b], G[b])).sum()
+    return v
+
+
+def _bt_moments(B: int, N: int, args: tuple) -> np.ndarray:
+    e, d = (np.asarray(a).reshape(B, N) for a in args[:2])
+    return np.stack([(e * d).sum(axis=1), (e * d * d).sum(axis=1)], axis=1)
+
+
+def _bt_cgdots(B: int, N: int, args: tuple) -> np.ndarray:
+    minv, G, Gold = (np.asarray(a).reshape(B, N) for a in args[:3])
+    z = _pweights(int(args[3]), args[4], N) * minv
+    return np.stack([(z * _re(G, G)).sum(axis=1), (z * _re(G, Gold)).sum(axis=1)], axis=1)
+
+
+# the batch kernels of gfmd.batched._FusedStack: problem b's K results, as the partials of one block (the others
+# hold the identities: 0, or -inf in bt_point's max slot)
+_BATCH = {"bt_point": _bt_point, "bt_moments": _bt_moments, "bt_cgdots": _bt_cgdots,
+          "bt_cgupdate": _bt_cgupdate, "bt_accept": _bt_accept}
+
+
+def _batch_launch(name: str, B: int, args: tuple) -> None:
+    v = _BATCH[name](B, int(args[-2]), args)
+    part = np.asarray(args[-1]).reshape(B, v.shape[1], -1)
+    part[...] = 0.0
+    if name == "bt_point":
+        part[:, 0, :] = -np.inf
+    part[:, :, 0] = v
 
 
 class RawModule:
@@ -93,7 +169,7 @@ class RawModule:
         assert code == _SRC
 
     def get_function(self, name: str) -> Any:
-        fn = _kernel(name) if name in ("gs_dot", "gs_sumfinite", "gs_moments") else (lambda *a: None)
+        fn = _kernel(name) if name in ("gs_dot", "gs_sumfinite", "gs_moments", *_BATCH) else (lambda *a: None)
         return fn
 
 
