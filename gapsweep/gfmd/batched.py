@@ -229,14 +229,15 @@ class _Stack(_Ops):
         are 0)."""
         xp, sel = self.xp, self._sel(active)
         idx = np.flatnonzero(active)
+        whole = isinstance(sel, slice)  # every problem: the passes write into Wt, e themselves
         ds = d[sel]
-        wt = xp.empty_like(ds)
+        wt, ee = (Wt, e) if whole else (xp.empty_like(ds), xp.empty_like(ds))
         mm = self.trial(W[sel], ds, _col(xp, c[idx]), wt)
-        ee = xp.empty_like(ds)
         out = [np.zeros(len(active)) for _ in range(4)]
         for o, v in zip(out, (mm, *self.expstats(wt, _col(xp, mm), ee, ds))):
             o[idx] = v
-        Wt[sel], e[sel] = wt, ee
+        if not whole:
+            Wt[sel], e[sel] = wt, ee
         return tuple(out)
 
     def cg_update(self, G, minv, D, beta, k, X, active=None) -> tuple[np.ndarray, ...]:
@@ -257,12 +258,11 @@ class _Stack(_Ops):
         xp, sel = self.xp, self._sel(active)
         idx = np.flatnonzero(active)
         G_old[sel] = G[sel]
-        Xs = X[sel]
+        Xs, Gs = X[sel], G[sel]  # views of X, G for every problem, else copies written back
         self.axpy(Xs, _col(xp, alpha[idx]), D[sel])
-        X[sel] = Xs
-        Gs = G[sel]
         self.grad(Xs, self.rfft2(e[sel]), _col(xp, c[idx]), k, Gs)
-        G[sel] = Gs
+        if not isinstance(sel, slice):
+            X[sel], G[sel] = Xs, Gs
         return self.dot(Gs, Gs)
 
 
