@@ -1,5 +1,6 @@
-"""The GPU branches of free boundaries (gfmd._free with gfmd._cuda._FreeCupyOps and _PadFFT) and of the hard wall's
-cuFFT backend (gapsweep.core.fft._CupyBackend.convolve) run on the CPU through tests/cupy_shim.py (numpy stand-ins
+"""The GPU branches of free boundaries (gfmd._free with gfmd._cuda._FreeCupyOps and _PadFFT), of the hard wall's
+cuFFT backend (gapsweep.core.fft._CupyBackend.convolve), of the exponential law's fused passes (gfmd._cuda._CupyOps)
+and of the batched stack (gfmd.batched._FusedStack) run on the CPU through tests/cupy_shim.py (numpy stand-ins
 for cupy, cuFFT's plans and the CUDA kernels, each launch checked against kernels.cu's parameter list): the same
 answers as the numpy path, to the solver tolerance. No GPU needed; on a GPU machine tests/gpu/ checks the real
 thing."""
@@ -202,3 +203,27 @@ def test_batch_fused_stack_matches_numpy(monkeypatch) -> None:
         assert np.abs(p - f.pressure).max() <= 1e-9 * np.abs(f.pressure).max()
     for k in ("bt_point", "bt_moments", "bt_cgdots", "bt_cgupdate", "bt_accept"):
         assert cupy_shim.COUNTS[k] > 0, k
+
+
+@pytest.mark.parametrize("method", ["cg", "lbfgs", "fire"])
+def test_exponential_fused_gpu_matches_numpy(monkeypatch, method) -> None:
+    """The exponential law on one GPU with the fused kernels (gfmd._cuda._CupyOps: set-up, trial-point, gradient
+    and result passes; "cg" runs the chained CG of _solvers, one synchronisation per iteration) through the
+    shim against the numpy solve: converged, the same iteration count, mean gap to 1e-10 relative, pressure to
+    1e-9 of its scale, on an odd grid too; each pass of the path launched."""
+    for n, seed in ((64, 3), (33, 5)):
+        h = self_affine(n, 0.8, lambda_l=0.5, lambda_s=4 / n, seed=seed)
+        h = h / h.std() * 0.01
+        kw = dict(sigma0=0.01, gamma0=1e-4, rho=1e-2, tol=1e-10, method=method)
+        ref = solve(h, backend="numpy", **kw)
+        cp = cupy_shim.install_fresh(monkeypatch, generic_kernels=False)
+        r = solve(cp.asarray(h), host=False, **kw)
+        assert r.converged and ref.converged and r.backend == "cupy"
+        assert r.iterations == ref.iterations
+        assert abs(r.mean_gap - ref.mean_gap) <= 1e-10 * abs(ref.mean_gap)
+        assert np.abs(np.asarray(r.pressure) - ref.pressure).max() <= 1e-9 * np.abs(ref.pressure).max()
+        used = ["gs_field", "gs_linresp", "gs_point", "gs_grad", "gs_final", "gs_resid"]
+        used += ["gs_cgdir", "gs_moments", "gs_trial0"] if method == "cg" else []
+        for k in used:
+            assert cupy_shim.COUNTS[k] > 0, k
+        monkeypatch.undo()
