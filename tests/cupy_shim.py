@@ -2,9 +2,9 @@
 free-boundary minimiser (gfmd._free with gfmd._cuda._FreeCupyOps and _PadFFT), the hard wall's cuFFT backend
 (gapsweep.core.fft._CupyBackend.convolve), the passes of a rank's slabs (gfmd._cuda._SlabCupyOps; its cupy
 ElementwiseKernel / ReductionKernel by name, tests/test_gfmd_ops.py), the exponential law's fused passes on one
-GPU (gfmd._cuda._CupyOps, the chained CG included) and the batched stack's (gfmd.batched._FusedStack, bt_*). Not a GPU emulator: arrays are numpy arrays of
-a subclass whose module reads "cupy" (so ``gfmd._ops._is_cupy`` takes them for cupy's); the CUDA kernels that code
-launches are replaced by numpy versions of their documented results, and each launch is checked against the
+GPU (gfmd._cuda._CupyOps, the chained CG included) and the batched stack's (gfmd.batched._FusedStack, bt_*). Not
+a GPU emulator: arrays are numpy arrays of a subclass whose module reads "cupy" (so ``gfmd._ops._is_cupy`` takes
+them for cupy's); the CUDA kernels that code launches are replaced by numpy versions of their documented results, and each launch is checked against the
 parameter list of the kernel in gapsweep/gfmd/kernels.cu (a wrong argument count would be a launch failure on the
 GPU). Kernel launches and host synchronisations are counted (``COUNTS``)."""
 
@@ -218,7 +218,7 @@ def _stiff_minv(flags: int, k: Any, minv: Any, n: Any, ka: float, kb: float, sr:
 
 
 def _gs_grad(args: tuple) -> None:
-    X, D, alpha, E, c, k, G, minv, Gold, flags, n, ka, kb, sr, nh, even, N = args[:17]
+    X, D, alpha, E, c, k, G, minv, Gold, flags, n, ka, kb, sr, nh, _even, N = args[:17]
     flags = int(flags)
     X, D, E, G, Gold = (_f(a) for a in (X, D, E, G, Gold))
     w, q = _half(nh, n, N)
@@ -236,7 +236,7 @@ def _gs_grad(args: tuple) -> None:
 
 
 def _gs_cgdir(args: tuple) -> None:
-    G, minv, D, beta, k, X, flags, n, ka, kb, sr, gs, zg_old, nh, even, N = args[:16]
+    G, minv, D, beta, k, X, flags, n, ka, kb, sr, gs, zg_old, nh, _even, N = args[:16]
     flags = int(flags)
     G, D, X = (_f(a) for a in (G, D, X))
     w, q = _half(nh, n, N)
@@ -273,7 +273,7 @@ def _gs_linresp(args: tuple) -> None:
 
 
 def _gs_resid(args: tuple) -> None:
-    Ur, Pr, s, n, ka, kb, nh, even, N = args[:9]
+    Ur, Pr, s, n, ka, kb, nh, _even, N = args[:9]
     w, q = _half(nh, n, N)
     kk = float(ka) * (float(kb) * q)
     uu = _f(Ur) * float(s)
