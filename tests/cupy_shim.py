@@ -1,12 +1,12 @@
 """A numpy stand-in for the few cupy calls of the GPU branches that tests/test_gpu_shim.py drives on the CPU: the
 free-boundary minimiser (gfmd._free with gfmd._cuda._FreeCupyOps and _PadFFT), the hard wall's cuFFT backend
 (gapsweep.core.fft._CupyBackend.convolve), the passes of a rank's slabs (gfmd._cuda._SlabCupyOps; its cupy
-ElementwiseKernel / ReductionKernel by name, tests/test_gfmd_ops.py), the exponential law's fused passes on one
-GPU (gfmd._cuda._CupyOps, the chained CG included) and the batched stack's (gfmd.batched._FusedStack, bt_*). Not
-a GPU emulator: arrays are numpy arrays of a subclass whose module reads "cupy" (so ``gfmd._ops._is_cupy`` takes
-them for cupy's); the CUDA kernels that code launches are replaced by numpy versions of their documented results, and each launch is checked against the
-parameter list of the kernel in gapsweep/gfmd/kernels.cu (a wrong argument count would be a launch failure on the
-GPU). Kernel launches and host synchronisations are counted (``COUNTS``)."""
+ElementwiseKernel / ReductionKernel by name, tests/test_gfmd_ops.py), the exponential law's fused passes on one GPU
+(gfmd._cuda._CupyOps, the chained CG included) and the batched stack's (gfmd.batched._FusedStack, bt_*). Not a GPU
+emulator: arrays are numpy arrays of a subclass whose module reads "cupy" (so ``gfmd._ops._is_cupy`` takes them for
+cupy's); the CUDA kernels that code launches are replaced by numpy versions of their documented results, and each
+launch is checked against the parameter list of the kernel in gapsweep/gfmd/kernels.cu (a wrong argument count would
+be a launch failure on the GPU). Kernel launches and host synchronisations are counted (``COUNTS``)."""
 
 from __future__ import annotations
 
