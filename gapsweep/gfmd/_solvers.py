@@ -224,81 +224,29 @@ def _check(pb: _Problem, tol: float, max_iter: int, history: list[float]) -> str
 
 
 def _run_cg(pb: _Problem, tol: float, max_iter: int, history: list[float], eta: float = 0.1) -> str:
-    """Preconditioned Polak-Ribiere+ nonlinear CG with the Newton line search of _Problem.line_search."""
+    """Preconditioned Polak-Ribiere+ nonlinear CG with the Newton line search of _Problem.line_search. One loop
+    for every engine; its direction comes from :class:`_Directions` (synchronous passes) or, on the GPU with one
+    gradient array, :class:`_ChainedDirections` (one host synchronisation per iteration): the same decisions
+    in the same order."""
     ops = pb.ops
-    if hasattr(ops, "chain_read") and pb.G_old is pb.G:  # GPU: the same iteration, one synchronisation
-        return _run_cg_chained(pb, tol, max_iter, history, eta)
-    if hasattr(ops, "bind_cg"):  # GPU: the gradient pass also yields the next cg_dots (no extra pass)
-        ops.bind_cg(pb.minv)
-    D = pb.xp.zeros_like(pb.X)
+    chained = hasattr(ops, "chain_read") and pb.G_old is pb.G
+    cg = _ChainedDirections(pb) if chained else _Directions(pb)
     zg_old = 0.0
     restart = True
-    while (status := _check(pb, tol, max_iter, history)) is None:
-        zg, zg_cross = ops.cg_dots(pb.G, None if restart else pb.G_old, pb.minv)
-        beta = 0.0 if restart else max(0.0, (zg - zg_cross) / zg_old)
-        phi0p, a, b = ops.cg_update(pb.G, pb.minv, D, beta, pb.k, pb.X)
-        if phi0p >= 0 and beta > 0:  # not a descent direction (round-off): restart along -M^-1 G
-            phi0p, a, b = ops.cg_update(pb.G, pb.minv, D, 0.0, pb.k, pb.X)
-        if not phi0p < 0:
-            return "stalled" if math.isfinite(phi0p) else "non_finite"
-        alpha, m, S, ok = pb.line_search(D, phi0p, a, b, eta)
-        if not ok:
-            if restart:
-                return "stalled"
-            restart = True
-            continue
-        restart = False
-        zg_old = zg
-        pb.accept(alpha, D, m, S)
-    return status
-
-
-def _run_cg_chained(pb: _Problem, tol: float, max_iter: int, history: list[float], eta: float = 0.1) -> str:
-    """:func:`_run_cg` on the GPU with one host synchronisation per iteration (issue 22, item 3): the gradient of
-    the accepted point, the next direction (``beta`` on the device), ``irfft2`` of it, the moments and the first
-    trial of the line search are queued back to back (gfmd/_cuda.py, ``chain_*``) and their scalars read in one
-    copy. The host then takes the same decisions as :func:`_run_cg` in the same order (convergence, restart,
-    descent check, line search); further trials, a restart with ``beta = 0`` and a shift re-run go through the
-    plain synchronous operations. Work queued past convergence (one direction and one trial) is discarded.
-    Needs ``pb.G_old is pb.G`` (the gradient pass reads the old gradient in place)."""
-    from gapsweep.gfmd._cuda import _SHIFT_SLACK, SLOT_CGDIR, SLOT_GRAD, SLOT_TRIAL
-
-    ops, fft, rho = pb.ops, pb.fft, pb.rho
-    ops.bind_cg(pb.minv)
-    D = pb.xp.zeros_like(pb.X)
-    zg, zc = ops.cg_dots(pb.G, None, pb.minv)[0], 0.0  # the start point's <Z G> (its gradient had no CG dots)
-    zg_old = 0.0
-    restart = True
-    fresh = False  # slot GRAD holds the gradient of an accepted point that the host has not read yet
-    sr = pb.sigma0 / rho
     while True:
-        ops.chain_cgdir(pb.G, pb.minv, D, pb.k, pb.X, None if restart else zg_old)
-        d = fft.irfft2(D)
-        ops.chain_moments(pb.e, d)
-        shift = ops.chain_trial(pb.W, d, pb.S, sr, rho, pb.Wt, pb.et)
-        r = ops.chain_read()
-        if fresh:
-            pb.r2, zg, zc = float(r[SLOT_GRAD]), float(r[SLOT_GRAD + 1]), float(r[SLOT_GRAD + 2])
-            fresh = False
+        cg.queue(restart, zg_old)
         status = _check(pb, tol, max_iter, history)
         if status is not None:
             return status
-        beta = 0.0 if restart else max(0.0, (zg - zc) / zg_old)
-        phi0p, a, b = (float(x) for x in r[SLOT_CGDIR:SLOT_CGDIR + 3])
-        first = None
+        zg, beta, (phi0p, a, b) = cg.direction(restart, zg_old)
+        trial: dict = {}
         if phi0p >= 0 and beta > 0:  # not a descent direction (round-off): restart along -M^-1 G
-            phi0p, a, b = ops.cg_update(pb.G, pb.minv, D, 0.0, pb.k, pb.X)
-            d = None
+            phi0p, a, b = ops.cg_update(pb.G, pb.minv, cg.D, 0.0, pb.k, pb.X)
         else:
-            mt, St, s1, s2, alpha = (float(x) for x in r[SLOT_TRIAL:SLOT_TRIAL + 5])  # gs_trial0 order
-            if math.isfinite(mt):
-                if abs(mt - shift) > _SHIFT_SLACK:  # guessed shift too far off: the pass again, shifted exactly
-                    St, s1, s2 = ops.retrial(pb.W, d, -alpha / rho, pb.Wt, pb.et, mt)
-                ops._guess = mt
-            first = (alpha, mt, St, s1, s2)
+            trial = cg.first_trial()
         if not phi0p < 0:
             return "stalled" if math.isfinite(phi0p) else "non_finite"
-        alpha, m, S, ok = pb.line_search(D, phi0p, a, b, eta, d=d, first=first)
+        alpha, m, S, ok = pb.line_search(cg.D, phi0p, a, b, eta, **trial)
         if not ok:
             if restart:
                 return "stalled"
@@ -306,13 +254,93 @@ def _run_cg_chained(pb: _Problem, tol: float, max_iter: int, history: list[float
             continue
         restart = False
         zg_old = zg
-        # pb.accept, with the gradient pass queued instead of read
+        cg.accept(alpha, m, S)
+
+
+class _Directions:
+    """The CG's directions by synchronous passes: ``cg_dots``, then ``cg_update`` (on the GPU the gradient pass
+    also yields the next ``cg_dots``: ``bind_cg``, no extra pass)."""
+
+    def __init__(self, pb: _Problem) -> None:
+        self.pb, self.ops = pb, pb.ops
+        if hasattr(self.ops, "bind_cg"):
+            self.ops.bind_cg(pb.minv)
+        self.D = pb.xp.zeros_like(pb.X)
+
+    def queue(self, restart: bool, zg_old: float) -> None:
+        """Nothing is queued ahead of the convergence check."""
+
+    def direction(self, restart: bool, zg_old: float) -> tuple[float, float, tuple]:
+        """``(<Z G>, beta, (phi0p, a, b))`` of ``D = beta D - M^-1 G``."""
+        pb, ops = self.pb, self.ops
+        zg, zg_cross = ops.cg_dots(pb.G, None if restart else pb.G_old, pb.minv)
+        beta = 0.0 if restart else max(0.0, (zg - zg_cross) / zg_old)
+        return zg, beta, ops.cg_update(pb.G, pb.minv, self.D, beta, pb.k, pb.X)
+
+    def first_trial(self) -> dict:
+        return {}  # the line search evaluates its own first trial
+
+    def accept(self, alpha: float, m: float, S: float) -> None:
+        self.pb.accept(alpha, self.D, m, S)
+
+
+class _ChainedDirections(_Directions):
+    """The CG's directions on the GPU with one host synchronisation per iteration (issue 22, item 3): the
+    gradient of the accepted point, the next direction (``beta`` on the device), ``irfft2`` of it, the moments
+    and the first trial of the line search are queued back to back (gfmd/_cuda.py, ``chain_*``) and their
+    scalars read in one copy. Further trials, a restart with ``beta = 0`` and a shift re-run go through the plain
+    synchronous operations. Work queued past convergence (one direction and one trial) is discarded. Needs
+    ``pb.G_old is pb.G`` (the gradient pass reads the old gradient in place)."""
+
+    def __init__(self, pb: _Problem) -> None:
+        super().__init__(pb)  # binds the CG dots to the gradient pass
+        # the start point's <Z G> (its gradient had no CG dots)
+        self.zg, self.zc = self.ops.cg_dots(pb.G, None, pb.minv)[0], 0.0
+        self.fresh = False  # slot GRAD holds the gradient of an accepted point that the host has not read yet
+        self.d = self.r = None
+        self.shift = 0.0
+
+    def queue(self, restart: bool, zg_old: float) -> None:
+        from gapsweep.gfmd._cuda import SLOT_GRAD
+
+        pb, ops = self.pb, self.ops
+        ops.chain_cgdir(pb.G, pb.minv, self.D, pb.k, pb.X, None if restart else zg_old)
+        self.d = pb.fft.irfft2(self.D)
+        ops.chain_moments(pb.e, self.d)
+        self.shift = ops.chain_trial(pb.W, self.d, pb.S, pb.sigma0 / pb.rho, pb.rho, pb.Wt, pb.et)
+        r = self.r = ops.chain_read()
+        if self.fresh:
+            pb.r2, self.zg, self.zc = float(r[SLOT_GRAD]), float(r[SLOT_GRAD + 1]), float(r[SLOT_GRAD + 2])
+            self.fresh = False
+
+    def direction(self, restart: bool, zg_old: float) -> tuple[float, float, tuple]:
+        from gapsweep.gfmd._cuda import SLOT_CGDIR
+
+        beta = 0.0 if restart else max(0.0, (self.zg - self.zc) / zg_old)
+        return self.zg, beta, tuple(float(x) for x in self.r[SLOT_CGDIR:SLOT_CGDIR + 3])
+
+    def first_trial(self) -> dict:
+        """The queued first trial (gs_trial0), redone with the exact shift when its max lies too far from the
+        guessed one."""
+        from gapsweep.gfmd._cuda import _SHIFT_SLACK, SLOT_TRIAL
+
+        pb, ops = self.pb, self.ops
+        mt, St, s1, s2, alpha = (float(x) for x in self.r[SLOT_TRIAL:SLOT_TRIAL + 5])  # gs_trial0 order
+        if math.isfinite(mt):
+            if abs(mt - self.shift) > _SHIFT_SLACK:  # guessed shift too far off: the pass again, shifted exactly
+                St, s1, s2 = ops.retrial(pb.W, self.d, -alpha / pb.rho, pb.Wt, pb.et, mt)
+            ops._guess = mt
+        return {"d": self.d, "first": (alpha, mt, St, s1, s2)}
+
+    def accept(self, alpha: float, m: float, S: float) -> None:
+        """``pb.accept`` with the gradient pass queued instead of read."""
+        pb = self.pb
         pb.W, pb.Wt = pb.Wt, pb.W
         pb.e, pb.et = pb.et, pb.e
         pb.m, pb.S = float(m), S
         pb.nfev += 1
-        ops.chain_grad(pb.X, D, alpha, fft.rfft2(pb.e), pb.sigma0 / S, pb.k, pb.G)
-        fresh = True
+        self.ops.chain_grad(pb.X, self.D, alpha, pb.fft.rfft2(pb.e), pb.sigma0 / S, pb.k, pb.G)
+        self.fresh = True
 
 
 def _clear(*lists: list) -> None:
