@@ -25,7 +25,7 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
     ``stiffness``: the substrate's ``k(q)`` on the rfft2 half grid instead of the half-space's ``E* q/2`` (an
     elastic layer, gfmd.substrates; numpy arrays, square grids)."""
     host_fields(host)  # validate before any work
-    from gapsweep.gfmd._common import _make_ops, _transfer_modes
+    from gapsweep.gfmd._common import _make_ops
 
     shape = heights.shape
     lx, ly = length if isinstance(length, tuple) else (length, length)
@@ -72,19 +72,9 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
         Hq = fft.rfft2(h) * (1.0 / (n * n))
         k = 0.5 * e_star * _half_q(xp, n, length) if stiffness is None else stiffness
         x0 = Hq * ((sigma0 / rho) / (k + sigma0 / rho))  # linear response of M4: h~ / (1 + eta zeta)
+        x0 = xp.array(x0, dtype=xp.complex128)
     else:
-        u0 = initial.displacement if isinstance(initial, GFMDResult) else initial
-        # a field already on this GPU stays there (a warm-started pressure chain copies nothing)
-        u0 = (u0 if xp is not np and u0.shape[0] == n else fft.to_host(u0)) if _is_cupy(u0) else \
-            np.asarray(u0, dtype=np.float64)
-        uxp = xp if _is_cupy(u0) else np
-        if u0.ndim != 2 or u0.shape[0] != u0.shape[1] or not bool(uxp.all(uxp.isfinite(u0))):
-            raise ValueError("initial must be a GFMDResult or a finite square displacement field")
-        if u0.shape[0] == n:
-            x0 = xp.array(fft.rfft2(xp.asarray(u0, dtype=xp.float64)) * (1.0 / (n * n)))
-        else:
-            x0 = xp.asarray(_transfer_modes(u0, n))
-    x0 = xp.array(x0, dtype=xp.complex128)
+        x0 = _initial_modes(initial, n, fft)
 
     history: list[float] = []
     # Non-finite values are caught by the status checks (residual, fields), not by numpy warnings.
@@ -129,6 +119,7 @@ def _initial_modes(initial: Any, n: int, fft: Any) -> Any:
 
     xp = fft.xp
     u0 = initial.displacement if isinstance(initial, GFMDResult) else initial
+    # a field already on this GPU stays there (a warm-started pressure chain copies nothing)
     u0 = (u0 if xp is not np and u0.shape[0] == n else fft.to_host(u0)) if _is_cupy(u0) else \
         np.asarray(u0, dtype=np.float64)
     uxp = xp if _is_cupy(u0) else np
