@@ -3,7 +3,8 @@ passes for any array namespace (numpy or cupy), any reducer (:data:`LOCAL` on on
 ranks on a rank's slabs: :class:`gapsweep.core.slab.Reducer`) and any explicit Parseval weights
 (:class:`Parseval`: the full grid's half spectrum or a rank's columns of it); fused kernels replace named passes
 of it: :class:`_NumbaOps` here (the CPU default of one process), ``gfmd._cuda._CupyOps`` (one GPU) and
-``gfmd._cuda._SlabCupyOps`` (a rank's slabs on a GPU)."""
+``gfmd._cuda._SlabCupyOps`` (a rank's slabs on a GPU). ``gfmd.batched._Stack`` runs the same passes over a stack
+of problems (a leading batch axis: its local sums, maxes and dots per problem)."""
 
 from __future__ import annotations
 
