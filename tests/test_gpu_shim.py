@@ -1,5 +1,6 @@
-"""The GPU branches of free boundaries (gfmd._free with gfmd._cuda._FreeCupyOps and _PadFFT) and of the hard wall's
-cuFFT backend (gapsweep.core.fft._CupyBackend.convolve) run on the CPU through tests/cupy_shim.py (numpy stand-ins
+"""The GPU branches of free boundaries (gfmd._free with gfmd._cuda._FreeCupyOps and _PadFFT), of the hard wall's
+cuFFT backend (gapsweep.core.fft._CupyBackend.convolve), of the exponential law's fused passes (gfmd._cuda._CupyOps)
+and of the batched stack (gfmd.batched._FusedStack) run on the CPU through tests/cupy_shim.py (numpy stand-ins
 for cupy, cuFFT's plans and the CUDA kernels, each launch checked against kernels.cu's parameter list): the same
 answers as the numpy path, to the solver tolerance. No GPU needed; on a GPU machine tests/gpu/ checks the real
 thing."""
@@ -178,3 +179,51 @@ def test_layer_and_cap_gpu_branch_matches_numpy(cp, kw, periodic) -> None:
         assert got["plastic_area"] == want["plastic_area"]
         for k in ("plastic_displacement_mean", "plastic_displacement_max"):
             assert got[k] == pytest.approx(want[k], rel=1e-6) and want[k] > 0
+
+
+def test_batch_fused_stack_matches_numpy(monkeypatch) -> None:
+    """The batched CG on the GPU's fused stack (gfmd.batched._FusedStack: every pass one bt_* kernel over the
+    stack, emulated by the shim and checked against kernels.cu's parameter lists) against the numpy stack:
+    same statuses, mean gaps to 1e-10 relative and pressures to 1e-9 of their scale; five problems that stop at
+    different iterations (parked, then compacted), each kernel launched."""
+    from gapsweep.gfmd import BatchProblem, solve_batch
+
+    cases = [(1, 1e-3, 0.05), (2, 1e-2, 0.05), (3, 1e-1, 0.06), (4, 1e-4, 0.05), (5, 1.0, 0.05)]
+    hs = [self_affine(32, 0.3, lambda_l=0.25, lambda_s=4 / 32, seed=s) for s, _, _ in cases]
+    ref = solve_batch([BatchProblem(h, s0, gamma0=1e-3, rho=rho) for h, (_, s0, rho) in zip(hs, cases)],
+                      tol=1e-10, backend="numpy")
+    cp = cupy_shim.install_fresh(monkeypatch, generic_kernels=False)
+    res = solve_batch([BatchProblem(cp.asarray(h), s0, gamma0=1e-3, rho=rho) for h, (_, s0, rho) in zip(hs, cases)],
+                      tol=1e-10, backend="cupy", host=False)
+    assert len({r.iterations for r in ref}) > 1  # problems leave the stack at different iterations
+    for r, f in zip(res, ref):
+        assert r.status == f.status == "converged" and r.backend == "cupy"
+        assert abs(r.mean_gap - f.mean_gap) <= 1e-10 * abs(f.mean_gap)
+        p = np.asarray(r.pressure)
+        assert np.abs(p - f.pressure).max() <= 1e-9 * np.abs(f.pressure).max()
+    for k in ("bt_point", "bt_moments", "bt_cgdots", "bt_cgupdate", "bt_accept"):
+        assert cupy_shim.COUNTS[k] > 0, k
+
+
+@pytest.mark.parametrize("method", ["cg", "lbfgs", "fire"])
+def test_exponential_fused_gpu_matches_numpy(monkeypatch, method) -> None:
+    """The exponential law on one GPU with the fused kernels (gfmd._cuda._CupyOps: set-up, trial-point, gradient
+    and result passes; "cg" runs the chained CG of _solvers, one synchronisation per iteration) through the
+    shim against the numpy solve: converged, the same iteration count, mean gap to 1e-10 relative, pressure to
+    1e-9 of its scale, on an odd grid too; each pass of the path launched."""
+    for n, seed in ((64, 3), (33, 5)):
+        h = self_affine(n, 0.8, lambda_l=0.5, lambda_s=4 / n, seed=seed)
+        h = h / h.std() * 0.01
+        kw = dict(sigma0=0.01, gamma0=1e-4, rho=1e-2, tol=1e-10, method=method)
+        ref = solve(h, backend="numpy", **kw)
+        cp = cupy_shim.install_fresh(monkeypatch, generic_kernels=False)
+        r = solve(cp.asarray(h), host=False, **kw)
+        assert r.converged and ref.converged and r.backend == "cupy"
+        assert r.iterations == ref.iterations
+        assert abs(r.mean_gap - ref.mean_gap) <= 1e-10 * abs(ref.mean_gap)
+        assert np.abs(np.asarray(r.pressure) - ref.pressure).max() <= 1e-9 * np.abs(ref.pressure).max()
+        used = ["gs_field", "gs_linresp", "gs_point", "gs_grad", "gs_final", "gs_resid"]
+        used += ["gs_cgdir", "gs_moments", "gs_trial0"] if method == "cg" else []
+        for k in used:
+            assert cupy_shim.COUNTS[k] > 0, k
+        monkeypatch.undo()

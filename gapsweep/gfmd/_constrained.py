@@ -42,7 +42,7 @@ from gapsweep.core import deadline
 from gapsweep.gfmd._constrained_ops import make_ops
 from gapsweep.gfmd._grid import FreeGrid, Grid
 from gapsweep.gfmd._ops import _is_cupy
-from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status
+from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status, law_result
 from gapsweep.gfmd.interactions.base import Interaction
 
 METHODS = ("pk", "pcg", "mpcg")
@@ -397,30 +397,9 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
     log.debug("hard wall: %s after %d iterations, residual %.3g, area %.4g", status, it, residual, area)
     gap, p, u = fields_to_host(grid, host, gap, p, u)  # only those asked for
     grid.synchronize()
-    return GFMDResult(
-        mean_gap=grid.mean(gap),
-        gap=gap,
-        pressure=p,
-        displacement=u,
-        iterations=it,
-        converged=converged,
-        residual=residual,
-        load_error=load_error,
-        wall_time=time.perf_counter() - t_start,
-        method=method,
-        backend=grid.backend,
-        status=status,
-        sigma0=sigma0,
-        e_star=e_star,
-        length=length,
-        tol=tol,
-        history=history,
-        interaction=law.name,
-        params=law.params(),
-        contact_area=area,
-        elastic_energy=elastic,
-        contact_criterion=law.contact_criterion,
-        diagnostics={"complementarity": complementarity, "gap_rms_in_contact": rms / g_ref,
-                     "overlap": overlap / g_ref, "h_rms": h_rms, "fft_pairs": fft_pairs,
-                     "coarse_iterations": coarse_its},
-    )
+    diagnostics = {"complementarity": complementarity, "gap_rms_in_contact": rms / g_ref, "overlap": overlap / g_ref,
+                   "h_rms": h_rms, "fft_pairs": fft_pairs, "coarse_iterations": coarse_its}
+    return law_result(law, t_start, mean_gap=grid.mean(gap), gap=gap, pressure=p, displacement=u, iterations=it,
+                      converged=converged, residual=residual, load_error=load_error, method=method,
+                      backend=grid.backend, status=status, sigma0=sigma0, e_star=e_star, length=length, tol=tol,
+                      history=history, contact_area=area, elastic_energy=elastic, diagnostics=diagnostics)

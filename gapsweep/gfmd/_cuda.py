@@ -293,7 +293,7 @@ class _CupyOps(_Ops):
                          np.float64(1.0))
         return float(r[0]), float(r[1]), float(r[2])
 
-    # -- chained CG (_solvers._run_cg_chained): passes queued without reading their scalars, each into its own
+    # -- chained CG (_solvers._ChainedDirections): passes queued without reading their scalars, each into its own
     # slot of one device buffer; one copy and one synchronisation read them all.
     def _enqueue(self, name: str, half: bool, slot: int, *args) -> None:
         out = self.slots[slot:]

@@ -44,7 +44,6 @@ from __future__ import annotations
 
 import logging
 import math
-import time
 from typing import Any
 
 import numpy as np
@@ -54,7 +53,7 @@ from gapsweep.core.vec import axpy
 from gapsweep.gfmd._grid import FreeGrid, Grid
 from gapsweep.gfmd._lbfgs import remember_pair, two_loop
 from gapsweep.gfmd._ops import _is_cupy
-from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status
+from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status, law_result
 from gapsweep.gfmd._smooth import _DETACHED, _STEP_TOL, _Solver, _stalled, _wolfe
 from gapsweep.gfmd.interactions.base import SmoothInteraction
 
@@ -592,12 +591,10 @@ def minimise(heights: Any, law: SmoothInteraction, *, sigma0: float, e_star: flo
     log.debug("%s (free boundaries): %s after %d evaluations, residual %.3g", law.name, status, sv.nfev, residual)
     gap, p, u = fields_to_host(pad, host, gap, p, u)
     pad.synchronize()
-    return GFMDResult(
-        mean_gap=g0, gap=gap, pressure=p, displacement=u, iterations=sv.nfev, converged=converged,
-        residual=residual, load_error=load_error, wall_time=time.perf_counter() - t_start, method=method,
-        backend=pad.backend, status=status, sigma0=sigma0, rho=getattr(law, "rho", math.nan),
-        gamma0=getattr(law, "gamma0", math.nan), e_star=e_star, length=length, tol=tol, history=history,
-        interaction=law.name, params=law.params(), contact_area=area, elastic_energy=elastic,
-        contact_criterion=law.contact_criterion, periodic=False,
-        diagnostics={"pressure_scale": p_ref, "interaction_energy": e_int, "approach": st.delta, **sv.info},
-    )
+    diagnostics = {"pressure_scale": p_ref, "interaction_energy": e_int, "approach": st.delta, **sv.info}
+    return law_result(law, t_start, mean_gap=g0, gap=gap, pressure=p, displacement=u, iterations=sv.nfev,
+                      converged=converged, residual=residual, load_error=load_error, method=method,
+                      backend=pad.backend, status=status, sigma0=sigma0, rho=getattr(law, "rho", math.nan),
+                      gamma0=getattr(law, "gamma0", math.nan), e_star=e_star, length=length, tol=tol,
+                      history=history, contact_area=area, elastic_energy=elastic, periodic=False,
+                      diagnostics=diagnostics)

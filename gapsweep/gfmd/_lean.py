@@ -27,14 +27,13 @@ from __future__ import annotations
 
 import logging
 import math
-import time
 from typing import Any
 
 import numpy as np
 
 from gapsweep.gfmd._coarse import Start
 from gapsweep.gfmd._lbfgs import two_loop
-from gapsweep.gfmd._result import GFMDResult, final_status
+from gapsweep.gfmd._result import GFMDResult, final_status, law_result
 from gapsweep.gfmd._smooth import _STEP_TOL, _lbfgs, _Solver, touching_gap
 
 log = logging.getLogger("gapsweep.gfmd")
@@ -366,12 +365,9 @@ def _lean_result(sv: LeanSolver, st: Any, status: str, sigma0: float, e_star: fl
     status, _ = final_status(status, fields_ok, residual, load_error, tol)
     converged = status == "converged"
     log.debug("%s: %s after %d evaluations, residual %.3g", law.name, status, sv.nfev, residual)
-    return GFMDResult(
-        mean_gap=g_sum / n2, gap=gap, pressure=p, displacement=u, iterations=sv.nfev, converged=converged,
-        residual=residual, load_error=load_error, wall_time=time.perf_counter() - t_start, method="lbfgs",
-        backend=grid.backend, status=status, sigma0=sigma0, rho=getattr(law, "rho", math.nan), e_star=e_star,
-        length=length, tol=tol, history=sv.history, interaction=law.name, params=law.params(),
-        contact_area=n_c / n2, elastic_energy=elastic, contact_criterion=law.contact_criterion,
-        diagnostics={"pressure_scale": p_ref, "interaction_energy": e_int / n2, "lbfgs_memory": sv.memory,
-                     **sv.info},
-    )
+    diagnostics = {"pressure_scale": p_ref, "interaction_energy": e_int / n2, "lbfgs_memory": sv.memory, **sv.info}
+    return law_result(law, t_start, mean_gap=g_sum / n2, gap=gap, pressure=p, displacement=u, iterations=sv.nfev,
+                      converged=converged, residual=residual, load_error=load_error, method="lbfgs",
+                      backend=grid.backend, status=status, sigma0=sigma0, rho=getattr(law, "rho", math.nan),
+                      e_star=e_star, length=length, tol=tol, history=sv.history, contact_area=n_c / n2,
+                      elastic_energy=elastic, diagnostics=diagnostics)

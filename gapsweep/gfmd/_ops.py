@@ -3,7 +3,8 @@ passes for any array namespace (numpy or cupy), any reducer (:data:`LOCAL` on on
 ranks on a rank's slabs: :class:`gapsweep.core.slab.Reducer`) and any explicit Parseval weights
 (:class:`Parseval`: the full grid's half spectrum or a rank's columns of it); fused kernels replace named passes
 of it: :class:`_NumbaOps` here (the CPU default of one process), ``gfmd._cuda._CupyOps`` (one GPU) and
-``gfmd._cuda._SlabCupyOps`` (a rank's slabs on a GPU)."""
+``gfmd._cuda._SlabCupyOps`` (a rank's slabs on a GPU). ``gfmd.batched._Stack`` runs the same passes over a stack
+of problems (a leading batch axis: its local sums, maxes and dots per problem)."""
 
 from __future__ import annotations
 
@@ -100,21 +101,35 @@ class _Ops:
         self.weights = Parseval.half(n) if weights is None else weights
         self.owner = owner
 
-    # -- local halves (the arrays held here, no reduction)
-    def _ldot(self, a, b) -> float:
+    # -- local halves (the arrays held here, no reduction); the four primitives below are the only places where a
+    # sum or max is taken, so a stack of problems (gfmd.batched._Stack: a leading batch axis) overrides just them
+    def _lsum(self, a) -> Any:
+        return float(a.sum())
+
+    def _lmax(self, a) -> Any:
+        return float(a.max())
+
+    def _lrdot(self, a, b) -> Any:
+        return rdot(a, b)
+
+    def _ldot(self, a, b) -> Any:
         return self.weights.dot(a, b)
 
-    def _lmoments(self, e, d) -> tuple[float, float]:
+    def _lmoments(self, e, d) -> tuple[Any, Any]:
         ed = e * d
-        return float(ed.sum()), rdot(ed, d)
+        return self._lsum(ed), self._lrdot(ed, d)
 
     def _lcg_dots(self, G, G_old, minv) -> tuple[float, float]:
         Z = minv * G
         return self._ldot(Z, G), (self._ldot(Z, G_old) if G_old is not None else 0.0)
 
-    def _lcg_update(self, G, minv, D, beta: float, k, X) -> tuple[float, float, float]:
+    def _ldirection(self, G, minv, D, beta: Any) -> None:
+        """``D = beta D - M^-1 G`` in place."""
         D *= beta
         D -= minv * G
+
+    def _lcg_update(self, G, minv, D, beta: float, k, X) -> tuple[float, float, float]:
+        self._ldirection(G, minv, D, beta)
         kD = k * D
         return self._ldot(G, D), self._ldot(kD, X), self._ldot(kD, D)
 
@@ -127,14 +142,14 @@ class _Ops:
         """``out = w + c d``; returns ``max(out)``."""
         self.xp.multiply(d, c, out=out)
         out += w
-        return self.red.max(float(out.max()))
+        return self.red.max(self._lmax(out))
 
     def expstats(self, w, m: float, e, d=None) -> tuple[float, float, float]:
         """``e = exp(w - m)``; returns ``(sum e, sum e d, sum e d^2)`` (zeros without ``d``)."""
         xp = self.xp
         xp.subtract(w, m, out=e)
         xp.exp(e, out=e)
-        s = float(e.sum())
+        s = self._lsum(e)
         if d is None:
             return self.red.sum(s), 0.0, 0.0
         return tuple(self.red.sum(s, *self._lmoments(e, d)))
@@ -148,7 +163,7 @@ class _Ops:
         self.xp.multiply(k, X, out=G)
         G -= c * E
         if self.owner:
-            G[0, 0] = 0.0
+            G[..., 0, 0] = 0.0  # (a leading batch axis: every problem's)
 
     def grad_step(self, X, D, alpha: float, E, c: float, k, G) -> float:
         """``X += alpha D``, then :meth:`grad`; returns ``<G G>``."""

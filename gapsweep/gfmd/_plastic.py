@@ -43,7 +43,7 @@ import numpy as np
 from gapsweep.core import deadline
 from gapsweep.gfmd._grid import FreeGrid, Grid
 from gapsweep.gfmd._ops import _is_cupy
-from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status, host_fields
+from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status, host_fields, law_result
 from gapsweep.gfmd.interactions.base import Interaction
 
 METHODS = ("pk", "pcg", "mpcg")
@@ -371,13 +371,12 @@ def minimise(heights: Any, law: Interaction, *, hardness: float, sigma0: float, 
     gap_h, p_h, u_h = fields_to_host(grid, host, gap, p, u)
     if host is not False:
         u_pl = grid.to_host(u_pl)
-    return GFMDResult(
-        mean_gap=float(xp.mean(gap)), gap=gap_h, pressure=p_h,
-        displacement=u_h, iterations=it, converged=converged, residual=residual,
-        load_error=load_error, wall_time=time.perf_counter() - t_start, method=method, backend=grid.backend,
-        status=status, sigma0=sigma0, e_star=e_star, length=length, tol=tol, history=history,
-        interaction=law.name, params={**law.params(), "hardness": H}, contact_area=area,
-        elastic_energy=elastic, contact_criterion="p > 0 (elastic 0 < p < H, plastic p = H)",
-        diagnostics={"h_rms": h_rms, "fft_pairs": pairs, "coarse_iterations": coarse_its,
-                     "elastic_area": int(xp.count_nonzero(S)) / grid.size},
-        periodic=periodic, plastic_area=plastic_area, plastic_displacement=u_pl)
+    diagnostics = {"h_rms": h_rms, "fft_pairs": pairs, "coarse_iterations": coarse_its,
+                   "elastic_area": int(xp.count_nonzero(S)) / grid.size}
+    return law_result(law, t_start, mean_gap=float(xp.mean(gap)), gap=gap_h, pressure=p_h, displacement=u_h,
+                      iterations=it, converged=converged, residual=residual, load_error=load_error, method=method,
+                      backend=grid.backend, status=status, sigma0=sigma0, e_star=e_star, length=length, tol=tol,
+                      history=history, params={**law.params(), "hardness": H}, contact_area=area,
+                      elastic_energy=elastic, contact_criterion="p > 0 (elastic 0 < p < H, plastic p = H)",
+                      diagnostics=diagnostics, periodic=periodic, plastic_area=plastic_area,
+                      plastic_displacement=u_pl)

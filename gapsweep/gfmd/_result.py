@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -48,6 +49,14 @@ def host_fields(host: Any) -> tuple[str, ...]:
     if bad:
         raise ValueError(f"host: unknown field(s) {bad}; allowed: {', '.join(FIELDS)}")
     return tuple(k for k in FIELDS if k in names)
+
+
+def law_result(law: Any, t_start: float, **fields: Any) -> GFMDResult:
+    """The :class:`GFMDResult` of a solve with interaction law ``law`` (every minimiser's): the law's name,
+    parameters and contact criterion, the wall time since ``t_start`` (``time.perf_counter()``), and ``fields``,
+    the others (a field named there overrides the law's, e.g. the capped hard wall's ``params``)."""
+    own = {"interaction": law.name, "params": law.params(), "contact_criterion": law.contact_criterion}
+    return GFMDResult(wall_time=time.perf_counter() - t_start, **{**own, **fields})
 
 
 def _namespace(a: Any) -> Any:
@@ -136,29 +145,13 @@ class GFMDResult:
         """``(edges, density, atom)`` of the gap (M5): ``atom`` is the fraction at exactly ``g = 0`` (the hard
         wall's contact), ``density`` the histogram of the other points, normalised to integrate to
         ``1 - atom`` over the bins (so atom + density together integrate to 1)."""
-        xp = _namespace(self.gap)
-        free = self.gap[self.gap != 0.0]
-        atom = 1.0 - free.size / self.gap.size
-        if free.size == 0:
-            edges = np.linspace(0.0, 1.0, (bins if isinstance(bins, int) else 1) + 1)
-            return edges, np.zeros(edges.size - 1), atom
-        counts, edges = xp.histogram(free, bins=bins, range=range)
-        dens = counts / (self.gap.size * xp.diff(edges))
-        return _host(edges), _host(dens), atom
+        return _atom_histogram(self.gap, bins, range)
 
     def pressure_histogram(self, bins: Any = 100, range: tuple[float, float] | None = None
                            ) -> tuple[np.ndarray, np.ndarray, float]:
         """``(edges, density, atom)`` of the local pressure: ``atom`` is the fraction at exactly ``p = 0`` (the
         hard wall's free surface), ``density`` the histogram of the other points normalised to ``1 - atom``."""
-        xp = _namespace(self.pressure)
-        loaded = self.pressure[self.pressure != 0.0]
-        atom = 1.0 - loaded.size / self.pressure.size
-        if loaded.size == 0:
-            edges = np.linspace(0.0, 1.0, (bins if isinstance(bins, int) else 1) + 1)
-            return edges, np.zeros(edges.size - 1), atom
-        counts, edges = xp.histogram(loaded, bins=bins, range=range)
-        dens = counts / (self.pressure.size * xp.diff(edges))
-        return _host(edges), _host(dens), atom
+        return _atom_histogram(self.pressure, bins, range)
 
     def histogram(self, bins: Any = 100, range: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Gap histogram ``(edges, density)`` over the grid (M5); the density integrates to 1 over the bins.
@@ -172,3 +165,18 @@ class GFMDResult:
             return cupy.asnumpy(edges), cupy.asnumpy(density)
         density, edges = np.histogram(self.gap, bins=bins, range=range, density=True)
         return edges, density
+
+
+def _atom_histogram(a: Any, bins: Any, range: tuple[float, float] | None) -> tuple[np.ndarray, np.ndarray, float]:
+    """``(edges, density, atom)`` of field ``a``: ``atom`` the fraction of points at exactly 0, ``density`` the
+    histogram of the others over the whole grid's size (atom + density integrate to 1), binned where ``a``
+    lives and returned on the host."""
+    xp = _namespace(a)
+    rest = a[a != 0.0]
+    atom = 1.0 - rest.size / a.size
+    if rest.size == 0:
+        edges = np.linspace(0.0, 1.0, (bins if isinstance(bins, int) else 1) + 1)
+        return edges, np.zeros(edges.size - 1), atom
+    counts, edges = xp.histogram(rest, bins=bins, range=range)
+    dens = counts / (a.size * xp.diff(edges))
+    return _host(edges), _host(dens), atom

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import logging
 import math
-import time
 from typing import Any
 
 import numpy as np
@@ -30,7 +29,7 @@ from gapsweep.gfmd._continuation import next_load, record
 from gapsweep.gfmd._grid import Grid
 from gapsweep.gfmd._lbfgs import diagonal, remember_pair, two_loop
 from gapsweep.gfmd._ops import _is_cupy
-from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status
+from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status, law_result
 from gapsweep.gfmd.interactions.base import SmoothInteraction
 
 METHODS = ("lbfgs",)
@@ -436,11 +435,9 @@ def _result(sv: _Solver, st: _State, status: str, sigma0: float, e_star: float, 
     log.debug("%s: %s after %d evaluations, residual %.3g", law.name, status, sv.nfev, residual)
     gap, p, u = fields_to_host(grid, host, gap, p, u)  # only those asked for
     grid.synchronize()
-    return GFMDResult(
-        mean_gap=g0, gap=gap, pressure=p, displacement=u, iterations=sv.nfev, converged=converged,
-        residual=residual, load_error=load_error, wall_time=time.perf_counter() - t_start, method="lbfgs",
-        backend=grid.backend, status=status, sigma0=sigma0, rho=getattr(law, "rho", math.nan), e_star=e_star,
-        length=length, tol=tol, history=sv.history, interaction=law.name, params=law.params(), contact_area=area,
-        elastic_energy=elastic, contact_criterion=law.contact_criterion,
-        diagnostics={"pressure_scale": p_ref, "interaction_energy": e_int, **sv.info},
-    )
+    diagnostics = {"pressure_scale": p_ref, "interaction_energy": e_int, **sv.info}
+    return law_result(law, t_start, mean_gap=g0, gap=gap, pressure=p, displacement=u, iterations=sv.nfev,
+                      converged=converged, residual=residual, load_error=load_error, method="lbfgs",
+                      backend=grid.backend, status=status, sigma0=sigma0, rho=getattr(law, "rho", math.nan),
+                      e_star=e_star, length=length, tol=tol, history=sv.history, contact_area=area,
+                      elastic_energy=elastic, diagnostics=diagnostics)

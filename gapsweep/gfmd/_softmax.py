@@ -4,14 +4,13 @@
 from __future__ import annotations
 
 import math
-import time
 from typing import Any
 
 import numpy as np
 
 from gapsweep.core.fft import available_backends, get_backend
 from gapsweep.gfmd._ops import _is_cupy
-from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status, host_fields
+from gapsweep.gfmd._result import GFMDResult, fields_to_host, final_status, host_fields, law_result
 from gapsweep.gfmd._solvers import _RUNNERS, _half_q, _Problem
 from gapsweep.gfmd.interactions.exponential import Exponential
 
@@ -26,7 +25,7 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
     ``stiffness``: the substrate's ``k(q)`` on the rfft2 half grid instead of the half-space's ``E* q/2`` (an
     elastic layer, gfmd.substrates; numpy arrays, square grids)."""
     host_fields(host)  # validate before any work
-    from gapsweep.gfmd._common import _make_ops, _transfer_modes
+    from gapsweep.gfmd._common import _make_ops
 
     shape = heights.shape
     lx, ly = length if isinstance(length, tuple) else (length, length)
@@ -73,19 +72,9 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
         Hq = fft.rfft2(h) * (1.0 / (n * n))
         k = 0.5 * e_star * _half_q(xp, n, length) if stiffness is None else stiffness
         x0 = Hq * ((sigma0 / rho) / (k + sigma0 / rho))  # linear response of M4: h~ / (1 + eta zeta)
+        x0 = xp.array(x0, dtype=xp.complex128)
     else:
-        u0 = initial.displacement if isinstance(initial, GFMDResult) else initial
-        # a field already on this GPU stays there (a warm-started pressure chain copies nothing)
-        u0 = (u0 if xp is not np and u0.shape[0] == n else fft.to_host(u0)) if _is_cupy(u0) else \
-            np.asarray(u0, dtype=np.float64)
-        uxp = xp if _is_cupy(u0) else np
-        if u0.ndim != 2 or u0.shape[0] != u0.shape[1] or not bool(uxp.all(uxp.isfinite(u0))):
-            raise ValueError("initial must be a GFMDResult or a finite square displacement field")
-        if u0.shape[0] == n:
-            x0 = xp.array(fft.rfft2(xp.asarray(u0, dtype=xp.float64)) * (1.0 / (n * n)))
-        else:
-            x0 = xp.asarray(_transfer_modes(u0, n))
-    x0 = xp.array(x0, dtype=xp.complex128)
+        x0 = _initial_modes(initial, n, fft)
 
     history: list[float] = []
     # Non-finite values are caught by the status checks (residual, fields), not by numpy warnings.
@@ -119,33 +108,9 @@ def minimise(heights: Any, law: Exponential, *, sigma0: float, e_star: float, le
     converged = status == "converged"
     gap, p, u = fields_to_host(fft, host, gap, p, u)
     fft.synchronize()
-    return GFMDResult(
-        mean_gap=g0,
-        gap=gap,
-        pressure=p,
-        displacement=u,
-        iterations=pb.nfev,
-        converged=converged,
-        residual=residual,
-        load_error=load_error,
-        wall_time=time.perf_counter() - t_start,
-        method=method,
-        backend=backend,
-        status=status,
-        sigma0=sigma0,
-        rho=rho,
-        gamma0=gamma0,
-        e_star=e_star,
-        length=length,
-        tol=tol,
-        history=history,
-        interaction=law.name,
-        params=law.params(),
-        contact_area=area,
-        elastic_energy=elastic,
-        contact_criterion=law.contact_criterion,
-        diagnostics={"running_residual": history[-1] if history else math.inf},
-    )
+    return _record(law, t_start, g0, (gap, p, u), pb.nfev, status, converged, residual, load_error, history,
+                   method=method, backend=backend, sigma0=sigma0, rho=rho, gamma0=gamma0, e_star=e_star,
+                   length=length, tol=tol, contact_area=area, elastic_energy=elastic)
 
 
 def _initial_modes(initial: Any, n: int, fft: Any) -> Any:
@@ -154,6 +119,7 @@ def _initial_modes(initial: Any, n: int, fft: Any) -> Any:
 
     xp = fft.xp
     u0 = initial.displacement if isinstance(initial, GFMDResult) else initial
+    # a field already on this GPU stays there (a warm-started pressure chain copies nothing)
     u0 = (u0 if xp is not np and u0.shape[0] == n else fft.to_host(u0)) if _is_cupy(u0) else \
         np.asarray(u0, dtype=np.float64)
     uxp = xp if _is_cupy(u0) else np
@@ -221,11 +187,15 @@ def _solve_lean(h: Any, h_mean: float, law: Exponential, fft: Any, ops: Any, *, 
     converged = status == "converged"
     gap, p, u = fields_to_host(fft, host, gap, p, u)
     fft.synchronize()
-    return GFMDResult(
-        mean_gap=g0, gap=gap, pressure=p, displacement=u, iterations=nfev, converged=converged,
-        residual=residual, load_error=load_error, wall_time=time.perf_counter() - t_start, method=method,
-        backend=backend, status=status, sigma0=sigma0, rho=rho, gamma0=law.gamma0, e_star=e_star, length=length,
-        tol=tol, history=history, interaction=law.name, params=law.params(), contact_area=area,
-        elastic_energy=elastic, contact_criterion=law.contact_criterion,
-        diagnostics={"running_residual": history[-1] if history else math.inf},
-    )
+    return _record(law, t_start, g0, (gap, p, u), nfev, status, converged, residual, load_error, history,
+                   method=method, backend=backend, sigma0=sigma0, rho=rho, gamma0=law.gamma0, e_star=e_star,
+                   length=length, tol=tol, contact_area=area, elastic_energy=elastic)
+
+
+def _record(law: Any, t_start: float, g0: float, fields: tuple, nfev: int, status: str, converged: bool,
+            residual: float, load_error: float, history: list[float], **kw: Any) -> GFMDResult:
+    """The result of both branches (:func:`law_result`; the running residual among the diagnostics)."""
+    gap, p, u = fields
+    return law_result(law, t_start, mean_gap=g0, gap=gap, pressure=p, displacement=u, iterations=nfev,
+                      converged=converged, residual=residual, load_error=load_error, status=status, history=history,
+                      diagnostics={"running_residual": history[-1] if history else math.inf}, **kw)

@@ -89,28 +89,40 @@ class _Problem:
     ``X = u~`` (half spectrum), ``W = (h - u)/rho`` and ``e = exp(W - m)`` (real space), ``S = sum e``, the
     Fourier gradient ``G = (E* q/2) u~ - p~`` and ``r2 = <G G>`` (M3)."""
 
-    def __init__(self, h, x0, *, sigma0, rho, e_star, length, fft: FFTBackend, ops: _Ops,
-                 h_mean: float | None = None, share_gold: bool = False, stiffness: Any = None) -> None:
+    def __init__(self, h, x0, *, sigma0, rho, fft: FFTBackend, ops: _Ops, e_star: float | None = None,
+                 length: float | None = None, h_mean: float | None = None, h_shift: float | None = None,
+                 share_gold: bool = False, stiffness: Any = None, keep_mass: bool = True) -> None:
         """``h_mean`` (GPU, ops with ``field``): ``h`` is the caller's surface, centred in the pass that forms
         ``W`` (no centred copy is kept). ``share_gold`` (CG on the GPU): ``G_old`` is ``G`` itself, the
-        gradient pass reading each old mode before writing the new one (one half spectrum less)."""
+        gradient pass reading each old mode before writing the new one (one half spectrum less). A rank's slabs
+        (gfmd.distributed): ``fft`` the slab transforms, ``ops`` the slab passes (``ops.owner``: these columns
+        hold ``q = 0``), ``stiffness`` ``k`` on the rank's columns, ``h_shift`` the mean of the caller's
+        surface ``h`` (taken out where ``W`` is formed: :func:`_centred`), ``keep_mass=False`` (the masses
+        ``M(q)`` made when FIRE asks, not kept: memory)."""
         xp = fft.xp
-        n = h.shape[0]
-        self.xp, self.n, self.fft, self.ops = xp, n, fft, ops
+        self.xp, self.n, self.fft, self.ops = xp, ops.n, fft, ops
         self.sigma0, self.rho = sigma0, rho
         # elastic stiffness E* q / 2 per mode; ``stiffness``: another substrate's k(q) on the same half grid (an
         # elastic layer, gfmd.substrates; CPU ops only: the GPU's fused kernels recompute E* q / 2 per mode)
-        self.k = 0.5 * e_star * _half_q(xp, n, length) if stiffness is None else stiffness
-        self.mass = self.k + sigma0 / rho  # Fourier-diagonal Hessian estimate M(q)
-        self.minv = 1.0 / self.mass
-        self.minv[0, 0] = 0.0  # <u> = 0: the q = 0 mode is not an unknown
+        self.k = 0.5 * e_star * _half_q(xp, ops.n, length) if stiffness is None else stiffness
+        self._mass = self.k + sigma0 / rho if keep_mass else None  # Fourier-diagonal Hessian estimate M(q)
+        if keep_mass:
+            self.minv = 1.0 / self._mass
+        else:
+            self.minv = self.k + sigma0 / rho
+            xp.reciprocal(self.minv, out=self.minv)
+        if ops.owner:
+            self.minv[0, 0] = 0.0  # <u> = 0: the q = 0 mode is not an unknown
         if hasattr(ops, "bind_stiffness") and stiffness is None:  # GPU: k, M^-1 recomputed per mode beat reading
             ops.bind_stiffness(self.k, self.minv, 0.5 * e_star, 2 * np.pi / length, sigma0 / rho)
         self.h = h
         self.X = x0
-        self.X[0, 0] = 0.0
-        if h_mean is not None and hasattr(ops, "field"):
-            self.W = xp.empty((n, n), dtype=xp.float64)
+        if ops.owner:
+            self.X[0, 0] = 0.0
+        if h_shift is not None:
+            self.W = _centred(h, fft.irfft2(self.X), h_shift, rho)
+        elif h_mean is not None and hasattr(ops, "field"):
+            self.W = xp.empty(h.shape, dtype=xp.float64)
             # the pass returns max W: the start point's exponentials need no separate max pass
             ops._guess = ops.field(h, h_mean, fft.irfft2(self.X), 1.0 / rho, self.W)
         else:
@@ -124,6 +136,11 @@ class _Problem:
         self.m = ops.trial(self.W, self.W, 0.0, self.Wt)
         self.S, _, _ = ops.expstats(self.Wt, self.m, self.e)
         self.r2 = self._gradient(None, 0.0)
+
+    @property
+    def mass(self) -> Any:
+        """FIRE's masses ``M(q) = k + sigma0/rho`` (kept, or made when asked: ``keep_mass``)."""
+        return self._mass if self._mass is not None else self.k + self.sigma0 / self.rho
 
     def _gradient(self, D, alpha: float) -> float:
         """``X += alpha D`` and the Fourier gradient of the accepted point (its ``e``, ``S``): one rfft2.
@@ -185,6 +202,14 @@ class _Problem:
         self.r2 = self._gradient(D, alpha)
 
 
+def _centred(h: Any, u: Any, h_shift: float, rho: float) -> Any:
+    """``W = (h - <h> - u) / rho`` as a new array (one temporary-free pass chain), ``h_shift = <h>``."""
+    w = h - u
+    w -= h_shift
+    w *= 1.0 / rho
+    return w
+
+
 def _check(pb: _Problem, tol: float, max_iter: int, history: list[float]) -> str | None:
     deadline.check()  # a task time limit ends the solve here, between iterations (gapsweep.core.deadline)
     r = pb.residual()
@@ -199,81 +224,29 @@ def _check(pb: _Problem, tol: float, max_iter: int, history: list[float]) -> str
 
 
 def _run_cg(pb: _Problem, tol: float, max_iter: int, history: list[float], eta: float = 0.1) -> str:
-    """Preconditioned Polak-Ribiere+ nonlinear CG with the Newton line search of _Problem.line_search."""
+    """Preconditioned Polak-Ribiere+ nonlinear CG with the Newton line search of _Problem.line_search. One loop
+    for every engine; its direction comes from :class:`_Directions` (synchronous passes) or, on the GPU with one
+    gradient array, :class:`_ChainedDirections` (one host synchronisation per iteration): the same decisions
+    in the same order."""
     ops = pb.ops
-    if hasattr(ops, "chain_read") and pb.G_old is pb.G:  # GPU: the same iteration, one synchronisation
-        return _run_cg_chained(pb, tol, max_iter, history, eta)
-    if hasattr(ops, "bind_cg"):  # GPU: the gradient pass also yields the next cg_dots (no extra pass)
-        ops.bind_cg(pb.minv)
-    D = pb.xp.zeros_like(pb.X)
+    chained = hasattr(ops, "chain_read") and pb.G_old is pb.G
+    cg = _ChainedDirections(pb) if chained else _Directions(pb)
     zg_old = 0.0
     restart = True
-    while (status := _check(pb, tol, max_iter, history)) is None:
-        zg, zg_cross = ops.cg_dots(pb.G, None if restart else pb.G_old, pb.minv)
-        beta = 0.0 if restart else max(0.0, (zg - zg_cross) / zg_old)
-        phi0p, a, b = ops.cg_update(pb.G, pb.minv, D, beta, pb.k, pb.X)
-        if phi0p >= 0 and beta > 0:  # not a descent direction (round-off): restart along -M^-1 G
-            phi0p, a, b = ops.cg_update(pb.G, pb.minv, D, 0.0, pb.k, pb.X)
-        if not phi0p < 0:
-            return "stalled" if math.isfinite(phi0p) else "non_finite"
-        alpha, m, S, ok = pb.line_search(D, phi0p, a, b, eta)
-        if not ok:
-            if restart:
-                return "stalled"
-            restart = True
-            continue
-        restart = False
-        zg_old = zg
-        pb.accept(alpha, D, m, S)
-    return status
-
-
-def _run_cg_chained(pb: _Problem, tol: float, max_iter: int, history: list[float], eta: float = 0.1) -> str:
-    """:func:`_run_cg` on the GPU with one host synchronisation per iteration (issue 22, item 3): the gradient of
-    the accepted point, the next direction (``beta`` on the device), ``irfft2`` of it, the moments and the first
-    trial of the line search are queued back to back (gfmd/_cuda.py, ``chain_*``) and their scalars read in one
-    copy. The host then takes the same decisions as :func:`_run_cg` in the same order (convergence, restart,
-    descent check, line search); further trials, a restart with ``beta = 0`` and a shift re-run go through the
-    plain synchronous operations. Work queued past convergence (one direction and one trial) is discarded.
-    Needs ``pb.G_old is pb.G`` (the gradient pass reads the old gradient in place)."""
-    from gapsweep.gfmd._cuda import _SHIFT_SLACK, SLOT_CGDIR, SLOT_GRAD, SLOT_TRIAL
-
-    ops, fft, rho = pb.ops, pb.fft, pb.rho
-    ops.bind_cg(pb.minv)
-    D = pb.xp.zeros_like(pb.X)
-    zg, zc = ops.cg_dots(pb.G, None, pb.minv)[0], 0.0  # the start point's <Z G> (its gradient had no CG dots)
-    zg_old = 0.0
-    restart = True
-    fresh = False  # slot GRAD holds the gradient of an accepted point that the host has not read yet
-    sr = pb.sigma0 / rho
     while True:
-        ops.chain_cgdir(pb.G, pb.minv, D, pb.k, pb.X, None if restart else zg_old)
-        d = fft.irfft2(D)
-        ops.chain_moments(pb.e, d)
-        shift = ops.chain_trial(pb.W, d, pb.S, sr, rho, pb.Wt, pb.et)
-        r = ops.chain_read()
-        if fresh:
-            pb.r2, zg, zc = float(r[SLOT_GRAD]), float(r[SLOT_GRAD + 1]), float(r[SLOT_GRAD + 2])
-            fresh = False
+        cg.queue(restart, zg_old)
         status = _check(pb, tol, max_iter, history)
         if status is not None:
             return status
-        beta = 0.0 if restart else max(0.0, (zg - zc) / zg_old)
-        phi0p, a, b = (float(x) for x in r[SLOT_CGDIR:SLOT_CGDIR + 3])
-        first = None
+        zg, beta, (phi0p, a, b) = cg.direction(restart, zg_old)
+        trial: dict = {}
         if phi0p >= 0 and beta > 0:  # not a descent direction (round-off): restart along -M^-1 G
-            phi0p, a, b = ops.cg_update(pb.G, pb.minv, D, 0.0, pb.k, pb.X)
-            d = None
+            phi0p, a, b = ops.cg_update(pb.G, pb.minv, cg.D, 0.0, pb.k, pb.X)
         else:
-            mt, St, s1, s2, alpha = (float(x) for x in r[SLOT_TRIAL:SLOT_TRIAL + 5])  # gs_trial0 order
-            if math.isfinite(mt):
-                if abs(mt - shift) > _SHIFT_SLACK:  # guessed shift too far off: the pass again, shifted exactly
-                    St, s1, s2 = ops.retrial(pb.W, d, -alpha / rho, pb.Wt, pb.et, mt)
-                ops._guess = mt
-            first = (alpha, mt, St, s1, s2)
+            trial = cg.first_trial()
         if not phi0p < 0:
             return "stalled" if math.isfinite(phi0p) else "non_finite"
-        alpha, m, S, ok = pb.line_search(D, phi0p, a, b, eta, d=d, first=first)
+        alpha, m, S, ok = pb.line_search(cg.D, phi0p, a, b, eta, **trial)
         if not ok:
             if restart:
                 return "stalled"
@@ -281,13 +254,93 @@ def _run_cg_chained(pb: _Problem, tol: float, max_iter: int, history: list[float
             continue
         restart = False
         zg_old = zg
-        # pb.accept, with the gradient pass queued instead of read
+        cg.accept(alpha, m, S)
+
+
+class _Directions:
+    """The CG's directions by synchronous passes: ``cg_dots``, then ``cg_update`` (on the GPU the gradient pass
+    also yields the next ``cg_dots``: ``bind_cg``, no extra pass)."""
+
+    def __init__(self, pb: _Problem) -> None:
+        self.pb, self.ops = pb, pb.ops
+        if hasattr(self.ops, "bind_cg"):
+            self.ops.bind_cg(pb.minv)
+        self.D = pb.xp.zeros_like(pb.X)
+
+    def queue(self, restart: bool, zg_old: float) -> None:
+        """Nothing is queued ahead of the convergence check."""
+
+    def direction(self, restart: bool, zg_old: float) -> tuple[float, float, tuple]:
+        """``(<Z G>, beta, (phi0p, a, b))`` of ``D = beta D - M^-1 G``."""
+        pb, ops = self.pb, self.ops
+        zg, zg_cross = ops.cg_dots(pb.G, None if restart else pb.G_old, pb.minv)
+        beta = 0.0 if restart else max(0.0, (zg - zg_cross) / zg_old)
+        return zg, beta, ops.cg_update(pb.G, pb.minv, self.D, beta, pb.k, pb.X)
+
+    def first_trial(self) -> dict:
+        return {}  # the line search evaluates its own first trial
+
+    def accept(self, alpha: float, m: float, S: float) -> None:
+        self.pb.accept(alpha, self.D, m, S)
+
+
+class _ChainedDirections(_Directions):
+    """The CG's directions on the GPU with one host synchronisation per iteration (issue 22, item 3): the
+    gradient of the accepted point, the next direction (``beta`` on the device), ``irfft2`` of it, the moments
+    and the first trial of the line search are queued back to back (gfmd/_cuda.py, ``chain_*``) and their
+    scalars read in one copy. Further trials, a restart with ``beta = 0`` and a shift re-run go through the plain
+    synchronous operations. Work queued past convergence (one direction and one trial) is discarded. Needs
+    ``pb.G_old is pb.G`` (the gradient pass reads the old gradient in place)."""
+
+    def __init__(self, pb: _Problem) -> None:
+        super().__init__(pb)  # binds the CG dots to the gradient pass
+        # the start point's <Z G> (its gradient had no CG dots)
+        self.zg, self.zc = self.ops.cg_dots(pb.G, None, pb.minv)[0], 0.0
+        self.fresh = False  # slot GRAD holds the gradient of an accepted point that the host has not read yet
+        self.d = self.r = None
+        self.shift = 0.0
+
+    def queue(self, restart: bool, zg_old: float) -> None:
+        from gapsweep.gfmd._cuda import SLOT_GRAD
+
+        pb, ops = self.pb, self.ops
+        ops.chain_cgdir(pb.G, pb.minv, self.D, pb.k, pb.X, None if restart else zg_old)
+        self.d = pb.fft.irfft2(self.D)
+        ops.chain_moments(pb.e, self.d)
+        self.shift = ops.chain_trial(pb.W, self.d, pb.S, pb.sigma0 / pb.rho, pb.rho, pb.Wt, pb.et)
+        r = self.r = ops.chain_read()
+        if self.fresh:
+            pb.r2, self.zg, self.zc = float(r[SLOT_GRAD]), float(r[SLOT_GRAD + 1]), float(r[SLOT_GRAD + 2])
+            self.fresh = False
+
+    def direction(self, restart: bool, zg_old: float) -> tuple[float, float, tuple]:
+        from gapsweep.gfmd._cuda import SLOT_CGDIR
+
+        beta = 0.0 if restart else max(0.0, (self.zg - self.zc) / zg_old)
+        return self.zg, beta, tuple(float(x) for x in self.r[SLOT_CGDIR:SLOT_CGDIR + 3])
+
+    def first_trial(self) -> dict:
+        """The queued first trial (gs_trial0), redone with the exact shift when its max lies too far from the
+        guessed one."""
+        from gapsweep.gfmd._cuda import _SHIFT_SLACK, SLOT_TRIAL
+
+        pb, ops = self.pb, self.ops
+        mt, St, s1, s2, alpha = (float(x) for x in self.r[SLOT_TRIAL:SLOT_TRIAL + 5])  # gs_trial0 order
+        if math.isfinite(mt):
+            if abs(mt - self.shift) > _SHIFT_SLACK:  # guessed shift too far off: the pass again, shifted exactly
+                St, s1, s2 = ops.retrial(pb.W, self.d, -alpha / pb.rho, pb.Wt, pb.et, mt)
+            ops._guess = mt
+        return {"d": self.d, "first": (alpha, mt, St, s1, s2)}
+
+    def accept(self, alpha: float, m: float, S: float) -> None:
+        """``pb.accept`` with the gradient pass queued instead of read."""
+        pb = self.pb
         pb.W, pb.Wt = pb.Wt, pb.W
         pb.e, pb.et = pb.et, pb.e
         pb.m, pb.S = float(m), S
         pb.nfev += 1
-        ops.chain_grad(pb.X, D, alpha, fft.rfft2(pb.e), pb.sigma0 / S, pb.k, pb.G)
-        fresh = True
+        self.ops.chain_grad(pb.X, self.D, alpha, pb.fft.rfft2(pb.e), pb.sigma0 / S, pb.k, pb.G)
+        self.fresh = True
 
 
 def _clear(*lists: list) -> None:

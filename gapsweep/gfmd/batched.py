@@ -35,8 +35,8 @@ import numpy as np
 from gapsweep.core import checks as chk
 from gapsweep.core import deadline
 from gapsweep.core.fft import BACKENDS, available_backends, get_backend
-from gapsweep.gfmd._ops import Parseval, _is_cupy
-from gapsweep.gfmd._result import FIELDS, GFMDResult, host_fields
+from gapsweep.gfmd._ops import _is_cupy, _Ops
+from gapsweep.gfmd._result import FIELDS, GFMDResult, host_fields, law_result
 from gapsweep.gfmd._solvers import _half_q, first_step, search_steps
 from gapsweep.gfmd.interactions import Interaction, resolve
 
@@ -165,81 +165,104 @@ def _default_batch(backend: str, n: int) -> int:
 
 
 # --------------------------------------------------------------------------------------- batched operations
-class _Stack:
+class _Hosted:
+    """The reducer of a stack (the interface of :class:`gapsweep.gfmd._ops._Local`): every local sum or max is
+    already a vector of the ``B`` problems' scalars on the arrays' device; it comes back as a host vector."""
+
+    def __init__(self, xp: Any) -> None:
+        self.xp = xp
+
+    def sum(self, *values: Any) -> Any:
+        out = [_host(self.xp, v) for v in values]
+        return out[0] if len(out) == 1 else out
+
+    def max(self, value: Any) -> np.ndarray:
+        return _host(self.xp, value)
+
+
+class _Stack(_Ops):
     """Operations of the batched CG on a stack of ``B`` problems, real ``(B, n, n)`` and half spectra
-    ``(B, n, n//2+1)``, written as plain array code for any namespace (numpy on the CPU: the same arithmetic as
-    the one-by-one solver's array code). Per-problem scalars are host (numpy) vectors of length ``B``;
-    ``active`` (bool vector) restricts an update to some problems."""
+    ``(B, n, n//2+1)``: the passes of :class:`gapsweep.gfmd._ops._Ops` themselves, over a leading batch axis (its
+    four local primitives, sum, max, real dot and Parseval dot, reduce per problem; the reducer :class:`_Hosted`
+    brings the ``B`` scalars to the host). Per-problem coefficients are host vectors of length ``B``, broadcast
+    as ``(B, 1, 1)`` columns; ``active`` (bool vector) restricts an update to some problems (the passes then run
+    on those problems' rows). :meth:`point` and :meth:`accept` are the one-by-one solver's pass sequences
+    (trial + expstats; axpy + grad + dot)."""
 
     def __init__(self, xp: Any, n: int) -> None:
-        self.xp, self.n, self.even = xp, n, n % 2 == 0
-        self.weights = Parseval.half(n)
+        super().__init__(xp, n, red=_Hosted(xp))
 
+    # -- the local primitives of _Ops, per problem
+    def _lsum(self, a) -> Any:
+        return a.sum(axis=(1, 2))
+
+    def _lmax(self, a) -> Any:
+        return a.max(axis=(1, 2))
+
+    def _lrdot(self, a, b) -> Any:
+        return (a * b).sum(axis=(1, 2))
+
+    def _ldot(self, a, b) -> Any:
+        return self.weights.stack_dot(a, b)
+
+    # -- transforms and plain reductions of the stack
     def rfft2(self, a):
         return self.xp.fft.rfft2(a, axes=(-2, -1))
 
     def irfft2(self, a):
         return self.xp.fft.irfft2(a, s=(self.n, self.n), axes=(-2, -1), norm="forward")
 
-    def dot(self, a, b) -> np.ndarray:
-        """``<A B>`` per problem by Parseval (the weights of :class:`gapsweep.gfmd._ops.Parseval`, as the
-        one-by-one solver's passes)."""
-        return _host(self.xp, self.weights.stack_dot(a, b))
-
     def sums(self, a) -> np.ndarray:
-        return _host(self.xp, a.sum(axis=(1, 2)))
+        return self.red.sum(self._lsum(a))
 
     def maxes(self, a) -> np.ndarray:
-        return _host(self.xp, a.max(axis=(1, 2)))
+        return self.red.max(self._lmax(a))
 
     def _sel(self, active):
         return slice(None) if active is None or active.all() else self.xp.asarray(np.flatnonzero(active))
 
+    # -- the batched CG's passes
     def point(self, W, d, c, shift, active, Wt, e) -> tuple[np.ndarray, ...]:
         """Trial points of the active problems: ``Wt = W + c d``, ``e = exp(Wt - m)`` with ``m = max(Wt)``
-        (``shift`` is a hint that this exact version ignores); returns ``(m, S, s1, s2)`` with
-        ``S = sum e``, ``s1 = sum e d``, ``s2 = sum e d^2`` (entries of inactive problems are 0)."""
+        (``shift`` is a hint that this exact version ignores): :meth:`trial` and :meth:`expstats`; returns
+        ``(m, S, s1, s2)`` with ``S = sum e``, ``s1 = sum e d``, ``s2 = sum e d^2`` (entries of inactive problems
+        are 0)."""
         xp, sel = self.xp, self._sel(active)
         idx = np.flatnonzero(active)
+        whole = isinstance(sel, slice)  # every problem: the passes write into Wt, e themselves
         ds = d[sel]
-        wt = ds * _col(xp, c[idx]) + W[sel]
-        mm = self.maxes(wt)
-        ee = xp.exp(wt - _col(xp, mm))
-        ed = ee * ds
+        wt, ee = (Wt, e) if whole else (xp.empty_like(ds), xp.empty_like(ds))
+        mm = self.trial(W[sel], ds, _col(xp, c[idx]), wt)
         out = [np.zeros(len(active)) for _ in range(4)]
-        for o, v in zip(out, (mm, self.sums(ee), self.sums(ed), self.sums(ed * ds))):
+        for o, v in zip(out, (mm, *self.expstats(wt, _col(xp, mm), ee, ds))):
             o[idx] = v
-        Wt[sel], e[sel] = wt, ee
+        if not whole:
+            Wt[sel], e[sel] = wt, ee
         return tuple(out)
 
-    def moments(self, e, d) -> tuple[np.ndarray, np.ndarray]:
-        ed = e * d
-        return self.sums(ed), self.sums(ed * d)
-
-    def cg_dots(self, minv, G, G_old) -> tuple[np.ndarray, np.ndarray]:
-        """``(<Z G>, <Z G_old>)``, ``Z = M^-1 G``."""
-        Z = minv * G
-        return self.dot(Z, G), self.dot(Z, G_old)
-
-    def cg_update(self, D, beta, minv, G, k, X, active=None) -> tuple[np.ndarray, ...]:
+    def cg_update(self, G, minv, D, beta, k, X, active=None) -> tuple[np.ndarray, ...]:
         """``D = beta D - M^-1 G`` (active problems); returns ``(<G D>, <kD X>, <kD D>)`` (entries of inactive
         problems undefined)."""
         sel = self._sel(active)
-        idx = slice(None) if active is None else np.flatnonzero(active)
-        D[sel] = _col(self.xp, beta[idx]) * D[sel] - minv[sel] * G[sel]
+        if isinstance(sel, slice):
+            return super().cg_update(G, minv, D, _col(self.xp, beta), k, X)
+        Ds = D[sel]
+        self._ldirection(G[sel], minv[sel], Ds, _col(self.xp, beta[np.flatnonzero(active)]))
+        D[sel] = Ds
         kD = k * D
-        return self.dot(G, D), self.dot(kD, X), self.dot(kD, D)
+        return tuple(self.red.sum(self._ldot(G, D), self._ldot(kD, X), self._ldot(kD, D)))
 
     def accept(self, X, D, alpha, e, c, k, G, G_old, active) -> np.ndarray:
-        """Active problems: ``G_old = G``, ``X += alpha D``, ``G = k X - c rfft2(e)`` (0 at q = 0); returns
-        ``<G G>`` of the active problems (in their order)."""
+        """Active problems: ``G_old = G``, ``X += alpha D``, ``G = k X - c rfft2(e)`` (0 at q = 0): :meth:`axpy`
+        and :meth:`grad`; returns ``<G G>`` of the active problems (in their order)."""
         xp, sel = self.xp, self._sel(active)
         idx = np.flatnonzero(active)
         G_old[sel] = G[sel]
-        X[sel] = X[sel] + _col(xp, alpha[idx]) * D[sel]
-        Gs = k * X[sel] - _col(xp, c[idx]) * self.rfft2(e[sel])
-        Gs[:, 0, 0] = 0.0
-        G[sel] = Gs
+        Xs, Gs = X[sel], G[sel]  # views of X, G for every problem, else copies written back
+        self.axpy(Xs, _col(xp, alpha[idx]), D[sel])
+        self.grad(Xs, self.rfft2(e[sel]), _col(xp, c[idx]), k, Gs)
+        if not isinstance(sel, slice):
+            X[sel], G[sel] = Xs, Gs
         return self.dot(Gs, Gs)
 
 
@@ -292,11 +315,11 @@ class _FusedStack(_Stack):
         r = self._run("bt_moments", 2, 0, self.n * self.n, e.shape[0], (e, d))
         return r[:, 0], r[:, 1]
 
-    def cg_dots(self, minv, G, G_old) -> tuple[np.ndarray, np.ndarray]:
+    def cg_dots(self, G, G_old, minv) -> tuple[np.ndarray, np.ndarray]:
         r = self._run("bt_cgdots", 2, 0, self.n * self.nh, G.shape[0], (minv, G, G_old, *self._geo))
         return r[:, 0], r[:, 1]
 
-    def cg_update(self, D, beta, minv, G, k, X, active=None) -> tuple[np.ndarray, ...]:
+    def cg_update(self, G, minv, D, beta, k, X, active=None) -> tuple[np.ndarray, ...]:
         B = D.shape[0]
         act = np.ones(B, dtype=np.int32) if active is None else np.asarray(active, dtype=np.int32)
         r = self._run("bt_cgupdate", 3, 0, self.n * self.nh, B,
@@ -430,15 +453,15 @@ class _Batch:
         descent); problems without descent stop. Returns ``(zg, phi0p, a, b)``."""
         ops, restart, alive = self.ops, self.restart, self.alive
         nb = len(self.ids)
-        zg, zg_cross = ops.cg_dots(self.minv, self.G, self.G_old)
+        zg, zg_cross = ops.cg_dots(self.G, self.G_old, self.minv)
         zg_cross = np.where(restart, 0.0, zg_cross)
         with np.errstate(all="ignore"):  # parked slots may hold anything
             beta = np.where(restart | ~alive, 0.0,
                             np.maximum(0.0, (zg - zg_cross) / np.where(restart, 1.0, self.zg_old)))
-        phi0p, a, b = ops.cg_update(self.D, beta, self.minv, self.G, self.k, self.X)
+        phi0p, a, b = ops.cg_update(self.G, self.minv, self.D, beta, self.k, self.X)
         redo = (phi0p >= 0) & (beta > 0) & alive
         if redo.any():  # not a descent direction (round-off): restart along -M^-1 G
-            p2, a2, b2 = ops.cg_update(self.D, np.zeros(nb), self.minv, self.G, self.k, self.X, active=redo)
+            p2, a2, b2 = ops.cg_update(self.G, self.minv, self.D, np.zeros(nb), self.k, self.X, active=redo)
             phi0p, a, b = np.where(redo, p2, phi0p), np.where(redo, a2, a), np.where(redo, b2, b)
         for j in range(nb):
             if alive[j] and not phi0p[j] < 0:
@@ -587,11 +610,11 @@ def _softmax_fields(xp, ops: _Stack, X, h, law, sigma0: float, status: str, nfev
     wanted = {k: fields[k] for k in host_fields(host) if _is_cupy(fields[k])}
     if wanted:  # pinned, asynchronous copies as in gfmd.solve
         fields.update(get_backend("cupy", n).to_host_many(wanted))
-    return GFMDResult(mean_gap=g0, gap=fields["gap"], pressure=fields["pressure"],
+    return law_result(law, t_start, mean_gap=g0, gap=fields["gap"], pressure=fields["pressure"],
                       displacement=fields["displacement"], iterations=nfev, converged=converged, residual=residual,
-                      load_error=load_error, wall_time=time.perf_counter() - t_start, method="cg",
-                      backend="cupy" if xp is not np else "numpy", status=status, sigma0=sigma0, rho=rho,
-                      gamma0=law.gamma0, e_star=e_star, length=length, tol=tol, history=list(history))
+                      load_error=load_error, method="cg", backend="cupy" if xp is not np else "numpy",
+                      status=status, sigma0=sigma0, rho=rho, gamma0=law.gamma0, e_star=e_star, length=length,
+                      tol=tol, history=list(history))
 
 
 # load_control -> batched minimiser; laws with another load_control are solved one by one

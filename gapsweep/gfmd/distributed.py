@@ -35,7 +35,7 @@ from gapsweep.gfmd._coarse import Start
 from gapsweep.gfmd._grid import Grid
 from gapsweep.gfmd._ops import Parseval, _is_cupy, _Ops
 from gapsweep.gfmd._result import FIELDS, GFMDResult, final_status, host_fields
-from gapsweep.gfmd._solvers import _RUNNERS, _Problem
+from gapsweep.gfmd._solvers import _RUNNERS, _centred, _Problem
 from gapsweep.gfmd.interactions import Interaction, resolve
 
 __all__ = ["SlabGrid", "SlabResult", "solve", "solve_memory"]
@@ -156,41 +156,6 @@ class _ReducedPK:
 
 
 # ---------------------------------------------------------------------------------------------- exponential law
-class _SlabProblem(_Problem):
-    """:class:`_Problem` on one rank's slabs: the same state and line search, the stiffness ``k`` and the
-    preconditioner on the rank's spectrum columns. ``h`` is the caller's surface (not copied); its mean
-    ``h_shift`` is subtracted inside the pass that forms ``W``."""
-
-    def __init__(self, h, x0, *, sigma0: float, rho: float, k: Any, h_shift: float, grid: SlabGrid,
-                 ops: _Ops) -> None:
-        xp = grid.xp
-        self.xp, self.n, self.fft, self.ops = xp, grid.shape[0], grid.slab, ops
-        self.sigma0, self.rho = sigma0, rho
-        self.k = k
-        self.minv = k + sigma0 / rho
-        xp.reciprocal(self.minv, out=self.minv)
-        if grid.owner:
-            self.minv[0, 0] = 0.0
-        self.h = h
-        self.X = x0
-        if grid.owner:
-            self.X[0, 0] = 0.0
-        self.W = _centred(h, self.fft.irfft2(self.X), h_shift, rho)
-        self.Wt = xp.empty_like(self.W)
-        self.e = xp.empty_like(self.W)
-        self.et = xp.empty_like(self.W)
-        self.G = xp.empty_like(self.X)
-        self.G_old = xp.empty_like(self.X)
-        self.nfev = 0
-        self.m = ops.trial(self.W, self.W, 0.0, self.Wt)
-        self.S, _, _ = ops.expstats(self.Wt, self.m, self.e)
-        self.r2 = self._gradient(None, 0.0)
-
-    @property
-    def mass(self) -> Any:  # FIRE's masses M(q), made when asked (not kept: memory)
-        return self.k + self.sigma0 / self.rho
-
-
 def _slab_ops(grid: SlabGrid) -> _Ops:
     """The exponential law's passes on the rank's slabs: :class:`_Ops` with the grid's reducer, the Parseval
     weights of the rank's columns and the ``q = 0`` owner flag; on GPUs its fused cupy variant."""
@@ -220,7 +185,8 @@ def _softmax(h, law: Any, grid: SlabGrid, *, sigma0: float, e_star: float, tol: 
         x0 = xp.asarray(slab.rfft2(_initial_field(initial, "displacement", grid)) * (1.0 / n2), dtype=xp.complex128)
     history: list[float] = []
     with np.errstate(all="ignore"):
-        pb = _SlabProblem(h, x0, sigma0=sigma0, rho=rho, k=k, h_shift=h_shift, grid=grid, ops=ops)
+        pb = _Problem(h, x0, sigma0=sigma0, rho=rho, fft=slab, ops=ops, stiffness=k, h_shift=h_shift,
+                      keep_mass=False)
         del x0
         status = _RUNNERS[method](pb, tol, max_iter, history)
         nfev = pb.nfev
@@ -253,14 +219,6 @@ def _softmax(h, law: Any, grid: SlabGrid, *, sigma0: float, e_star: float, tol: 
                    load_error=load_error, method=method, status=status, history=history, contact_area=area,
                    elastic_energy=elastic, diagnostics={"running_residual": history[-1] if history else math.inf})
     return scalars, {"gap": gap, "pressure": p, "displacement": u}
-
-
-def _centred(h: Any, u: Any, h_shift: float, rho: float) -> Any:
-    """``W = (h - <h> - u) / rho`` as a new array (one temporary-free pass chain)."""
-    w = h - u
-    w -= h_shift
-    w *= 1.0 / rho
-    return w
 
 
 def _smooth_initial(initial: Any, grid: SlabGrid) -> Any:

@@ -183,7 +183,7 @@ KERNEL_H gs_grad(double2* X, const double2* __restrict__ D, double alpha, const 
 
 // D = beta D - minv G; out = (<G D>, <kD X>, <kD D>). flags & 4: k, minv on the fly as in gs_grad.
 // flags & 8: beta = max(0, (zg - zc) / zg_old) from the gradient pass's results gs = (<G G>, zg, zc) on the
-// device (the chained CG of _solvers._run_cg_chained: no host round trip between the gradient and the direction).
+// device (the chained CG of _solvers._ChainedDirections: no host round trip between the gradient and the direction).
 KERNEL_H gs_cgdir(const double2* __restrict__ G, const double* __restrict__ minv, double2* D, double beta,
                 const double* __restrict__ k, const double2* __restrict__ X, int flags, unsigned n, double ka,
                 double kb, double sr, const double* __restrict__ gs, double zg_old, unsigned nh, int even,
