@@ -152,8 +152,12 @@ def test_statuses_and_refusals() -> None:
     assert r.status == "max_iter" and not r.converged and math.isfinite(r.residual)
     with pytest.raises(ValueError, match="periodic"):
         solve(h, sigma0=1e-3, interaction=LAW, work=1e-4, rho=1 / 32, periodic=False)
-    with pytest.raises(ValueError, match="distributed"):
+    with pytest.raises(ValueError, match="start='coarse' is not available"):
         solve(h, sigma0=1e-3, interaction=LAW, work=1e-4, rho=1 / 32, start="coarse")
+    with pytest.raises(ValueError, match="memory must be an integer >= 1"):
+        solve(h, sigma0=1e-3, interaction=LAW, work=1e-4, rho=1 / 32, memory=0)
+    with pytest.raises(ValueError, match="memory: the L-BFGS pairs"):
+        solve(h, sigma0=1e-3, interaction="hard_wall", memory=3)
     with pytest.raises(ValueError, match="needs rho"):
         solve(h, sigma0=1e-3, interaction=LAW, work=1e-4)
     with pytest.raises(ValueError, match="work"):
@@ -178,3 +182,31 @@ def test_gpu_branch_through_the_cupy_shim(monkeypatch, shape: tuple[int, int]) -
     b = solve(cp.asarray(h), host=False, **kw)
     assert a.converged and b.converged and b.backend == "cupy" and "cupy" in type(b.gap).__module__
     assert abs(a.mean_gap - b.mean_gap) <= 1e-12 * a.mean_gap and a.contact_area == b.contact_area
+
+
+@pytest.mark.parametrize(("shape", "sigma0", "pairs"), [((128, 128), 1e-3, 10), ((96, 150), 2e-3, 3)])
+def test_peak_memory_is_the_plan(monkeypatch, shape: tuple[int, int], sigma0: float, pairs: int) -> None:
+    """The traced numpy peak of a one-process solve (numpy FFT, 1024-element chunks) lies between the grid-sized
+    parts of gfmd._bounded.memory_plan and the whole plan (fixed-size chunks and numpy's buffers added), in
+    arrays of the grid, the caller's surface counted as one: the estimate that guards a run is exact to the
+    fixed-size parts. 10 pairs: about 29 arrays (the old minimiser held about 36)."""
+    import tracemalloc
+
+    from gapsweep.gfmd import _bounded
+
+    monkeypatch.setattr(_bounded, "_CHUNK", 1024)
+    nx, ny = shape
+    h = rough(nx, ny, 4)
+    kw = dict(sigma0=sigma0, interaction=LAW, work=8e-4 / nx, rho=1 / nx, tol=1e-9, backend="numpy",
+              length=(1.0, ny / nx), memory=pairs)
+    solve(h, **kw)  # imports and caches outside the trace
+    tracemalloc.start()
+    base = tracemalloc.get_traced_memory()[0]
+    r = solve(h, **kw)
+    peak = tracemalloc.get_traced_memory()[1] - base
+    tracemalloc.stop()
+    plan = _bounded.memory_plan(shape, memory=pairs, backend="numpy", chunk=1024)
+    measured = 1.0 + peak / plan["array_bytes"]
+    assert r.converged and r.diagnostics["lbfgs_pairs"] == pairs
+    assert plan["grid_arrays"] <= measured <= plan["arrays"], (measured, plan)
+    assert plan["grid_arrays"] == pytest.approx(9.7 + 2 * pairs, abs=0.1)  # surface, 7.6 of the solver, 2 of numpy FFT

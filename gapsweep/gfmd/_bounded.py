@@ -86,31 +86,38 @@ def memory_plan(shape: tuple[int, int], ranks: int = 1, *, memory: int = _MEMORY
     4 chunks of ``_CHUNK`` complex numbers), the surface (the caller's array, counted apart as ``array_bytes``),
     and the transform's scratch by ``backend``:
 
-    - distributed (``ranks > 1``, or any :class:`SlabGrid`): the slab transform's inverse holds the rows'
-      half spectrum (``nr (ny/2+1)`` complex), the send and receive buffers (the spectrum less the own block, each)
-      and one chunk of 1-D transforms (``gapsweep.core.slab.DEFAULT_CHUNK`` complex numbers); on GPUs also cuFFT's
-      work areas of the three cached 1-D plans (R2C, C2C, C2R), each counted as one chunk;
+    - distributed (``ranks > 1``, or ``backend`` "slab" / "slab-cupy": any :class:`SlabGrid`): the slab
+      transform's inverse holds the rows' half spectrum (``nr (ny/2+1)`` complex), the send buffer and either one
+      chunk of 1-D transforms (``gapsweep.core.slab.DEFAULT_CHUNK`` complex numbers) or the receive buffer (each
+      buffer the spectrum less the own block; measured with tracemalloc, tests/mpi/test_bounded_mpi.py); on GPUs
+      also cuFFT's work areas of the three cached 1-D plans (R2C, C2C, C2R), each counted as one chunk;
     - "numpy" (one process): numpy's ``rfft2``/``irfft2`` make two spectra per call;
     - "pyfftw": the planned pair's four aligned buffers (two real fields, two spectra);
     - "cupy" (one GPU): the planned pair's three buffers (two spectra, one real field) and the two 2-D plans'
       work areas (one spectrum each, as measured for ``gfmd._cuda``).
 
-    Returns ``{"bytes_per_rank", "array_bytes" (the surface's rows), "arrays" (bytes_per_rank / A), "parts"}``."""
+    Returns ``{"bytes_per_rank", "array_bytes" (the surface's rows), "arrays" (bytes_per_rank / A),
+    "grid_arrays" (the same without the parts of fixed size: chunks and numpy's buffers), "parts"}``."""
     from gapsweep.core.slab import DEFAULT_CHUNK
 
     nx, ny = (int(v) for v in shape)
     ranks = int(ranks)
     nr, nc = -(-nx // ranks), -(-(ny // 2 + 1) // ranks)
     a, s = 8.0 * nr * ny, 16.0 * nc * nx
-    ch = 16.0 * min(_CHUNK if chunk is None else chunk, max(nr * ny, nc * nx))
+    c = _CHUNK if chunk is None else int(chunk)
+    spec_rows, spec_cols = (nc, nx) if ranks > 1 or backend.startswith("slab") else (nx, ny // 2 + 1)
+    ch = 16.0 * max(min(max(1, c // ny) * ny, nr * ny),  # the elements of one chunk of rows (_Ops.chunks)
+                    min(max(1, c // spec_cols) * spec_cols, spec_rows * spec_cols))
     parts = {"surface (caller's rows)": a, "real fields g, G, d, t": 4 * a, "spectra U, S": 2 * s,
              "stiffness E* q/2": s / 2, "free-set mask": a / 8, f"L-BFGS pairs ({memory})": 2.0 * memory * a,
              "continuation (tensile)": 2 * a if tensile else 0.0, "chunked passes' temporaries": 4 * ch}
     if ranks > 1 or backend == "slab" or backend == "slab-cupy":
         slab_chunk = 16.0 * min(DEFAULT_CHUNK, max(nr * (ny // 2 + 1), nc * nx))
-        parts["slab transform (rows' spectrum, send, receive, one chunk)"] = (
-            16.0 * nr * (ny // 2 + 1) + 16.0 * (nc * nx - nc * nr) + 16.0 * (nr * (ny // 2 + 1) - nr * nc)
-            + slab_chunk)
+        # the inverse's peak: the rows' half spectrum b, the send buffer and either one chunk of the 1-D inverse
+        # transforms or the receive buffer (the forward transform holds less: send and a chunk or receive)
+        send, recv = 16.0 * (nc * nx - nc * nr), 16.0 * (nr * (ny // 2 + 1) - nr * nc)
+        parts["slab transform (rows' spectrum, send, receive or one chunk)"] = (
+            16.0 * nr * (ny // 2 + 1) + send + max(slab_chunk, recv))
         if backend in ("cupy", "slab-cupy"):
             parts["cuFFT work areas (3 cached 1-D plans)"] = 3 * slab_chunk
     elif backend == "numpy":
@@ -122,8 +129,12 @@ def memory_plan(shape: tuple[int, int], ranks: int = 1, *, memory: int = _MEMORY
         parts["cuFFT work areas (R2C + C2R plans)"] = 2 * s
     else:
         raise ValueError(f"backend must be 'numpy', 'pyfftw' or 'cupy', got {backend!r}")
+    if "cupy" not in backend:  # numpy's casting buffers of the masked passes (bool x float), 8192 elements each
+        parts["numpy ufunc buffers"] = 3 * 8.0 * np.getbufsize()
     total = sum(parts.values())
-    return {"bytes_per_rank": total, "array_bytes": a, "arrays": total / a, "parts": parts}
+    fixed = parts["chunked passes' temporaries"] + parts.get("numpy ufunc buffers", 0.0)
+    return {"bytes_per_rank": total, "array_bytes": a, "arrays": total / a, "grid_arrays": (total - fixed) / a,
+            "parts": parts}
 
 
 def solve_memory(shape: tuple[int, int], ranks: int = 1, **kw: Any) -> int:

@@ -4,6 +4,7 @@ the minimiser of the interaction law's load control, periodic or with free bound
 
 from __future__ import annotations
 
+import functools
 import time
 import warnings
 from typing import Any
@@ -61,14 +62,15 @@ def solve(
     poisson: float | None = None,
     bottom: str = "bonded",
     hardness: float | None = None,
+    memory: int | None = None,
 ) -> GFMDResult:
     """Equilibrium gap of an elastic half-space on the rigid surface ``heights`` at mean pressure ``sigma0``.
 
     ``interaction``: a law's name or an :class:`Interaction` object (docs/gfmd.md): "exponential" (default;
     needs ``gamma0``, an energy per area, and ``rho``, a length), "hard_wall", "adhesive" (``work``, the
     work of adhesion per area, and ``rho``, its range) or "hard_wall_adhesive" (the contact-mechanics
-    challenge's hard wall with ``-work exp(-g/rho)``; ``work``, ``rho``; periodic, one process; docs/gfmd.md
-    "Hard wall with adhesion"). For the exponential law the reduced energy of M3
+    challenge's hard wall with ``-work exp(-g/rho)``; ``work``, ``rho``; periodic, on one process or over ranks
+    with ``comm``; docs/gfmd.md "Hard wall with adhesion"). For the exponential law the reduced energy of M3
     (module docstring) is minimised until ``residual <= tol`` and ``load_error <= tol``; the other laws'
     convergence measures are in docs/gfmd.md. ``heights``: real ``nx x ny`` array (numpy, or cupy for the
     GPU), units of ``length`` (a number, or ``(Lx, Ly)``); the exponential law's own minimiser needs a square
@@ -116,6 +118,9 @@ def solve(
     Periodic, one process; every law. ``hardness``: the hard wall's pressure cap ``H > sigma0`` (elastic-perfectly
     plastic contact, :mod:`gapsweep.gfmd._plastic`; ``result.plastic_area``, ``result.plastic_displacement``,
     :func:`gapsweep.gfmd.residual_surface`); periodic or free boundaries, on the half-space or a layer.
+
+    ``memory``: L-BFGS pairs of the hard_wall_adhesive law (default 10; each pair costs two grid fields, see
+    ``gapsweep.gfmd._bounded.memory_plan``) and, with ``comm``, of the distributed smooth laws (default 2).
     """
     from gapsweep.gfmd import _plastic, substrates
 
@@ -148,7 +153,7 @@ def solve(
         return distributed.solve(heights, comm=comm, sigma0=sigma0, interaction=interaction, gamma0=gamma0,
                                  rho=rho, work=work, e_star=e_star, length=length, tol=tol, method=method,
                                  backend=backend, max_iter=max_iter, initial=initial, host=host, start=start,
-                                 levels=levels, coarse_tol=coarse_tol)
+                                 levels=levels, coarse_tol=coarse_tol, memory=memory)
     t_start = time.perf_counter()
     from gapsweep.surfaces.topography import Topography
 
@@ -188,6 +193,13 @@ def solve(
     if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
         raise ValueError(f"max_iter must be an integer >= 1, got {max_iter!r}")
     minimise, methods = _MINIMISERS[law.load_control] if periodic else _FREE[law.load_control]
+    if memory is not None:  # L-BFGS pairs: the bounded minimiser's on one process
+        if isinstance(memory, bool) or not isinstance(memory, (int, np.integer)) or memory < 1:
+            raise ValueError(f"memory must be an integer >= 1, got {memory!r}")
+        if law.load_control != "bounded":
+            raise ValueError(f"memory: the L-BFGS pairs are set for interaction 'hard_wall_adhesive' (and with "
+                             f"comm= for the smooth laws); interaction {law.name!r} on one process keeps its own")
+        minimise = functools.partial(minimise, memory=int(memory))
     if not isinstance(method, str) or method not in ("auto", *methods):
         raise ValueError(f"method must be one of {', '.join(map(repr, ('auto', *methods)))} for interaction "
                          f"{law.name!r}{'' if periodic else ' with periodic=False'}; got {method!r}")
@@ -246,8 +258,8 @@ def _coarse_local(heights: Any, *, sigma0: float, interaction: Any, gamma0: Any,
         raise ValueError("heights contain NaN or inf")
     law = resolve(interaction, gamma0=gamma0, rho=rho, work=work)
     if law.load_control == "bounded":  # as distributed.solve refuses it: no coarse levels for this law yet
-        raise ValueError(f"interaction {law.name!r}: start='coarse' (like comm=, the distributed solve) is not "
-                         "available for this law yet; use start='flat'")
+        raise ValueError(f"interaction {law.name!r}: start='coarse' is not available for this law yet (it runs on "
+                         "one process or over ranks with comm=, from start='flat'); use start='flat'")
     sigma0 = law.check_load(sigma0)
     tol = chk.positive(tol, "tol")
     lx, ly = (chk.positive(v, "length") for v in np.broadcast_to(np.asarray(length, dtype=float), 2))
