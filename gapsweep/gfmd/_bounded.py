@@ -90,7 +90,8 @@ def memory_plan(shape: tuple[int, int], ranks: int = 1, *, memory: int = _MEMORY
       transform's inverse holds the rows' half spectrum (``nr (ny/2+1)`` complex), the send buffer and either one
       chunk of 1-D transforms (``gapsweep.core.slab.DEFAULT_CHUNK`` complex numbers) or the receive buffer (each
       buffer the spectrum less the own block; measured with tracemalloc, tests/mpi/test_bounded_mpi.py); on GPUs
-      also cuFFT's work areas of the three cached 1-D plans (R2C, C2C, C2R), each counted as one chunk;
+      both (cupy's pool keeps the chunk's freed block) and cuFFT's work areas of the three cached 1-D plans (R2C,
+      C2C, C2R), each counted as one chunk (not yet measured on a GPU);
     - "numpy" (one process): numpy's ``rfft2``/``irfft2`` make two spectra per call;
     - "pyfftw": the planned pair's four aligned buffers (two real fields, two spectra);
     - "cupy" (one GPU): the planned pair's three buffers (two spectra, one real field) and the two 2-D plans'
@@ -116,9 +117,11 @@ def memory_plan(shape: tuple[int, int], ranks: int = 1, *, memory: int = _MEMORY
         # the inverse's peak: the rows' half spectrum b, the send buffer and either one chunk of the 1-D inverse
         # transforms or the receive buffer (the forward transform holds less: send and a chunk or receive)
         send, recv = 16.0 * (nc * nx - nc * nr), 16.0 * (nr * (ny // 2 + 1) - nr * nc)
+        gpu = backend in ("cupy", "slab-cupy")
+        # on GPUs cupy's pool keeps the freed chunk's block when the receive buffer is allocated: both count
         parts["slab transform (rows' spectrum, send, receive or one chunk)"] = (
-            16.0 * nr * (ny // 2 + 1) + send + max(slab_chunk, recv))
-        if backend in ("cupy", "slab-cupy"):
+            16.0 * nr * (ny // 2 + 1) + send + (slab_chunk + recv if gpu else max(slab_chunk, recv)))
+        if gpu:
             parts["cuFFT work areas (3 cached 1-D plans)"] = 3 * slab_chunk
     elif backend == "numpy":
         parts["numpy FFT temporaries"] = 2 * s

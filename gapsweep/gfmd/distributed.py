@@ -670,7 +670,7 @@ def _check_gpu_memory(shape: tuple[int, int], red: Reducer, interaction: str, me
 
 
 def solve_memory(shape: tuple[int, int], ranks: int, interaction: str = "exponential",
-                 memory: int = 2, tensile: bool = False) -> dict[str, float]:
+                 memory: int | None = None, tensile: bool = False) -> dict[str, float]:
     """Estimated peak memory per rank (bytes) of :func:`solve`: the minimiser's grid-sized arrays on the rank's
     slabs plus the transform's scratch (send and receive buffers, 2 A, and the chunked 1-D transforms' and
     elementwise passes' temporaries, within 1 A at 65536^2). Counted from the code (docs/gfmd.md, "One solve over
@@ -684,6 +684,7 @@ def solve_memory(shape: tuple[int, int], ranks: int, interaction: str = "exponen
     (tests/mpi/test_distributed.py: the traced numpy peak is within the estimate) and on GPUs by
     benchmarks/bench_distributed.py (the memory pool's peak beside it; at 16384^2 over 2-4 GPUs the pool held up to
     1.3x this estimate: the transform's chunk buffers, a few GB whatever the grid, are not yet counted)."""
+    memory = PAIRS.get(interaction, 2) if memory is None else memory  # the solve's default pairs
     if interaction == "bounded":  # the adhesive hard wall's own count (gfmd._bounded.memory_plan)
         from gapsweep.gfmd._bounded import memory_plan
 

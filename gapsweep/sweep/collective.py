@@ -42,6 +42,8 @@ def _kind(t: Task) -> str:
         return "hard_wall"
     if t.law == "exponential":
         return "exponential"
+    if t.law == "hard_wall_adhesive":  # its projected L-BFGS (gfmd._bounded.memory_plan, 10 pairs)
+        return "bounded"
     return "smooth"
 
 
