@@ -54,6 +54,7 @@ import numpy as np
 
 from gapsweep.core import deadline
 from gapsweep.core.vec import rdot
+from gapsweep.gfmd._coarse import Start
 from gapsweep.gfmd._continuation import next_load, record
 from gapsweep.gfmd._grid import Grid
 from gapsweep.gfmd._ops import _is_cupy
@@ -566,7 +567,8 @@ def minimise(heights: Any, law: Any, *, sigma0: float, e_star: float, length: An
              periodic: bool = True, grid: Grid | None = None, memory: int = _MEMORY) -> GFMDResult:
     """``law`` (a hard wall with an adhesive energy) on the periodic grid ``heights`` (inputs validated by
     ``gfmd.solve``; on a :class:`SlabGrid` this process's rows, validated by ``gfmd.distributed.solve``).
-    ``initial``: a GFMDResult (its gap) or a gap field (this process's rows); default the flat body touching the
+    ``initial``: a GFMDResult (its gap), a gap field (this process's rows) or a coarse-to-fine start
+    (``gfmd._coarse.Start``: the body surface ``z~``, the gap ``z - h``); default the flat body touching the
     highest summit, solved at ``sigma0 >= 0`` directly and, at a tensile load, at zero load and then unloaded
     (:meth:`_Solver.follow`). A tensile solve from ``initial`` that detaches or stalls follows the load down
     from ``initial`` when that is a converged result at a higher load. ``max_iter`` counts iterations;
@@ -580,7 +582,9 @@ def minimise(heights: Any, law: Any, *, sigma0: float, e_star: float, length: An
     h = grid.asarray(heights)
     if not grid.all_finite(h):
         raise ValueError("heights contain NaN or inf")
-    g_init = None
+    g_init = start_z = None
+    if isinstance(initial, Start):  # coarse-to-fine start (gfmd._coarse.Start): the body surface's spectrum z~
+        start_z, initial = initial.take(), None
     if initial is not None:
         g_init = initial.gap if isinstance(initial, GFMDResult) else initial
         g_init = xp.asarray(g_init, dtype=xp.float64)
@@ -589,7 +593,12 @@ def minimise(heights: Any, law: Any, *, sigma0: float, e_star: float, length: An
             raise ValueError(f"initial must be a GFMDResult or a finite gap field of shape {grid.real_shape}")
     sv = _Solver(grid, law, h, e_star, max_iter, memory)
     step_tol = max(tol, _STEP_TOL)
-    if g_init is None:
+    if start_z is not None:  # the gap g = z - h of the prolonged body surface (clipped at 0 by the solver)
+        sv.st.ops.inv(start_z, sv.st.g)
+        del start_z
+        sv.st.g -= h
+        st, status = sv.at(sigma0, None, tol)
+    elif g_init is None:
         hmax = grid.amax(h)
         xp.subtract(hmax, h, out=sv.st.g)  # flat body touching the highest summit
         if sigma0 < 0:

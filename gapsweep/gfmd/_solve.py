@@ -103,12 +103,13 @@ def solve(
     ``threads`` is ignored there.
 
     ``start``: "flat" (default; the starts above) or "coarse": the coarse-to-fine start (docs/gfmd.md,
-    "Coarse-to-fine start"; exponential and adhesive laws, periodic, compressive loads): the problem solved first
-    on ``levels`` grids coarser by 2, 4, ... (None: down to 64 pixels a side) to ``coarse_tol`` (None: 10
-    ``tol``), each started from the one before, the last one starting this grid. With ``comm`` (and on one GPU)
-    it runs on the distributed solver's minimisers (:func:`gapsweep.gfmd.distributed.solve`) and returns a
-    ``SlabResult``; without ``comm`` on the CPU on this function's own minimisers, methods and FFT backend
-    (:func:`gapsweep.gfmd._coarse.solve_local`: never the slower engine) and returns a ``GFMDResult``. Either
+    "Coarse-to-fine start"; exponential and adhesive laws, hard_wall_adhesive, periodic, compressive loads): the
+    problem solved first on ``levels`` grids coarser by 2, 4, ... (None: down to 64 pixels a side) to
+    ``coarse_tol`` (None: 10 ``tol``), each started from the one before, the last one starting this grid. With
+    ``comm`` (and on one GPU) it runs on the distributed solver's minimisers
+    (:func:`gapsweep.gfmd.distributed.solve`) and returns a ``SlabResult``; without ``comm`` on the CPU on this
+    function's own minimisers, methods and FFT backend (:func:`gapsweep.gfmd._coarse.solve_local`: never the
+    slower engine) and returns a ``GFMDResult``. Either
     way ``diagnostics["levels"]`` lists the coarse levels and ``diagnostics["coarse_cost"]`` their cost.
 
     ``thickness``, ``poisson``, ``bottom``: the body is an elastic layer of thickness ``t`` (units of ``length``;
@@ -257,9 +258,6 @@ def _coarse_local(heights: Any, *, sigma0: float, interaction: Any, gamma0: Any,
     if not np.all(np.isfinite(h)):
         raise ValueError("heights contain NaN or inf")
     law = resolve(interaction, gamma0=gamma0, rho=rho, work=work)
-    if law.load_control == "bounded":  # as distributed.solve refuses it: no coarse levels for this law yet
-        raise ValueError(f"interaction {law.name!r}: start='coarse' is not available for this law yet (it runs on "
-                         "one process or over ranks with comm=, from start='flat'); use start='flat'")
     sigma0 = law.check_load(sigma0)
     tol = chk.positive(tol, "tol")
     lx, ly = (chk.positive(v, "length") for v in np.broadcast_to(np.asarray(length, dtype=float), 2))
@@ -269,6 +267,9 @@ def _coarse_local(heights: Any, *, sigma0: float, interaction: Any, gamma0: Any,
                   max_iter=max_iter, threads=threads, periodic=True)
 
     def plain(hl: Any, init: Any, kw: dict) -> GFMDResult:
+        if law.load_control == "bounded" and isinstance(init, tuple):  # (u, <g>) of the body surface: its gap
+            u, g0 = init
+            init = u + g0 - (hl - float(np.mean(hl)))
         return solve(hl, initial=init, **common, **kw)
 
     return _coarse.solve_local(h, plain, length=(lx, ly), backend=backend, threads=threads, levels=n_levels,

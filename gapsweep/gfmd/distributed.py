@@ -528,7 +528,7 @@ def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interact
     (docs/gfmd.md, "Coarse-to-fine start"): the same problem on ``levels`` grids ``(nx/2^l, ny/2^l)`` of the same
     box (None: as many as keep ``>= 64`` pixels a side), each to ``coarse_tol`` (None: ``10 tol``) within
     ``max_iter`` evaluations, the spectrally truncated surface on each, the answer prolonged by zero-padding its
-    spectrum; then the requested grid from there to ``tol``. Exponential and adhesive laws at compressive loads,
+    spectrum; then the requested grid from there to ``tol``. Smooth laws and hard_wall_adhesive at compressive loads,
     no ``initial``; the peak memory is the requested grid's own. ``iterations`` counts the requested grid's
     evaluations; ``diagnostics["levels"]`` holds each coarse level's (shape, evaluations, status, residual, mean
     gap, contact area, wall time) and ``diagnostics["coarse_cost"]`` their sum weighted by the grid size
@@ -622,7 +622,7 @@ def _check_coarse(law: Interaction, control: str, sigma0: float, initial: Any, l
     """Checked ``(levels, coarse tolerance)`` of ``start="coarse"``."""
     from gapsweep.gfmd import _coarse
 
-    if control in ("multiplier", "bounded"):
+    if control == "multiplier":
         raise ValueError(f"start='coarse' is for the smooth laws (exponential, adhesive); interaction {law.name!r} "
                          "takes start='flat'")
     if not sigma0 > 0:
