@@ -82,6 +82,27 @@ def _surface(n: int, box: float, seed: int, comm: Any, gpu: bool) -> Any:
                             backend="cupy" if gpu else "numpy")
 
 
+def _gpu_memory(n: int, comm: Any, pairs: int | None) -> dict[str, float]:
+    """This GPU's memory pool (bytes held, the largest over the ranks) and ``gfmd._bounded.memory_plan``'s
+    estimate for the grid (the slab path on ranks, the 2-D cuFFT path on one GPU without MPI); the pool is then
+    emptied so that the next grid's number is its own."""
+    import cupy
+
+    from gapsweep.gfmd._bounded import _MEMORY, memory_plan
+
+    pool = cupy.get_default_memory_pool()
+    held = float(pool.total_bytes())
+    ranks = 1 if comm is None else comm.Get_size()
+    if comm is not None:
+        held = max(comm.allgather(held))
+    plan = memory_plan((n, n), ranks, memory=_MEMORY if pairs is None else pairs,
+                       backend="cupy" if comm is None else "slab-cupy")
+    cupy.fft.config.get_plan_cache().clear()
+    pool.free_all_blocks()
+    return {"gpu_pool_bytes": held, "plan_bytes": float(plan["bytes_per_rank"]),
+            "pool_over_plan": held / plan["bytes_per_rank"]}
+
+
 def study(ns: list[int], *, box: float, sigma_ref: float, ramp: int, delta: float, tol: float, max_iter: int,
           pairs: int | None, seed: int, gpu: bool = False, log: Any = print) -> dict[str, Any]:
     """The study (module docstring); returns ``{"grids": [...], "solves": [...], "changes": [...], "ok"}``."""
@@ -140,6 +161,8 @@ def study(ns: list[int], *, box: float, sigma_ref: float, ramp: int, delta: floa
                       "mean_gap_um": float(ref.mean_gap), "stiffness_MPa_per_um": float(stiff),
                       "fine_wall_s": sum(x["wall_s"] for x in solves if x["n"] == n)})
         del h, prev, at, ref, lo, hi
+        if gpu:  # the memory pool's bytes (its peak: it keeps freed blocks) against the plan that guards the run
+            grids[-1].update(_gpu_memory(n, comm, pairs))
     done = [g for g in grids if g["complete"]]
     changes = []
     for a, b in itertools.pairwise(done):
