@@ -53,7 +53,7 @@ from typing import Any
 import numpy as np
 
 from gapsweep.core import deadline
-from gapsweep.core.vec import rdot
+from gapsweep.core.vec import axpy, rdot
 from gapsweep.gfmd._coarse import Start
 from gapsweep.gfmd._continuation import next_load, record
 from gapsweep.gfmd._grid import Grid
@@ -64,6 +64,7 @@ METHODS = ("plbfgs",)
 log = logging.getLogger("gapsweep.gfmd")
 _MEMORY = 10  # L-BFGS pairs on one process (the distributed solve takes its ``memory`` keyword)
 _CHUNK = 1 << 22  # elements per chunk of the elementwise passes (32 MiB of float64): their only temporaries
+_FFT_OUT = int(np.__version__.split(".")[0]) >= 2  # numpy's FFTs take out= (else a result array and a copy)
 _CHUNK_GPU = 1 << 25  # on GPUs (256 MiB): fewer kernel launches per pass (a 65536^2 slab of 4 ranks: 32 chunks)
 _DETACHED = 30.0  # every gap beyond this many ranges at a tensile load: the body has left
 _STALL_WINDOW = 60  # iterations without the residual falling below 0.9 x its best and without energy decrease
@@ -195,6 +196,8 @@ class _Ops:
             out *= 1.0 / self.n
         elif g._fft is not None:
             xp.multiply(g._fft.rfft2(a), 1.0 / self.n, out=out)
+        elif xp is np and _FFT_OUT:  # numpy >= 2: straight into out, the 1/(nx ny) in the transform
+            np.fft.rfft2(a, norm="forward", out=out)
         else:
             out[...] = xp.fft.rfft2(a)
             out *= 1.0 / self.n
@@ -207,7 +210,7 @@ class _Ops:
             self.slab.irfft2(A, out=out)
         elif g._fft is not None:
             xp.copyto(out, g._fft.irfft2(A))
-        else:
+        else:  # (numpy 2.4's irfft2 with out= returns garbage for 2-D input: not used)
             out[...] = xp.fft.irfft2(A, s=g.shape, norm="forward")
         return out
 
@@ -352,7 +355,10 @@ class _Lean:
 
 
 def _axpy(xp: Any, ops: _Ops, a: float, x: Any, y: Any) -> None:
-    """``y += a x`` in row chunks."""
+    """``y += a x`` in chunks (numpy: gapsweep.core.vec.axpy, cache-sized chunks on this thread)."""
+    if xp is np:
+        axpy(a, x, y)
+        return
     for ch in ops.chunks(y.shape):
         y[ch] += x[ch] * a
 
