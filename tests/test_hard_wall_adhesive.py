@@ -210,6 +210,8 @@ def test_peak_memory_is_the_plan(monkeypatch, shape: tuple[int, int], sigma0: fl
     assert r.converged and r.diagnostics["lbfgs_pairs"] == pairs
     assert plan["grid_arrays"] <= measured <= plan["arrays"], (measured, plan)
     assert plan["grid_arrays"] == pytest.approx(9.7 + 2 * pairs, abs=0.1)  # surface, 7.6 of the solver, 2 of numpy FFT
+    with pytest.raises(ValueError, match="backend must be"):
+        _bounded.memory_plan(shape, 4, backend="cuda")
 
 
 def test_coarse_start_reaches_the_flat_starts_equilibrium() -> None:

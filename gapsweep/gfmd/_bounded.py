@@ -104,6 +104,8 @@ def memory_plan(shape: tuple[int, int], ranks: int = 1, *, memory: int = _MEMORY
     "grid_arrays" (the same without the parts of fixed size: chunks and numpy's buffers), "parts"}``."""
     from gapsweep.core.slab import DEFAULT_CHUNK
 
+    if backend not in ("numpy", "pyfftw", "cupy", "slab", "slab-cupy"):
+        raise ValueError(f"backend must be 'numpy', 'pyfftw', 'cupy', 'slab' or 'slab-cupy', got {backend!r}")
     nx, ny = (int(v) for v in shape)
     ranks = int(ranks)
     nr, nc = -(-nx // ranks), -(-(ny // 2 + 1) // ranks)
@@ -130,11 +132,9 @@ def memory_plan(shape: tuple[int, int], ranks: int = 1, *, memory: int = _MEMORY
         parts["numpy FFT temporaries"] = 2 * s
     elif backend == "pyfftw":
         parts["pyFFTW buffers"] = 2 * a + 2 * s
-    elif backend == "cupy":
+    else:  # "cupy", one GPU
         parts["cuFFT buffers"] = a + 2 * s
         parts["cuFFT work areas (R2C + C2R plans)"] = 2 * s
-    else:
-        raise ValueError(f"backend must be 'numpy', 'pyfftw' or 'cupy', got {backend!r}")
     if "cupy" not in backend:  # numpy's casting buffers of the masked passes (bool x float), 8192 elements each
         parts["numpy ufunc buffers"] = 3 * 8.0 * np.getbufsize()
     total = sum(parts.values())
