@@ -104,8 +104,10 @@ def _gpu_memory(n: int, comm: Any, pairs: int | None) -> dict[str, float]:
 
 
 def study(ns: list[int], *, box: float, sigma_ref: float, ramp: int, delta: float, tol: float, max_iter: int,
-          pairs: int | None, seed: int, gpu: bool = False, log: Any = print) -> dict[str, Any]:
-    """The study (module docstring); returns ``{"grids": [...], "solves": [...], "changes": [...], "ok"}``."""
+          pairs: int | None, seed: int, gpu: bool = False, log: Any = print, progress: Any = None) -> dict[str, Any]:
+    """The study (module docstring); returns ``{"grids": [...], "solves": [...], "changes": [...], "ok"}``.
+    ``progress(partial)``: called on rank 0 after every solve with the record so far (``"ok": None`` while it
+    runs), so that a run stopped by a time limit leaves what it measured."""
     from gapsweep import gfmd
     from gapsweep.surfaces import challenge as ch
 
@@ -145,6 +147,8 @@ def study(ns: list[int], *, box: float, sigma_ref: float, ramp: int, delta: floa
             solves.append(row)
             if rank == 0:
                 log(json.dumps(row))
+                if progress is not None:
+                    progress({"grids": grids, "solves": solves, "changes": [], "ok": None})
             if r.status != "converged":
                 ok = False
                 break
@@ -195,16 +199,20 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--n: increasing grid sides >= 16, got {a.n}")
     if not (a.box > 0 and a.sigma_ref > 0 and 0 < a.delta < 0.5 and a.ramp >= 0):
         ap.error("--box, --sigma-ref > 0, 0 < --delta < 0.5, --ramp >= 0")
-    res = study(a.n, box=a.box, sigma_ref=a.sigma_ref, ramp=a.ramp, delta=a.delta, tol=a.tol, max_iter=a.max_iter,
-                pairs=a.pairs, seed=a.seed, gpu=a.gpu)
-    if res["rank"] == 0:
-        out = {"command": " ".join(["python", *sys.argv]), "args": {k: str(v) for k, v in vars(a).items()},
-               "law": "hard_wall_adhesive (challenge constants)", **{k: v for k, v in res.items() if k != "rank"}}
-        for g in res["grids"]:
-            print(json.dumps(g))
+    head = {"command": " ".join(["python", *sys.argv]), "args": {k: str(v) for k, v in vars(a).items()},
+            "law": "hard_wall_adhesive (challenge constants)"}
+
+    def write(res: dict) -> None:
         if a.out is not None:
             a.out.parent.mkdir(parents=True, exist_ok=True)
-            a.out.write_text(json.dumps(out, indent=1) + "\n")
+            a.out.write_text(json.dumps({**head, **{k: v for k, v in res.items() if k != "rank"}}, indent=1) + "\n")
+
+    res = study(a.n, box=a.box, sigma_ref=a.sigma_ref, ramp=a.ramp, delta=a.delta, tol=a.tol, max_iter=a.max_iter,
+                pairs=a.pairs, seed=a.seed, gpu=a.gpu, progress=write)
+    if res["rank"] == 0:
+        for g in res["grids"]:
+            print(json.dumps(g))
+        write(res)
     return 0 if res["ok"] else 1
 
 
