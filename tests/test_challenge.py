@@ -134,9 +134,10 @@ def test_job_specs_of_the_law() -> None:
     assert js.surface["lambda_r"] == 0.2 and -1e-4 in js.grid["sigma0"]
     for text, key in ((spec(inter=""), "interaction.work"), (spec(surface="lambda_r = 0.01"), "surface.lambda_r"),
                       (EXPONENTIAL_WITH_THEORY, "surface.lambda_r"),
-                      (spec(gfmd="distributed = true"), "distributed")):
+                      (spec(gfmd='distributed = true\nmethod = "pk"'), "method")):
         with pytest.raises(SpecError, match=key.replace(".", r"\.")):
             loads(text)
+    loads(spec(gfmd="distributed = true"))  # the law's solve over ranks (gfmd._bounded on slabs)
 
 
 def test_patch_areas_join_across_periodic_edges() -> None:

@@ -102,3 +102,20 @@ def test_timeout_and_batch_refused(tmp_path):
     with pytest.raises(runner.RunError, match="--task-timeout and --batch do not apply"):
         runner.run(s, tmp_path / "s.h5", task_timeout=10.0, progress="none", mpi="off")
     assert not (tmp_path / "s.h5").exists()
+
+
+def test_challenge_law_sized_with_its_pairs(tmp_path):
+    """hard_wall_adhesive with distributed = true: sized by gfmd._bounded.memory_plan with the job's L-BFGS pairs
+    (``[methods.gfmd.extra] memory``, passed to gfmd.solve): 65536^2 on 4 H200 (141 GB) fits with 2 pairs and is
+    refused, naming the number, with the default 10."""
+    from gapsweep.gfmd._bounded import memory_plan
+
+    _, tasks = _tasks(tmp_path, 65536, "cupy", "hard_wall_adhesive")
+    with pytest.raises(collective.DoesNotFit, match=r"needs ~2\d\d(\.\d)? GB per GPU on 4 GPUs"):
+        collective.check_memory(tasks, 4, on_gpu_total=141e9, host_total=0)
+    text = (tmp_path / "j.toml").read_text() + "[methods.gfmd.extra]\nmemory = 2\n"
+    (tmp_path / "j.toml").write_text(text)
+    tasks = runner._select(spec.load(tmp_path / "j.toml"), None)[0]
+    lines = collective.check_memory(tasks, 4, on_gpu_total=141e9, host_total=0)
+    plan = memory_plan((65536, 65536), 4, memory=2, backend="slab-cupy")["bytes_per_rank"]
+    assert len(lines) == 1 and f"{budget.human(plan + collective.CUDA_CONTEXT)} per GPU" in lines[0]

@@ -4,6 +4,7 @@ the minimiser of the interaction law's load control, periodic or with free bound
 
 from __future__ import annotations
 
+import functools
 import time
 import warnings
 from typing import Any
@@ -61,14 +62,15 @@ def solve(
     poisson: float | None = None,
     bottom: str = "bonded",
     hardness: float | None = None,
+    memory: int | None = None,
 ) -> GFMDResult:
     """Equilibrium gap of an elastic half-space on the rigid surface ``heights`` at mean pressure ``sigma0``.
 
     ``interaction``: a law's name or an :class:`Interaction` object (docs/gfmd.md): "exponential" (default;
     needs ``gamma0``, an energy per area, and ``rho``, a length), "hard_wall", "adhesive" (``work``, the
     work of adhesion per area, and ``rho``, its range) or "hard_wall_adhesive" (the contact-mechanics
-    challenge's hard wall with ``-work exp(-g/rho)``; ``work``, ``rho``; periodic, one process; docs/gfmd.md
-    "Hard wall with adhesion"). For the exponential law the reduced energy of M3
+    challenge's hard wall with ``-work exp(-g/rho)``; ``work``, ``rho``; periodic, on one process or over ranks
+    with ``comm``; docs/gfmd.md "Hard wall with adhesion"). For the exponential law the reduced energy of M3
     (module docstring) is minimised until ``residual <= tol`` and ``load_error <= tol``; the other laws'
     convergence measures are in docs/gfmd.md. ``heights``: real ``nx x ny`` array (numpy, or cupy for the
     GPU), units of ``length`` (a number, or ``(Lx, Ly)``); the exponential law's own minimiser needs a square
@@ -101,12 +103,13 @@ def solve(
     ``threads`` is ignored there.
 
     ``start``: "flat" (default; the starts above) or "coarse": the coarse-to-fine start (docs/gfmd.md,
-    "Coarse-to-fine start"; exponential and adhesive laws, periodic, compressive loads): the problem solved first
-    on ``levels`` grids coarser by 2, 4, ... (None: down to 64 pixels a side) to ``coarse_tol`` (None: 10
-    ``tol``), each started from the one before, the last one starting this grid. With ``comm`` (and on one GPU)
-    it runs on the distributed solver's minimisers (:func:`gapsweep.gfmd.distributed.solve`) and returns a
-    ``SlabResult``; without ``comm`` on the CPU on this function's own minimisers, methods and FFT backend
-    (:func:`gapsweep.gfmd._coarse.solve_local`: never the slower engine) and returns a ``GFMDResult``. Either
+    "Coarse-to-fine start"; exponential and adhesive laws, hard_wall_adhesive, periodic, compressive loads): the
+    problem solved first on ``levels`` grids coarser by 2, 4, ... (None: down to 64 pixels a side) to
+    ``coarse_tol`` (None: 10 ``tol``), each started from the one before, the last one starting this grid. With
+    ``comm`` (and on one GPU) it runs on the distributed solver's minimisers
+    (:func:`gapsweep.gfmd.distributed.solve`) and returns a ``SlabResult``; without ``comm`` on the CPU on this
+    function's own minimisers, methods and FFT backend (:func:`gapsweep.gfmd._coarse.solve_local`: never the
+    slower engine) and returns a ``GFMDResult``. Either
     way ``diagnostics["levels"]`` lists the coarse levels and ``diagnostics["coarse_cost"]`` their cost.
 
     ``thickness``, ``poisson``, ``bottom``: the body is an elastic layer of thickness ``t`` (units of ``length``;
@@ -116,6 +119,9 @@ def solve(
     Periodic, one process; every law. ``hardness``: the hard wall's pressure cap ``H > sigma0`` (elastic-perfectly
     plastic contact, :mod:`gapsweep.gfmd._plastic`; ``result.plastic_area``, ``result.plastic_displacement``,
     :func:`gapsweep.gfmd.residual_surface`); periodic or free boundaries, on the half-space or a layer.
+
+    ``memory``: L-BFGS pairs of the hard_wall_adhesive law (default 10; each pair costs two grid fields, see
+    ``gapsweep.gfmd._bounded.memory_plan``) and, with ``comm``, of the distributed smooth laws (default 2).
     """
     from gapsweep.gfmd import _plastic, substrates
 
@@ -141,7 +147,7 @@ def solve(
         return distributed.solve(heights, comm=comm, sigma0=sigma0, interaction=interaction, gamma0=gamma0,
                                  rho=rho, work=work, e_star=e_star, length=length, tol=tol, method=method,
                                  backend=backend, max_iter=max_iter, initial=initial, host=host, start=start,
-                                 levels=levels, coarse_tol=coarse_tol)
+                                 levels=levels, coarse_tol=coarse_tol, memory=memory)
     t_start = time.perf_counter()
     heights, length, periodic = _checked_heights(heights, length, periodic)
     shape = heights.shape
@@ -153,6 +159,13 @@ def solve(
     if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
         raise ValueError(f"max_iter must be an integer >= 1, got {max_iter!r}")
     minimise, methods = _MINIMISERS[law.load_control] if periodic else _FREE[law.load_control]
+    if memory is not None:  # L-BFGS pairs: the bounded minimiser's on one process
+        if isinstance(memory, bool) or not isinstance(memory, (int, np.integer)) or memory < 1:
+            raise ValueError(f"memory must be an integer >= 1, got {memory!r}")
+        if law.load_control != "bounded":
+            raise ValueError(f"memory: the L-BFGS pairs are set for interaction 'hard_wall_adhesive' (and with "
+                             f"comm= for the smooth laws); interaction {law.name!r} on one process keeps its own")
+        minimise = functools.partial(minimise, memory=int(memory))
     if not isinstance(method, str) or method not in ("auto", *methods):
         raise ValueError(f"method must be one of {', '.join(map(repr, ('auto', *methods)))} for interaction "
                          f"{law.name!r}{'' if periodic else ' with periodic=False'}; got {method!r}")
@@ -268,9 +281,6 @@ def _coarse_local(heights: Any, *, sigma0: float, interaction: Any, gamma0: Any,
     if not np.all(np.isfinite(h)):
         raise ValueError("heights contain NaN or inf")
     law = resolve(interaction, gamma0=gamma0, rho=rho, work=work)
-    if law.load_control == "bounded":  # as distributed.solve refuses it: no coarse levels for this law yet
-        raise ValueError(f"interaction {law.name!r}: start='coarse' (like comm=, the distributed solve) is not "
-                         "available for this law yet; use start='flat'")
     sigma0 = law.check_load(sigma0)
     tol = chk.positive(tol, "tol")
     lx, ly = (chk.positive(v, "length") for v in np.broadcast_to(np.asarray(length, dtype=float), 2))
@@ -280,6 +290,9 @@ def _coarse_local(heights: Any, *, sigma0: float, interaction: Any, gamma0: Any,
                   max_iter=max_iter, threads=threads, periodic=True)
 
     def plain(hl: Any, init: Any, kw: dict) -> GFMDResult:
+        if law.load_control == "bounded" and isinstance(init, tuple):  # (u, <g>) of the body surface: its gap
+            u, g0 = init
+            init = u + g0 - (hl - float(np.mean(hl)))
         return solve(hl, initial=init, **common, **kw)
 
     return _coarse.solve_local(h, plain, length=(lx, ly), backend=backend, threads=threads, levels=n_levels,

@@ -40,8 +40,10 @@ from gapsweep.gfmd.interactions import Interaction, resolve
 
 __all__ = ["SlabGrid", "SlabResult", "solve", "solve_memory"]
 
-METHODS = {"softmax": ("cg", "lbfgs", "fire"), "variable": ("lbfgs",), "multiplier": ("pcg", "pk")}
-DEFAULT = {"softmax": "cg", "variable": "lbfgs", "multiplier": "pcg"}
+METHODS = {"softmax": ("cg", "lbfgs", "fire"), "variable": ("lbfgs",), "multiplier": ("pcg", "pk"),
+           "bounded": ("plbfgs",)}
+DEFAULT = {"softmax": "cg", "variable": "lbfgs", "multiplier": "pcg", "bounded": "plbfgs"}
+PAIRS = {"bounded": 10}  # the default L-BFGS pairs (``memory=None``) where not 2: the bounded law's one-process 10
 
 
 # ---------------------------------------------------------------------------------------------- the grid
@@ -339,7 +341,7 @@ def _global_shape(h: Any, red: Reducer, comm: Any) -> tuple[int, int]:
 def _options(law: Interaction, shape: tuple[int, int], box: tuple[float, float], method: Any, backend: Any,
              on_gpu: bool, max_iter: Any, memory: Any) -> tuple[str, str, str]:
     """Checked ``(load control, method, backend)`` of a distributed solve."""
-    for name, v in (("max_iter", max_iter), ("memory", memory)):
+    for name, v in (("max_iter", max_iter), ("memory", 2 if memory is None else memory)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
             raise ValueError(f"{name} must be an integer >= 1, got {v!r}")
     control = law.load_control
@@ -362,7 +364,7 @@ def _options(law: Interaction, shape: tuple[int, int], box: tuple[float, float],
 def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interaction = "exponential",
           gamma0: float | None = None, rho: float | None = None, work: float | None = None, e_star: float = 1.0,
           length: Any = 1.0, tol: float = 1e-6, method: str = "auto", backend: str = "auto", max_iter: int = 5000,
-          initial: Any = None, host: bool | tuple[str, ...] = True, memory: int = 2, start: str = "flat",
+          initial: Any = None, host: bool | tuple[str, ...] = True, memory: int | None = None, start: str = "flat",
           levels: int | None = None, coarse_tol: float | None = None) -> SlabResult:
     """Periodic equilibrium of docs/model.md M3 (and the hard wall and adhesion of docs/gfmd.md) with the grid
     split over the ranks of ``comm``: ``h_local`` is this rank's rows ``heights[slab_rows(nx, comm)]`` (numpy, or
@@ -372,15 +374,18 @@ def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interact
     (default), "pk" ("mpcg"'s coarse levels are not distributed). Returns a :class:`SlabResult`: global scalars
     on every rank, this rank's rows of the fields. ``initial``: a :class:`SlabResult` of the same grid (or this
     rank's rows of a displacement; hard wall: of a pressure; adhesive: ``(displacement rows, mean gap)``).
-    ``memory``: pairs kept by the smooth laws' L-BFGS (adhesion, exponential rectangles), which runs in fixed
-    buffers (``gfmd._lean``: 8 + 2 ``memory`` arrays of the rank's rows, 12 at the default 2; one process keeps 8
-    pairs, so the two agree to the solver tolerance, not bit for bit; see :func:`solve_memory`).
+    ``memory``: L-BFGS pairs (None: 2; hard_wall_adhesive: 10, as one process). The smooth laws' L-BFGS
+    (adhesion, exponential rectangles) runs in fixed buffers (``gfmd._lean``: 8 + 2 ``memory`` arrays of the
+    rank's rows, 12 at the default 2; one process keeps 8 pairs, so the two agree to the solver tolerance, not bit
+    for bit; see :func:`solve_memory`); hard_wall_adhesive runs the one-process projected L-BFGS
+    (``gfmd._bounded``) on the slabs, same iteration to round-off, in about ``7.6 + 2 memory`` arrays of the
+    rank's rows plus the transform's scratch (``gfmd._bounded.memory_plan``).
 
     ``start``: "flat" (default: the starts above) or "coarse": the coarse-to-fine start of ``gfmd._coarse``
     (docs/gfmd.md, "Coarse-to-fine start"): the same problem on ``levels`` grids ``(nx/2^l, ny/2^l)`` of the same
     box (None: as many as keep ``>= 64`` pixels a side), each to ``coarse_tol`` (None: ``10 tol``) within
     ``max_iter`` evaluations, the spectrally truncated surface on each, the answer prolonged by zero-padding its
-    spectrum; then the requested grid from there to ``tol``. Exponential and adhesive laws at compressive loads,
+    spectrum; then the requested grid from there to ``tol``. Smooth laws and hard_wall_adhesive at compressive loads,
     no ``initial``; the peak memory is the requested grid's own. ``iterations`` counts the requested grid's
     evaluations; ``diagnostics["levels"]`` holds each coarse level's (shape, evaluations, status, residual, mean
     gap, contact area, wall time) and ``diagnostics["coarse_cost"]`` their sum weighted by the grid size
@@ -404,12 +409,14 @@ def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interact
     lx, ly = (chk.positive(v, "length") for v in np.broadcast_to(np.asarray(length, dtype=float), 2))
     tol = chk.positive(tol, "tol")
     control, method, backend = _options(law, shape, (lx, ly), method, backend, on_gpu, max_iter, memory)
+    memory = PAIRS.get(control, 2) if memory is None else int(memory)
     if start not in ("flat", "coarse"):
         raise ValueError(f"start must be 'flat' or 'coarse', got {start!r}")
     host_fields(host)
     length = lx if lx == ly and not isinstance(length, (tuple, list, np.ndarray)) else (lx, ly)
     if backend == "cupy":
-        kind = {"softmax": "exponential", "variable": "smooth", "multiplier": "hard_wall"}[control]
+        kind = {"softmax": "exponential", "variable": "smooth", "multiplier": "hard_wall",
+                "bounded": "bounded"}[control]
         _check_gpu_memory(shape, red, kind, memory, sigma0 < 0)
     grid = SlabGrid(shape, (lx, ly), comm, backend)
     h = grid.asarray(h_local)
@@ -437,6 +444,10 @@ def solve(h_local: Any, *, comm: Any, sigma0: float, interaction: str | Interact
 
         r = _lean.minimise(h, law, sigma0=sigma0, e_star=e_star, length=length, tol=tol, max_iter=max_iter,
                            initial=_smooth_initial(initial, grid), memory=memory, grid=grid, t_start=t_start)
+    elif control == "bounded":  # the adhesive hard wall's projected L-BFGS on the slabs (gfmd._bounded)
+        from gapsweep.gfmd import _bounded
+
+        r = _bounded.minimise(h, law, initial=initial, memory=memory, **common)
     else:
         from gapsweep.gfmd import _constrained
 
@@ -516,7 +527,7 @@ def _check_gpu_memory(shape: tuple[int, int], red: Reducer, interaction: str, me
 
 
 def solve_memory(shape: tuple[int, int], ranks: int, interaction: str = "exponential",
-                 memory: int = 2, tensile: bool = False) -> dict[str, float]:
+                 memory: int | None = None, tensile: bool = False) -> dict[str, float]:
     """Estimated peak memory per rank (bytes) of :func:`solve`: the minimiser's grid-sized arrays on the rank's
     slabs plus the transform's scratch (send and receive buffers, 2 A, and the chunked 1-D transforms' and
     elementwise passes' temporaries, within 1 A at 65536^2). Counted from the code (docs/gfmd.md, "One solve over
@@ -530,6 +541,12 @@ def solve_memory(shape: tuple[int, int], ranks: int, interaction: str = "exponen
     (tests/mpi/test_distributed.py: the traced numpy peak is within the estimate) and on GPUs by
     benchmarks/bench_distributed.py (the memory pool's peak beside it; at 16384^2 over 2-4 GPUs the pool held up to
     1.3x this estimate: the transform's chunk buffers, a few GB whatever the grid, are not yet counted)."""
+    memory = PAIRS.get(interaction, 2) if memory is None else memory  # the solve's default pairs
+    if interaction == "bounded":  # the adhesive hard wall's own count (gfmd._bounded.memory_plan)
+        from gapsweep.gfmd._bounded import memory_plan
+
+        p = memory_plan(shape, ranks, memory=memory, tensile=tensile, backend="slab-cupy")
+        return {**{k: p[k] for k in ("bytes_per_rank", "array_bytes", "arrays")}, "scratch_arrays": 0.0}
     nx, ny = (int(v) for v in shape)
     a = 8.0 * math.ceil(nx / ranks) * ny
     smooth = 7.0 + 2.0 * memory + (3.0 if tensile else 0.0)

@@ -43,6 +43,8 @@ def _kind(t: Task) -> str:
         return "hard_wall"
     if t.law == "exponential":
         return "exponential"
+    if t.law == "hard_wall_adhesive":  # its projected L-BFGS (gfmd._bounded.memory_plan, 10 pairs)
+        return "bounded"
     return "smooth"
 
 
@@ -64,7 +66,8 @@ def check_memory(tasks: list[Task], ranks: int, on_gpu_total: float | None = Non
         return []
     gpu_need = host_need = 0.0
     for t in dist:
-        per_rank = solve_memory((t.n, t.n), ranks, _kind(t), tensile=t.sigma0 < 0)["bytes_per_rank"]
+        per_rank = solve_memory((t.n, t.n), ranks, _kind(t), memory=t.opt("extra.memory"),  # L-BFGS pairs
+                                tensile=t.sigma0 < 0)["bytes_per_rank"]
         if t.opt("backend") == "cupy":
             gpu_need = max(gpu_need, per_rank + CUDA_CONTEXT)
         else:

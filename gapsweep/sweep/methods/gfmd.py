@@ -224,7 +224,9 @@ class GFMD(Method):
         if t.law == "hard_wall_adhesive":  # its own minimiser's count (gfmd._bounded.solve_memory)
             from gapsweep.gfmd._bounded import solve_memory as bounded_memory
 
-            return float(bounded_memory((max(t.n, 2), max(t.n, 2))))
+            pairs = t.opt("extra.memory")  # [methods.gfmd.extra] memory: its L-BFGS pairs (default 10)
+            return float(bounded_memory((max(t.n, 2), max(t.n, 2)), backend="cupy",
+                                        **({} if pairs is None else {"memory": int(pairs)})))
         law = "hard_wall" if t.law == "hard_wall" else "exponential"
         method = t.opt("method") if t.opt("method") != "auto" else "auto"
         try:
