@@ -367,110 +367,148 @@ def _plbfgs(st: _Lean, p_ref: float, tol: float, max_iter: int, history: list[fl
             compliance: float) -> str:
     """Projected L-BFGS from the state in ``st`` (module docstring) until ``residual <= tol``; ``st`` holds the
     last point. ``max_iter`` counts iterations (each one gradient evaluation)."""
-    xp, ops, law = st.xp, st.ops, st.law
-    n = ops.n
-    g, G, d, t, free = st.g, st.G, st.d, st.t, st.free
-    s_hist: list = []
-    y_hist: list = []
-    r_hist: list[float] = []
+    xp, ops = st.xp, st.ops
+    pairs = _BoundedPairs(st)
     best = [math.inf, math.inf, 0]
     it = 0
-    rng = law.range()
     with np.errstate(all="ignore"):
         while True:
             deadline.check()
             s_pg, s_step, gmin = st.stats(compliance)
-            res = math.sqrt(max(s_pg / n, 0.0)) / p_ref
+            res = math.sqrt(max(s_pg / ops.n, 0.0)) / p_ref
             history.append(res)
-            if not math.isfinite(res) or not math.isfinite(st.f):
-                return "non_finite"
-            if res <= tol:
-                return "converged"
-            if st.sigma0 < 0 and gmin > _DETACHED * rng:
-                return "detached"
-            if it >= max_iter:
-                return "max_iter"
-            f_scale = _STALL_ENERGY * (abs(st.f) + abs(st.sigma0 * ops.total(float(g.sum()))[0] / n) + law.work)
-            if res < 0.9 * best[0] or best[1] - st.f > f_scale:
-                best[:] = [min(res, best[0]), min(st.f, best[1]), it]
-            elif it - best[2] >= _STALL_WINDOW:
-                return "stalled"
+            status = _stop(st, res, tol, gmin, it, max_iter, best)
+            if status is not None:
+                return status
             it += 1
             # eps-active set (Bertsekas, SIAM J. Control Optim. 20, 221, 1982): pixels within eps of the bound
             # and pushed onto it go to it straight (d = -g there); without it a pixel a round-off above the
             # bound, which the preconditioned direction moves upward, stalls the iteration. eps: the gap that
             # one projected-gradient step with the pixel compliance dx/E* would close, at most rho/100.
-            eps = min(0.01 * rng, math.sqrt(max(s_step / n, 0.0)))
+            eps = min(0.01 * st.law.range(), math.sqrt(max(s_step / ops.n, 0.0)))
             st.set_free(eps)
-            xp.multiply(G, free, out=d)
-            alphas = []
-            for s, y, r in zip(reversed(s_hist), reversed(y_hist), reversed(r_hist)):
-                al = r * ops.dot(s, d) / n
-                alphas.append(al)
-                _axpy(xp, ops, -al, y, d)
-            st.precondition(d)
-            if y_hist:
-                xp.copyto(t, y_hist[-1])
-                st.precondition(t)
-                yhy = ops.dot(y_hist[-1], t) / n
-                if yhy > 0:
-                    d *= 1.0 / (r_hist[-1] * yhy)
-            for s, y, r, al in zip(s_hist, y_hist, r_hist, reversed(alphas)):
-                _axpy(xp, ops, al - r * ops.dot(y, d) / n, s, d)
-            _direction(st)
-            slope = ops.dot(G, d) / n
+            slope = pairs.direction()
             if not slope < 0:
-                s_hist.clear(), y_hist.clear(), r_hist.clear()
-                xp.copyto(d, G)
-                st.precondition(d)
+                pairs.clear()
+                xp.copyto(st.d, st.G)
+                st.precondition(st.d)
                 _direction(st)
-                slope = ops.dot(G, d) / n
+                slope = ops.dot(st.G, st.d) / ops.n
                 if not slope < 0:
                     return "stalled" if math.isfinite(slope) else "non_finite"
-            alpha = 1.0
-            if not s_hist:  # no curvature yet: a first step that moves no pixel by more than the surface's rms
-                dmax = ops.reduce(maxs=(max((float(xp.abs(d[ch]).max()) for ch in ops.chunks(d.shape)
-                                             if d[ch].size), default=0.0),))[2][0]
-                if dmax > 0:
-                    alpha = min(1.0, scale / dmax)
-            accepted = False
-            for _ in range(_MAX_BACKTRACK):
-                df, dec = st.trial(alpha)
-                st.nfev += 1
-                if math.isfinite(df) and df <= _ARMIJO * dec:
-                    accepted = True
-                    break
-                alpha *= 0.5
-            if not accepted:
-                if not s_hist:
+            df = _line_search(st, scale, bool(pairs.s))
+            if df is None:
+                if not pairs.s:
                     return "stalled"
-                s_hist.clear(), y_hist.clear(), r_hist.clear()
+                pairs.clear()
                 continue
-            # the new pair's arrays: the oldest pair's when the memory is full, else new ones
-            if len(s_hist) >= st.memory:
-                s_new, y_new = s_hist.pop(0), y_hist.pop(0)
-                r_hist.pop(0)
-            else:
-                s_new, y_new = xp.empty_like(g), xp.empty_like(g)
-            xp.copyto(y_new, G)  # G at the old point
-            st.U += st.S
-            g += t  # exactly 0 where the projection put the step onto the bound (t = -g there)
-            st.f += df
-            st.gradient()
-            ss = yy = sy = 0.0
-            for ch in ops.chunks(g.shape):  # pairs restricted to the pixels free at both ends
-                both = free[ch] & ((g[ch] > 0) | (G[ch] <= 0))
-                xp.multiply(t[ch], both, out=s_new[ch])
-                xp.subtract(G[ch], y_new[ch], out=y_new[ch])
-                y_new[ch] *= both
-                ss += ops.ldot(s_new[ch], s_new[ch])
-                yy += ops.ldot(y_new[ch], y_new[ch])
-                sy += ops.ldot(s_new[ch], y_new[ch])
-            ss, yy, sy = ops.total(ss, yy, sy)
-            if sy > 1e-12 * math.sqrt(max(ss * yy, 0.0)):
-                s_hist.append(s_new), y_hist.append(y_new), r_hist.append(n / sy)
-            else:
-                del s_new, y_new
+            pairs.step(df)
+
+
+def _stop(st: _Lean, res: float, tol: float, gmin: float, it: int, max_iter: int, best: list) -> str | None:
+    """The status at which the iteration stops here, or None to go on: converged at ``res <= tol``, detached
+    (tension, every gap beyond the law's range), max_iter, stalled (no progress in residual or energy within
+    ``_STALL_WINDOW`` iterations; ``best`` = [best residual, best energy, its iteration], updated)."""
+    ops, law = st.ops, st.law
+    if not math.isfinite(res) or not math.isfinite(st.f):
+        return "non_finite"
+    if res <= tol:
+        return "converged"
+    if st.sigma0 < 0 and gmin > _DETACHED * law.range():
+        return "detached"
+    if it >= max_iter:
+        return "max_iter"
+    f_scale = _STALL_ENERGY * (abs(st.f) + abs(st.sigma0 * ops.total(float(st.g.sum()))[0] / ops.n) + law.work)
+    if res < 0.9 * best[0] or best[1] - st.f > f_scale:
+        best[:] = [min(res, best[0]), min(st.f, best[1]), it]
+    elif it - best[2] >= _STALL_WINDOW:
+        return "stalled"
+    return None
+
+
+def _line_search(st: _Lean, scale: float, curved: bool) -> float | None:
+    """Armijo backtracking along the projected path from ``alpha = 1`` (without curvature pairs yet, ``curved``
+    False: a first step that moves no pixel by more than the surface's rms ``scale``); the energy change of the
+    accepted step, or None when none was accepted (``st.t``, ``st.S`` hold the accepted step's changes)."""
+    xp, ops, d = st.xp, st.ops, st.d
+    alpha = 1.0
+    if not curved:
+        dmax = ops.reduce(maxs=(max((float(xp.abs(d[ch]).max()) for ch in ops.chunks(d.shape)
+                                     if d[ch].size), default=0.0),))[2][0]
+        if dmax > 0:
+            alpha = min(1.0, scale / dmax)
+    for _ in range(_MAX_BACKTRACK):
+        df, dec = st.trial(alpha)
+        st.nfev += 1
+        if math.isfinite(df) and df <= _ARMIJO * dec:
+            return df
+        alpha *= 0.5
+    return None
+
+
+class _BoundedPairs:
+    """The projected L-BFGS's curvature pairs ``(s, y, 1/(s.y))`` on the pixels free at both ends of a step, at
+    most ``st.memory`` of them, the oldest pair's arrays reused for the next (no new grid arrays once full)."""
+
+    def __init__(self, st: _Lean) -> None:
+        self.st = st
+        self.s: list = []
+        self.y: list = []
+        self.r: list[float] = []
+
+    def clear(self) -> None:
+        self.s.clear(), self.y.clear(), self.r.clear()
+
+    def direction(self) -> float:
+        """``st.d``: the two-loop recursion on the free set with the compliance preconditioner as the initial
+        inverse Hessian, scaled by ``y.Py/(s.y)`` of the newest pair; returns the slope ``<G d>``."""
+        st = self.st
+        xp, ops, n, d = st.xp, st.ops, st.ops.n, st.d
+        xp.multiply(st.G, st.free, out=d)
+        alphas = []
+        for s, y, r in zip(reversed(self.s), reversed(self.y), reversed(self.r)):
+            al = r * ops.dot(s, d) / n
+            alphas.append(al)
+            _axpy(xp, ops, -al, y, d)
+        st.precondition(d)
+        if self.y:
+            xp.copyto(st.t, self.y[-1])
+            st.precondition(st.t)
+            yhy = ops.dot(self.y[-1], st.t) / n
+            if yhy > 0:
+                d *= 1.0 / (self.r[-1] * yhy)
+        for s, y, r, al in zip(self.s, self.y, self.r, reversed(alphas)):
+            _axpy(xp, ops, al - r * ops.dot(y, d) / n, s, d)
+        _direction(st)
+        return ops.dot(st.G, d) / n
+
+    def step(self, df: float) -> None:
+        """Take the accepted step (``st.t``, ``st.S``, energy change ``df``), evaluate the gradient there and keep
+        the new pair where its curvature is positive."""
+        st = self.st
+        xp, ops, g, G, t, free = st.xp, st.ops, st.g, st.G, st.t, st.free
+        if len(self.s) >= st.memory:
+            s_new, y_new = self.s.pop(0), self.y.pop(0)
+            self.r.pop(0)
+        else:
+            s_new, y_new = xp.empty_like(g), xp.empty_like(g)
+        xp.copyto(y_new, G)  # G at the old point
+        st.U += st.S
+        g += t  # exactly 0 where the projection put the step onto the bound (t = -g there)
+        st.f += df
+        st.gradient()
+        ss = yy = sy = 0.0
+        for ch in ops.chunks(g.shape):  # pairs restricted to the pixels free at both ends
+            both = free[ch] & ((g[ch] > 0) | (G[ch] <= 0))
+            xp.multiply(t[ch], both, out=s_new[ch])
+            xp.subtract(G[ch], y_new[ch], out=y_new[ch])
+            y_new[ch] *= both
+            ss += ops.ldot(s_new[ch], s_new[ch])
+            yy += ops.ldot(y_new[ch], y_new[ch])
+            sy += ops.ldot(s_new[ch], y_new[ch])
+        ss, yy, sy = ops.total(ss, yy, sy)
+        if sy > 1e-12 * math.sqrt(max(ss * yy, 0.0)):
+            self.s.append(s_new), self.y.append(y_new), self.r.append(ops.n / sy)
 
 
 def _direction(st: _Lean) -> None:

@@ -158,19 +158,7 @@ def solve(
     tol = chk.positive(tol, "tol")
     if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
         raise ValueError(f"max_iter must be an integer >= 1, got {max_iter!r}")
-    minimise, methods = _MINIMISERS[law.load_control] if periodic else _FREE[law.load_control]
-    if memory is not None:  # L-BFGS pairs: the bounded minimiser's on one process
-        if isinstance(memory, bool) or not isinstance(memory, (int, np.integer)) or memory < 1:
-            raise ValueError(f"memory must be an integer >= 1, got {memory!r}")
-        if law.load_control != "bounded":
-            raise ValueError(f"memory: the L-BFGS pairs are set for interaction 'hard_wall_adhesive' (and with "
-                             f"comm= for the smooth laws); interaction {law.name!r} on one process keeps its own")
-        minimise = functools.partial(minimise, memory=int(memory))
-    if not isinstance(method, str) or method not in ("auto", *methods):
-        raise ValueError(f"method must be one of {', '.join(map(repr, ('auto', *methods)))} for interaction "
-                         f"{law.name!r}{'' if periodic else ' with periodic=False'}; got {method!r}")
-    if not isinstance(backend, str) or backend not in ("auto", *BACKENDS):
-        raise ValueError(f"backend must be one of {', '.join(map(repr, ('auto', *BACKENDS)))}; got {backend!r}")
+    minimise = _checked_minimiser(law, periodic, memory, method, backend)
     text = under_resolved(law, shape, length)
     if text is not None:  # every law with a range, every grid shape and boundary (docs/gfmd.md, "Warnings")
         warnings.warn(text, UnderResolvedWarning, stacklevel=2)
@@ -194,6 +182,25 @@ def solve(
                  periodic=False)
     r.periodic = False
     return r
+
+
+def _checked_minimiser(law: Any, periodic: bool, memory: Any, method: Any, backend: Any) -> Any:
+    """The minimiser of ``law`` on this boundary (with ``memory`` L-BFGS pairs where given: the bounded
+    minimiser's on one process), after checking ``memory``, ``method`` and ``backend`` (ValueError naming each)."""
+    minimise, methods = _MINIMISERS[law.load_control] if periodic else _FREE[law.load_control]
+    if memory is not None:
+        if isinstance(memory, bool) or not isinstance(memory, (int, np.integer)) or memory < 1:
+            raise ValueError(f"memory must be an integer >= 1, got {memory!r}")
+        if law.load_control != "bounded":
+            raise ValueError(f"memory: the L-BFGS pairs are set for interaction 'hard_wall_adhesive' (and with "
+                             f"comm= for the smooth laws); interaction {law.name!r} on one process keeps its own")
+        minimise = functools.partial(minimise, memory=int(memory))
+    if not isinstance(method, str) or method not in ("auto", *methods):
+        raise ValueError(f"method must be one of {', '.join(map(repr, ('auto', *methods)))} for interaction "
+                         f"{law.name!r}{'' if periodic else ' with periodic=False'}; got {method!r}")
+    if not isinstance(backend, str) or backend not in ("auto", *BACKENDS):
+        raise ValueError(f"backend must be one of {', '.join(map(repr, ('auto', *BACKENDS)))}; got {backend!r}")
+    return minimise
 
 
 def _checked_layer(thickness: Any, poisson: Any, bottom: str, hardness: Any, comm: Any, start: str) -> Any:
