@@ -136,13 +136,13 @@ if [ "${LONG:-0}" = 1 ]; then
   step cost_left_15 $PY benchmarks/bench_cost_left.py --job jobs/demo.toml --stop-after 15 --out "$SCRATCH/demo.json" &&
     keep "$SCRATCH/demo.json" benchmarks/results/cost_left/demo.json
   # README "17-1735x faster than ContactMechanics + Adhesion at N = 1024" (~11 min: the peer's L-BFGS-B)
-  step peer env PEERS_PY="$PEERS_PY" $PY benchmarks/peers_run.py benchmarks/bench_gfmd.py peer --out "$SCRATCH/peer" &&
+  step peer env PEERS_PY="$PEERS_PY" $PY benchmarks/_peers_run.py benchmarks/bench_gfmd.py peer --out "$SCRATCH/peer" &&
     { keep "$SCRATCH/peer/peer.json" benchmarks/results/gfmd/peer.json
       keep "$SCRATCH/peer/peer.md" benchmarks/results/gfmd/peer.md; }
   # README "Hard wall: agrees with tamaas to < 1e-9 ... 8.0-19.0x less CPU time than tamaas on one core at
   # N = 1024 on 12 held-out cases" (~5 min, mostly tamaas; recorded at 56b6ea2: re-run when gapsweep/gfmd or
   # gapsweep/surfaces changed since, which check_docs reports as stale)
-  step contact_issue39 env PEERS_PY="$PEERS_PY" $PY benchmarks/peers_run.py benchmarks/bench_contact.py cpu --out "$SCRATCH/contact" \
+  step contact_issue39 env PEERS_PY="$PEERS_PY" $PY benchmarks/_peers_run.py benchmarks/bench_contact.py cpu --out "$SCRATCH/contact" \
       --n 1024 --hurst 0.4 0.8 --seeds 2 3 --sigma0 5e-3 1e-2 3e-2 --methods mpcg mpcg:restart --peers tamaas \
       --name issue39_contact_cpu_1024 &&
     { keep "$SCRATCH/contact/issue39_contact_cpu_1024.json" benchmarks/results/contact/issue39_contact_cpu_1024.json

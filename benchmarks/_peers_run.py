@@ -1,5 +1,5 @@
 """Run a benchmark script with the peer codes importable (tamaas, ContactMechanics, Adhesion) but gapsweep's own
-stack first on the path: ``python benchmarks/peers_run.py SCRIPT ARGS...`` with the project's venv python.
+stack first on the path: ``python benchmarks/_peers_run.py SCRIPT ARGS...`` with the project's venv python.
 
 The peers live in a venv of their own (pip wheels that pin other versions; docs/environment.md); running a
 comparison in that venv would time gapsweep on numpy's FFT and the generic kernels (no pyFFTW, no numba there), not
@@ -26,7 +26,7 @@ def peers_site() -> str:
 
 if __name__ == "__main__":
     if len(sys.argv) < 2:
-        raise SystemExit("usage: python benchmarks/peers_run.py SCRIPT [ARGS...]")
+        raise SystemExit("usage: python benchmarks/_peers_run.py SCRIPT [ARGS...]")
     sys.path.append(peers_site())
     script, sys.argv = sys.argv[1], sys.argv[1:]
     runpy.run_path(script, run_name="__main__")
