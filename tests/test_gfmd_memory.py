@@ -55,6 +55,9 @@ def test_hard_wall_gpu_memory_plan_matches_traced_peak(monkeypatch, sigma0: floa
     assert r.elastic_energy == pytest.approx(ref.elastic_energy, rel=1e-6)  # <p u>/2 against Parseval
     est = solve_memory(n, interaction="hard_wall", heights_on_gpu=False)
     margin = est["parts"]["margin (memory pool fragmentation)"]
-    arrays = (est["bytes"] - margin) / (8 * n * n)
+    # whole solves on a GPU hold one half-size real array that this CPU stand-in does not (the memory pool measured
+    # it on an H200: benchmarks/results/gfmd/mem_gpu_one.json; solve_memory counts it since issue 39)
+    gpu_only = 8 * n * (n // 2 + 1)
+    arrays = (est["bytes"] - margin - gpu_only) / (8 * n * n)
     assert abs(peak / (8 * n * n) - arrays) <= 0.25, (peak / (8 * n * n), arrays)
     assert est["arrays"] <= 15.0 and solve_memory(32768, interaction="hard_wall")["bytes"] < 139 * 2**30
