@@ -3,6 +3,12 @@ GPU's pool reaches"): ``gfmd._cuda.solve_memory`` beside the cupy memory pool's 
 keeps every block it took: its size after the solve is its peak), per grid and law.
 
     python benchmarks/mem_gpu_one.py --n 8192 16384 32768 --out benchmarks/results/gfmd/mem_gpu_one.json
+    python benchmarks/mem_gpu_one.py --n 4096 8192 16384 --laws hard_wall_adhesive --out OUT.json
+
+The law ``hard_wall_adhesive`` is the contact-mechanics challenge's (docs/challenge.md): its surface drawn on the
+GPU from the challenge's spectrum in a 25 um box (the box of ``benchmarks/challenge_refine.py``'s first stage),
+one solve from the flat body to 0.25 MPa, against ``gfmd._bounded.memory_plan`` (backend "cupy", the surface
+included) -- the estimate that guards a run of that law.
 
 One GPU; every solve in a process of its own (a fresh pool, plan cache and kernel buffers: a process keeps
 buffers per grid size, so a second size would add to the first), the caller's surface on the GPU as the sweep
@@ -17,15 +23,32 @@ import sys
 import time
 import warnings
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _record
 
 CODE_PATHS = ["gapsweep/gfmd/_cuda.py", "gapsweep/gfmd/_solvers.py", "gapsweep/gfmd/_constrained.py",
-              "gapsweep/gfmd/_ops.py", "gapsweep/core/fft.py"]
+              "gapsweep/gfmd/_ops.py", "gapsweep/core/fft.py", "gapsweep/gfmd/_bounded.py",
+              "gapsweep/surfaces/challenge.py"]
 CASES = {"exponential": dict(interaction="exponential", gamma0=1e-3, sigma0=1e-2),
-         "hard_wall": dict(interaction="hard_wall", sigma0=1e-2)}
+         "hard_wall": dict(interaction="hard_wall", sigma0=1e-2),
+         "hard_wall_adhesive": dict(interaction="hard_wall_adhesive", sigma0=0.25)}
+CHALLENGE_BOX = 25.0  # um
+
+
+def _challenge(n: int) -> tuple[Any, dict, dict]:
+    """The challenge's surface on the GPU, the law's keywords and memory_plan's estimate (as solve_memory's)."""
+    from gapsweep.gfmd._bounded import memory_plan
+    from gapsweep.surfaces import challenge
+
+    c = challenge.CHALLENGE
+    h = challenge.surface(n, seed=1, length=CHALLENGE_BOX, backend="cupy")
+    kw = dict(CASES["hard_wall_adhesive"], work=c["work"], rho=c["rho"], e_star=c["e_star"], length=CHALLENGE_BOX,
+              tol=1e-8, max_iter=20000)
+    plan = memory_plan((n, n), 1, backend="cupy")
+    return h, kw, {"bytes": plan["bytes_per_rank"], "parts": plan["parts"]}
 
 
 def one(n: int, law: str) -> dict:
@@ -38,15 +61,19 @@ def one(n: int, law: str) -> dict:
 
     pool = cupy.get_default_memory_pool()
     kw = dict(CASES[law])
-    if law == "exponential":
-        kw["rho"] = 2.0 / n  # rho/dx = 2: resolved
-    est = solve_memory(n, interaction=law)
-    h = cupy.asarray(self_affine(n, 0.8, lambda_l=0.5, lambda_s=4.0 / n, rms_slope=1.0, seed=5))
+    if law == "hard_wall_adhesive":
+        h, kw, est = _challenge(n)
+    else:
+        if law == "exponential":
+            kw["rho"] = 2.0 / n  # rho/dx = 2: resolved
+        est = solve_memory(n, interaction=law)
+        h = cupy.asarray(self_affine(n, 0.8, lambda_l=0.5, lambda_s=4.0 / n, rms_slope=1.0, seed=5))
+        kw["tol"] = 1e-6
     t0 = time.perf_counter()
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            r = gfmd.solve(h, tol=1e-6, host=False, **kw)
+            r = gfmd.solve(h, host=False, **kw)
         cupy.cuda.Device().synchronize()
         status, it = r.status, int(r.iterations)
     except cupy.cuda.memory.OutOfMemoryError as e:
