@@ -31,6 +31,7 @@ import os
 import platform
 import re
 import shlex
+import signal
 import socket
 import subprocess
 import sys
@@ -233,7 +234,25 @@ def track(code_paths: list[str], *, header: bool = False) -> dict[str, Any]:
                 print(f"benchmarks/_record.py: cannot stamp {f}: {e}", file=sys.stderr)
 
     atexit.register(at_exit)
+    _exit_on_sigterm()
     return rec
+
+
+def _exit_on_sigterm() -> None:
+    """A run stopped by ``timeout`` (SIGTERM; the GPU stages of benchmarks/gpu_challenge_refine.sh are cut so on
+    purpose and keep what they wrote) exits through ``SystemExit``, so that the stamping at exit still runs:
+    Python's default for SIGTERM ends the process without running ``atexit``. A handler the script installed
+    itself is left alone."""
+    if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        return
+
+    def stop(signum: int, frame: Any) -> None:
+        raise SystemExit(128 + signum)
+
+    try:
+        signal.signal(signal.SIGTERM, stop)
+    except ValueError:  # not the main thread: the default stays
+        pass
 
 
 class _OpenedForWriting:

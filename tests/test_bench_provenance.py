@@ -302,3 +302,32 @@ def test_concurrent_runs_stamp_only_their_own_results(tmp_path):
         cmd = json.loads((out / f"{who}.json").read_text())["provenance"]["command"]
         assert f" {who} --out" in cmd, (who, cmd)
     assert " A --out" in record.read(out / "child.txt")["command"]
+
+
+STOPPED = """
+import json, sys, time
+sys.path.insert(0, sys.argv[1])
+import _record
+_record.track(["benchmarks/_record.py"])
+with open(sys.argv[3], "w") as f:
+    json.dump({"partial": True}, f)
+print("written", flush=True)
+sys.stdin.readline()  # never answered: the test stops the run here, as `timeout` does
+"""
+
+
+def test_a_run_stopped_by_sigterm_still_stamps_what_it_wrote(tmp_path):
+    """benchmarks/gpu_challenge_refine.sh cuts each GPU stage with `timeout` (SIGTERM) and keeps the JSON written
+    so far; Python's default for SIGTERM skips atexit, so such a result carried no record (the stage-1 run of
+    2026-11-29). Now track() turns SIGTERM into SystemExit and the file is stamped. Ordered by a pipe, no timing."""
+    env = {"PYTHONPATH": str(ROOT), "PATH": os.environ["PATH"], "HOME": str(tmp_path)}
+    out = tmp_path / "partial.json"
+    p = subprocess.Popen([sys.executable, "-c", STOPPED, str(ROOT / "benchmarks"), "--out", str(out)],
+                         stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                         cwd=tmp_path)
+    assert p.stdout.readline().strip() == "written"
+    p.terminate()  # SIGTERM, as timeout(1) sends
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 128 + 15, (p.returncode, err)
+    data = json.loads(out.read_text())
+    assert data["partial"] is True and data["provenance"]["commit"] == record.project_commit(ROOT)
