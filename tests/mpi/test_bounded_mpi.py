@@ -10,19 +10,14 @@ contact pixels identical, the gap field to 1e-9 of its largest value, the same s
 
 from __future__ import annotations
 
-import json
-import os
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
+from tests.mpi.mpirun import run_worker
+
 WORKER = Path(__file__).with_name("bounded_worker.py")
-ENV = {"OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
-       "OMPI_MCA_rmaps_base_oversubscribe": "1", "PYTHONUNBUFFERED": "1"}
 
 pytestmark = pytest.mark.skipif(shutil.which("mpiexec") is None, reason="mpiexec not installed")
 
@@ -30,13 +25,7 @@ pytestmark = pytest.mark.skipif(shutil.which("mpiexec") is None, reason="mpiexec
 @pytest.mark.parametrize("ranks", [2, 3])
 def test_bounded_distributed_equals_one_process(tmp_path, ranks):
     pytest.importorskip("mpi4py")
-    env = dict(os.environ, **ENV)
-    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")])
-    out = tmp_path / "out.json"
-    p = subprocess.run(["mpiexec", "-n", str(ranks), sys.executable, str(WORKER), str(out)], env=env,
-                       capture_output=True, text=True, timeout=300)
-    assert p.returncode == 0, p.stdout + p.stderr
-    d = json.loads(out.read_text())
+    d = run_worker(WORKER, tmp_path / "out.json", ranks)
     assert d["ranks"] == ranks and len(d["solve"]) == 3
     for s in d["solve"]:
         assert s["status"] == ["converged", "converged"], s
