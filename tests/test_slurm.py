@@ -14,6 +14,7 @@ import json
 import os
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -80,23 +81,40 @@ def _stop(pidfile: Path) -> None:
             pass
 
 
+def _free_ports(n: int) -> list[int]:
+    """``n`` distinct TCP ports free on this machine now: each test run's controller and node daemon listen on
+    their own, so that test runs side by side on one machine (three root rounds at once, issue 40) do not talk to
+    each other's cluster (fixed ports made the second run's sbatch reach the first run's controller, and the first
+    run's teardown cut the others off)."""
+    socks = []
+    try:
+        for _ in range(n):
+            s = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+            s.bind(("127.0.0.1", 0))
+            socks.append(s)
+        return [s.getsockname()[1] for s in socks]
+    finally:
+        for s in socks:
+            s.close()
+
+
 @pytest.fixture(scope="module")
 def cluster(tmp_path_factory):
     d = tmp_path_factory.mktemp("slurm")
     for sub in ("state", "spool"):
         (d / sub).mkdir()
-    started_munge = False
     if not _munge_ok():
         Path("/run/munge").mkdir(parents=True, exist_ok=True)
         shutil.chown("/run/munge", "munge", "munge")
-        subprocess.run(["runuser", "-u", "munge", "--", "munged"], check=True, timeout=30)
-        started_munge = True
+        # not checked: a test run beside this one may have started it a moment ago (then this start fails)
+        subprocess.run(["runuser", "-u", "munge", "--", "munged"], timeout=30, capture_output=True)
         for _ in range(50):
             if _munge_ok():
                 break
             time.sleep(0.1)
     conf = d / "slurm.conf"
-    conf.write_text(CONF.format(d=d, cpus=os.cpu_count() or 2, port=16817, port2=16818))
+    port, port2 = _free_ports(2)
+    conf.write_text(CONF.format(d=d, cpus=os.cpu_count() or 2, port=port, port2=port2))
     env = dict(os.environ, SLURM_CONF=str(conf))
     subprocess.run(["slurmctld", "-i"], env=env, check=True, timeout=30)
     subprocess.run(["slurmd", "-N", "localhost"], env=env, check=True, timeout=30)
@@ -113,8 +131,8 @@ def cluster(tmp_path_factory):
     finally:
         _stop(d / "slurmd.pid")
         _stop(d / "slurmctld.pid")
-        if started_munge:
-            _stop(Path("/run/munge/munged.pid"))
+        # munged, if this fixture started it, stays: it is the machine's one authentication daemon, and another
+        # test run's cluster may be using it now (stopping it cut that run off)
 
 
 def _gapsweep() -> str:
