@@ -17,12 +17,11 @@ import numpy as np
 import pytest
 
 from gapsweep import store
+from tests.mpi.mpirun import ENV as MPI_ENV
 
 ROOT = Path(__file__).resolve().parents[2]
 THEORY_JOB = ROOT / "jobs" / "test_theory.toml"
 HIST_JOB = Path(__file__).resolve().parent / "jobs" / "hist.toml"
-MPI_ENV = {"OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
-           "OMPI_MCA_rmaps_base_oversubscribe": "1", "PYTHONUNBUFFERED": "1"}
 
 
 def env(**kw: str) -> dict[str, str]:

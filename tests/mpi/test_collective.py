@@ -22,12 +22,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.mpi.mpirun import ENV
 from tests.storekit import small_job
 
 pytestmark = [pytest.mark.skipif(shutil.which("mpiexec") is None, reason="mpiexec not installed"), pytest.mark.slow]
 
-ENV = {"OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
-       "OMPI_MCA_rmaps_base_oversubscribe": "1", "PYTHONUNBUFFERED": "1"}
 ROOT = Path(__file__).resolve().parents[2]
 
 EXPONENTIAL = small_job("dist-exp", sigma0="[1e-3, 1e-2, 1e-1]", bins=16, methods="""

@@ -11,33 +11,22 @@ gap field to 1e-9 of its largest value, the gap histogram to 1e-9, the same scal
 from __future__ import annotations
 
 import itertools
-import json
-import os
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from tests.comm_stub import SizeRankComm as _Comm
+from tests.mpi.mpirun import run_worker
 
-ROOT = Path(__file__).resolve().parents[2]
 WORKER = Path(__file__).with_name("distributed_worker.py")
-ENV = {"OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
-       "OMPI_MCA_rmaps_base_oversubscribe": "1", "PYTHONUNBUFFERED": "1"}
 
 pytestmark = pytest.mark.skipif(shutil.which("mpiexec") is None, reason="mpiexec not installed")
 
 
 def _run(ranks: int, out: Path) -> dict:
     pytest.importorskip("mpi4py")
-    env = dict(os.environ, **ENV)
-    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")])
-    p = subprocess.run(["mpiexec", "-n", str(ranks), sys.executable, str(WORKER), str(out)], env=env,
-                       capture_output=True, text=True, timeout=300)
-    assert p.returncode == 0, p.stdout + p.stderr
-    return json.loads(out.read_text())
+    return run_worker(WORKER, out, ranks)
 
 
 @pytest.mark.parametrize("ranks", [2, 3, 4])

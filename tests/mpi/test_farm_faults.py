@@ -15,10 +15,11 @@ from pathlib import Path
 
 import pytest
 
+from tests.mpi import mpirun
+
 ROOT = Path(__file__).resolve().parents[2]
 FAKE = ROOT / "tests" / "fakegpu.py"
-ENV = {"OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
-       "OMPI_MCA_rmaps_base_oversubscribe": "1", "PYTHONUNBUFFERED": "1", "GAPSWEEP_TEST_GPUS": "2"}
+ENV = {**mpirun.ENV, "GAPSWEEP_TEST_GPUS": "2"}
 
 
 def _have_mpi() -> bool:

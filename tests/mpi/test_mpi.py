@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from gapsweep import runner, store
+from tests.mpi.mpirun import ENV
 
 ROOT = Path(__file__).resolve().parents[2]
 THEORY_JOB = ROOT / "jobs" / "test_theory.toml"
@@ -39,8 +40,6 @@ def _h5py_mpi() -> bool:
 
 
 WRITERS = [pytest.param("mpio", marks=pytest.mark.skipif(not _h5py_mpi(), reason="h5py without MPI")), "rank0"]
-ENV = {"OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
-       "OMPI_MCA_rmaps_base_oversubscribe": "1", "PYTHONUNBUFFERED": "1"}
 
 
 def mpirun(n: int, args: list[str], env: dict[str, str] | None = None, timeout: float = 120,
