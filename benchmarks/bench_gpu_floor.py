@@ -7,7 +7,8 @@ summary table. Parts (``--parts``, default all):
   tol 1e-6, default method, fields left on the GPU, best of 2 after a warm-up): ms per force evaluation and
   ``pairs/eval`` = (wall / evaluations) / pair (the measure of bench_gfmd.py's ``gpu`` command).
 * ``hardwall``: the hard wall at N = 4096 (same surface, tol 1e-8, default GPU method "pcg"), sigma0 = 1e-3,
-  1e-2, 1e-1: wall time, iterations, FFT pairs, ms per iteration and pairs per iteration.
+  1e-2, 1e-1: wall time, iterations, FFT pairs, ms per iteration and pairs per iteration; ``--hardwall-methods``
+  times several methods side by side, ``--hardwall-seeds`` other surfaces of the same spectrum.
 * ``free``: free boundaries (``periodic=False``) against a periodic solve of the same map, N = 4096:
   exponential (L-BFGS on the doubled grid; also with fewer stored pairs, ``--free-memory``, and the opt-in
   nonlinear CG, method "cg") and hard wall (sigma0 = 1e-2): time ratio per solve and per evaluation (issue
@@ -131,15 +132,19 @@ def part_pairs(dev: Device, a, rows: list) -> None:
 def part_hardwall(dev: Device, a, rows: list) -> None:
     n = a.n_hardwall
     t_pair = dev.pair(n)
-    h = dev.surface(n)
-    for s0 in (1e-3, 1e-2, 1e-1):
-        r = dev.solve(h, sigma0=s0, interaction="hard_wall", tol=1e-8, max_iter=5000)
-        it = max(r.iterations, 1)
-        pairs = r.diagnostics.get("fft_pairs", math.nan)
-        rows.append(_row("hardwall", n=n, sigma0=s0, method=r.method, iterations=r.iterations, solve_s=r.wall_time,
-                         ms_per_iteration=1e3 * r.wall_time / it, fft_pairs=pairs, pair_ms=1e3 * t_pair,
-                         pairs_per_iteration_time=r.wall_time / it / t_pair, contact_area=r.contact_area,
-                         status=r.status))
+    for seed in a.hardwall_seeds:
+        h = dev.surface(n, seed)
+        for s0 in (1e-3, 1e-2, 1e-1):
+            for method in a.hardwall_methods:
+                r = dev.solve(h, sigma0=s0, interaction="hard_wall", tol=1e-8, max_iter=5000, method=method)
+                it = max(r.iterations, 1)
+                pairs = r.diagnostics.get("fft_pairs", math.nan)
+                rows.append(_row("hardwall", n=n, seed=seed, sigma0=s0, method=r.method, iterations=r.iterations,
+                                 coarse_iterations=r.diagnostics.get("coarse_iterations", []),
+                                 solve_s=r.wall_time, ms_per_iteration=1e3 * r.wall_time / it, fft_pairs=pairs,
+                                 pair_ms=1e3 * t_pair, pairs_per_iteration_time=r.wall_time / it / t_pair,
+                                 contact_area=r.contact_area, mean_gap=r.mean_gap, residual=r.residual,
+                                 status=r.status))
 
 
 def _free_syncs(dev: Device, h: Any, **kw) -> float:
@@ -273,7 +278,7 @@ def summary(rows: list) -> str:
                                                      f"**{r['pairs_per_eval']:.2f} pairs/eval** ({r['evals']} evals, "
                                                      f"{r['status']})")
         elif p == "hardwall":
-            case, nums = f"hard wall N={r['n']} sigma0={r['sigma0']:g}", (
+            case, nums = f"hard wall N={r['n']} seed={r.get('seed', 1)} sigma0={r['sigma0']:g} {r['method']}", (
                 f"**{r['solve_s']:.3g} s**, {r['iterations']} it, {r['ms_per_iteration']:.3g} ms/it, "
                 f"{r['fft_pairs']} pairs ({r['status']})")
         elif p == "free":
@@ -306,6 +311,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--parts", nargs="+", choices=list(PARTS), default=list(PARTS))
     p.add_argument("--no-free-cg", dest="free_cg", action="store_false",
                    help="free: skip the exponential law's free solve with method cg")
+    p.add_argument("--hardwall-methods", nargs="+", default=["auto"], choices=["auto", "pk", "pcg", "mpcg"],
+                   help="hardwall: the methods timed side by side (default: the GPU's default)")
+    p.add_argument("--hardwall-seeds", type=int, nargs="+", default=[1],
+                   help="hardwall: surface seeds (default 1, the issue's surface; others are held out)")
     p.add_argument("--budget", type=float, default=330.0, help="seconds after which no further part starts")
     p.add_argument("--force", action="store_true", help="big: run even where the estimate exceeds the free memory")
     p.add_argument("--free-memory", type=int, nargs="+", default=None,
