@@ -94,6 +94,25 @@ def _key(case: tuple, ps: float) -> str:
     return "|".join(f"{v:g}" for v in (*case, ps))
 
 
+def points(name: str, distributions: bool = False):
+    """``(case, pressure, n, h, kw)`` of every point of the set ``name`` (only its distribution points with
+    ``distributions``): the surfaces made as :func:`evaluate` makes them, ``kw`` the law's ``rho`` and ``gamma0``."""
+    for cases, pressures, dist_idx in SETS[name]:
+        for case in cases:
+            hurst, lam_l, zeta_s, slope, gamma0, rr, seed = case
+            n = _grid(lam_l, zeta_s)
+            h = surface.self_affine(n, hurst, lambda_l=lam_l, lambda_s=lam_l / zeta_s, rms_slope=slope, seed=seed)
+            kw = dict(rho=rr * surface.rms_height(h), gamma0=gamma0)
+            for ip, ps in enumerate(pressures):
+                if ip in dist_idx or not distributions:
+                    yield case, ps, n, h, kw
+
+
+def distribution_points(name: str):
+    """:func:`points` with a gap distribution."""
+    return points(name, distributions=True)
+
+
 def _reference(h: np.ndarray, s0: float, kw: dict, dist: bool) -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # rho < dx on some grids (docs/results/predictors_heldout.md)
@@ -129,19 +148,13 @@ def ladders_only(name: str, out: Path) -> pd.DataFrame:
     """The tuning ladders again (cached GFMD references, no distributions): for a new estimate form."""
     cache = json.loads((out / f"gfmd_{name}.json").read_text())
     rows = []
-    for cases, pressures, _ in SETS[name]:
-        for case in cases:
-            hurst, lam_l, zeta_s, slope, gamma0, rr, seed = case
-            n = _grid(lam_l, zeta_s)
-            h = surface.self_affine(n, hurst, lambda_l=lam_l, lambda_s=lam_l / zeta_s, rms_slope=slope, seed=seed)
-            kw = dict(rho=rr * surface.rms_height(h), gamma0=gamma0)
-            for ps in pressures:
-                key = _key(case, ps)
-                ref = cache[key]
-                scale = max(abs(ref["mean_gap"]), surface.rms_height(h))
-                lad, _ = _cpu(improved.hybrid, ps * slope, h, zeta_c="auto", lambda_l=lam_l, finest=True, **kw)
-                rows += [dict(key=key, scale=scale, gfmd=ref["mean_gap"], full_cost=ref["iterations"] * n * n,
-                              k_max=improved._max_mode(h), **lv) for lv in lad.ladder]
+    for case, ps, n, h, kw in points(name):
+        key = _key(case, ps)
+        ref = cache[key]
+        scale = max(abs(ref["mean_gap"]), surface.rms_height(h))
+        lad, _ = _cpu(improved.hybrid, ps * case[3], h, zeta_c="auto", lambda_l=case[1], finest=True, **kw)
+        rows += [dict(key=key, scale=scale, gfmd=ref["mean_gap"], full_cost=ref["iterations"] * n * n,
+                      k_max=improved._max_mode(h), **lv) for lv in lad.ladder]
     return pd.DataFrame(rows)
 
 

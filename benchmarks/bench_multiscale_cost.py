@@ -34,9 +34,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _record
 import bench_bounds as bb
 
-from gapsweep import gfmd, surface
+from gapsweep import gfmd
 from gapsweep.theory import closure, improved
-from studies.predictors_heldout import _grid
 
 # the code this benchmark measures: a result measured before a later change to it is stale
 # (scripts/check_docs.py)
@@ -82,28 +81,20 @@ def main(argv: list[str] | None = None) -> int:
     _record.track(CODE_PATHS)
     warnings.simplefilter("ignore")  # rho < dx on some grids, as bench_bounds
     rows = []
-    for cases, pressures, dist_idx in bb.SETS[a.set]:
-        for case in cases:
-            hurst, lam_l, zeta_s, slope, gamma0, rr, seed = case
-            n = _grid(lam_l, zeta_s)
-            h = surface.self_affine(n, hurst, lambda_l=lam_l, lambda_s=lam_l / zeta_s, rms_slope=slope, seed=seed)
-            kw = dict(rho=rr * surface.rms_height(h), gamma0=gamma0)
-            for ip, ps in enumerate(pressures):
-                if ip not in dist_idx:
-                    continue
-                s0 = ps * slope
-                closure.multiscale_gap_samples(s0, h, lambda_l=lam_l, seed=seed, **kw)  # warm-up: plans, kernels
-                ms, t_w = _timed(closure.multiscale_gap_samples, s0, h, lambda_l=lam_l, seed=seed, **kw)
-                row = {"hurst": hurst, "lambda_l": lam_l, "zeta_s": zeta_s, "rms_slope": slope, "gamma0": gamma0,
-                       "rho_over_h": rr, "seed": seed, "pressure": ps, "n": n, "pixels": n * n,
-                       "samples": ms.samples.size, "whole_s": t_w, **parts(s0, h, lam_l, seed, **kw)}
-                ref, t_g = _timed(gfmd.solve, h, sigma0=s0, tol=1e-8, threads=1, **kw)
-                row.update(gfmd_s=t_g, gfmd_iterations=int(ref.iterations), gfmd_status=ref.status,
-                           whole_over_gfmd=t_w / t_g, hybrid_over_gfmd=row["hybrid_s"] / t_g)
-                rows.append(row)
-                print(f"{bb._key(case, ps)}: whole {t_w:.3f} s (hybrid {row['hybrid_s']:.3f}, sample "
-                      f"{row['sample_s']:.3f}, check {row['check_s']:.3f}, l1 {row['l1_s']:.3f}), gfmd {t_g:.3f} s",
-                      flush=True)
+    for case, ps, n, h, kw in bb.distribution_points(a.set):
+        hurst, lam_l, zeta_s, slope, gamma0, rr, seed = case
+        s0 = ps * slope
+        closure.multiscale_gap_samples(s0, h, lambda_l=lam_l, seed=seed, **kw)  # warm-up: plans, kernels
+        ms, t_w = _timed(closure.multiscale_gap_samples, s0, h, lambda_l=lam_l, seed=seed, **kw)
+        row = {"hurst": hurst, "lambda_l": lam_l, "zeta_s": zeta_s, "rms_slope": slope, "gamma0": gamma0,
+               "rho_over_h": rr, "seed": seed, "pressure": ps, "n": n, "pixels": n * n, "samples": ms.samples.size,
+               "whole_s": t_w, **parts(s0, h, lam_l, seed, **kw)}
+        ref, t_g = _timed(gfmd.solve, h, sigma0=s0, tol=1e-8, threads=1, **kw)
+        row.update(gfmd_s=t_g, gfmd_iterations=int(ref.iterations), gfmd_status=ref.status,
+                   whole_over_gfmd=t_w / t_g, hybrid_over_gfmd=row["hybrid_s"] / t_g)
+        rows.append(row)
+        print(f"{bb._key(case, ps)}: whole {t_w:.3f} s (hybrid {row['hybrid_s']:.3f}, sample {row['sample_s']:.3f}, "
+              f"check {row['check_s']:.3f}, l1 {row['l1_s']:.3f}), gfmd {t_g:.3f} s", flush=True)
     df = pd.DataFrame(rows)
     df.to_csv(a.out / f"{name}.csv", index=False)
     parts_s = df[["hybrid_s", "sample_s", "check_s", "l1_s"]].sum(axis=1)

@@ -26,9 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _record
 import bench_bounds as bb
 
-from gapsweep import surface
 from gapsweep.theory import closure
-from studies.predictors_heldout import _grid
 
 CODE_PATHS = ["gapsweep/theory", "gapsweep/gfmd", "gapsweep/surfaces"]
 
@@ -36,21 +34,13 @@ CODE_PATHS = ["gapsweep/theory", "gapsweep/gfmd", "gapsweep/surfaces"]
 def evaluate(name: str, widths: list[float], out: Path) -> pd.DataFrame:
     cache = json.loads((out / f"gfmd_{name}.json").read_text())
     rows = []
-    for cases, pressures, dist_idx in bb.SETS[name]:
-        for case in cases:
-            hurst, lam_l, zeta_s, slope, gamma0, rr, seed = case
-            n = _grid(lam_l, zeta_s)
-            h = surface.self_affine(n, hurst, lambda_l=lam_l, lambda_s=lam_l / zeta_s, rms_slope=slope, seed=seed)
-            kw = dict(rho=rr * surface.rms_height(h), gamma0=gamma0)
-            for ip, ps in enumerate(pressures):
-                if ip not in dist_idx:
-                    continue
-                ref = cache[bb._key(case, ps)]
-                for w in widths:
-                    ms, t = bb._cpu(closure.multiscale_gap_samples, ps * slope, h, lambda_l=lam_l, seed=seed,
-                                    dlnq=w, **kw)
-                    rows.append(dict(key=bb._key(case, ps), n=n, dlnq=w, l1=bb.l1_to_reference(ms.samples, ref),
-                                     l1_estimate=ms.l1_estimate, status=ms.status, cpu=t, cpu_gfmd=ref["cpu"]))
+    for case, ps, n, h, kw in bb.distribution_points(name):
+        lam_l, slope, seed = case[1], case[3], case[6]
+        ref = cache[bb._key(case, ps)]
+        for w in widths:
+            ms, t = bb._cpu(closure.multiscale_gap_samples, ps * slope, h, lambda_l=lam_l, seed=seed, dlnq=w, **kw)
+            rows.append(dict(key=bb._key(case, ps), n=n, dlnq=w, l1=bb.l1_to_reference(ms.samples, ref),
+                             l1_estimate=ms.l1_estimate, status=ms.status, cpu=t, cpu_gfmd=ref["cpu"]))
     return pd.DataFrame(rows)
 
 
