@@ -8,7 +8,8 @@ summary table. Parts (``--parts``, default all):
   ``pairs/eval`` = (wall / evaluations) / pair (the measure of bench_gfmd.py's ``gpu`` command).
 * ``hardwall``: the hard wall at N = 4096 (same surface, tol 1e-8, default GPU method "pcg"), sigma0 = 1e-3,
   1e-2, 1e-1: wall time, iterations, FFT pairs, ms per iteration and pairs per iteration; ``--hardwall-methods``
-  times several methods side by side, ``--hardwall-seeds`` other surfaces of the same spectrum.
+  times several methods side by side (``mpcg:1024``: the coarse levels stopped at 1024^2, an experiment on the
+  solver's ``_COARSEST``), ``--hardwall-seeds`` other surfaces of the same spectrum.
 * ``free``: free boundaries (``periodic=False``) against a periodic solve of the same map, N = 4096:
   exponential (L-BFGS on the doubled grid; also with fewer stored pairs, ``--free-memory``, and the opt-in
   nonlinear CG, method "cg") and hard wall (sigma0 = 1e-2): time ratio per solve and per evaluation (issue
@@ -129,17 +130,33 @@ def part_pairs(dev: Device, a, rows: list) -> None:
                          solve_s=r.wall_time, ms_per_eval=1e3 * per, pairs_per_eval=per / t_pair, status=r.status))
 
 
+def _with_coarsest(coarsest: int | None, f, *args, **kw):
+    """``f(*args, **kw)`` with the "mpcg" coarse levels stopped at grids of side ``coarsest`` (an experiment on
+    ``gfmd._constrained._COARSEST``, restored after; ``None``: as shipped)."""
+    from gapsweep.gfmd import _constrained
+
+    saved = _constrained._COARSEST
+    _constrained._COARSEST = coarsest or saved
+    try:
+        return f(*args, **kw)
+    finally:
+        _constrained._COARSEST = saved
+
+
 def part_hardwall(dev: Device, a, rows: list) -> None:
     n = a.n_hardwall
     t_pair = dev.pair(n)
     for seed in a.hardwall_seeds:
         h = dev.surface(n, seed)
         for s0 in (1e-3, 1e-2, 1e-1):
-            for method in a.hardwall_methods:
-                r = dev.solve(h, sigma0=s0, interaction="hard_wall", tol=1e-8, max_iter=5000, method=method)
+            for spec in a.hardwall_methods:
+                method, _, coarsest = spec.partition(":")
+                r = _with_coarsest(int(coarsest) if coarsest else None, dev.solve, h, sigma0=s0,
+                                   interaction="hard_wall", tol=1e-8, max_iter=5000, method=method)
                 it = max(r.iterations, 1)
                 pairs = r.diagnostics.get("fft_pairs", math.nan)
-                rows.append(_row("hardwall", n=n, seed=seed, sigma0=s0, method=r.method, iterations=r.iterations,
+                rows.append(_row("hardwall", n=n, seed=seed, sigma0=s0, method=spec if coarsest else r.method,
+                                 iterations=r.iterations,
                                  coarse_iterations=r.diagnostics.get("coarse_iterations", []),
                                  solve_s=r.wall_time, ms_per_iteration=1e3 * r.wall_time / it, fft_pairs=pairs,
                                  pair_ms=1e3 * t_pair, pairs_per_iteration_time=r.wall_time / it / t_pair,
@@ -311,8 +328,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--parts", nargs="+", choices=list(PARTS), default=list(PARTS))
     p.add_argument("--no-free-cg", dest="free_cg", action="store_false",
                    help="free: skip the exponential law's free solve with method cg")
-    p.add_argument("--hardwall-methods", nargs="+", default=["auto"], choices=["auto", "pk", "pcg", "mpcg"],
-                   help="hardwall: the methods timed side by side (default: the GPU's default)")
+    p.add_argument("--hardwall-methods", nargs="+", default=["auto"],
+                   help="hardwall: the methods timed side by side (auto, pk, pcg, mpcg; mpcg:SIDE stops its coarse "
+                        "levels at grids of side SIDE, an experiment; default: the GPU's default)")
     p.add_argument("--hardwall-seeds", type=int, nargs="+", default=[1],
                    help="hardwall: surface seeds (default 1, the issue's surface; others are held out)")
     p.add_argument("--budget", type=float, default=330.0, help="seconds after which no further part starts")
