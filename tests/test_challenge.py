@@ -5,8 +5,6 @@ the law, the shipped CI job end to end with the report's challenge section, and 
 from __future__ import annotations
 
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -151,19 +149,20 @@ def test_patch_areas_join_across_periodic_edges() -> None:
 
 
 @pytest.mark.slow  # about 40 s on the shared 2-core machine (the report's figures)
-def test_quick_job_runs_and_reports_the_challenge_outputs(tmp_path: Path) -> None:
+def test_quick_job_runs_and_reports_the_challenge_outputs(tmp_path: Path, capsys) -> None:
     """The shipped CI job end to end (run, report): every task converges; the challenge section's tables hold
     area, mean gap and stiffness against load for each rho, patch statistics whose areas add up to the contact
-    area, and the Tabor table; the loading path is named."""
+    area, and the Tabor table; the loading path is named. The two commands run by ``cli.main`` in this process
+    (the function ``python -m gapsweep`` exits with): two interpreter starts less."""
+    from gapsweep import cli
+
     pytest.importorskip("xarray")  # kept fields
     store = tmp_path / "cq.h5"
     job = ROOT / "gapsweep/jobs/challenge_quick.toml"
-    run = subprocess.run([sys.executable, "-m", "gapsweep", "run", str(job), "--store", str(store)],
-                         capture_output=True, text=True)
-    assert run.returncode == 0, run.stderr[-2000:]
-    rep = subprocess.run([sys.executable, "-m", "gapsweep", "report", str(store), "--out", str(tmp_path / "r")],
-                         capture_output=True, text=True)
-    assert rep.returncode == 0, rep.stderr[-2000:]
+    rc = cli.main(["run", str(job), "--store", str(store)])
+    assert rc == 0, capsys.readouterr().err[-2000:]
+    rc = cli.main(["report", str(store), "--out", str(tmp_path / "r")])
+    assert rc == 0, capsys.readouterr().err[-2000:]
     md = (tmp_path / "r/report.md").read_text()
     assert "## The contact-mechanics challenge's outputs" in md and "loads in increasing order" in md
     loads_t = pd.read_csv(tmp_path / "r/challenge_loads.csv")

@@ -4,8 +4,7 @@ and the CLI's manners around it (no silent overwrite)."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
+import shutil
 from pathlib import Path
 
 import pandas as pd
@@ -24,12 +23,32 @@ def generic_store(tmp_path_factory):
     return path
 
 
-@pytest.mark.timeout(300)
-def test_generic_report_has_no_blank_figure(generic_store, tmp_path):
-    from gapsweep.analysis import report
+def _cli(capsys, *args) -> tuple[int, str]:
+    """``gapsweep ARGS`` in this process (``cli.main``, the function ``python -m gapsweep`` exits with): the exit
+    code and what it wrote to stderr. One interpreter start and import less per call."""
+    from gapsweep import cli
 
-    out = tmp_path / "report"
-    text = report.main([generic_store], out).read_text()
+    capsys.readouterr()
+    rc = cli.main([str(a) for a in args])
+    return rc, capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def generic_report(generic_store, tmp_path_factory):
+    """The report of the generic store, built once by ``gapsweep report STORE --out DIR`` into a new folder (the
+    CLI's first build: exit 0). The tests read it; the overwrite test works on a copy."""
+    from gapsweep import cli
+
+    out = tmp_path_factory.mktemp("generic_report") / "report"
+    rc = cli.main(["report", str(generic_store), "--out", str(out)])
+    assert rc == 0
+    return out
+
+
+@pytest.mark.timeout(300)
+def test_generic_report_has_no_blank_figure(generic_report):
+    out = generic_report
+    text = (out / "report.md").read_text()
     figs = pd.read_csv(out / "figures.csv")
     # One pressure figure per H (a panel per rho), the gap distribution at (0.5, 8e-3), the agreement map.
     names = set(figs["figure"])
@@ -50,17 +69,18 @@ def test_generic_report_has_no_blank_figure(generic_store, tmp_path):
 
 
 @pytest.mark.timeout(120)
-def test_cli_report_refuses_to_overwrite(generic_store, tmp_path):
+def test_cli_report_refuses_to_overwrite(generic_store, generic_report, tmp_path, capsys):
+    # the first `gapsweep report` into a new folder (exit 0) is the module's generic_report; a copy of that
+    # folder (its manifest with it) is the report already in --out
     out = tmp_path / "rep"
-    cmd = [sys.executable, "-m", "gapsweep", "report", str(generic_store), "--out", str(out)]
-    first = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=110)
-    assert first.returncode == 0, first.stderr[-2000:]
+    shutil.copytree(generic_report, out)
+    cmd = ["report", generic_store, "--out", out]
     before = (out / "report.md").stat().st_mtime_ns
-    again = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=110)
-    assert again.returncode != 0 and "--overwrite" in again.stderr
+    rc, err = _cli(capsys, *cmd)
+    assert rc != 0 and "--overwrite" in err
     assert (out / "report.md").stat().st_mtime_ns == before  # untouched
-    forced = subprocess.run([*cmd, "--overwrite"], capture_output=True, text=True, cwd=ROOT, timeout=110)
-    assert forced.returncode == 0, forced.stderr[-2000:]
+    rc, err = _cli(capsys, *cmd, "--overwrite")
+    assert rc == 0, err[-2000:]
     assert (out / "report.md").stat().st_mtime_ns != before
 
 

@@ -94,10 +94,23 @@ def test_submit_defaults_and_bad_option(tmp_path, sbatch):
     assert len(_calls(sbatch)) == 1
 
 
+def _shard_args(tmp_path: Path, i: int) -> list[str]:
+    return ["run", str(JOB), "--store", str(tmp_path / "s{i}.h5"), "--shard", f"{i}/3", "--mpi", "off", "--progress",
+            "none", "--resume"]
+
+
 def _shard(tmp_path: Path, i: int, **kw: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "gapsweep", "run", str(JOB), "--store",
-                           str(tmp_path / "s{i}.h5"), "--shard", f"{i}/3", "--mpi", "off", "--progress", "none",
-                           "--resume"], env=_env(**kw), capture_output=True, text=True, timeout=120)
+    """A shard's run as a child process (the fault hooks of tests/hooks act there only)."""
+    return subprocess.run([sys.executable, "-m", "gapsweep", *_shard_args(tmp_path, i)], env=_env(**kw),
+                          capture_output=True, text=True, timeout=120)
+
+
+def _shard_here(tmp_path: Path, i: int) -> int:
+    """The same run by ``cli.main`` in this process (no fault hook, no process boundary under test): its exit
+    code."""
+    from gapsweep import cli
+
+    return cli.main(_shard_args(tmp_path, i))
 
 
 def test_merge_job_names_missing_and_unfinished_shards(tmp_path):
@@ -106,10 +119,11 @@ def test_merge_job_names_missing_and_unfinished_shards(tmp_path):
     (missing), exits 1; the setup hook ran first. After the two shards are resubmitted it exits 0 and the
     merged store equals a single run. (The old job exited 0 with pending shards and failed on a missing one
     with the merge's bare error.)"""
-    ref = tmp_path / "ref.h5"
-    assert subprocess.run([sys.executable, "-m", "gapsweep", "run", str(JOB), "--store", str(ref), "--mpi", "off",
-                           "--progress", "none"], env=_env(), timeout=120).returncode == 0
-    assert _shard(tmp_path, 0).returncode == 0
+    from gapsweep import runner
+
+    ref = tmp_path / "ref.h5"  # a single run, in this process (a reference, not under test)
+    runner.run(JOB, ref, progress="none", mpi="off")
+    assert _shard_here(tmp_path, 0) == 0
     assert _shard(tmp_path, 1, GAPSWEEP_TEST_WRITE_ERROR="3").returncode == 1
     cmd = ["bash", str(ROOT / "slurm" / "merge_job.sbatch"), "s{i}.h5", "3", "m.h5"]
     env = _env(SLURM_SUBMIT_DIR=str(tmp_path), GAPSWEEP_SETUP="echo setup-hook-ran; unset NOPE_$NOPE")
@@ -122,7 +136,7 @@ def test_merge_job_names_missing_and_unfinished_shards(tmp_path):
     assert "shard 2 (s2.h5): missing" in err and "shard 0" not in err
     done0 = (store.read(tmp_path / "s0.h5").status == "done").sum()
     assert done0 > 0 and (store.read(tmp_path / "m.h5").status == "done").sum() >= done0
-    assert _shard(tmp_path, 1).returncode == 0 and _shard(tmp_path, 2).returncode == 0
+    assert _shard_here(tmp_path, 1) == 0 and _shard_here(tmp_path, 2) == 0
     p = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120, cwd="/")
     assert p.returncode == 0, p.stderr
     assert store.diff(tmp_path / "m.h5", ref) == []

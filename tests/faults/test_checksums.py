@@ -2,7 +2,8 @@
 written row -- a result value, a task parameter, a histogram, a status byte, swapped task rows, NaN histogram
 edges -- is found by `status` (naming the rows), re-run by `--resume` (which restores the reference store), and
 refused by `merge` and `export` unless `--skip-damaged`. Stores without checksums (formats 1 and 2) still open.
-Each damage below passed every check of the code before checksums."""
+Each damage below passed every check of the code before checksums. ``status``, ``merge`` and ``export`` run in this
+process (``gs_here``: ``cli.main``, its exit code and output); the runs stay child processes."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ import pytest
 
 from gapsweep import store
 
-from .conftest import JOBS, gs, one_line_error
+from .conftest import JOBS, gs, gs_here, one_line_error
 
 
 def _rows(h, method):
@@ -80,11 +81,11 @@ DAMAGE = {"value": _value, "task-parameter": _param, "histogram": _hist, "status
 
 
 @pytest.mark.parametrize("damage", list(DAMAGE))
-def test_damage_found_by_status_and_repaired_by_resume(tmp_path, refs, damage):
+def test_damage_found_by_status_and_repaired_by_resume(tmp_path, refs, damage, capsys):
     path = tmp_path / "s.h5"
     shutil.copy(refs["hist"], path)
     rows = DAMAGE[damage](path)
-    p = gs("status", path)
+    p = gs_here(capsys, "status", path)
     assert p.returncode == 0, p.stderr
     assert "damaged row" in p.stdout or "without a complete result" in p.stdout, p.stdout
     assert str(rows[0]) in p.stdout, p.stdout
@@ -94,33 +95,33 @@ def test_damage_found_by_status_and_repaired_by_resume(tmp_path, refs, damage):
     rerun = 0 if damage in ("task-parameter", "swapped-task-rows") else len(rows)
     assert f"{rerun} of " in p.stdout, p.stdout
     assert store.diff(path, refs["hist"]) == []
-    p = gs("status", path)
+    p = gs_here(capsys, "status", path)
     assert "damaged" not in p.stdout, p.stdout
 
 
 @pytest.mark.parametrize("damage", ["value", "histogram", "status-byte"])
-def test_merge_and_export_refuse_damaged_rows_unless_told(tmp_path, refs, damage):
+def test_merge_and_export_refuse_damaged_rows_unless_told(tmp_path, refs, damage, capsys):
     path = tmp_path / "s.h5"
     shutil.copy(refs["hist"], path)
     DAMAGE[damage](path)
-    p = gs("merge", path, "--out", tmp_path / "m.h5")
+    p = gs_here(capsys, "merge", path, "--out", tmp_path / "m.h5")
     one_line_error(p, str(path), "damaged row")
     assert not (tmp_path / "m.h5").exists()
-    p = gs("merge", path, "--out", tmp_path / "m.h5", "--skip-damaged")
+    p = gs_here(capsys, "merge", path, "--out", tmp_path / "m.h5", "--skip-damaged")
     assert p.returncode == 0, p.stderr
     assert "1 damaged" in p.stdout
     df = store.read(tmp_path / "m.h5")
     assert (df.status == "pending").sum() == 1 and "damaged" not in set(df.status)
     pytest.importorskip("xarray")
     pytest.importorskip("h5netcdf")
-    p = gs("export", path, "--out", tmp_path / "s.nc")
+    p = gs_here(capsys, "export", path, "--out", tmp_path / "s.nc")
     one_line_error(p, str(path), "damaged row")
     assert not (tmp_path / "s.nc").exists()
-    p = gs("export", path, "--out", tmp_path / "s.nc", "--skip-damaged")
+    p = gs_here(capsys, "export", path, "--out", tmp_path / "s.nc", "--skip-damaged")
     assert p.returncode == 0 and (tmp_path / "s.nc").is_file(), p.stderr
 
 
-def test_merge_sees_a_conflict_in_the_pressure_histogram_alone(tmp_path):
+def test_merge_sees_a_conflict_in_the_pressure_histogram_alone(tmp_path, capsys):
     """Two shards whose done rows differ only in a pressure histogram (issue 19 item 3)."""
     from gapsweep.sweep import merge as mergemod
 
@@ -154,13 +155,13 @@ backend = "numpy"
         d[0, int(np.nanargmax(d[0]))] *= 1.5
         h["histograms/pressure_density"][...] = d
         reseal(h)
-    assert gs("status", b).stdout.count("damaged") == 0
+    assert gs_here(capsys, "status", b).stdout.count("damaged") == 0
     with pytest.raises(store.StoreError, match="conflicting"):
         mergemod.merge([a, b], tmp_path / "m.h5")
     assert mergemod.merge([a, b], tmp_path / "m.h5", on_conflict="first")["conflicts"] == 1
 
 
-def test_store_without_checksums_still_opens(tmp_path, refs):
+def test_store_without_checksums_still_opens(tmp_path, refs, capsys):
     """A format-2 store (its results table without error_estimate and checksum) opens, reads and resumes;
     `status` says its rows are not verified."""
     from gapsweep.sweep.schema import RESULT_DTYPE_V2
@@ -176,18 +177,18 @@ def test_store_without_checksums_still_opens(tmp_path, refs):
         h.create_dataset("results", data=old)
         h.attrs["format_version"] = 2
         del h.attrs["integrity"]  # format 2 had no attribute checksums
-    p = gs("status", path)
+    p = gs_here(capsys, "status", path)
     assert p.returncode == 0 and "no row checksums" in p.stdout, p.stdout + p.stderr
     # the same rows; only format 3's new columns are missing
     d = store.diff(path, refs["hist"])
     assert d and all("only in the second store" in x for x in d), d
 
 
-def test_results_as_a_group_is_a_one_line_error(tmp_path, refs):
+def test_results_as_a_group_is_a_one_line_error(tmp_path, refs, capsys):
     path = tmp_path / "s.h5"
     shutil.copy(refs["hist"], path)
     with h5py.File(path, "r+") as h:
         del h["results"]
         h.create_group("results")
     for cmd in (("status", path), ("merge", path, "--out", tmp_path / "m.h5")):
-        one_line_error(gs(*cmd), str(path), "/results is a group")
+        one_line_error(gs_here(capsys, *cmd), str(path), "/results is a group")

@@ -1,5 +1,7 @@
 """Merges of overlapping shards (docs/reliability.md): conflicting rows are refused unless a resolution is
-named; a failed row never beats a done one, whichever shard comes first; damaged shards give one line."""
+named; a failed row never beats a done one, whichever shard comes first; damaged shards give one line. The merges
+of valid shards run in this process (``gs_here``: ``cli.main``, its exit code and output); the merge of a truncated
+file stays a child process (what HDF5's C library prints goes to the process's stderr)."""
 
 from __future__ import annotations
 
@@ -11,7 +13,7 @@ import pytest
 
 from gapsweep import store
 
-from .conftest import gs, one_line_error
+from .conftest import gs, gs_here, one_line_error
 
 
 def _set(path, i, **cols):
@@ -35,44 +37,44 @@ def pair(tmp_path, refs):
     return a, b
 
 
-def test_identical_overlap_merges(tmp_path, refs, pair):
+def test_identical_overlap_merges(tmp_path, refs, pair, capsys):
     a, b = pair
-    p = gs("merge", a, b, "--out", tmp_path / "m.h5")
+    p = gs_here(capsys, "merge", a, b, "--out", tmp_path / "m.h5")
     assert p.returncode == 0, p.stderr
     assert store.diff(tmp_path / "m.h5", refs["hist"]) == []
 
 
-def test_conflicting_done_rows_refused(tmp_path, refs, pair):
+def test_conflicting_done_rows_refused(tmp_path, refs, pair, capsys):
     a, b = pair
     _set(b, 3, mean_gap=1.2345)
     out = tmp_path / "m.h5"
-    p = gs("merge", a, b, "--out", out)
+    p = gs_here(capsys, "merge", a, b, "--out", out)
     one_line_error(p, "conflicting", "--on-conflict")
     assert not out.exists()
     for how, want in (("first", a), ("last", b)):
-        p = gs("merge", a, b, "--out", out, "--overwrite", "--on-conflict", how)
+        p = gs_here(capsys, "merge", a, b, "--out", out, "--overwrite", "--on-conflict", how)
         assert p.returncode == 0, p.stderr
         assert store.diff(out, want) == []
 
 
 @pytest.mark.parametrize("order", ["failed-first", "done-first"])
 @pytest.mark.parametrize("worse", ["failed", "not_converged"])
-def test_failed_never_beats_done(tmp_path, refs, pair, order, worse):
+def test_failed_never_beats_done(tmp_path, refs, pair, order, worse, capsys):
     a, b = pair
     _set(a, 4, status=store.STATUS[worse], mean_gap=np.nan, message=b"boom")
     shards = [a, b] if order == "failed-first" else [b, a]
     for how in ("error", "first", "last"):
         out = tmp_path / f"m-{how}.h5"
-        p = gs("merge", *shards, "--out", out, "--on-conflict", how)
+        p = gs_here(capsys, "merge", *shards, "--out", out, "--on-conflict", how)
         assert p.returncode == 0, p.stderr
         assert store.diff(out, refs["hist"]) == []
 
 
-def test_conflicting_failed_rows_refused(tmp_path, pair):
+def test_conflicting_failed_rows_refused(tmp_path, pair, capsys):
     a, b = pair
     _set(a, 4, status=store.STATUS["failed"], message=b"one")
     _set(b, 4, status=store.STATUS["failed"], message=b"two")
-    p = gs("merge", a, b, "--out", tmp_path / "m.h5")
+    p = gs_here(capsys, "merge", a, b, "--out", tmp_path / "m.h5")
     one_line_error(p, "conflicting")
 
 

@@ -27,7 +27,7 @@ from gapsweep.sweep import runner, storecheck
 from gapsweep.sweep.schema import STATUS
 from gapsweep.sweep.store import reseal
 
-from .conftest import JOBS, gs, one_line_error
+from .conftest import JOBS, gs, gs_here, one_line_error
 
 
 def _copy(refs, name, tmp_path):
@@ -85,7 +85,7 @@ def _flip(raw: bytes, kind: str) -> bytes:
 
 @pytest.mark.parametrize("kind", ["bit", "not-utf8"])
 @pytest.mark.parametrize("row", ["pending", "done"])
-def test_damaged_task_id_rebuilt_keeping_done_rows(tmp_path, refs, partial, row, kind):
+def test_damaged_task_id_rebuilt_keeping_done_rows(tmp_path, refs, partial, row, kind, capsys):
     path = partial
     df = store.read(path)
     i = int(np.flatnonzero(df.status == row)[0])
@@ -93,13 +93,13 @@ def test_damaged_task_id_rebuilt_keeping_done_rows(tmp_path, refs, partial, row,
         raw = bytes(f["tasks"][i]["task_id"])
     before = df[df.status == "done"].set_index("task_id")
     _set_task_id(path, i, _flip(raw, kind))
-    p = gs("status", path)
+    p = gs_here(capsys, "status", path)
     assert p.returncode == 0 and "Traceback" not in p.stderr, p.stderr
     if row == "done":
         assert "damaged" in p.stdout
-        p = gs("merge", path, "--out", tmp_path / "m.h5")  # refused, naming the damage
+        p = gs_here(capsys, "merge", path, "--out", tmp_path / "m.h5")  # refused, naming the damage
         one_line_error(p, "damaged")
-        p = gs("merge", path, "--out", tmp_path / "m2.h5", "--skip-damaged")
+        p = gs_here(capsys, "merge", path, "--out", tmp_path / "m2.h5", "--skip-damaged")
         assert p.returncode == 0, p.stderr
     p = gs("run", JOBS["theory"], "--store", path, "--mpi", "off", "--progress", "none", "--resume")
     assert p.returncode == 0, p.stderr
@@ -113,17 +113,17 @@ def test_damaged_task_id_rebuilt_keeping_done_rows(tmp_path, refs, partial, row,
 
 
 @pytest.mark.parametrize("bad", ["not-json", "not-a-list", "list-of-numbers", "not-utf8"])
-def test_damaged_run_records_rebuilt(tmp_path, refs, partial, bad):
+def test_damaged_run_records_rebuilt(tmp_path, refs, partial, bad, capsys):
     path = partial
     value = {"not-json": "[{\"started\": ", "not-a-list": "{\"a\": 1}", "list-of-numbers": "[1, 2]",
              "not-utf8": np.bytes_(b"\xff\xfe[]")}[bad]
     with h5py.File(path, "r+") as f:
         f.attrs["runs"] = value
-    p = gs("status", path)
+    p = gs_here(capsys, "status", path)
     assert p.returncode == 0 and "run records" in p.stdout, (p.stdout, p.stderr)
-    p = gs("status", path, "--finished")
+    p = gs_here(capsys, "status", path, "--finished")
     assert p.returncode == 4 and "Traceback" not in p.stderr, p.stderr
-    p = gs("merge", path, "--out", tmp_path / "m.h5")
+    p = gs_here(capsys, "merge", path, "--out", tmp_path / "m.h5")
     assert p.returncode == 0, p.stderr
     p = gs("run", JOBS["theory"], "--store", path, "--mpi", "off", "--progress", "none", "--resume")
     assert p.returncode == 0, p.stderr
