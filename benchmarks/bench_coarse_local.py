@@ -11,6 +11,11 @@ then ``--repeats`` rounds alternating the starts, the minimum CPU time per start
 
     OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 PYTHONPATH=$PWD nice -n 10 \\
         python benchmarks/bench_coarse_local.py --repeats 2 --json benchmarks/results/round3/coarse_local.json
+
+``--backend cupy``: the same cases on one GPU, wall seconds synchronised, fields left on the device; there
+``start="coarse"`` is the distributed solver on one rank (the slab path), so the rows' ``slab`` equals ``coarse``:
+
+    PYTHONPATH=$PWD python benchmarks/bench_coarse_local.py --backend cupy --repeats 3 --json OUT.json
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ import sys
 import time
 import warnings
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -65,7 +71,17 @@ def cases() -> list[tuple[str, np.ndarray, dict]]:
     return out
 
 
-def run(h: np.ndarray, kw: dict, start: str) -> tuple[object, float]:
+def run(h: np.ndarray, kw: dict, start: str, gpu: Any = None) -> tuple[object, float]:
+    """The solve and its process CPU seconds; on the GPU (``gpu``: cupy) its wall seconds, synchronised, with
+    the fields left on the device."""
+    if gpu is not None:
+        gpu.cuda.get_current_stream().synchronize()
+        c = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            r = gfmd.solve(h, start=start, backend="cupy", host=False, **kw)
+        gpu.cuda.get_current_stream().synchronize()
+        return r, time.perf_counter() - c
     c = time.process_time()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -81,19 +97,28 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--only", default="")
+    ap.add_argument("--backend", choices=["cpu", "cupy"], default="cpu",
+                    help="cupy: the same cases on one GPU (start='coarse' is the slab path there), wall seconds")
     args = ap.parse_args()
+    gpu = None
+    if args.backend == "cupy":
+        import cupy as gpu
     rows = []
-    starts = ("flat", "coarse", "slab")
+    starts = ("flat", "coarse", "slab") if gpu is None else ("flat", "coarse")
     for name, h, kw in cases():
         if args.only not in name:
             continue
+        if gpu is not None:
+            h = gpu.asarray(h)
         res, cpu = {}, {s: math.inf for s in starts}
         for s in starts:
-            res[s] = run(h, kw, s)[0]  # warm-up
+            res[s] = run(h, kw, s, gpu)[0]  # warm-up
         for _ in range(args.repeats):
             for s in starts:
-                res[s], t = run(h, kw, s)
+                res[s], t = run(h, kw, s, gpu)
                 cpu[s] = min(cpu[s], t)
+        if gpu is not None:  # the GPU's coarse start is the slab path: one row per start pair
+            res["slab"], cpu["slab"] = res["coarse"], cpu["coarse"]
         a, b, c = res["flat"], res["coarse"], res["slab"]
         row = dict(case=name, shape=list(h.shape), law=kw["interaction"],
                    status={s: res[s].status for s in starts},
@@ -102,7 +127,8 @@ def main() -> None:
                    cpu_s=cpu, coarse_over_flat=cpu["coarse"] / cpu["flat"], slab_over_flat=cpu["slab"] / cpu["flat"],
                    mean_gap_rel_diff=abs(b.mean_gap / a.mean_gap - 1),
                    contact_area_diff_pixels=abs(b.contact_area - a.contact_area) * h.size,
-                   gap_max_diff_rel=float(np.abs(b.gap - a.gap).max() / np.abs(a.gap).max()))
+                   gap_max_diff_rel=float(abs(b.gap - a.gap).max() / abs(a.gap).max()), backend=args.backend,
+                   seconds="wall (GPU, synchronised)" if gpu is not None else "process CPU")
         rows.append(row)
         print(f"{name:45s} evals flat/coarse/slab {a.iterations}/{b.iterations}+{row['coarse_cost']['coarse']:.1f}/"
               f"{c.iterations}  CPU s {cpu['flat']:.3f}/{cpu['coarse']:.3f}/{cpu['slab']:.3f}  coarse/flat "
