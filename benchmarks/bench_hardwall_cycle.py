@@ -48,7 +48,6 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-iter", type=int, default=600)
     a = ap.parse_args(argv)
     a.out.mkdir(parents=True, exist_ok=True)
-    _record.track(CODE_PATHS)
     h = C.coarsen(self_affine(4096, 0.3, lambda_l=0.25, lambda_s=2.5e-3, rms_slope=1.0, seed=1), np)
     rows = []
     for label, consts in VARIANTS:
@@ -79,4 +78,5 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS)
     sys.exit(main())

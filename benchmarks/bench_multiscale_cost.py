@@ -78,7 +78,6 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     name = a.name or f"multiscale_cost_{a.set}"
     a.out.mkdir(parents=True, exist_ok=True)
-    _record.track(CODE_PATHS)
     warnings.simplefilter("ignore")  # rho < dx on some grids, as bench_bounds
     rows = []
     for case, ps, n, h, kw in bb.distribution_points(a.set):
@@ -121,4 +120,5 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
+    _record.track(CODE_PATHS)
     sys.exit(main())
