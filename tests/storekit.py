@@ -64,7 +64,9 @@ def copy_store(ref: Path, tmp_path: Path, name: str = "s.h5") -> Path:
 
 
 def cli_run(capsys: Any, *args: Any) -> tuple[int, str, str]:
-    """``gapsweep ARGS`` in this process: ``(exit code, stdout, stderr)``."""
+    """``gapsweep ARGS`` in this process (``cli.main``, the function ``python -m gapsweep`` exits with):
+    ``(exit code, stdout, stderr)`` of this command alone (output captured before it is dropped)."""
+    capsys.readouterr()
     rc = cli.main([str(a) for a in args])
     out = capsys.readouterr()
     return rc, out.out, out.err

@@ -328,14 +328,13 @@ def test_quick_jobs_end_to_end(tmp_path, capsys):
     missing = [str(j) for j in jobs if not j.is_file()]
     if missing:
         pytest.skip(f"quick job specs missing: {missing}")
-    from gapsweep import cli
+    from tests.storekit import cli_run
 
     stores = []
     for j in jobs:  # `gapsweep run` in this process (cli.main): the process boundary is not under test here
         st = tmp_path / f"{j.stem}.h5"
-        capsys.readouterr()
-        rc = cli.main(["run", str(j), "--store", str(st), "--mpi", "off", "--progress", "none"])
-        assert rc == 0, capsys.readouterr().err[-2000:]
+        rc, _, err = cli_run(capsys, "run", j, "--store", st, "--mpi", "off", "--progress", "none")
+        assert rc == 0, err[-2000:]
         stores.append(st)
     out = tmp_path / "report"
     path = report.main(stores, out)

@@ -154,15 +154,15 @@ def test_quick_job_runs_and_reports_the_challenge_outputs(tmp_path: Path, capsys
     area, mean gap and stiffness against load for each rho, patch statistics whose areas add up to the contact
     area, and the Tabor table; the loading path is named. The two commands run by ``cli.main`` in this process
     (the function ``python -m gapsweep`` exits with): two interpreter starts less."""
-    from gapsweep import cli
+    from tests.storekit import cli_run
 
     pytest.importorskip("xarray")  # kept fields
     store = tmp_path / "cq.h5"
     job = ROOT / "gapsweep/jobs/challenge_quick.toml"
-    rc = cli.main(["run", str(job), "--store", str(store)])
-    assert rc == 0, capsys.readouterr().err[-2000:]
-    rc = cli.main(["report", str(store), "--out", str(tmp_path / "r")])
-    assert rc == 0, capsys.readouterr().err[-2000:]
+    rc, _, err = cli_run(capsys, "run", job, "--store", store)
+    assert rc == 0, err[-2000:]
+    rc, _, err = cli_run(capsys, "report", store, "--out", tmp_path / "r")
+    assert rc == 0, err[-2000:]
     md = (tmp_path / "r/report.md").read_text()
     assert "## The contact-mechanics challenge's outputs" in md and "loads in increasing order" in md
     loads_t = pd.read_csv(tmp_path / "r/challenge_loads.csv")

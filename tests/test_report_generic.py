@@ -10,6 +10,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from tests.storekit import cli_run
+
 ROOT = Path(__file__).resolve().parents[1]
 JOB = ROOT / "jobs" / "test_generic.toml"
 
@@ -21,16 +23,6 @@ def generic_store(tmp_path_factory):
     path = tmp_path_factory.mktemp("generic") / "generic.h5"
     runner.run(JOB, path, progress="none", mpi="off")
     return path
-
-
-def _cli(capsys, *args) -> tuple[int, str]:
-    """``gapsweep ARGS`` in this process (``cli.main``, the function ``python -m gapsweep`` exits with): the exit
-    code and what it wrote to stderr. One interpreter start and import less per call."""
-    from gapsweep import cli
-
-    capsys.readouterr()
-    rc = cli.main([str(a) for a in args])
-    return rc, capsys.readouterr().err
 
 
 @pytest.fixture(scope="module")
@@ -76,10 +68,10 @@ def test_cli_report_refuses_to_overwrite(generic_store, generic_report, tmp_path
     shutil.copytree(generic_report, out)
     cmd = ["report", generic_store, "--out", out]
     before = (out / "report.md").stat().st_mtime_ns
-    rc, err = _cli(capsys, *cmd)
+    rc, _, err = cli_run(capsys, *cmd)
     assert rc != 0 and "--overwrite" in err
     assert (out / "report.md").stat().st_mtime_ns == before  # untouched
-    rc, err = _cli(capsys, *cmd, "--overwrite")
+    rc, _, err = cli_run(capsys, *cmd, "--overwrite")
     assert rc == 0, err[-2000:]
     assert (out / "report.md").stat().st_mtime_ns != before
 
