@@ -131,7 +131,8 @@ def main() -> None:
                    seconds="wall (GPU, synchronised)" if gpu is not None else "process CPU")
         rows.append(row)
         print(f"{name:45s} evals flat/coarse/slab {a.iterations}/{b.iterations}+{row['coarse_cost']['coarse']:.1f}/"
-              f"{c.iterations}  CPU s {cpu['flat']:.3f}/{cpu['coarse']:.3f}/{cpu['slab']:.3f}  coarse/flat "
+              f"{c.iterations}  {'wall' if gpu is not None else 'CPU'} s "
+              f"{cpu['flat']:.3f}/{cpu['coarse']:.3f}/{cpu['slab']:.3f}  coarse/flat "
               f"{row['coarse_over_flat']:.2f} slab/flat {row['slab_over_flat']:.2f}  gap diff "
               f"{row['mean_gap_rel_diff']:.1e}", flush=True)
         assert all(res[s].converged for s in starts), row["status"]

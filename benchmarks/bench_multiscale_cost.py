@@ -48,8 +48,11 @@ def _timed(f, *args, **kwargs):
     return r, time.process_time() - c0
 
 
-def parts(s0: float, h: np.ndarray, lam_l: float, seed: int, rho: float, gamma0: float) -> dict:
-    """The parts of ``closure.multiscale_gap_samples`` at its defaults, each timed (its steps 1, 2-3 and 4)."""
+def parts(s0: float, h: np.ndarray, lam_l: float, seed: int, rho: float, gamma0: float,
+          whole: np.ndarray) -> dict:
+    """The parts of ``closure.multiscale_gap_samples`` at its defaults, each timed (its steps 1, 2-3 and 4);
+    ``parts_match_whole``: the parts drew the same samples as the whole call ``whole`` (same seed, same order of
+    draws), i.e. they still are that function's steps."""
     samples, dlnq, center = 2**17, 0.3, "pixel"
     shells = improved._Shells(h, 1.0)
     hyb, t_h = _timed(improved.hybrid, s0, h, zeta_c="auto", rho=rho, gamma0=gamma0, lambda_l=lam_l, length=1.0,
@@ -67,7 +70,8 @@ def parts(s0: float, h: np.ndarray, lam_l: float, seed: int, rho: float, gamma0:
         k_p, _, shift_p, err_p, res_p = hyb.previous
         (gp, _), t_c = _timed(level, k_p, res_p, shift_p, err_p)
         _, t_l = _timed(closure.l1_distance, gp, g)
-    return {"n_c": hyb.n_c, "groups": groups, "hybrid_s": t_h, "sample_s": t_s, "check_s": t_c, "l1_s": t_l}
+    return {"n_c": hyb.n_c, "groups": groups, "hybrid_s": t_h, "sample_s": t_s, "check_s": t_c, "l1_s": t_l,
+            "parts_match_whole": bool(np.array_equal(g, whole))}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -87,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
         ms, t_w = _timed(closure.multiscale_gap_samples, s0, h, lambda_l=lam_l, seed=seed, **kw)
         row = {"hurst": hurst, "lambda_l": lam_l, "zeta_s": zeta_s, "rms_slope": slope, "gamma0": gamma0,
                "rho_over_h": rr, "seed": seed, "pressure": ps, "n": n, "pixels": n * n, "samples": ms.samples.size,
-               "whole_s": t_w, **parts(s0, h, lam_l, seed, **kw)}
+               "whole_s": t_w, **parts(s0, h, lam_l, seed, whole=ms.samples, **kw)}
         ref, t_g = _timed(gfmd.solve, h, sigma0=s0, tol=1e-8, threads=1, **kw)
         row.update(gfmd_s=t_g, gfmd_iterations=int(ref.iterations), gfmd_status=ref.status,
                    whole_over_gfmd=t_w / t_g, hybrid_over_gfmd=row["hybrid_s"] / t_g)
@@ -106,7 +110,8 @@ def main(argv: list[str] | None = None) -> int:
              f"- shares of the parts' sum (median): hybrid {(df.hybrid_s / parts_s).median():.2f}, sampling "
              f"{(df.sample_s / parts_s).median():.2f}, self-check {(df.check_s / parts_s).median():.2f}, L1 "
              f"{(df.l1_s / parts_s).median():.2f}; the parts' sum / the whole call: median "
-             f"{(parts_s / df.whole_s).median():.2f}", "",
+             f"{(parts_s / df.whole_s).median():.2f}; the parts drew the whole call's samples at "
+             f"{int(df.parts_match_whole.sum())}/{len(df)}", "",
              "| n | distributions | whole / GFMD (median) | at or below 0.10 | GFMD s (median) | whole s (median) |",
              "| --- | --- | --- | --- | --- | --- |"]
     for n, d in df.groupby("n"):  # the table, and the same as lines a docs link can match without a "|"
