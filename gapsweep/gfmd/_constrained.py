@@ -60,6 +60,15 @@ _REFRESH = 25  # iterations between fresh K p when the update was unclipped (bou
 # (benchmarks/results/contact/issue39_restart_iters.json); on the tuning surface 0.003-0.03 alike, never
 # restarting (1e9) as slow as always restarting.
 _KEEP = 0.01
+# A solve whose residual found no new minimum in max(_STALL, i) iterations, i the iteration of its lowest one (as
+# long without progress as it took to get there, and at least _STALL), starts again once from a uniform pressure
+# with the CG restarted at every re-entry (Polonsky & Keer's rule, _KEEP = 0). The rule above can fall into a
+# cycle where about half the contact set re-enters and is clipped on alternate steps (an ordinary 2048^2 map at
+# sigma0 0.1 from a uniform start: benchmarks/bench_hardwall_cycle.py); once in it, neither restarting the
+# directions nor another re-entry stiffness left it. Converging solves had at most 6 (N = 1024) and 14 (N = 4096)
+# iterations between new minima at sigma0 0.1-0.2, and the stretch grows with N: hence a window that grows with
+# the solve and a floor well above those.
+_STALL = 30
 # re-entry stiffness in units of pixel_stiffness: 1e-4..0.1 took about the same iterations, 10 ran to max_iter
 # (benchmarks/results/contact/issue36_reentry_scale.txt)
 _REENTRY = 0.01
@@ -139,9 +148,9 @@ class _RealSpace:
         self.r = grid.xp.zeros(grid.real_shape)
         self.transforms = self.since_fresh = 0
 
-    def start(self, p: Any) -> Any:
+    def start(self, p: Any, out: Any = None) -> Any:
         self.transforms += 2
-        return self.compliance(p)
+        return self.compliance(p, out)
 
     def direction(self, ops: Any, t: Any, z: Any, gs: Any, p: Any, ns: int, sg2: float, delta: float,
                   gz_old: float, precondition: bool) -> tuple[float, float, float]:
@@ -252,10 +261,10 @@ class _InFourier:
         self.sp = _spectral_state(grid, kinv_q)
         self.transforms = self.since_fresh = 0
 
-    def start(self, p: Any) -> Any:
+    def start(self, p: Any, out: Any = None) -> Any:
         self.sp.refresh(p)
         self.transforms += 2
-        return self.sp.displacement(self.grid.xp.empty(self.grid.real_shape))
+        return self.sp.displacement(self.grid.xp.empty(self.grid.real_shape) if out is None else out)
 
     def direction(self, ops: Any, t: Any, z: Any, gs: Any, p: Any, ns: int, sg2: float, delta: float,
                   gz_old: float, precondition: bool) -> tuple[float, float, float]:
@@ -282,16 +291,24 @@ class _InFourier:
         return self.sp.displacement(u)
 
 
+def _stalled(it: int, it_best: int) -> bool:
+    """No new lowest residual since iteration ``it_best`` for ``max(_STALL, it_best)`` iterations (see _STALL)."""
+    return it - it_best >= max(_STALL, it_best)
+
+
 def _loop(grid: Grid, ops: Any, way: Any, h: Any, p: Any, stiff: Any, sigma0: float, tol: float, g_ref: float,
-          max_iter: int, history: list[float], k_in: float) -> tuple[Any, Any, int, str, int]:
+          max_iter: int, history: list[float], k_in: float, restarts: list[int]) -> tuple[Any, Any, int, str, int]:
     """The constrained CG (module docstring) on the strategy ``way`` (:class:`_RealSpace` or
     :class:`_InFourier`: how ``t``'s line search and ``u = K p`` are computed): gap and residual, ``z = P_S M
     P_S g`` (one FFT pair with ``stiff``, else ``z = gs``), the direction and step ``tau``, the projection
-    ``p >= 0`` with re-entry, the load restored by scaling. Returns ``(p, u, iterations, status, fft_pairs)``."""
+    ``p >= 0`` with re-entry, the load restored by scaling; once ``max(_STALL, i)`` iterations pass without a new
+    lowest residual (``i`` the iteration of the lowest), one fresh start (its iteration appended to
+    ``restarts``). Returns ``(p, u, iterations, status, fft_pairs)``."""
     xp = grid.xp
     t, g, gs = (xp.zeros(grid.real_shape) for _ in range(3))
     z = xp.empty(grid.real_shape) if stiff is not None else None
     delta, gz_old, status, it = 0.0, 1.0, "max_iter", 0
+    keep, best, it_best = _KEEP, math.inf, 0
     with np.errstate(all="ignore"):
         u = way.start(p)
         while True:
@@ -302,6 +319,18 @@ def _loop(grid: Grid, ops: Any, way: Any, h: Any, p: Any, stiff: Any, sigma0: fl
             if stop:
                 status = stop
                 break
+            if res < best:
+                best, it_best = res, it
+            elif keep > 0.0 and _stalled(it, it_best):  # a cycle (see _STALL): start again, once
+                log.info("hard wall: no progress in %d iterations at iteration %d (residual %.3g): starting "
+                         "again from a uniform pressure, the directions restarted at every re-entry", it - it_best, it,
+                         res)
+                restarts.append(it)
+                keep, delta, best = 0.0, 0.0, math.inf
+                p[...] = sigma0
+                u = way.start(p, u)
+                it += 1  # the fresh start counts as one iteration (history keeps one residual per iteration)
+                continue
             it += 1
             if stiff is not None:  # z = P_S M P_S g
                 z = grid.convolve(gs, stiff, z)
@@ -315,7 +344,7 @@ def _loop(grid: Grid, ops: Any, way: Any, h: Any, p: Any, stiff: Any, sigma0: fl
                 break
             tau = gt / rt
             clipped, n_overlap, p_sum = ops.update(p, t, g, tau, tau * k_in)
-            delta = 0.0 if n_overlap > _KEEP * ns else 1.0
+            delta = 0.0 if n_overlap > keep * ns else 1.0
             u = way.step(ops, p, u, tau, sigma0 * grid.size / p_sum, bool(clipped or n_overlap))
     return p, u, it, status, (way.transforms + 1) // 2
 
@@ -371,8 +400,9 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
     if not spectral:
         del kinv_q  # only the spectral loop reads it (half a grid array: gfmd._cuda.solve_memory)
     way = _InFourier(grid, kinv_q) if spectral else _RealSpace(grid, compliance)
+    restarts: list[int] = []
     p, u, it, status, fft_pairs = _loop(grid, ops, way, h, p, stiff if precondition else None, sigma0, tol, g_ref,
-                                        max_iter, history, k_in)
+                                        max_iter, history, k_in, restarts)
     del way
     with np.errstate(all="ignore"):
         # The returned fields and their residual (issue 9: decided on what is returned); u rewritten in place
@@ -398,7 +428,7 @@ def minimise(heights: Any, law: Interaction, *, sigma0: float, e_star: float, le
     gap, p, u = fields_to_host(grid, host, gap, p, u)  # only those asked for
     grid.synchronize()
     diagnostics = {"complementarity": complementarity, "gap_rms_in_contact": rms / g_ref, "overlap": overlap / g_ref,
-                   "h_rms": h_rms, "fft_pairs": fft_pairs, "coarse_iterations": coarse_its}
+                   "h_rms": h_rms, "fft_pairs": fft_pairs, "coarse_iterations": coarse_its, "restarted_at": restarts}
     return law_result(law, t_start, mean_gap=grid.mean(gap), gap=gap, pressure=p, displacement=u, iterations=it,
                       converged=converged, residual=residual, load_error=load_error, method=method,
                       backend=grid.backend, status=status, sigma0=sigma0, e_star=e_star, length=length, tol=tol,
