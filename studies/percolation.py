@@ -93,5 +93,11 @@ def main(argv: list[str] | None = None) -> None:
     a.out.write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")
 
 
+CODE_PATHS = ["gapsweep/flow", "gapsweep/gfmd/_constrained.py", "gapsweep/gfmd/_constrained_ops.py",
+              "studies/percolation.py"]
+
 if __name__ == "__main__":
+    import studies
+
+    studies.track(CODE_PATHS)
     main()
