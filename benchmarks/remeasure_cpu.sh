@@ -73,7 +73,7 @@ step theory $PY benchmarks/bench_theory.py --out "$SCRATCH/speed_vm.json" &&
   keep "$SCRATCH/speed_vm.json" benchmarks/results/theory/speed_vm.json
 
 # docs/gfmd.md "CPU threads": BLAS against the single-threaded passes, idle and beside 2 busy processes (~1 min)
-step vec env -u OPENBLAS_NUM_THREADS $PY benchmarks/bench_vec.py --load 0 2 --reps 10 --out "$SCRATCH/vec_2core.json" &&
+step vec env -u OPENBLAS_NUM_THREADS -u OMP_NUM_THREADS $PY benchmarks/bench_vec.py --load 0 2 --reps 10 --out "$SCRATCH/vec_2core.json" &&
   keep "$SCRATCH/vec_2core.json" benchmarks/results/vec/vec_2core.json
 
 # docs/gfmd.md "One solve over several processes": memory per rank on 2 CPU ranks, and the in-place surface on
