@@ -1,5 +1,6 @@
-"""A hard-wall solve that cycles instead of converging: the reproducer of a known bug (docs/gfmd.md, "Known
-issue: a cycling hard-wall solve").
+"""A hard-wall solve that cycled instead of converging: the reproducer of a bug fixed by the fresh start after
+``max(30, i)`` iterations without a new lowest residual (docs/gfmd.md, "A cycling hard-wall solve, and the fresh
+start that ends it"); the "shipped" row is the solver as it is now.
 
 Found on one H200 (``bench_gpu_floor.py --hardwall-methods mpcg:2048``: the coarse level at 2048^2, started from a
 uniform pressure, ran its 2000 iterations without reaching 1e-2; ``benchmarks/results/gpu_floor/

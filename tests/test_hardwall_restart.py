@@ -1,5 +1,5 @@
-"""The hard wall's fresh start after a stall (gfmd._constrained._STALL, ``_stalled``; docs/gfmd.md, "Known
-issue: a cycling hard-wall solve").
+"""The hard wall's fresh start after a stall (gfmd._constrained._STALL, ``_stalled``; docs/gfmd.md, "A
+cycling hard-wall solve, and the fresh start that ends it").
 
 The cycle it ends needs a 2048^2 map to appear (benchmarks/bench_hardwall_cycle.py, about a minute), so here the
 mechanism is forced on small maps (``_stalled`` made true at the first iteration without a new lowest residual)
