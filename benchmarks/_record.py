@@ -121,6 +121,14 @@ def record(code_paths: list[str], argv: list[str] | None = None, root: Path = RO
         # older commit than the files it holds): the commit the caller says it is a copy of wins
         # (benchmarks/remeasure_gpu.sh passes git rev-parse HEAD); dirty unknown
         commit, source = env_commit, "GAPSWEEP_COMMIT"
+        if _git(root, "cat-file", "-e", f"{commit}^{{commit}}") is not None:
+            # the copy's .git knows that commit: its code must be that commit's (a command that expanded
+            # $(git rev-parse HEAD) on the lent machine named the .git's commit, not the files' one)
+            differ = _git(root, "diff", "--name-only", commit, "--", *code_paths)
+            if differ:
+                raise ValueError(f"GAPSWEEP_COMMIT={commit[:12]}: the code measured differs from that commit "
+                                 f"({', '.join(differ.splitlines()[:3])}): pass the commit this tree is a copy of, "
+                                 "expanded where the commit was made (git rev-parse HEAD there)")
     rec: dict[str, Any] = {"commit": commit, "commit_source": source if commit else None,
                            "commit_time": None, "dirty": None,
                            "command": shlex.join([Path(sys.executable).name, *(sys.argv if argv is None else argv)]),

@@ -11,6 +11,9 @@
 # comes back: the results go to their paths and into one archive $OUT/remeasure_gpu.tgz (with the log
 # $OUT/remeasure_gpu.log), unpacked here from the repository root with `tar xzf DIR/remeasure_gpu.tgz`:
 #   GAPSWEEP_COMMIT=$(git rev-parse HEAD) OUT=/some/dir bash benchmarks/remeasure_gpu.sh
+# (expand $(git rev-parse HEAD) where the commit was made, before the command goes to the lent machine: there a
+# .git of another commit may sit under the copied files; benchmarks/_record.py refuses a commit its .git knows
+# whose code differs from the files measured)
 # Steps (ONLY="..." picks some): gpu4096 limit hardwall sde cost_gpu (one GPU, ~4.5 min), challenge_x2
 # (2 GPUs, ~1 min), challenge_x4 (4 GPUs, ~1.5 min).
 # Then `python scripts/check_docs.py --debts` lists the numbers to update and the markers to drop (as for

@@ -95,6 +95,14 @@ def test_a_copy_without_git_takes_the_commit_it_is_told(tmp_path, monkeypatch):
     monkeypatch.delenv("GAPSWEEP_COMMIT")
     rec = record.record(["code/a.py"], ["b.py"], root=proj)
     assert rec["commit"] == mine and rec["commit_source"] == "git" and rec["dirty"] is False
+    # the copy's .git knows the commit it is told, but the files measured are not that commit's: refused (a
+    # command that expanded $(git rev-parse HEAD) on the lent machine, whose .git held an older commit)
+    (proj / "code" / "a.py").write_text("a = 2\n")
+    monkeypatch.setenv("GAPSWEEP_COMMIT", mine)
+    with pytest.raises(ValueError, match=r"differs from that commit.*code/a.py"):
+        record.record(["code/a.py"], ["b.py"], root=proj)
+    (proj / "code" / "a.py").write_text("a = 1\n")
+    assert record.record(["code/a.py"], ["b.py"], root=proj)["commit"] == mine
 
 
 def _result(root: Path, name: str, rec: dict | None) -> Path:
