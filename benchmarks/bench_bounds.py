@@ -95,8 +95,9 @@ def _key(case: tuple, ps: float) -> str:
 
 
 def points(name: str, distributions: bool = False):
-    """``(case, pressure, n, h, kw)`` of every point of the set ``name`` (only its distribution points with
-    ``distributions``): the surfaces made as :func:`evaluate` makes them, ``kw`` the law's ``rho`` and ``gamma0``."""
+    """``(case, pressure, n, h, kw, dist)`` of every point of the set ``name`` (only its distribution points with
+    ``distributions``): one surface per case, ``kw`` the law's ``rho`` and ``gamma0``, ``dist`` whether the point
+    has a gap distribution."""
     for cases, pressures, dist_idx in SETS[name]:
         for case in cases:
             hurst, lam_l, zeta_s, slope, gamma0, rr, seed = case
@@ -105,7 +106,7 @@ def points(name: str, distributions: bool = False):
             kw = dict(rho=rr * surface.rms_height(h), gamma0=gamma0)
             for ip, ps in enumerate(pressures):
                 if ip in dist_idx or not distributions:
-                    yield case, ps, n, h, kw
+                    yield case, ps, n, h, kw, ip in dist_idx
 
 
 def distribution_points(name: str):
@@ -148,7 +149,7 @@ def ladders_only(name: str, out: Path) -> pd.DataFrame:
     """The tuning ladders again (cached GFMD references, no distributions): for a new estimate form."""
     cache = json.loads((out / f"gfmd_{name}.json").read_text())
     rows = []
-    for case, ps, n, h, kw in points(name):
+    for case, ps, n, h, kw, _ in points(name):
         key = _key(case, ps)
         ref = cache[key]
         scale = max(abs(ref["mean_gap"]), surface.rms_height(h))
@@ -162,38 +163,33 @@ def evaluate(name: str, out: Path) -> tuple[pd.DataFrame, pd.DataFrame, list[dic
     cache_file = out / f"gfmd_{name}.json"
     cache = json.loads(cache_file.read_text()) if cache_file.exists() else {}
     rows, drows, ladders = [], [], []
-    for cases, pressures, dist_idx in SETS[name]:
-        for case in cases:
-            hurst, lam_l, zeta_s, slope, gamma0, rr, seed = case
-            n = _grid(lam_l, zeta_s)
-            h = surface.self_affine(n, hurst, lambda_l=lam_l, lambda_s=lam_l / zeta_s, rms_slope=slope, seed=seed)
-            h_rms = surface.rms_height(h)
-            kw = dict(rho=rr * h_rms, gamma0=gamma0)
-            for ip, ps in enumerate(pressures):
-                s0 = ps * slope
-                key = _key(case, ps)
-                if key not in cache or (ip in dist_idx and "frac" not in cache[key]):
-                    cache[key] = _reference(h, s0, kw, ip in dist_idx)
-                    cache_file.write_text(json.dumps(cache))
-                ref = cache[key]
-                scale = max(abs(ref["mean_gap"]), h_rms)
-                hy, t_hy = _cpu(improved.hybrid, s0, h, zeta_c="auto", lambda_l=lam_l, **kw)
-                base = dict(hurst=hurst, lambda_l=lam_l, zeta_s=zeta_s, rms_slope=slope, gamma0=gamma0, rho_over_h=rr,
-                            seed=seed, n=n, pressure=ps, h_rms=h_rms, gfmd=ref["mean_gap"], scale=scale)
-                err = (hy.mean_gap - ref["mean_gap"]) / scale
-                rows.append(dict(base, hybrid=hy.mean_gap, err=err, estimate=hy.error_estimate / scale,
-                                 bound=abs(err) <= hy.error_estimate / scale, status=hy.status, n_c=hy.n_c,
-                                 cost=hy.cost / (ref["iterations"] * n * n), cpu_hybrid=t_hy, cpu_gfmd=ref["cpu"]))
-                if name != "heldout":  # the whole ladder: for choosing the estimate's constants offline (tuning)
-                    # and for replaying the earlier stopping rule on the issue-39 cases
-                    lad, _ = _cpu(improved.hybrid, s0, h, zeta_c="auto", lambda_l=lam_l, finest=True, **kw)
-                    for lv in lad.ladder:
-                        ladders.append(dict(key=key, scale=scale, gfmd=ref["mean_gap"], full_cost=ref["iterations"]
-                                            * n * n, k_max=improved._max_mode(h), **lv))
-                if ip in dist_idx:
-                    drows.append(dict(base, **_distribution(s0, h, lam_l, seed, kw, ref)))
-                log.info("%s p=%g: err %+.4f est %.4f (%s, n_c %d) %.2f/%.2f cpu s", key, ps, err,
-                         hy.error_estimate / scale, hy.status, hy.n_c, t_hy, ref["cpu"])
+    for case, ps, n, h, kw, dist in points(name):
+        hurst, lam_l, zeta_s, slope, gamma0, rr, seed = case
+        h_rms = surface.rms_height(h)
+        s0 = ps * slope
+        key = _key(case, ps)
+        if key not in cache or (dist and "frac" not in cache[key]):
+            cache[key] = _reference(h, s0, kw, dist)
+            cache_file.write_text(json.dumps(cache))
+        ref = cache[key]
+        scale = max(abs(ref["mean_gap"]), h_rms)
+        hy, t_hy = _cpu(improved.hybrid, s0, h, zeta_c="auto", lambda_l=lam_l, **kw)
+        base = dict(hurst=hurst, lambda_l=lam_l, zeta_s=zeta_s, rms_slope=slope, gamma0=gamma0, rho_over_h=rr,
+                    seed=seed, n=n, pressure=ps, h_rms=h_rms, gfmd=ref["mean_gap"], scale=scale)
+        err = (hy.mean_gap - ref["mean_gap"]) / scale
+        rows.append(dict(base, hybrid=hy.mean_gap, err=err, estimate=hy.error_estimate / scale,
+                         bound=abs(err) <= hy.error_estimate / scale, status=hy.status, n_c=hy.n_c,
+                         cost=hy.cost / (ref["iterations"] * n * n), cpu_hybrid=t_hy, cpu_gfmd=ref["cpu"]))
+        if name != "heldout":  # the whole ladder: for choosing the estimate's constants offline (tuning)
+            # and for replaying the earlier stopping rule on the issue-39 cases
+            lad, _ = _cpu(improved.hybrid, s0, h, zeta_c="auto", lambda_l=lam_l, finest=True, **kw)
+            for lv in lad.ladder:
+                ladders.append(dict(key=key, scale=scale, gfmd=ref["mean_gap"], full_cost=ref["iterations"]
+                                    * n * n, k_max=improved._max_mode(h), **lv))
+        if dist:
+            drows.append(dict(base, **_distribution(s0, h, lam_l, seed, kw, ref)))
+        log.info("%s p=%g: err %+.4f est %.4f (%s, n_c %d) %.2f/%.2f cpu s", key, ps, err,
+                 hy.error_estimate / scale, hy.status, hy.n_c, t_hy, ref["cpu"])
     return pd.DataFrame(rows), pd.DataFrame(drows), ladders
 
 

@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     a.out.mkdir(parents=True, exist_ok=True)
     warnings.simplefilter("ignore")  # rho < dx on some grids, as bench_bounds
     rows = []
-    for case, ps, n, h, kw in bb.distribution_points(a.set):
+    for case, ps, n, h, kw, _ in bb.distribution_points(a.set):
         hurst, lam_l, zeta_s, slope, gamma0, rr, seed = case
         s0 = ps * slope
         closure.multiscale_gap_samples(s0, h, lambda_l=lam_l, seed=seed, **kw)  # warm-up: plans, kernels

@@ -34,7 +34,7 @@ CODE_PATHS = ["gapsweep/theory", "gapsweep/gfmd", "gapsweep/surfaces"]
 def evaluate(name: str, widths: list[float], out: Path) -> pd.DataFrame:
     cache = json.loads((out / f"gfmd_{name}.json").read_text())
     rows = []
-    for case, ps, n, h, kw in bb.distribution_points(name):
+    for case, ps, n, h, kw, _ in bb.distribution_points(name):
         lam_l, slope, seed = case[1], case[3], case[6]
         ref = cache[bb._key(case, ps)]
         for w in widths:
